@@ -1,0 +1,92 @@
+/*
+ * The backend entry point and its tables, compiled once per backend.
+ *
+ * Hand-tuned overrides: a backend's backend_config.h may define
+ * RTK_OVERRIDE_BVH4_INTERSECT1 / RTK_OVERRIDE_BVH4_OCCLUDED1 /
+ * RTK_OVERRIDE_BUILD_SAH to the name of its own function (listed in that
+ * backend's RTK_BACKEND_<NAME>_SOURCES in CMake); the table then points there
+ * instead of at the common kernel.  Every override is tested against the
+ * scalar backend like everything else.
+ */
+#include <stddef.h>
+
+#include "backend_common.h"
+#include "bvh4_triangle4.h"
+#include "kernels.h"
+
+#ifndef RTK_BACKEND_LEVEL
+#error "RTK_BACKEND_LEVEL is set by rtk_add_backend() in CMake"
+#endif
+#ifndef RTK_BACKEND_CPU_REQUIRES
+#error "RTK_BACKEND_CPU_REQUIRES is set by rtk_add_backend() in CMake"
+#endif
+
+#ifdef RTK_OVERRIDE_BVH4_INTERSECT1
+#define BVH4_INTERSECT1 RTK_OVERRIDE_BVH4_INTERSECT1
+#else
+#define BVH4_INTERSECT1 RTK_SYM(rtk_bvh4_intersect1)
+#endif
+#ifdef RTK_OVERRIDE_BVH4_OCCLUDED1
+#define BVH4_OCCLUDED1 RTK_OVERRIDE_BVH4_OCCLUDED1
+#else
+#define BVH4_OCCLUDED1 RTK_SYM(rtk_bvh4_occluded1)
+#endif
+#ifdef RTK_OVERRIDE_BUILD_SAH
+#define BUILD_SAH RTK_OVERRIDE_BUILD_SAH
+#else
+#define BUILD_SAH RTK_SYM(rtk_build_sah)
+#endif
+
+#define ALL_QUALITIES ((1u << RTK_BUILD_QUALITY_LOW) | (1u << RTK_BUILD_QUALITY_MEDIUM) | (1u << RTK_BUILD_QUALITY_HIGH))
+
+static const rtk_builder_entry builders[] = {
+    /* The only builder so far serves every quality; Morton (low) and spatial
+     * splits (high) are later additions, and rtk_scene_info names the builder used. */
+    {.name = "sah-binned", .qualities = ALL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4, .build = BUILD_SAH},
+    {0},
+};
+
+static const rtk_layout_entry layouts[] = {
+    {.id = RTK_LAYOUT_BVH4_TRIANGLE4, .scene_flags = 0, .name = "bvh4.triangle4", .release = RTK_SYM(rtk_bvh4_release)},
+    {0},
+};
+
+static const rtk_kernel_entry kernels[] = {
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 1, .fn.intersect1 = BVH4_INTERSECT1},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 1, .fn.occluded1 = BVH4_OCCLUDED1},
+    {0},
+};
+
+static const rtk_backend_desc desc = {
+    .struct_size = sizeof(rtk_backend_desc),
+    .name = RTK_STR(RTK_BACKEND_NAME),
+    .builders = builders,
+    .layouts = layouts,
+    .kernels = kernels,
+};
+
+#define HEADER_SYM RTK_CAT(RTK_CAT(rtk_backend_, RTK_BACKEND_NAME), _header)
+#define NEGOTIATE_SYM RTK_CAT(RTK_CAT(rtk_backend_, RTK_BACKEND_NAME), _negotiate)
+
+RTK_BACKEND_EXPORT extern const rtk_backend_header HEADER_SYM;
+const rtk_backend_header HEADER_SYM = {
+    .magic = RTK_BACKEND_MAGIC,
+    .struct_size = sizeof(rtk_backend_header),
+    .name = RTK_STR(RTK_BACKEND_NAME),
+    .level = RTK_BACKEND_LEVEL,
+    .cpu_requires = RTK_BACKEND_CPU_REQUIRES,
+};
+
+RTK_BACKEND_EXPORT int NEGOTIATE_SYM(const rtk_backend_offer *offer, rtk_backend_answer *answer);
+int NEGOTIATE_SYM(const rtk_backend_offer *offer, rtk_backend_answer *answer)
+{
+    if (!offer || !answer || offer->struct_size < offsetof(rtk_backend_offer, cpu_features) + sizeof(uint64_t) ||
+        answer->struct_size < offsetof(rtk_backend_answer, desc) + sizeof(void *))
+        return -1;
+    /* This backend speaks interface version 1 only. */
+    if (offer->version_min > RTK_BACKEND_INTERFACE_VERSION || offer->version_max < RTK_BACKEND_INTERFACE_VERSION)
+        return 1;
+    answer->version = RTK_BACKEND_INTERFACE_VERSION;
+    answer->desc = &desc;
+    return 0;
+}

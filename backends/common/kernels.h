@@ -1,0 +1,11 @@
+/* The kernels of backends/common, each named with the backend suffix. */
+#ifndef RTK_KERNELS_H
+#define RTK_KERNELS_H
+#include "backend_common.h"
+#include "rtk/rtk_backend.h"
+
+RTK_HIDDEN int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+#endif

@@ -1,0 +1,228 @@
+/* Version, errors, and the device: config, CPU probe, backend choice. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "internal.h"
+
+int rtk_version(void)
+{
+    return RTK_VERSION;
+}
+
+const char *rtk_version_string(void)
+{
+    return RTK_VERSION_STRING;
+}
+
+const char *rtk_error_name(rtk_error code)
+{
+    switch (code) {
+#define RTK_X_(name, value, text) \
+    case name:                    \
+        return #name;
+        RTK_ERROR_LIST(RTK_X_)
+#undef RTK_X_
+    }
+    return "RTK_ERROR_UNKNOWN";
+}
+
+/* Errors of calls that have no device (a failed rtk_device_new, a NULL
+ * handle) are kept per thread. */
+static _Thread_local rtk_error tls_error;
+static _Thread_local char tls_message[1024];
+/* What rtk_device_get_error_message returns: a per-thread copy, so another
+ * thread's error cannot change it under the caller. */
+static _Thread_local char tls_copy[1024];
+
+rtk_error rtk_fail(rtk_device device, rtk_error code, const char *fmt, ...)
+{
+    char text[1024];
+    va_list ap;
+    va_start(ap, fmt);
+    vsnprintf(text, sizeof text, fmt, ap);
+    va_end(ap);
+    if (!device) {
+        if (tls_error == RTK_OK)
+            tls_error = code;
+        snprintf(tls_message, sizeof tls_message, "%s", text);
+        return code;
+    }
+    pthread_mutex_lock(&device->lock);
+    if (device->error == RTK_OK)
+        device->error = code;
+    snprintf(device->message, sizeof device->message, "%s", text);
+    rtk_error_callback cb = device->callback;
+    void *user = device->callback_user;
+    pthread_mutex_unlock(&device->lock);
+    if (device->config.verbose)
+        fprintf(stderr, "rtk: error %s: %s\n", rtk_error_name(code), text);
+    if (cb)
+        cb(user, code, text);
+    return code;
+}
+
+void rtk_log(rtk_device device, int level, const char *fmt, ...)
+{
+    if (!device || device->config.verbose < level)
+        return;
+    va_list ap;
+    va_start(ap, fmt);
+    fputs("rtk: ", stderr);
+    vfprintf(stderr, fmt, ap);
+    fputc('\n', stderr);
+    va_end(ap);
+}
+
+static const char *status_word(rtk_backend_status s)
+{
+    return s == RTK_BACKEND_STATUS_ACTIVE ? "active" : s == RTK_BACKEND_STATUS_USABLE ? "loaded" : "rejected";
+}
+
+rtk_error rtk_device_new(const char *config, rtk_device *out)
+{
+    tls_error = RTK_OK;
+    tls_message[0] = '\0';
+    if (!out)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_new: out is NULL");
+    *out = NULL;
+    rtk_device d = calloc(1, sizeof *d);
+    if (!d)
+        return rtk_fail(NULL, RTK_ERROR_OUT_OF_MEMORY, "rtk_device_new: out of memory");
+    char msg[4096] = "";
+    rtk_error err = rtk_config_parse(config, &d->config, msg, sizeof msg);
+    if (err) {
+        rtk_config_free(&d->config);
+        free(d);
+        return rtk_fail(NULL, err, "rtk_device_new: %s", msg);
+    }
+    atomic_init(&d->refs, 1);
+    pthread_mutex_init(&d->lock, NULL);
+    d->cpu = rtk_cpu_detect();
+    if (d->config.verbose) {
+        char feat[512];
+        rtk_cpu_features_string(d->cpu, feat, sizeof feat);
+        rtk_log(d, 1, "rtk %s, CPU features: %s", RTK_VERSION_STRING, feat);
+    }
+
+    err = rtk_backends_load(&d->backends, &d->config, d->cpu, msg, sizeof msg);
+    if (d->config.verbose) {
+        rtk_log(d, 1, "backend search path: %s", d->backends.search_path ? d->backends.search_path : "");
+        for (size_t i = 0; i < d->backends.count; i++) {
+            const rtk_backend_entry *e = &d->backends.entries[i];
+            rtk_log(d, 1, "backend %s: %s%s%s (interface %u)", e->path, status_word(e->status), e->reason[0] ? ": " : "",
+                    e->reason, e->interface_version);
+        }
+    }
+    if (err) {
+        rtk_backends_unload(&d->backends);
+        rtk_config_free(&d->config);
+        pthread_mutex_destroy(&d->lock);
+        free(d);
+        return rtk_fail(NULL, err, "rtk_device_new: %s", msg);
+    }
+    d->backend = d->backends.entries[d->backends.active].desc;
+    rtk_log(d, 1, "active backend: %s", d->backends.entries[d->backends.active].name);
+    if (d->config.threads != 1)
+        rtk_log(d, 1, "threads=%u accepted; builds are single-threaded in this version", d->config.threads);
+    *out = d;
+    return RTK_OK;
+}
+
+void rtk_device_retain(rtk_device device)
+{
+    if (device)
+        atomic_fetch_add(&device->refs, 1);
+}
+
+void rtk_device_release(rtk_device device)
+{
+    if (!device || atomic_fetch_sub(&device->refs, 1) != 1)
+        return;
+    rtk_backends_unload(&device->backends);
+    rtk_config_free(&device->config);
+    pthread_mutex_destroy(&device->lock);
+    free(device);
+}
+
+rtk_error rtk_device_get_error(rtk_device device)
+{
+    if (!device) {
+        rtk_error e = tls_error;
+        tls_error = RTK_OK;
+        return e;
+    }
+    pthread_mutex_lock(&device->lock);
+    rtk_error e = device->error;
+    device->error = RTK_OK;
+    pthread_mutex_unlock(&device->lock);
+    return e;
+}
+
+const char *rtk_device_get_error_message(rtk_device device)
+{
+    if (!device)
+        return tls_message;
+    pthread_mutex_lock(&device->lock);
+    snprintf(tls_copy, sizeof tls_copy, "%s", device->message);
+    pthread_mutex_unlock(&device->lock);
+    return tls_copy;
+}
+
+rtk_error rtk_device_set_error_callback(rtk_device device, rtk_error_callback cb, void *user)
+{
+    if (!device)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_set_error_callback: device is NULL");
+    pthread_mutex_lock(&device->lock);
+    device->callback = cb;
+    device->callback_user = user;
+    pthread_mutex_unlock(&device->lock);
+    return RTK_OK;
+}
+
+const char *rtk_device_get_backend_name(rtk_device device)
+{
+    if (!device) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_get_backend_name: device is NULL");
+        return "";
+    }
+    return device->backends.entries[device->backends.active].name;
+}
+
+size_t rtk_device_get_backend_count(rtk_device device)
+{
+    if (!device) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_get_backend_count: device is NULL");
+        return 0;
+    }
+    return device->backends.count;
+}
+
+rtk_error rtk_device_get_backend_info(rtk_device device, size_t index, rtk_backend_info *info)
+{
+    if (!device)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_get_backend_info: device is NULL");
+    if (!info || info->struct_size < offsetof(rtk_backend_info, cpu_requires) + sizeof info->cpu_requires)
+        return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_device_get_backend_info: info is NULL or its struct_size is not set");
+    if (index >= device->backends.count)
+        return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_get_backend_info: index %zu, only %zu backends",
+                        index, device->backends.count);
+    const rtk_backend_entry *e = &device->backends.entries[index];
+    info->path = e->path;
+    info->name = e->name;
+    info->status = e->status;
+    info->reason = e->reason;
+    info->interface_version = e->interface_version;
+    info->cpu_requires = e->cpu_requires;
+    return RTK_OK;
+}
+
+const char *rtk_device_get_search_path(rtk_device device)
+{
+    if (!device) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_get_search_path: device is NULL");
+        return "";
+    }
+    return device->backends.search_path;
+}

@@ -1,0 +1,84 @@
+/* Internal declarations of librtk (the core).  Nothing here is exported. */
+#ifndef RTK_CORE_INTERNAL_H
+#define RTK_CORE_INTERNAL_H
+
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdatomic.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "rtk/rtk.h"
+#include "rtk/rtk_backend.h"
+
+#define RTK_INTERNAL __attribute__((visibility("hidden")))
+
+/* ---- config ---- */
+typedef struct rtk_config {
+    char isa[RTK_BACKEND_NAME_MAX];     /* "" = any */
+    char max_isa[RTK_BACKEND_NAME_MAX]; /* "" = no ceiling */
+    unsigned threads;                   /* 0 = all cores */
+    int verbose;
+    char *backend_path; /* NULL = default search order; else ':'-separated dirs (owned) */
+} rtk_config;
+
+/* Parses "key=value,..." into cfg; on failure returns RTK_ERROR_INVALID_CONFIG
+ * and writes the reason into msg. */
+RTK_INTERNAL rtk_error rtk_config_parse(const char *text, rtk_config *cfg, char *msg, size_t msg_size);
+RTK_INTERNAL void rtk_config_free(rtk_config *cfg);
+/* The level of a known ISA name (scalar 0, sse41 10, avx 20, avx2 30, avx512 40), or -1. */
+RTK_INTERNAL int rtk_isa_level(const char *name);
+
+/* ---- cpu ---- */
+RTK_INTERNAL uint64_t rtk_cpu_detect(void);
+
+/* ---- backends ---- */
+typedef struct rtk_backend_entry {
+    char *path;
+    char name[RTK_BACKEND_NAME_MAX];
+    rtk_backend_status status;
+    char reason[512];
+    uint32_t interface_version;
+    uint32_t level;
+    uint64_t cpu_requires;
+    void *handle;                /* dlopen handle, kept only for the active backend */
+    const rtk_backend_desc *desc;
+} rtk_backend_entry;
+
+typedef struct rtk_backend_registry {
+    rtk_backend_entry *entries;
+    size_t count;
+    char *search_path; /* ':'-joined, for messages */
+    int active;        /* index into entries, -1 when none */
+} rtk_backend_registry;
+
+/* Discovers, checks and loads backends, then picks one as the config asks.
+ * On failure returns an error and writes a message that names the
+ * directories searched and every rejection. */
+RTK_INTERNAL rtk_error rtk_backends_load(rtk_backend_registry *reg, const rtk_config *cfg, uint64_t cpu,
+                                         char *msg, size_t msg_size);
+RTK_INTERNAL void rtk_backends_unload(rtk_backend_registry *reg);
+
+/* ---- device ---- */
+struct rtk_device_s {
+    atomic_int refs;
+    rtk_config config;
+    uint64_t cpu;
+    rtk_backend_registry backends;
+    const rtk_backend_desc *backend; /* the active backend's tables */
+
+    pthread_mutex_t lock; /* guards the error state */
+    rtk_error error;      /* sticky: first since the last get */
+    char message[1024];   /* of the most recent error */
+    rtk_error_callback callback;
+    void *callback_user;
+};
+
+/* Records an error on the device (NULL: on this thread), calls the callback,
+ * and returns code, so callers can write `return rtk_fail(dev, code, ...)`. */
+RTK_INTERNAL rtk_error rtk_fail(rtk_device device, rtk_error code, const char *fmt, ...)
+    __attribute__((format(printf, 3, 4)));
+/* A line on stderr when verbose >= level. */
+RTK_INTERNAL void rtk_log(rtk_device device, int level, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
+
+#endif

@@ -1,0 +1,518 @@
+/* Scenes, triangle-mesh geometry, commit, and the single-ray queries. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "internal.h"
+
+typedef struct buffer {
+    const char *data; /* first element */
+    size_t stride, count;
+    void *owned;      /* non-NULL when rtk allocated it */
+} buffer;
+
+struct rtk_geometry_s {
+    atomic_int refs;
+    rtk_device device;
+    rtk_geometry_type type;
+    buffer vertex, index;
+    int enabled;
+    int committed;
+    void *user;
+};
+
+struct rtk_scene_s {
+    atomic_int refs;
+    rtk_device device;
+    unsigned flags;
+    rtk_build_quality quality;
+    rtk_geometry *geoms; /* by geomID; NULL for free slots */
+    uint32_t geom_count;
+
+    /* After a successful commit: */
+    rtk_accel *accel;
+    const rtk_layout_entry *layout;
+    const rtk_builder_entry *builder;
+    rtk_intersect1_fn intersect1;
+    rtk_occluded1_fn occluded1;
+    rtk_build_output stats;
+    double build_seconds;
+};
+
+#define CHECK_HANDLE(h, fn)                                                                \
+    do {                                                                                   \
+        if (!(h))                                                                          \
+            return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, fn ": " #h " is NULL");      \
+    } while (0)
+
+/* ---- geometry ---- */
+
+rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geometry *out)
+{
+    CHECK_HANDLE(device, "rtk_geometry_new");
+    if (!out)
+        return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: out is NULL");
+    *out = NULL;
+    if (type != RTK_GEOMETRY_TYPE_TRIANGLE)
+        return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: unknown geometry type %d", (int)type);
+    rtk_geometry g = calloc(1, sizeof *g);
+    if (!g)
+        return rtk_fail(device, RTK_ERROR_OUT_OF_MEMORY, "rtk_geometry_new: out of memory");
+    atomic_init(&g->refs, 1);
+    g->device = device;
+    g->type = type;
+    g->enabled = 1;
+    rtk_device_retain(device);
+    *out = g;
+    return RTK_OK;
+}
+
+void rtk_geometry_retain(rtk_geometry g)
+{
+    if (g)
+        atomic_fetch_add(&g->refs, 1);
+}
+
+static void buffer_free(buffer *b)
+{
+    free(b->owned);
+    memset(b, 0, sizeof *b);
+}
+
+void rtk_geometry_release(rtk_geometry g)
+{
+    if (!g || atomic_fetch_sub(&g->refs, 1) != 1)
+        return;
+    buffer_free(&g->vertex);
+    buffer_free(&g->index);
+    rtk_device dev = g->device;
+    free(g);
+    rtk_device_release(dev);
+}
+
+static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, size_t stride, size_t count, const char *fn)
+{
+    if (type != RTK_BUFFER_TYPE_VERTEX && type != RTK_BUFFER_TYPE_INDEX)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: unknown buffer type %d", fn, (int)type);
+    if (stride < 12 || stride % 4)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: byte_stride %zu: must be at least 12 and a multiple of 4", fn, stride);
+    if (count > ((size_t)1 << 32) - 1)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: count %zu exceeds 2^32 - 1", fn, count);
+    if (count && stride > SIZE_MAX / count)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: count * byte_stride overflows", fn);
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_shared_buffer(rtk_geometry g, rtk_buffer_type type, const void *ptr, size_t byte_offset,
+                                         size_t byte_stride, size_t count)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_shared_buffer");
+    rtk_error err = check_buffer_args(g, type, byte_stride, count, "rtk_geometry_set_shared_buffer");
+    if (err)
+        return err;
+    if (!ptr && count)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_set_shared_buffer: ptr is NULL");
+    const char *data = (const char *)ptr + (ptr ? byte_offset : 0);
+    if ((uintptr_t)data % 4)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_geometry_set_shared_buffer: data is not 4-byte aligned");
+    buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
+    buffer_free(b);
+    b->data = data;
+    b->stride = byte_stride;
+    b->count = count;
+    g->committed = 0;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size_t byte_stride, size_t count,
+                                      void **out)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_new_buffer");
+    if (!out)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_set_new_buffer: out is NULL");
+    *out = NULL;
+    rtk_error err = check_buffer_args(g, type, byte_stride, count, "rtk_geometry_set_new_buffer");
+    if (err)
+        return err;
+    void *mem = calloc(count ? count : 1, byte_stride);
+    if (!mem)
+        return rtk_fail(g->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_geometry_set_new_buffer: out of memory for %zu bytes",
+                        count * byte_stride);
+    buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
+    buffer_free(b);
+    b->owned = mem;
+    b->data = mem;
+    b->stride = byte_stride;
+    b->count = count;
+    g->committed = 0;
+    *out = mem;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_enable(rtk_geometry g)
+{
+    CHECK_HANDLE(g, "rtk_geometry_enable");
+    g->enabled = 1;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_disable(rtk_geometry g)
+{
+    CHECK_HANDLE(g, "rtk_geometry_disable");
+    g->enabled = 0;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_user_data(rtk_geometry g, void *user)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_user_data");
+    g->user = user;
+    return RTK_OK;
+}
+
+void *rtk_geometry_get_user_data(rtk_geometry g)
+{
+    if (!g) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_get_user_data: g is NULL");
+        return NULL;
+    }
+    return g->user;
+}
+
+rtk_error rtk_geometry_commit(rtk_geometry g)
+{
+    CHECK_HANDLE(g, "rtk_geometry_commit");
+    if (!g->vertex.stride)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: no vertex buffer set");
+    if (!g->index.stride)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: no index buffer set");
+    g->committed = 1;
+    return RTK_OK;
+}
+
+/* ---- scene ---- */
+
+rtk_error rtk_scene_new(rtk_device device, rtk_scene *out)
+{
+    CHECK_HANDLE(device, "rtk_scene_new");
+    if (!out)
+        return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_new: out is NULL");
+    *out = NULL;
+    rtk_scene s = calloc(1, sizeof *s);
+    if (!s)
+        return rtk_fail(device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_new: out of memory");
+    atomic_init(&s->refs, 1);
+    s->device = device;
+    s->quality = RTK_BUILD_QUALITY_MEDIUM;
+    rtk_device_retain(device);
+    *out = s;
+    return RTK_OK;
+}
+
+void rtk_scene_retain(rtk_scene s)
+{
+    if (s)
+        atomic_fetch_add(&s->refs, 1);
+}
+
+static void scene_drop_accel(rtk_scene s)
+{
+    if (s->accel)
+        s->layout->release(s->accel);
+    s->accel = NULL;
+    s->intersect1 = NULL;
+    s->occluded1 = NULL;
+}
+
+void rtk_scene_release(rtk_scene s)
+{
+    if (!s || atomic_fetch_sub(&s->refs, 1) != 1)
+        return;
+    scene_drop_accel(s);
+    for (uint32_t i = 0; i < s->geom_count; i++)
+        rtk_geometry_release(s->geoms[i]);
+    free(s->geoms);
+    rtk_device dev = s->device;
+    free(s);
+    rtk_device_release(dev);
+}
+
+rtk_error rtk_scene_set_flags(rtk_scene s, unsigned flags)
+{
+    CHECK_HANDLE(s, "rtk_scene_set_flags");
+    if (flags & ~(unsigned)RTK_SCENE_FLAGS_ALL)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_set_flags: unknown flag bits 0x%x",
+                        flags & ~(unsigned)RTK_SCENE_FLAGS_ALL);
+    s->flags = flags;
+    return RTK_OK;
+}
+
+rtk_error rtk_scene_set_build_quality(rtk_scene s, rtk_build_quality q)
+{
+    CHECK_HANDLE(s, "rtk_scene_set_build_quality");
+    if (q != RTK_BUILD_QUALITY_LOW && q != RTK_BUILD_QUALITY_MEDIUM && q != RTK_BUILD_QUALITY_HIGH)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_set_build_quality: unknown quality %d", (int)q);
+    s->quality = q;
+    return RTK_OK;
+}
+
+rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_id)
+{
+    CHECK_HANDLE(s, "rtk_scene_attach_geometry");
+    if (!g)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_attach_geometry: geometry is NULL");
+    if (g->device != s->device)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_scene_attach_geometry: the geometry belongs to another device");
+    uint32_t id = 0;
+    while (id < s->geom_count && s->geoms[id])
+        id++;
+    if (id == s->geom_count) {
+        if (s->geom_count == RTK_INVALID_GEOMETRY_ID - 1)
+            return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_scene_attach_geometry: too many geometries");
+        rtk_geometry *n = realloc(s->geoms, (s->geom_count + 1) * sizeof *n);
+        if (!n)
+            return rtk_fail(s->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_attach_geometry: out of memory");
+        s->geoms = n;
+        s->geoms[s->geom_count++] = NULL;
+    }
+    rtk_geometry_retain(g);
+    s->geoms[id] = g;
+    if (geom_id)
+        *geom_id = id;
+    return RTK_OK;
+}
+
+rtk_error rtk_scene_detach_geometry(rtk_scene s, uint32_t id)
+{
+    CHECK_HANDLE(s, "rtk_scene_detach_geometry");
+    if (id >= s->geom_count || !s->geoms[id])
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_detach_geometry: no geometry %u", id);
+    rtk_geometry_release(s->geoms[id]);
+    s->geoms[id] = NULL;
+    return RTK_OK;
+}
+
+rtk_geometry rtk_scene_get_geometry(rtk_scene s, uint32_t id)
+{
+    if (!s) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_get_geometry: s is NULL");
+        return NULL;
+    }
+    if (id >= s->geom_count || !s->geoms[id]) {
+        rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_get_geometry: no geometry %u", id);
+        return NULL;
+    }
+    return s->geoms[id];
+}
+
+static double now_seconds(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* Index validation: every vertex index of every triangle in range. */
+static rtk_error check_indices(rtk_scene s, uint32_t id, const rtk_geometry g)
+{
+    const size_t nv = g->vertex.count;
+    for (size_t t = 0; t < g->index.count; t++) {
+        const uint32_t *tri = (const uint32_t *)(g->index.data + t * g->index.stride);
+        uint32_t worst = tri[0] > tri[1] ? tri[0] : tri[1];
+        worst = tri[2] > worst ? tri[2] : worst;
+        if (worst >= nv)
+            return rtk_fail(s->device, RTK_ERROR_INVALID_GEOMETRY,
+                            "rtk_scene_commit: geometry %u, triangle %zu: vertex index %u out of range (%zu vertices)",
+                            id, t, worst, nv);
+    }
+    return RTK_OK;
+}
+
+static const char *flag_names(unsigned flags, char *buf, size_t size)
+{
+    snprintf(buf, size, "%s%s%s", flags & RTK_SCENE_FLAG_COMPACT ? " compact" : "",
+             flags & RTK_SCENE_FLAG_ROBUST ? " robust" : "", flags & RTK_SCENE_FLAG_DYNAMIC ? " dynamic" : "");
+    return buf;
+}
+
+static const rtk_kernel_entry *find_kernel(const rtk_backend_desc *d, uint32_t layout, uint32_t query)
+{
+    for (const rtk_kernel_entry *k = d->kernels; k->layout; k++)
+        if (k->layout == layout && k->query == query && k->width == 1)
+            return k;
+    return NULL; /* not reached: the loader checked every layout has both */
+}
+
+rtk_error rtk_scene_commit(rtk_scene s)
+{
+    CHECK_HANDLE(s, "rtk_scene_commit");
+    rtk_device dev = s->device;
+    const rtk_backend_desc *bk = dev->backend;
+
+    size_t n = 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (!g)
+            continue;
+        if (!g->committed)
+            return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
+                            "rtk_scene_commit: geometry %u is attached but not committed", i);
+        if (!g->enabled)
+            continue;
+        rtk_error err = check_indices(s, i, g);
+        if (err)
+            return err;
+        n++;
+    }
+    rtk_build_geometry *in_geoms = calloc(n ? n : 1, sizeof *in_geoms);
+    if (!in_geoms)
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_commit: out of memory");
+    n = 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (!g || !g->enabled)
+            continue;
+        in_geoms[n++] = (rtk_build_geometry){
+            .vertices = g->vertex.data,
+            .vertex_stride = g->vertex.stride,
+            .vertex_count = g->vertex.count,
+            .indices = g->index.data,
+            .index_stride = g->index.stride,
+            .prim_count = g->index.count,
+            .geom_id = i,
+        };
+    }
+
+    /* The leanest layout that serves: the first builder for this quality,
+     * else the first builder at all (and say so). */
+    const rtk_builder_entry *builder = NULL;
+    for (const rtk_builder_entry *b = bk->builders; b->name && !builder; b++)
+        if (b->qualities & (1u << s->quality))
+            builder = b;
+    if (!builder) {
+        builder = &bk->builders[0];
+        rtk_log(dev, 1, "scene: no builder for quality %d in backend %s; using %s", (int)s->quality, bk->name,
+                builder->name);
+    }
+    const rtk_layout_entry *layout = NULL;
+    for (const rtk_layout_entry *l = bk->layouts; l->id; l++)
+        if (l->id == builder->layout)
+            layout = l;
+    unsigned not_honoured = s->flags & ~layout->scene_flags;
+    if (not_honoured) {
+        char names[64];
+        rtk_log(dev, 1, "scene: flags%s requested but not honoured by this version; the scene is built as default",
+                flag_names(not_honoured, names, sizeof names));
+    }
+
+    rtk_build_input in = {
+        .struct_size = sizeof in,
+        .geometry_count = (uint32_t)n,
+        .geometries = in_geoms,
+        .quality = (uint32_t)s->quality,
+        .layout = layout->id,
+        .threads = 1,
+    };
+    rtk_build_output out = {.struct_size = sizeof out};
+    double t0 = now_seconds();
+    int rc = builder->build(&in, &out);
+    double t1 = now_seconds();
+    free(in_geoms);
+    if (rc != 0)
+        return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+                        "rtk_scene_commit: build failed: %s", out.message[0] ? out.message : "no reason given");
+
+    scene_drop_accel(s);
+    s->accel = out.accel;
+    s->layout = layout;
+    s->builder = builder;
+    s->stats = out;
+    s->build_seconds = t1 - t0;
+    s->intersect1 = find_kernel(bk, layout->id, RTK_QUERY_INTERSECT)->fn.intersect1;
+    s->occluded1 = find_kernel(bk, layout->id, RTK_QUERY_OCCLUDED)->fn.occluded1;
+    if (out.prims_skipped)
+        rtk_log(dev, 1, "scene: %llu triangles with NaN or infinite vertices left out (never hit)",
+                (unsigned long long)out.prims_skipped);
+    if (out.prims_degenerate)
+        rtk_log(dev, 1, "scene: %llu zero-area triangles left out (never hit)",
+                (unsigned long long)out.prims_degenerate);
+    rtk_log(dev, 2, "scene: %s/%s on %s: %llu triangles, %llu nodes, %llu leaves, depth %u, %.1f bytes/triangle, "
+            "SAH %.2f, %.3f s",
+            builder->name, layout->name, bk->name, (unsigned long long)out.prims, (unsigned long long)out.nodes,
+            (unsigned long long)out.leaves, out.depth, out.prims ? (double)out.bytes / (double)out.prims : 0.0,
+            out.sah_cost, s->build_seconds);
+    return RTK_OK;
+}
+
+rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
+{
+    CHECK_HANDLE(s, "rtk_scene_get_info");
+    if (!info || info->struct_size < sizeof *info)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_scene_get_info: info is NULL or its struct_size is not set");
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_scene_get_info: the scene was never committed");
+    const rtk_build_output *o = &s->stats;
+    size_t keep = info->struct_size;
+    memset(info, 0, sizeof *info);
+    info->struct_size = keep;
+    info->flags = s->flags;
+    info->flags_not_honoured = s->flags & ~s->layout->scene_flags;
+    info->quality = s->quality;
+    info->builder = s->builder->name;
+    info->layout = s->layout->name;
+    info->triangles = o->prims;
+    info->triangles_skipped = o->prims_skipped;
+    info->triangles_degenerate = o->prims_degenerate;
+    info->nodes = o->nodes;
+    info->leaves = o->leaves;
+    info->depth = o->depth;
+    info->bytes = o->bytes;
+    info->bytes_per_triangle = o->prims ? (double)o->bytes / (double)o->prims : 0.0;
+    info->build_seconds = s->build_seconds;
+    info->sah_cost = o->sah_cost;
+    memcpy(info->bounds_lower, o->lower, sizeof o->lower);
+    memcpy(info->bounds_upper, o->upper, sizeof o->upper);
+    return RTK_OK;
+}
+
+/* ---- queries ---- */
+
+static inline int ray_valid(const rtk_ray *r)
+{
+    /* 0 * x is 0 for finite x and NaN for NaN or infinity. */
+    float f = 0.0f * r->org_x + 0.0f * r->org_y + 0.0f * r->org_z + 0.0f * r->dir_x + 0.0f * r->dir_y +
+              0.0f * r->dir_z + 0.0f * r->tnear;
+    return f == 0.0f && r->tnear >= 0.0f && r->tnear <= r->tfar;
+}
+
+rtk_error rtk_intersect1(rtk_scene s, rtk_rayhit *rh)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_intersect1: scene is NULL");
+    if (!rh)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_intersect1: rayhit is NULL");
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_intersect1: the scene was never committed");
+    if (ray_valid(&rh->ray))
+        s->intersect1(s->accel, rh);
+    return RTK_OK;
+}
+
+rtk_error rtk_occluded1(rtk_scene s, rtk_ray *ray)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_occluded1: scene is NULL");
+    if (!ray)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_occluded1: ray is NULL");
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_occluded1: the scene was never committed");
+    if (ray_valid(ray))
+        s->occluded1(s->accel, ray);
+    return RTK_OK;
+}

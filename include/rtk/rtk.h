@@ -1,0 +1,294 @@
+/*
+ * rtk — ray-tracing kernels for CPUs.  The public C API.
+ *
+ * Every fallible call returns an rtk_error (RTK_OK == 0 is success) and records
+ * a message on its device; releasing NULL is a no-op; the library never exits,
+ * aborts or prints unless asked to (verbose=1).
+ *
+ * Ray semantics (intersect1 / occluded1)
+ * --------------------------------------
+ * A ray is valid when org and dir are finite, tnear is finite and >= 0, and
+ * tfar >= tnear (tfar may be +inf).  A hit at distance t counts when
+ * tnear <= t <= tfar (both ends included).  An invalid ray (any NaN, an
+ * infinite origin or direction component, tnear < 0, tnear > tfar) is not an
+ * error: it hits nothing, and the ray/hit is left untouched.  A zero direction
+ * hits nothing.  Direction components of +0.0 and -0.0 are both allowed.
+ *
+ * intersect1: on a hit, ray.tfar becomes t and the hit record is filled
+ * (Ng is the unnormalised geometric normal cross(v1-v0, v2-v0); u and v are the
+ * barycentric weights of v1 and v2); on a miss nothing is written, so set
+ * hit.geomID = RTK_INVALID_GEOMETRY_ID before the call.  When two triangles are
+ * hit at exactly the same t, either may be reported.
+ *
+ * occluded1: on any hit, ray.tfar becomes -inf; on a miss nothing is written.
+ *
+ * ray.time, ray.mask and ray.flags are carried for forward compatibility:
+ * this version has no motion blur and no geometry masks, so it ignores them.
+ */
+#ifndef RTK_RTK_H
+#define RTK_RTK_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+#define RTK_VERSION_MAJOR 0
+#define RTK_VERSION_MINOR 1
+#define RTK_VERSION_PATCH 0
+/* MAJOR*10000 + MINOR*100 + PATCH, comparable with rtk_version(). */
+#define RTK_VERSION (RTK_VERSION_MAJOR * 10000 + RTK_VERSION_MINOR * 100 + RTK_VERSION_PATCH)
+#define RTK_VERSION_STRING "0.1.0"
+
+#if defined(_WIN32)
+#define RTK_API
+#else
+#define RTK_API __attribute__((visibility("default")))
+#endif
+
+/* The version of the library actually loaded (compare with RTK_VERSION). */
+RTK_API int rtk_version(void);
+RTK_API const char *rtk_version_string(void);
+
+/* ---- errors ---------------------------------------------------------------
+ * One list generates the values, the names and the parser.  Codes are never
+ * renumbered; new ones are added at the end. */
+#define RTK_ERROR_LIST(X)                                                           \
+    X(RTK_OK, 0, "no error")                                                        \
+    X(RTK_ERROR_UNKNOWN, 1, "unknown error")                                        \
+    X(RTK_ERROR_INVALID_ARGUMENT, 2, "invalid argument")                            \
+    X(RTK_ERROR_INVALID_OPERATION, 3, "invalid operation")                          \
+    X(RTK_ERROR_OUT_OF_MEMORY, 4, "out of memory")                                  \
+    X(RTK_ERROR_INVALID_CONFIG, 5, "invalid configuration string")                  \
+    X(RTK_ERROR_NO_BACKEND, 6, "no usable backend")                                 \
+    X(RTK_ERROR_UNSUPPORTED_CPU, 7, "the CPU lacks a required instruction set")     \
+    X(RTK_ERROR_INVALID_GEOMETRY, 8, "invalid geometry")
+
+typedef enum rtk_error {
+#define RTK_X_(name, value, text) name = value,
+    RTK_ERROR_LIST(RTK_X_)
+#undef RTK_X_
+} rtk_error;
+
+/* "RTK_ERROR_INVALID_ARGUMENT" etc.; "RTK_ERROR_UNKNOWN" for codes it does not know. */
+RTK_API const char *rtk_error_name(rtk_error code);
+
+/* ---- CPU ------------------------------------------------------------------ */
+/* Feature bits of rtk_cpu_features().  AVX-class bits are set only when the OS
+ * also saves the matching register state (OSXSAVE + XGETBV). */
+#define RTK_CPU_FEATURE_LIST(X)       \
+    X(SSE, 0, "sse")                  \
+    X(SSE2, 1, "sse2")                \
+    X(SSE3, 2, "sse3")                \
+    X(SSSE3, 3, "ssse3")              \
+    X(SSE41, 4, "sse4.1")             \
+    X(SSE42, 5, "sse4.2")             \
+    X(POPCNT, 6, "popcnt")            \
+    X(AVX, 7, "avx")                  \
+    X(F16C, 8, "f16c")                \
+    X(FMA, 9, "fma")                  \
+    X(AVX2, 10, "avx2")               \
+    X(BMI1, 11, "bmi1")               \
+    X(BMI2, 12, "bmi2")               \
+    X(LZCNT, 13, "lzcnt")             \
+    X(AVX512F, 14, "avx512f")         \
+    X(AVX512DQ, 15, "avx512dq")       \
+    X(AVX512CD, 16, "avx512cd")       \
+    X(AVX512BW, 17, "avx512bw")       \
+    X(AVX512VL, 18, "avx512vl")
+
+enum {
+#define RTK_X_(name, bit, text) RTK_CPU_##name = (1ull << (bit)),
+    RTK_CPU_FEATURE_LIST(RTK_X_)
+#undef RTK_X_
+};
+
+/* The features of this CPU usable under this OS. */
+RTK_API uint64_t rtk_cpu_features(void);
+/* Writes "sse sse2 ... avx2" for the set bits into buf (always NUL-terminated);
+ * returns the length the full text needs. */
+RTK_API size_t rtk_cpu_features_string(uint64_t features, char *buf, size_t size);
+
+/* ---- handles -------------------------------------------------------------- */
+typedef struct rtk_device_s *rtk_device;
+typedef struct rtk_scene_s *rtk_scene;
+typedef struct rtk_geometry_s *rtk_geometry;
+
+#define RTK_INVALID_GEOMETRY_ID ((uint32_t)-1)
+
+/* ---- device ----------------------------------------------------------------
+ * config: NULL or "" for defaults, else comma-separated key=value pairs:
+ *   isa=NAME        use exactly this backend (scalar, sse41, avx, avx2)
+ *   max_isa=NAME    use the best backend not above this level
+ *   threads=N       worker threads for builds (0 = all cores)
+ *   verbose=N       0 silent; 1 one line per backend file and per decision
+ *                   on stderr; 2 also scene build statistics
+ *   backend_path=D  search only these ':'-separated directories for backends
+ * The environment variable RTK_ISA (same values as isa=) narrows the choice
+ * further; RTK_BACKEND_PATH (':'-separated) is searched before the directory
+ * next to librtk and the compiled-in install directory.
+ *
+ * On failure *out is NULL and the reason can be read with
+ * rtk_device_get_error(NULL) / rtk_device_get_error_message(NULL) on the same
+ * thread. */
+RTK_API rtk_error rtk_device_new(const char *config, rtk_device *out);
+RTK_API void rtk_device_retain(rtk_device device);
+RTK_API void rtk_device_release(rtk_device device);
+
+/* The first error since the last call (sticky), then cleared. */
+RTK_API rtk_error rtk_device_get_error(rtk_device device);
+/* The message of the most recent error ("" when none); valid until the next
+ * call on this device from this thread. */
+RTK_API const char *rtk_device_get_error_message(rtk_device device);
+
+typedef void (*rtk_error_callback)(void *user, rtk_error code, const char *message);
+RTK_API rtk_error rtk_device_set_error_callback(rtk_device device, rtk_error_callback cb, void *user);
+
+/* Name of the backend this device runs on ("avx2", ...). */
+RTK_API const char *rtk_device_get_backend_name(rtk_device device);
+
+typedef enum rtk_backend_status {
+    RTK_BACKEND_STATUS_ACTIVE = 0,   /* loaded and used by this device */
+    RTK_BACKEND_STATUS_USABLE = 1,   /* loaded fine, not chosen (a better one was, or the config narrowed it out) */
+    RTK_BACKEND_STATUS_REJECTED = 2, /* could not be used: see reason */
+} rtk_backend_status;
+
+typedef struct rtk_backend_info {
+    size_t struct_size;    /* set by the caller to sizeof(rtk_backend_info) */
+    const char *path;      /* the file */
+    const char *name;      /* backend name, or "" when it could not be read */
+    rtk_backend_status status;
+    const char *reason;    /* why rejected or not chosen; "" for the active one */
+    uint32_t interface_version; /* negotiated; 0 when negotiation did not happen */
+    uint64_t cpu_requires; /* RTK_CPU_* bits the backend needs */
+} rtk_backend_info;
+
+/* Every backend file the device looked at, in search order. */
+RTK_API size_t rtk_device_get_backend_count(rtk_device device);
+RTK_API rtk_error rtk_device_get_backend_info(rtk_device device, size_t index, rtk_backend_info *info);
+/* The directories searched, ':'-separated. */
+RTK_API const char *rtk_device_get_search_path(rtk_device device);
+
+/* ---- scenes ----------------------------------------------------------------*/
+typedef enum rtk_scene_flags {
+    RTK_SCENE_FLAG_NONE = 0,
+    RTK_SCENE_FLAG_COMPACT = 1 << 0, /* smallest memory (index leaves) */
+    RTK_SCENE_FLAG_ROBUST = 1 << 1,  /* watertight intersection */
+    RTK_SCENE_FLAG_DYNAMIC = 1 << 2, /* geometry changes often: cheap rebuilds */
+} rtk_scene_flags;
+#define RTK_SCENE_FLAGS_ALL (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_DYNAMIC)
+
+typedef enum rtk_build_quality {
+    RTK_BUILD_QUALITY_LOW = 0,
+    RTK_BUILD_QUALITY_MEDIUM = 1,
+    RTK_BUILD_QUALITY_HIGH = 2,
+} rtk_build_quality;
+
+RTK_API rtk_error rtk_scene_new(rtk_device device, rtk_scene *out);
+RTK_API void rtk_scene_retain(rtk_scene scene);
+RTK_API void rtk_scene_release(rtk_scene scene);
+/* Flags this version does not honour yet are accepted, listed in
+ * rtk_scene_info.flags_not_honoured, and announced with verbose=1. */
+RTK_API rtk_error rtk_scene_set_flags(rtk_scene scene, unsigned flags);
+RTK_API rtk_error rtk_scene_set_build_quality(rtk_scene scene, rtk_build_quality quality);
+
+/* Attaches (and retains) a geometry; its geomID is written to *geom_id. */
+RTK_API rtk_error rtk_scene_attach_geometry(rtk_scene scene, rtk_geometry geometry, uint32_t *geom_id);
+RTK_API rtk_error rtk_scene_detach_geometry(rtk_scene scene, uint32_t geom_id);
+RTK_API rtk_geometry rtk_scene_get_geometry(rtk_scene scene, uint32_t geom_id);
+
+/* Validates every attached, enabled, committed geometry and builds the BVH.
+ * Fails (and names the geometry and triangle) on an index out of range.
+ * Triangles with a NaN or infinite vertex are left out of the BVH (they can
+ * never be hit) and counted in rtk_scene_info.triangles_skipped; triangles of
+ * zero area (collinear or coincident vertices) likewise, counted in
+ * rtk_scene_info.triangles_degenerate. */
+RTK_API rtk_error rtk_scene_commit(rtk_scene scene);
+
+typedef struct rtk_scene_info {
+    size_t struct_size;          /* set by the caller to sizeof(rtk_scene_info) */
+    unsigned flags;              /* as requested */
+    unsigned flags_not_honoured; /* requested but not implemented in this version */
+    rtk_build_quality quality;
+    const char *builder;         /* e.g. "sah-binned" */
+    const char *layout;          /* e.g. "bvh4.triangle4" */
+    uint64_t triangles;          /* in the BVH */
+    uint64_t triangles_skipped;  /* left out: a NaN or infinite vertex */
+    uint64_t triangles_degenerate; /* left out: zero area (never hit) */
+    uint64_t nodes, leaves;
+    uint32_t depth;
+    uint64_t bytes;              /* BVH nodes + leaf primitives */
+    double bytes_per_triangle;
+    double build_seconds;
+    double sah_cost;
+    float bounds_lower[3], bounds_upper[3];
+} rtk_scene_info;
+RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
+
+/* ---- geometry --------------------------------------------------------------*/
+typedef enum rtk_geometry_type {
+    RTK_GEOMETRY_TYPE_TRIANGLE = 0,
+} rtk_geometry_type;
+
+typedef enum rtk_buffer_type {
+    RTK_BUFFER_TYPE_VERTEX = 0, /* float x, y, z per vertex, byte_stride >= 12, multiple of 4 */
+    RTK_BUFFER_TYPE_INDEX = 1,  /* uint32 v0, v1, v2 per triangle, byte_stride >= 12, multiple of 4 */
+} rtk_buffer_type;
+
+RTK_API rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geometry *out);
+RTK_API void rtk_geometry_retain(rtk_geometry geometry);
+RTK_API void rtk_geometry_release(rtk_geometry geometry);
+
+/* The application's memory, read at rtk_scene_commit (it must stay valid and
+ * unchanged until then; after a commit rtk keeps its own copy of what the BVH
+ * needs, so changes show only after the next commit). */
+RTK_API rtk_error rtk_geometry_set_shared_buffer(rtk_geometry geometry, rtk_buffer_type type, const void *ptr,
+                                                 size_t byte_offset, size_t byte_stride, size_t count);
+/* Memory owned by rtk (zeroed), returned in *out for the application to fill. */
+RTK_API rtk_error rtk_geometry_set_new_buffer(rtk_geometry geometry, rtk_buffer_type type, size_t byte_stride,
+                                              size_t count, void **out);
+RTK_API rtk_error rtk_geometry_enable(rtk_geometry geometry);
+RTK_API rtk_error rtk_geometry_disable(rtk_geometry geometry);
+RTK_API rtk_error rtk_geometry_set_user_data(rtk_geometry geometry, void *user);
+RTK_API void *rtk_geometry_get_user_data(rtk_geometry geometry);
+/* Checks that the buffers are set and consistent; a scene commit uses only
+ * committed geometry. */
+RTK_API rtk_error rtk_geometry_commit(rtk_geometry geometry);
+
+/* ---- rays ------------------------------------------------------------------*/
+typedef struct rtk_ray {
+    float org_x, org_y, org_z;
+    float tnear;
+    float dir_x, dir_y, dir_z;
+    float time;  /* reserved: no motion blur yet */
+    float tfar;
+    uint32_t mask;  /* reserved: no geometry masks yet */
+    uint32_t id;    /* the application's */
+    uint32_t flags; /* reserved, set to 0 */
+} rtk_ray;
+
+typedef struct rtk_hit {
+    float Ng_x, Ng_y, Ng_z;
+    float u, v;
+    uint32_t primID;
+    uint32_t geomID;
+    uint32_t instID; /* RTK_INVALID_GEOMETRY_ID: no instancing yet */
+} rtk_hit;
+
+typedef struct rtk_rayhit {
+    rtk_ray ray;
+    rtk_hit hit;
+} rtk_rayhit;
+
+/* Closest hit.  RTK_ERROR_INVALID_ARGUMENT for NULL arguments,
+ * RTK_ERROR_INVALID_OPERATION for a scene that was never committed. */
+RTK_API rtk_error rtk_intersect1(rtk_scene scene, rtk_rayhit *rayhit);
+/* Any hit. */
+RTK_API rtk_error rtk_occluded1(rtk_scene scene, rtk_ray *ray);
+
+#ifdef __cplusplus
+}
+#endif
+#endif

@@ -1,0 +1,174 @@
+/*
+ * rtk backend interface.  Installed so that backends can be built out of tree.
+ *
+ * A backend is a shared object named librtk_backend_<name>.so that exports two
+ * symbols (with <name> its own name, so several backends can be linked
+ * statically into one program without clashing):
+ *
+ *   const rtk_backend_header rtk_backend_<name>_header;      data, read first
+ *   int rtk_backend_<name>_negotiate(const rtk_backend_offer *,
+ *                                    rtk_backend_answer *);  the entry point
+ *
+ * The core reads the header without running any backend code, checks the
+ * magic, the header size and the CPU requirements against the CPU, and only
+ * then calls negotiate.  Negotiation works both ways: the core offers the
+ * newest and oldest interface versions it speaks, the backend answers with
+ * the version it will use (or a non-zero return to refuse), and the core
+ * rejects anything outside its range.
+ *
+ * Rules: structs carry their own size and only ever grow at the end; readers
+ * never read past the size the writer declared; tables end with a zeroed entry;
+ * no #if inside these structs.  Code compiled for an ISA must own no
+ * constructors and no mutable globals: the header is plain data.
+ */
+#ifndef RTK_RTK_BACKEND_H
+#define RTK_RTK_BACKEND_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "rtk.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* The interface versions this header describes. */
+#define RTK_BACKEND_INTERFACE_VERSION 1
+#define RTK_BACKEND_MAGIC 0x424b5452u /* "RTKB" little-endian */
+#define RTK_BACKEND_NAME_MAX 32
+
+/* ---- read before any backend code runs ----------------------------------- */
+typedef struct rtk_backend_header {
+    uint32_t magic;       /* RTK_BACKEND_MAGIC */
+    uint32_t struct_size; /* sizeof(rtk_backend_header) as the backend knows it */
+    char name[RTK_BACKEND_NAME_MAX]; /* must match the file name */
+    uint32_t level;       /* preference: higher wins among usable backends */
+    uint32_t reserved;
+    uint64_t cpu_requires; /* RTK_CPU_* bits, cumulative, OS state included */
+} rtk_backend_header;
+
+/* ---- negotiation ---------------------------------------------------------- */
+typedef struct rtk_backend_offer {
+    uint32_t struct_size;
+    uint32_t version_max;  /* newest interface version the core speaks */
+    uint32_t version_min;  /* oldest it accepts */
+    uint32_t reserved;
+    uint64_t cpu_features; /* the features in force */
+} rtk_backend_offer;
+
+struct rtk_backend_desc;
+typedef struct rtk_backend_answer {
+    uint32_t struct_size;
+    uint32_t version;                   /* chosen by the backend */
+    const struct rtk_backend_desc *desc; /* the backend's tables */
+} rtk_backend_answer;
+
+/* Declares a function type and a matching prototype helper, so every
+ * implementation can be declared through its typedef and checked. */
+#define RTK_BACKEND_FN(ret, name, args) typedef ret(*name##_fn) args
+
+/* Returns 0 and fills answer to accept, non-zero to refuse. */
+RTK_BACKEND_FN(int, rtk_backend_negotiate, (const rtk_backend_offer *offer, rtk_backend_answer *answer));
+
+/* ---- what a backend provides ------------------------------------------------*/
+typedef struct rtk_accel rtk_accel; /* a built acceleration structure, opaque to the core */
+
+/* One triangle mesh handed to a builder.  Pointers are already offset to the
+ * first element; indices have been checked in range by the core. */
+typedef struct rtk_build_geometry {
+    const void *vertices;
+    size_t vertex_stride;
+    size_t vertex_count;
+    const void *indices;
+    size_t index_stride;
+    size_t prim_count;
+    uint32_t geom_id;
+    uint32_t reserved;
+} rtk_build_geometry;
+
+typedef struct rtk_build_input {
+    uint32_t struct_size;
+    uint32_t geometry_count;
+    const rtk_build_geometry *geometries;
+    uint32_t quality; /* rtk_build_quality */
+    uint32_t layout;  /* the layout id to produce */
+    uint32_t threads; /* worker threads the builder may use (>= 1) */
+    uint32_t reserved;
+} rtk_build_input;
+
+typedef struct rtk_build_output {
+    uint32_t struct_size;
+    uint32_t depth;
+    rtk_accel *accel;
+    uint64_t prims;         /* primitives in the structure */
+    uint64_t prims_skipped; /* left out: a NaN or infinite vertex */
+    uint64_t prims_degenerate; /* left out: zero area */
+    uint64_t nodes, leaves;
+    uint64_t bytes;
+    double sah_cost;
+    float lower[3], upper[3];
+    char message[160]; /* why a build failed */
+} rtk_build_output;
+
+RTK_BACKEND_FN(int, rtk_build, (const rtk_build_input *in, rtk_build_output *out));
+RTK_BACKEND_FN(void, rtk_accel_release, (rtk_accel *accel));
+RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit));
+RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray));
+
+enum rtk_query_kind {
+    RTK_QUERY_NONE = 0, /* ends a table */
+    RTK_QUERY_INTERSECT = 1,
+    RTK_QUERY_OCCLUDED = 2,
+};
+
+/* Layout ids are global so the core can name and choose them. */
+#define RTK_LAYOUT_LIST(X) X(RTK_LAYOUT_BVH4_TRIANGLE4, 1, "bvh4.triangle4")
+enum rtk_layout_id {
+    RTK_LAYOUT_NONE = 0,
+#define RTK_X_(id, value, text) id = value,
+    RTK_LAYOUT_LIST(RTK_X_)
+#undef RTK_X_
+};
+
+typedef struct rtk_builder_entry {
+    const char *name;       /* NULL ends the table */
+    uint32_t qualities;     /* bit (1 << rtk_build_quality) for each quality it serves */
+    uint32_t layout;        /* the layout it produces */
+    rtk_build_fn build;
+} rtk_builder_entry;
+
+typedef struct rtk_layout_entry {
+    uint32_t id;            /* 0 ends the table */
+    uint32_t scene_flags;   /* scene flags this layout honours */
+    const char *name;
+    rtk_accel_release_fn release;
+} rtk_layout_entry;
+
+typedef struct rtk_kernel_entry {
+    uint32_t layout;        /* 0 ends the table */
+    uint32_t query;         /* enum rtk_query_kind */
+    uint32_t width;         /* rays per call: 1 (packets come later) */
+    uint32_t reserved;
+    union {
+        rtk_intersect1_fn intersect1;
+        rtk_occluded1_fn occluded1;
+        void (*any)(void);
+    } fn;
+} rtk_kernel_entry;
+
+typedef struct rtk_backend_desc {
+    uint32_t struct_size;
+    uint32_t reserved;
+    const char *name;
+    const rtk_builder_entry *builders;
+    const rtk_layout_entry *layouts;
+    const rtk_kernel_entry *kernels;
+} rtk_backend_desc;
+
+#define RTK_BACKEND_EXPORT __attribute__((visibility("default")))
+
+#ifdef __cplusplus
+}
+#endif
+#endif

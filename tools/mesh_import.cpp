@@ -1,0 +1,261 @@
+// Mesh import through OpenMesh's readers into a triangle soup.  See mesh_import.h.
+#include "mesh_import.h"
+
+#include <cctype>
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <mutex>
+#include <new>
+#include <sstream>
+#include <string>
+#include <sys/stat.h>
+#include <vector>
+
+#include <OpenMesh/Core/IO/MeshIO.hh> // registers the readers
+#include <OpenMesh/Core/IO/IOManager.hh>
+#include <OpenMesh/Core/IO/Options.hh>
+#include <OpenMesh/Core/IO/importer/BaseImporter.hh>
+#include <OpenMesh/Core/System/omstream.hh>
+
+namespace {
+
+using namespace OpenMesh;
+
+// Receives what OpenMesh's readers parse; keeps positions and faces only.
+class SoupImporter : public IO::BaseImporter {
+public:
+    std::vector<float> points;
+    std::vector<uint32_t> tris;
+    size_t faces = 0, polygons = 0, repeated = 0, bad_faces = 0;
+    std::string first_bad;
+
+    VertexHandle add_vertex(const Vec3f &p) override
+    {
+        points.push_back(p[0]);
+        points.push_back(p[1]);
+        points.push_back(p[2]);
+        return VertexHandle(int(points.size() / 3 - 1));
+    }
+    VertexHandle add_vertex() override { return add_vertex(Vec3f(0.0f, 0.0f, 0.0f)); }
+
+    FaceHandle add_face(const VHandles &idx) override
+    {
+        faces++;
+        const size_t nv = points.size() / 3;
+        if (idx.size() < 3) {
+            note_bad("a face with fewer than three vertices");
+            return FaceHandle();
+        }
+        for (const VertexHandle &v : idx)
+            if (v.idx() < 0 || size_t(v.idx()) >= nv) {
+                note_bad("a face refers to vertex " + std::to_string(v.idx()) + " of " + std::to_string(nv));
+                return FaceHandle();
+            }
+        if (idx.size() > 3)
+            polygons++;
+        for (size_t i = 0; i < idx.size(); i++)
+            for (size_t j = i + 1; j < idx.size(); j++)
+                if (idx[i] == idx[j]) {
+                    repeated++;
+                    i = j = idx.size();
+                }
+        for (size_t k = 1; k + 1 < idx.size(); k++) {
+            tris.push_back(uint32_t(idx[0].idx()));
+            tris.push_back(uint32_t(idx[k].idx()));
+            tris.push_back(uint32_t(idx[k + 1].idx()));
+        }
+        return FaceHandle(int(faces - 1));
+    }
+
+    void note_bad(const std::string &what)
+    {
+        if (!bad_faces++)
+            first_bad = "face " + std::to_string(faces - 1) + ": " + what;
+    }
+
+    // Topology-based input (OM's halfedge records) is not a soup: refused.
+    HalfedgeHandle add_edge(VertexHandle, VertexHandle) override { return HalfedgeHandle(); }
+    FaceHandle add_face(HalfedgeHandle) override { return FaceHandle(); }
+
+    // Attributes rtk does not use.
+    void add_face_texcoords(FaceHandle, VertexHandle, const std::vector<Vec2f> &) override {}
+    void add_face_texcoords(FaceHandle, VertexHandle, const std::vector<Vec3f> &) override {}
+    void set_face_texindex(FaceHandle, int) override {}
+    void set_point(VertexHandle v, const Vec3f &p) override
+    {
+        if (v.idx() >= 0 && size_t(v.idx()) < points.size() / 3)
+            for (int k = 0; k < 3; k++)
+                points[size_t(v.idx()) * 3 + size_t(k)] = p[k];
+    }
+    void set_halfedge(VertexHandle, HalfedgeHandle) override {}
+    void set_normal(VertexHandle, const Vec3f &) override {}
+    void set_normal(VertexHandle, const Vec3d &) override {}
+    void set_color(VertexHandle, const Vec3uc &) override {}
+    void set_color(VertexHandle, const Vec4uc &) override {}
+    void set_color(VertexHandle, const Vec3f &) override {}
+    void set_color(VertexHandle, const Vec4f &) override {}
+    void set_texcoord(VertexHandle, const Vec2f &) override {}
+    void set_status(VertexHandle, const Attributes::StatusInfo &) override {}
+    void set_next(HalfedgeHandle, HalfedgeHandle) override {}
+    void set_face(HalfedgeHandle, FaceHandle) override {}
+    void request_face_texcoords2D() override {}
+    void set_texcoord(HalfedgeHandle, const Vec2f &) override {}
+    void set_texcoord(VertexHandle, const Vec3f &) override {}
+    void set_texcoord(HalfedgeHandle, const Vec3f &) override {}
+    void set_status(HalfedgeHandle, const Attributes::StatusInfo &) override {}
+    void set_color(EdgeHandle, const Vec3uc &) override {}
+    void set_color(EdgeHandle, const Vec4uc &) override {}
+    void set_color(EdgeHandle, const Vec3f &) override {}
+    void set_color(EdgeHandle, const Vec4f &) override {}
+    void set_status(EdgeHandle, const Attributes::StatusInfo &) override {}
+    void set_normal(FaceHandle, const Vec3f &) override {}
+    void set_normal(FaceHandle, const Vec3d &) override {}
+    void set_color(FaceHandle, const Vec3uc &) override {}
+    void set_color(FaceHandle, const Vec4uc &) override {}
+    void set_color(FaceHandle, const Vec3f &) override {}
+    void set_color(FaceHandle, const Vec4f &) override {}
+    void set_status(FaceHandle, const Attributes::StatusInfo &) override {}
+    void add_texture_information(int, std::string) override {}
+
+    void reserve(unsigned int nv, unsigned int, unsigned int nf) override
+    {
+        // Sizes come from untrusted headers: reserve only what is plausible.
+        if (nv < (1u << 26))
+            points.reserve(size_t(nv) * 3);
+        if (nf < (1u << 26))
+            tris.reserve(size_t(nf) * 3);
+    }
+    size_t n_vertices() const override { return points.size() / 3; }
+    size_t n_faces() const override { return faces; }
+    size_t n_edges() const override { return 0; }
+};
+
+std::mutex import_lock;
+
+void set_err(char *err, size_t size, const std::string &text)
+{
+    if (err && size)
+        std::snprintf(err, size, "%s", text.c_str());
+}
+
+// OpenMesh's messages, minus blank lines, on one line.
+std::string one_line(const std::string &s)
+{
+    std::string out;
+    for (char c : s) {
+        if (c == '\n' || c == '\r') {
+            if (!out.empty() && out.back() != ' ')
+                out += "; ";
+        } else {
+            out += c;
+        }
+    }
+    while (!out.empty() && (out.back() == ' ' || out.back() == ';'))
+        out.pop_back();
+    return out;
+}
+
+} // namespace
+
+extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
+{
+    if (!mesh) {
+        set_err(err, err_size, "rtk_mesh_load: mesh is NULL");
+        return 1;
+    }
+    std::memset(mesh, 0, sizeof *mesh);
+    if (!path) {
+        set_err(err, err_size, "rtk_mesh_load: path is NULL");
+        return 1;
+    }
+    struct stat st;
+    if (stat(path, &st) != 0) {
+        set_err(err, err_size, std::string(path) + ": " + std::strerror(errno));
+        return 1;
+    }
+    if (!S_ISREG(st.st_mode)) {
+        set_err(err, err_size, std::string(path) + ": not a regular file");
+        return 1;
+    }
+
+    std::lock_guard<std::mutex> guard(import_lock);
+    SoupImporter soup;
+    std::ostringstream messages;
+    omerr().disconnect(std::cerr);
+    omlog().disconnect(std::clog);
+    omerr().connect(messages);
+    bool ok = false;
+    std::string failure;
+    try {
+        IO::Options opt;
+        std::string ext(path);
+        size_t dot = ext.rfind('.');
+        ext = dot == std::string::npos ? std::string() : ext.substr(dot + 1);
+        for (char &c : ext)
+            c = char(std::tolower((unsigned char)c));
+        // (IOManager::can_read opens a dummy file name for some formats, so
+        // the extension is checked here.)
+        static const char *const known[] = {"obj", "ply", "off", "stl", "stla", "stlb"};
+        bool readable = false;
+        for (const char *k : known)
+            readable = readable || ext == k;
+        if (!readable) {
+            failure = "unknown mesh format (rtk reads .obj, .ply, .off, .stl)";
+        } else {
+            ok = IO::IOManager().read(path, soup, opt);
+        }
+    } catch (const std::bad_alloc &) {
+        failure = "out of memory while reading";
+    } catch (const std::exception &e) {
+        failure = e.what();
+    }
+    omerr().disconnect(messages);
+    omerr().connect(std::cerr);
+    omlog().connect(std::clog);
+
+    std::string why;
+    if (!failure.empty())
+        why = failure;
+    else if (!ok)
+        why = "OpenMesh could not read it" + (messages.str().empty() ? std::string() : ": " + one_line(messages.str()));
+    else if (soup.bad_faces)
+        why = "malformed: " + soup.first_bad + (soup.bad_faces > 1 ? " (and " + std::to_string(soup.bad_faces - 1) +
+                                                                         " more bad faces)"
+                                                                   : std::string());
+    else if (soup.points.size() / 3 > UINT32_MAX)
+        why = "more than 2^32 - 1 vertices";
+    if (!why.empty()) {
+        set_err(err, err_size, std::string(path) + ": " + why);
+        return 1;
+    }
+
+    mesh->vertex_count = soup.points.size() / 3;
+    mesh->triangle_count = soup.tris.size() / 3;
+    mesh->vertices = static_cast<float *>(std::malloc((soup.points.size() ? soup.points.size() : 1) * sizeof(float)));
+    mesh->indices = static_cast<uint32_t *>(std::malloc((soup.tris.size() ? soup.tris.size() : 1) * sizeof(uint32_t)));
+    if (!mesh->vertices || !mesh->indices) {
+        rtk_mesh_free(mesh);
+        set_err(err, err_size, std::string(path) + ": out of memory");
+        return 1;
+    }
+    if (!soup.points.empty())
+        std::memcpy(mesh->vertices, soup.points.data(), soup.points.size() * sizeof(float));
+    if (!soup.tris.empty())
+        std::memcpy(mesh->indices, soup.tris.data(), soup.tris.size() * sizeof(uint32_t));
+    mesh->faces_read = soup.faces;
+    mesh->polygons_triangulated = soup.polygons;
+    mesh->faces_repeated_vertex = soup.repeated;
+    mesh->vertices_duplicated = 0;
+    return 0;
+}
+
+extern "C" void rtk_mesh_free(rtk_mesh *mesh)
+{
+    if (!mesh)
+        return;
+    std::free(mesh->vertices);
+    std::free(mesh->indices);
+    std::memset(mesh, 0, sizeof *mesh);
+}

@@ -1,0 +1,42 @@
+/*
+ * Mesh import through OpenMesh, behind a C interface (the only C++ in rtk).
+ *
+ * Reads OBJ, PLY (ascii and binary), OFF and STL (ascii and binary) with
+ * OpenMesh's readers into a triangle soup: polygons are split into fans, and
+ * every input face is kept exactly as written.  OpenMesh's own mesh importer
+ * drops faces with a repeated vertex and splits non-manifold faces off onto
+ * duplicated vertices; rtk plugs its own importer into the readers instead, so
+ * no face is dropped and no vertex duplicated (vertices_duplicated reports 0,
+ * and counts what was duplicated should that ever change).
+ */
+#ifndef RTK_TOOLS_MESH_IMPORT_H
+#define RTK_TOOLS_MESH_IMPORT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+typedef struct rtk_mesh {
+    float *vertices;   /* x, y, z per vertex */
+    uint32_t *indices; /* v0, v1, v2 per triangle */
+    size_t vertex_count;
+    size_t triangle_count;
+    size_t faces_read;             /* faces in the file */
+    size_t polygons_triangulated;  /* faces with more than three vertices */
+    size_t faces_repeated_vertex;  /* kept, though they have no area */
+    size_t vertices_duplicated;
+} rtk_mesh;
+
+/* Returns 0 on success; otherwise non-zero, *mesh is empty and err says why.
+ * Not thread-safe (OpenMesh's reader diagnostics go through global streams);
+ * calls are serialised internally. */
+int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size);
+void rtk_mesh_free(rtk_mesh *mesh);
+
+#ifdef __cplusplus
+}
+#endif
+#endif
