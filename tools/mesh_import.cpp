@@ -134,6 +134,45 @@ public:
 
 std::mutex import_lock;
 
+// OpenMesh's OFF reader goes on with uninitialised counts when the header
+// does not parse, so the header is checked here first: the keyword
+// ([ST][C][N][4][n]OFF, optionally BINARY), then three counts.
+bool off_header_ok(const char *path, std::string &why)
+{
+    FILE *f = std::fopen(path, "rb");
+    if (!f) {
+        why = std::strerror(errno);
+        return false;
+    }
+    char buf[4096];
+    size_t n = std::fread(buf, 1, sizeof buf - 1, f);
+    std::fclose(f);
+    buf[n] = '\0';
+    std::istringstream in(std::string(buf, n));
+    std::string keyword;
+    in >> keyword;
+    if (keyword.size() < 3 || keyword.compare(keyword.size() - 3, 3, "OFF") != 0) {
+        why = "malformed OFF: the file does not start with OFF";
+        return false;
+    }
+    std::string token;
+    std::streampos mark = in.tellg();
+    if ((in >> token) && token == "BINARY")
+        return true; // binary counts follow; OpenMesh reads them as data
+    in.clear();
+    in.seekg(mark);
+    long counts[3];
+    for (long &c : counts) {
+        while (in >> std::ws && in.peek() == '#')
+            in.ignore(1 << 20, '\n');
+        if (!(in >> c) || c < 0) {
+            why = "malformed OFF: expected vertex, face and edge counts after the keyword";
+            return false;
+        }
+    }
+    return true;
+}
+
 void set_err(char *err, size_t size, const std::string &text)
 {
     if (err && size)
@@ -180,12 +219,25 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
         return 1;
     }
 
+    if (st.st_size == 0) {
+        set_err(err, err_size, std::string(path) + ": empty file");
+        return 1;
+    }
+
     std::lock_guard<std::mutex> guard(import_lock);
     SoupImporter soup;
-    std::ostringstream messages;
-    omerr().disconnect(std::cerr);
-    omlog().disconnect(std::clog);
-    omerr().connect(messages);
+    // OpenMesh's diagnostics go to a capture stream of ours, redirected once
+    // per process: OpenMesh's mostream::disconnect drops its target without
+    // deleting it, so redirecting per call would leak each time.
+    static std::ostringstream messages;
+    static bool redirected = false;
+    if (!redirected) {
+        omerr().disconnect(std::cerr);
+        omlog().disconnect(std::clog);
+        omerr().connect(messages);
+        redirected = true;
+    }
+    messages.str(std::string());
     bool ok = false;
     std::string failure;
     try {
@@ -203,6 +255,8 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
             readable = readable || ext == k;
         if (!readable) {
             failure = "unknown mesh format (rtk reads .obj, .ply, .off, .stl)";
+        } else if (ext == "off" && !off_header_ok(path, failure)) {
+            // failure says why
         } else {
             ok = IO::IOManager().read(path, soup, opt);
         }
@@ -211,9 +265,7 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
     } catch (const std::exception &e) {
         failure = e.what();
     }
-    omerr().disconnect(messages);
-    omerr().connect(std::cerr);
-    omlog().connect(std::clog);
+    omerr().flush();
 
     std::string why;
     if (!failure.empty())

@@ -7,7 +7,10 @@
  * drops faces with a repeated vertex and splits non-manifold faces off onto
  * duplicated vertices; rtk plugs its own importer into the readers instead, so
  * no face is dropped and no vertex duplicated (vertices_duplicated reports 0,
- * and counts what was duplicated should that ever change).
+ * and counts what was duplicated should that ever change).  One exception
+ * lies in OpenMesh's OBJ reader itself, which drops faces that repeat a
+ * vertex before rtk sees them (they have no area and could never be hit);
+ * the PLY and OFF readers pass them on, and they are kept and counted.
  */
 #ifndef RTK_TOOLS_MESH_IMPORT_H
 #define RTK_TOOLS_MESH_IMPORT_H

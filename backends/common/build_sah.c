@@ -341,6 +341,13 @@ static uint32_t build_node(builder *b, const range *r, uint32_t depth)
     return (uint32_t)index;
 }
 
+/* 64-byte aligned memory; C11 aligned_alloc wants the size rounded up to a
+ * multiple of the alignment. */
+static void *alloc64(size_t size)
+{
+    return aligned_alloc(64, (size + 63) & ~(size_t)63);
+}
+
 static void set_message(rtk_build_output *out, const char *text)
 {
     snprintf(out->message, sizeof out->message, "%s", text);
@@ -403,8 +410,8 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
      * leaves.  Untouched pages of these allocations are never committed; the
      * arrays are trimmed to size afterwards. */
     uint64_t cap = n ? n : 1;
-    b.nodes = aligned_alloc(64, cap * sizeof *b.nodes);
-    b.tris = aligned_alloc(64, cap * sizeof *b.tris);
+    b.nodes = alloc64(cap * sizeof *b.nodes);
+    b.tris = alloc64(cap * sizeof *b.tris);
     if (!b.nodes || !b.tris) {
         free(b.nodes);
         free(b.tris);
@@ -419,8 +426,8 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     free(b.refs);
 
     /* Trim: copy into exactly sized, aligned blocks. */
-    accel->nodes = b.node_count ? aligned_alloc(64, b.node_count * sizeof *b.nodes) : NULL;
-    accel->tris = b.leaf_count ? aligned_alloc(64, b.leaf_count * sizeof *b.tris) : NULL;
+    accel->nodes = b.node_count ? alloc64(b.node_count * sizeof *b.nodes) : NULL;
+    accel->tris = b.leaf_count ? alloc64(b.leaf_count * sizeof *b.tris) : NULL;
     if ((b.node_count && !accel->nodes) || (b.leaf_count && !accel->tris)) {
         free(accel->nodes);
         free(accel->tris);

@@ -1,0 +1,170 @@
+/* Rays that break naive code, on every backend: zero and -0.0 direction
+ * components, NaN and Inf, tnear > tfar, rays starting on a surface, hits at
+ * the ends of the interval. */
+#include <float.h>
+#include <math.h>
+#include <stdio.h>
+#include <string.h>
+
+#include "testlib.h"
+
+/* A unit square at z = 0 (two triangles), an axis-aligned box face at
+ * x = 2 (two triangles, a flat box in x), and a far wall at z = -10. */
+static const float V[] = {
+    0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0,          /* square, 0..3 */
+    2, -1, -1, 2, 1, -1, 2, 1, 1, 2, -1, 1,      /* wall x = 2, 4..7 */
+    -5, -5, -10, 5, -5, -10, 5, 5, -10, -5, 5, -10, /* floor z = -10, 8..11 */
+};
+static const uint32_t I[] = {0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7, 8, 9, 10, 8, 10, 11};
+#define NV 12
+#define NT 6
+
+typedef struct backend_scene {
+    char name[32];
+    rtk_device dev;
+    rtk_scene scene;
+} backend_scene;
+
+static backend_scene scenes[TEST_MAX_BACKENDS];
+static size_t nscenes;
+
+static int setup(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    nscenes = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t i = 0; i < nscenes; i++) {
+        snprintf(scenes[i].name, sizeof scenes[i].name, "%s", names[i]);
+        scenes[i].dev = test_device(names[i]);
+        scenes[i].scene = test_scene(scenes[i].dev, V, NV, I, NT);
+    }
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    for (size_t i = 0; i < nscenes; i++) {
+        rtk_scene_release(scenes[i].scene);
+        rtk_device_release(scenes[i].dev);
+    }
+    return 0;
+}
+
+/* Traces r on every backend; expects a hit on prim at t (prim == -1: no hit),
+ * and the same answer from occluded1. */
+static void expect(const char *what, rtk_ray r, int prim, float t)
+{
+    for (size_t i = 0; i < nscenes; i++) {
+        rtk_rayhit rh;
+        memset(&rh, 0x5a, sizeof rh);
+        rh.ray = r;
+        rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+        const rtk_hit before = rh.hit;
+        assert_int_equal(rtk_intersect1(scenes[i].scene, &rh), RTK_OK);
+        rtk_ray o = r;
+        assert_int_equal(rtk_occluded1(scenes[i].scene, &o), RTK_OK);
+        if (prim < 0) {
+            if (rh.hit.geomID != RTK_INVALID_GEOMETRY_ID)
+                fail_msg("%s [%s]: expected no hit, got prim %u at t=%g", what, scenes[i].name, rh.hit.primID,
+                         rh.ray.tfar);
+            /* A miss leaves ray and hit untouched, bit for bit. */
+            assert_memory_equal(&rh.ray, &r, sizeof r);
+            assert_memory_equal(&rh.hit, &before, sizeof before);
+            assert_memory_equal(&o, &r, sizeof r);
+            continue;
+        }
+        if (rh.hit.geomID != 0 || rh.hit.primID != (uint32_t)prim)
+            fail_msg("%s [%s]: expected prim %d, got geom %u prim %u", what, scenes[i].name, prim, rh.hit.geomID,
+                     rh.hit.primID);
+        if (!(fabsf(rh.ray.tfar - t) <= 1e-6f * fmaxf(1.0f, fabsf(t))))
+            fail_msg("%s [%s]: expected t=%.9g, got %.9g", what, scenes[i].name, t, rh.ray.tfar);
+        if (!(rh.ray.tfar >= r.tnear && rh.ray.tfar <= r.tfar))
+            fail_msg("%s [%s]: t=%.9g outside [%.9g, %.9g]", what, scenes[i].name, rh.ray.tfar, r.tnear, r.tfar);
+        if (!(o.tfar == -INFINITY))
+            fail_msg("%s [%s]: occluded1 missed", what, scenes[i].name);
+    }
+}
+
+static void test_axis_parallel_zero_and_negative_zero(void **state)
+{
+    (void)state;
+    /* Straight down the z axis, with +0 and -0 in x and y. */
+    expect("down +0 +0", test_ray(0.75f, 0.25f, 5, 0.0f, 0.0f, -1, 0, INFINITY), 0, 5);
+    expect("down -0 -0", test_ray(0.75f, 0.25f, 5, -0.0f, -0.0f, -1, 0, INFINITY), 0, 5);
+    expect("down -0 +0", test_ray(0.25f, 0.75f, 5, -0.0f, 0.0f, -1, 0, INFINITY), 1, 5);
+    /* Up from below, -0 components: hits the square from behind. */
+    expect("up -0", test_ray(0.25f, 0.75f, -5, -0.0f, -0.0f, 1, 0, INFINITY), 1, 5);
+    /* Along +x onto the flat wall at x = 2 (a box of zero width in x). */
+    expect("along +x", test_ray(-3, 0.25f, 0.5f, 1, 0.0f, -0.0f, 0, INFINITY), 3, 5);
+    expect("along +x -0", test_ray(-3, -0.25f, -0.5f, 1, -0.0f, -0.0f, 0, INFINITY), 2, 5);
+    /* In the plane of the square (parallel to it): passes, hits the wall. */
+    expect("in plane", test_ray(-3, 0.5f, 0.0f, 1, 0, 0, 0, INFINITY), 2, 5);
+    /* Outside every box along an axis: no hit. */
+    expect("parallel miss", test_ray(-3, 7, 0.5f, 1, -0.0f, 0, 0, INFINITY), -1, 0);
+}
+
+static void test_nan_and_inf(void **state)
+{
+    (void)state;
+    const float nan = NAN, inf = INFINITY;
+    expect("NaN origin", test_ray(nan, 0.25f, 5, 0, 0, -1, 0, inf), -1, 0);
+    expect("NaN direction", test_ray(0.75f, 0.25f, 5, 0, nan, -1, 0, inf), -1, 0);
+    expect("Inf origin", test_ray(0.75f, 0.25f, inf, 0, 0, -1, 0, inf), -1, 0);
+    expect("-Inf direction", test_ray(0.75f, 0.25f, 5, 0, 0, -inf, 0, inf), -1, 0);
+    expect("NaN tnear", test_ray(0.75f, 0.25f, 5, 0, 0, -1, nan, inf), -1, 0);
+    expect("NaN tfar", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 0, nan), -1, 0);
+    expect("Inf tnear", test_ray(0.75f, 0.25f, 5, 0, 0, -1, inf, inf), -1, 0);
+    expect("zero direction", test_ray(0.75f, 0.25f, 5, 0, 0, 0, 0, inf), -1, 0);
+    /* Huge but finite direction components still work. */
+    expect("huge direction", test_ray(0.75f, 0.25f, 5, 0, 0, -1e30f, 0, inf), 0, 5e-30f);
+    /* Denormal direction components next to a normal one. */
+    expect("denormal direction", test_ray(0.75f, 0.25f, 5, 1e-40f, -1e-40f, -1, 0, inf), 0, 5);
+}
+
+static void test_interval(void **state)
+{
+    (void)state;
+    expect("tnear > tfar", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 6, 4), -1, 0);
+    expect("negative tnear", test_ray(0.75f, 0.25f, 5, 0, 0, -1, -1, 10), -1, 0);
+    /* Both ends are included. */
+    expect("hit exactly at tfar", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 0, 5), 0, 5);
+    expect("hit exactly at tnear", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 5, 100), 0, 5);
+    expect("tnear == tfar == t", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 5, 5), 0, 5);
+    expect("just short", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 0, 4.999f), -1, 0);
+    expect("just past", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 5.001f, 14.999f), -1, 0);
+    /* Past the square, the floor. */
+    expect("floor", test_ray(0.75f, 0.25f, 5, 0, 0, -1, 5.001f, INFINITY), 4, 15);
+}
+
+static void test_origin_on_surface(void **state)
+{
+    (void)state;
+    /* Starting exactly on the square with tnear = 0: a hit at t = 0. */
+    expect("on surface, leaving", test_ray(0.75f, 0.25f, 0, 0, 0, 1, 0, INFINITY), 0, 0);
+    expect("on surface, entering", test_ray(0.75f, 0.25f, 0, 0, 0, -1, 0, INFINITY), 0, 0);
+    /* A small tnear steps off it: the next surface is the floor. */
+    expect("on surface, tnear 1e-4", test_ray(0.75f, 0.25f, 0, 0, 0, -1, 1e-4f, INFINITY), 4, 10);
+    expect("on surface, away", test_ray(0.75f, 0.25f, 0, 0, 0, 1, 1e-4f, INFINITY), -1, 0);
+}
+
+static void test_closest_of_several(void **state)
+{
+    (void)state;
+    /* Through the square to the floor: the square is closer. */
+    expect("closest", test_ray(0.3f, 0.6f, 3, 0, 0, -1, 0, INFINITY), 1, 3);
+    /* From x = 5 going -x: the wall at t = 3, the square (x <= 1) behind it. */
+    expect("from +x", test_ray(5, 0.5f, 0.25f, -1, 0, 0, 0, INFINITY), 2, 3);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_axis_parallel_zero_and_negative_zero),
+        cmocka_unit_test(test_nan_and_inf),
+        cmocka_unit_test(test_interval),
+        cmocka_unit_test(test_origin_on_surface),
+        cmocka_unit_test(test_closest_of_several),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}

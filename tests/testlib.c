@@ -1,0 +1,123 @@
+#include "testlib.h"
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+size_t test_backend_names(char names[][32], size_t max)
+{
+    rtk_device dev = NULL;
+    if (rtk_device_new(NULL, &dev) != RTK_OK) {
+        fail_msg("no device: %s", rtk_device_get_error_message(NULL));
+        return 0;
+    }
+    size_t n = 0;
+    for (size_t i = 0; i < rtk_device_get_backend_count(dev) && n < max; i++) {
+        rtk_backend_info bi = {.struct_size = sizeof bi};
+        assert_int_equal(rtk_device_get_backend_info(dev, i, &bi), RTK_OK);
+        if (bi.status != RTK_BACKEND_STATUS_REJECTED)
+            snprintf(names[n++], 32, "%s", bi.name);
+    }
+    rtk_device_release(dev);
+    return n;
+}
+
+rtk_device test_device(const char *isa)
+{
+    char config[64];
+    snprintf(config, sizeof config, "isa=%s", isa);
+    rtk_device dev = NULL;
+    rtk_error err = rtk_device_new(config, &dev);
+    if (err != RTK_OK)
+        fail_msg("device isa=%s: %s", isa, rtk_device_get_error_message(NULL));
+    assert_string_equal(rtk_device_get_backend_name(dev), isa);
+    return dev;
+}
+
+rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt)
+{
+    rtk_scene scene = NULL;
+    rtk_geometry g = NULL;
+    assert_int_equal(rtk_scene_new(dev, &scene), RTK_OK);
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, nv), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, idx, 0, 12, nt), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_attach_geometry(scene, g, NULL), RTK_OK);
+    rtk_geometry_release(g);
+    if (rtk_scene_commit(scene) != RTK_OK)
+        fail_msg("commit: %s", rtk_device_get_error_message(dev));
+    return scene;
+}
+
+ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt)
+{
+    ref_mesh m = {.tri = malloc((nt ? nt : 1) * sizeof *m.tri), .keep = malloc(nt ? nt : 1), .count = nt};
+    assert_non_null(m.tri);
+    assert_non_null(m.keep);
+    for (size_t i = 0; i < nt; i++) {
+        const uint32_t *t = idx + 3 * i;
+        const float *a = v + 3 * (size_t)t[0], *b = v + 3 * (size_t)t[1], *c = v + 3 * (size_t)t[2];
+        m.keep[i] = rtk_triangle_is_finite(a, b, c) && !rtk_triangle_is_degenerate(a, b, c);
+        for (int k = 0; k < 3; k++) {
+            m.tri[i][k] = a[k];
+            m.tri[i][3 + k] = b[k] - a[k];
+            m.tri[i][6 + k] = c[k] - a[k];
+        }
+    }
+    return m;
+}
+
+void ref_free(ref_mesh *m)
+{
+    free(m->tri);
+    free(m->keep);
+    memset(m, 0, sizeof *m);
+}
+
+int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *r, rtk_tri_hit *hit)
+{
+    float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    const float *t = m->tri[prim];
+    return m->keep[prim] && rtk_triangle_intersect(o, d, r->tnear, r->tfar, t, t + 3, t + 6, hit);
+}
+
+int ref_closest(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t *prim)
+{
+    float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    float tfar = r->tfar;
+    int found = 0;
+    for (size_t i = 0; i < m->count; i++) {
+        const float *t = m->tri[i];
+        rtk_tri_hit h;
+        if (m->keep[i] && rtk_triangle_intersect(o, d, r->tnear, tfar, t, t + 3, t + 6, &h)) {
+            found = 1;
+            *hit = h;
+            *prim = (uint32_t)i;
+            tfar = h.t;
+        }
+    }
+    return found;
+}
+
+rtk_ray test_ray(float ox, float oy, float oz, float dx, float dy, float dz, float tnear, float tfar)
+{
+    rtk_ray r = {.org_x = ox, .org_y = oy, .org_z = oz, .tnear = tnear, .dir_x = dx, .dir_y = dy, .dir_z = dz,
+                 .tfar = tfar, .mask = 0xffffffffu};
+    return r;
+}
+
+uint32_t rng_u32(rng *r)
+{
+    /* splitmix64 */
+    uint64_t z = (r->s += 0x9e3779b97f4a7c15ull);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ull;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebull;
+    return (uint32_t)((z ^ (z >> 31)) >> 32);
+}
+
+float rng_float(rng *r)
+{
+    return (float)(rng_u32(r) >> 8) * 0x1p-24f;
+}

@@ -1,0 +1,49 @@
+/* Helpers shared by rtk's tests: devices per backend, scenes from arrays, a
+ * brute-force reference, and a small deterministic random generator. */
+#ifndef RTK_TESTLIB_H
+#define RTK_TESTLIB_H
+
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include <cmocka.h>
+
+#include "geometry/triangle.h"
+#include "rtk/rtk.h"
+
+#define TEST_MAX_BACKENDS 16
+
+/* Names of the usable backends of this build, best last. */
+size_t test_backend_names(char names[][32], size_t max);
+/* A device on exactly this backend (fails the test otherwise). */
+rtk_device test_device(const char *isa);
+/* One committed triangle-mesh scene over the arrays (shared, not copied). */
+rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt);
+
+/* The reference's view of a mesh: v0, e1, e2 per triangle, computed the way
+ * the builders compute them, and whether the builders keep it. */
+typedef struct ref_mesh {
+    float (*tri)[9];
+    unsigned char *keep; /* 0: non-finite or zero area, never hit */
+    size_t count;
+} ref_mesh;
+ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt);
+void ref_free(ref_mesh *m);
+
+/* Brute force over every triangle, with the builders' rules and the same
+ * intersector. Returns 1 on a hit with the closest t and its primitive. */
+int ref_closest(const ref_mesh *m, const rtk_ray *ray, rtk_tri_hit *hit, uint32_t *prim);
+/* The hit of one triangle alone (for tie checks). */
+int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *ray, rtk_tri_hit *hit);
+
+rtk_ray test_ray(float ox, float oy, float oz, float dx, float dy, float dz, float tnear, float tfar);
+
+typedef struct rng {
+    uint64_t s;
+} rng;
+uint32_t rng_u32(rng *r);
+float rng_float(rng *r); /* [0, 1) */
+
+#endif
