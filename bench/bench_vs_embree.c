@@ -47,18 +47,10 @@ static float rnd(void)
 
 static void make_rays(const rtk_mesh *m, rayset sets[3], size_t nrand)
 {
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < m->vertex_count; i++)
-        for (int k = 0; k < 3; k++) {
-            lo[k] = fminf(lo[k], m->vertices[3 * i + k]);
-            hi[k] = fmaxf(hi[k], m->vertices[3 * i + k]);
-        }
-    float c[3], diag = 0;
-    for (int k = 0; k < 3; k++) {
+    float lo[3], hi[3], c[3];
+    const float diag = rtk_mesh_bounds(m, lo, hi);
+    for (int k = 0; k < 3; k++)
         c[k] = 0.5f * (lo[k] + hi[k]);
-        diag += (hi[k] - lo[k]) * (hi[k] - lo[k]);
-    }
-    diag = sqrtf(diag);
     const int W = 1024, H = 768;
     sets[0] = (rayset){"primary", calloc((size_t)W * H, sizeof(rtk_ray)), (size_t)W * H, 0};
     const float eye[3] = {c[0] + 0.35f * diag, c[1] + 0.3f * diag, c[2] + 1.0f * diag};

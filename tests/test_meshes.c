@@ -21,18 +21,10 @@ typedef struct ray_set {
 
 static void make_rays(const rtk_mesh *m, ray_set *s, uint64_t seed)
 {
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < m->vertex_count; i++)
-        for (int k = 0; k < 3; k++) {
-            lo[k] = fminf(lo[k], m->vertices[3 * i + k]);
-            hi[k] = fmaxf(hi[k], m->vertices[3 * i + k]);
-        }
-    float c[3], diag = 0;
-    for (int k = 0; k < 3; k++) {
+    float lo[3], hi[3], c[3];
+    const float diag = rtk_mesh_bounds(m, lo, hi);
+    for (int k = 0; k < 3; k++)
         c[k] = 0.5f * (lo[k] + hi[k]);
-        diag += (hi[k] - lo[k]) * (hi[k] - lo[k]);
-    }
-    diag = sqrtf(diag);
     s->count = 0;
     /* Coherent: a pinhole camera at 1.5 diagonals, looking at the centre. */
     const float eye[3] = {c[0] + 0.5f * diag, c[1] + 0.6f * diag, c[2] + 1.3f * diag};

@@ -3,6 +3,7 @@
 
 #include <cctype>
 #include <cerrno>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -310,4 +311,22 @@ extern "C" void rtk_mesh_free(rtk_mesh *mesh)
     std::free(mesh->vertices);
     std::free(mesh->indices);
     std::memset(mesh, 0, sizeof *mesh);
+}
+
+extern "C" float rtk_mesh_bounds(const rtk_mesh *mesh, float lower[3], float upper[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lower[k] = mesh->vertex_count ? mesh->vertices[k] : 0.0f;
+        upper[k] = lower[k];
+    }
+    for (size_t i = 0; i < mesh->vertex_count; i++)
+        for (size_t k = 0; k < 3; k++) {
+            const float x = mesh->vertices[3 * i + k];
+            lower[k] = x < lower[k] ? x : lower[k];
+            upper[k] = x > upper[k] ? x : upper[k];
+        }
+    double d = 0.0;
+    for (int k = 0; k < 3; k++)
+        d += double(upper[k] - lower[k]) * double(upper[k] - lower[k]);
+    return float(std::sqrt(d));
 }

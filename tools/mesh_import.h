@@ -38,6 +38,8 @@ typedef struct rtk_mesh {
  * calls are serialised internally. */
 int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size);
 void rtk_mesh_free(rtk_mesh *mesh);
+/* Bounds of the vertices and the length of their diagonal (0 for no vertices). */
+float rtk_mesh_bounds(const rtk_mesh *mesh, float lower[3], float upper[3]);
 
 #ifdef __cplusplus
 }
