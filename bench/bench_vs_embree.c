@@ -1,5 +1,5 @@
 /*
- * bench_vs_embree MESH [--threads-embree N] [--rays N] [--repeat N]
+ * bench_vs_embree MESH [--rays N] [--repeat N] [--builds N] [--build-only]
  *
  * Builds MESH once per rtk backend and with Embree 3 (medium quality, at
  * isa=avx2 and at its default), in this one process, and traces the same
@@ -7,8 +7,10 @@
  *   primary   1024x768 camera rays framing the mesh (coherent), intersect1
  *   random    origins in the grown bounding box, uniform directions, intersect1
  *   shadow    random segments of up to a third of the diagonal, occluded1
- * Prints Mtris/s for builds and Mrays/s for traces, each also as a ratio to
- * Embree (isa=avx2), and counts hit/miss disagreements with Embree.
+ * Prints Mtris/s for builds (best of --builds builds, each from the shared
+ * buffers to a committed scene) and Mrays/s for traces (best of --repeat
+ * passes), each also as a ratio to Embree (isa=avx2), and counts hit/miss
+ * disagreements with Embree.  --build-only skips the traces.
  * A benchmark, not a test: run it and read it.
  */
 #define _POSIX_C_SOURCE 200809L
@@ -131,17 +133,21 @@ int main(int argc, char **argv)
 {
     const char *path = NULL;
     size_t nrand = 1u << 20;
-    int repeat = 3;
+    int repeat = 3, builds = 1, build_only = 0;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--rays") && i + 1 < argc)
             nrand = strtoul(argv[++i], NULL, 10);
         else if (!strcmp(argv[i], "--repeat") && i + 1 < argc)
             repeat = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--builds") && i + 1 < argc)
+            builds = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--build-only"))
+            build_only = 1;
         else
             path = argv[i];
     }
-    if (!path) {
-        fprintf(stderr, "usage: bench_vs_embree MESH [--rays N] [--repeat N]\n");
+    if (!path || repeat < 1 || builds < 1) {
+        fprintf(stderr, "usage: bench_vs_embree MESH [--rays N] [--repeat N] [--builds N] [--build-only]\n");
         return 2;
     }
     rtk_mesh m;
@@ -152,8 +158,8 @@ int main(int argc, char **argv)
     }
     rayset sets[3];
     make_rays(&m, sets, nrand);
-    printf("%s: %zu triangles; rays: primary %zu, random %zu, shadow %zu; best of %d passes, 1 thread\n", path,
-           m.triangle_count, sets[0].n, sets[1].n, sets[2].n, repeat);
+    printf("%s: %zu triangles; rays: primary %zu, random %zu, shadow %zu; best of %d builds and %d passes, 1 thread\n",
+           path, m.triangle_count, sets[0].n, sets[1].n, sets[2].n, builds, repeat);
 
     /* Embree needs 16 readable bytes at the last vertex: a padded copy. */
     float *ev = calloc(m.vertex_count * 3 + 4, sizeof(float));
@@ -168,23 +174,31 @@ int main(int argc, char **argv)
             fprintf(stderr, "embree: no device for %s\n", embree_cfg[e]);
             return 1;
         }
-        double t0 = now();
-        RTCScene scene = rtcNewScene(dev);
-        rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_MEDIUM);
-        RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, ev, 0, 12, m.vertex_count);
-        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m.indices, 0, 12, m.triangle_count);
-        rtcCommitGeometry(g);
-        rtcAttachGeometry(scene, g);
-        rtcReleaseGeometry(g);
-        rtcCommitScene(scene);
-        double build = now() - t0;
+        RTCScene scene = NULL;
+        double build = 1e30;
+        for (int k = 0; k < builds; k++) {
+            if (scene)
+                rtcReleaseScene(scene);
+            double t0 = now();
+            scene = rtcNewScene(dev);
+            rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_MEDIUM);
+            RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+            rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, ev, 0, 12, m.vertex_count);
+            rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m.indices, 0, 12,
+                                       m.triangle_count);
+            rtcCommitGeometry(g);
+            rtcAttachGeometry(scene, g);
+            rtcReleaseGeometry(g);
+            rtcCommitScene(scene);
+            double t = now() - t0;
+            build = t < build ? t : build;
+        }
         printf("embree %-18s build %.3f s %6.2f Mtris/s", embree_cfg[e], build, m.triangle_count / build * 1e-6);
         if (e == 0)
             ref_build = build;
         else
             printf(" (%.2fx)", ref_build / build);
-        for (int s = 0; s < 3; s++) {
+        for (int s = 0; s < 3 && !build_only; s++) {
             double rate = trace_embree(scene, &sets[s], e == 0 ? (ref_hits[s] = malloc(sets[s].n)) : hits, repeat);
             printf("  %s %6.2f Mrays/s", sets[s].name, rate);
             if (e == 0)
@@ -206,33 +220,41 @@ int main(int argc, char **argv)
             printf("rtk    %-18s unavailable: %s\n", isas[b], rtk_device_get_error_message(NULL));
             continue;
         }
-        double t0 = now();
         rtk_scene scene = NULL;
-        rtk_geometry g = NULL;
-        rtk_scene_new(dev, &scene);
-        rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g);
-        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m.vertices, 0, 12, m.vertex_count);
-        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m.indices, 0, 12, m.triangle_count);
-        rtk_geometry_commit(g);
-        rtk_scene_attach_geometry(scene, g, NULL);
-        rtk_geometry_release(g);
-        if (rtk_scene_commit(scene)) {
-            fprintf(stderr, "rtk: %s\n", rtk_device_get_error_message(dev));
-            return 1;
+        double build = 1e30;
+        for (int k = 0; k < builds; k++) {
+            rtk_scene_release(scene);
+            double t0 = now();
+            rtk_geometry g = NULL;
+            rtk_scene_new(dev, &scene);
+            rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g);
+            rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m.vertices, 0, 12, m.vertex_count);
+            rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m.indices, 0, 12, m.triangle_count);
+            rtk_geometry_commit(g);
+            rtk_scene_attach_geometry(scene, g, NULL);
+            rtk_geometry_release(g);
+            if (rtk_scene_commit(scene)) {
+                fprintf(stderr, "rtk: %s\n", rtk_device_get_error_message(dev));
+                return 1;
+            }
+            double t = now() - t0;
+            build = t < build ? t : build;
         }
-        double build = now() - t0;
         rtk_scene_info info = {.struct_size = sizeof info};
         rtk_scene_get_info(scene, &info);
         printf("rtk    %-18s build %.3f s %6.2f Mtris/s (%.2fx)", isas[b], build, m.triangle_count / build * 1e-6,
                ref_build / build);
         size_t disagree = 0;
-        for (int s = 0; s < 3; s++) {
+        for (int s = 0; s < 3 && !build_only; s++) {
             double rate = trace_rtk(scene, &sets[s], hits, repeat);
             printf("  %s %6.2f Mrays/s (%.2fx)", sets[s].name, rate, rate / ref_rate[s]);
             for (size_t i = 0; i < sets[s].n; i++)
                 disagree += hits[i] != ref_hits[s][i];
         }
-        printf("  [%.1f B/tri, hit/miss differs from embree on %zu rays]\n", info.bytes_per_triangle, disagree);
+        printf("  [%.1f B/tri", info.bytes_per_triangle);
+        if (!build_only)
+            printf(", hit/miss differs from embree on %zu rays", disagree);
+        printf("]\n");
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }

@@ -49,6 +49,7 @@ struct rtk_accel {
     rtk_bvh4_node *nodes;
     rtk_triangle4 *tris;
     uint64_t node_count, leaf_count;
+    size_t nodes_mapped, tris_mapped; /* bytes mapped for each array (page-rounded) */
 };
 
 #endif

@@ -1,0 +1,36 @@
+/*
+ * rtk's thin SIMD layer.  Kernel code in backends/common uses only these
+ * types and functions; intrinsics appear in this directory and in a backend's
+ * hand-tuned overrides, nowhere else.
+ *
+ *   vfloat4 / vint4 / vbool4   4 lanes: SSE4.1 in the sse41, avx and avx2
+ *                              backends, GNU C vector extensions (no
+ *                              intrinsics) in the scalar backend
+ *
+ * Which header implements a width is decided here from the compiler's ISA
+ * macros, which come from the backend's flags (backends/<name>/CMakeLists.txt),
+ * so one kernel source compiles to each ISA.  All functions are static inline
+ * and carry no state.  Lane order is memory order: lane 0 is p[0].
+ *
+ * Semantics shared by every implementation (the tests rely on them):
+ *   vf4_min / vf4_max(a, b)  return b where either lane is NaN (the SSE rule),
+ *                            so a NaN in a only ever loses
+ *   vi4_from_vf4_trunc       truncates toward zero; lanes must be in int32
+ *                            range (callers clamp in float first)
+ *   vbool4                   a lane is all ones or all zeros
+ */
+#ifndef RTK_SIMD_H
+#define RTK_SIMD_H
+
+#include <stdint.h>
+#include <string.h>
+
+#if defined(__SSE4_1__)
+#define RTK_SIMD_ISA "sse4.1"
+#include "vfloat4_sse41.h"
+#else
+#define RTK_SIMD_ISA "c"
+#include "vfloat4_c.h"
+#endif
+
+#endif
