@@ -1,7 +1,9 @@
 /*
  * Single-ray traversal of the bvh4.triangle4 layout: closest hit and any hit.
  *
- * Children are tested four at a time against slabs whose near and far planes
+ * Written once with the 4-wide types of simd/ (SSE4.1 in the sse41, avx and
+ * avx2 backends, GNU C vectors in the scalar one).  Children are tested four
+ * at a time against slabs whose near and far planes
  * are picked once per ray from the signs of the direction (so -0.0 behaves as
  * a negative direction, consistently with its reciprocal), visited nearest
  * first, and skipped when their entry distance is already beyond the closest
@@ -10,7 +12,8 @@
  * appear in a slab test.  The far slab distance is scaled by 1 + 2*gamma(3)
  * (Ize 2013), which makes the box test conservative against the rounding of
  * the slab arithmetic: a triangle whose hit lies on a box face or edge (rays
- * aimed at vertices do that) is not culled by its box.
+ * aimed at vertices do that) is not culled by its box.  A leaf's four
+ * triangles are tested at once with the arithmetic of rtk_triangle_intersect.
  *
  * The core checks ray validity before calling in: org/dir finite, 0 <= tnear <= tfar.
  */
@@ -21,12 +24,14 @@
 #include "bvh4_triangle4.h"
 #include "geometry/triangle.h"
 #include "kernels.h"
+#include "simd/simd.h"
 
 /* 1 + 2 * gamma(3), gamma(n) = n * eps / (1 - n * eps), eps = 2^-24 */
 #define RTK_BOX_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
 
+/* The ray, broadcast: everything the inner loops need, computed once. */
 typedef struct ray_pre {
-    float org[3], dir[3], inv[3];
+    vfloat4 org[3], dir[3], inv[3];
     size_t near_off[3], far_off[3]; /* byte offsets of the near/far planes in a node */
 } ray_pre;
 
@@ -40,55 +45,43 @@ static inline float safe_rcp(float d)
 
 static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
 {
-    p->org[0] = r->org_x;
-    p->org[1] = r->org_y;
-    p->org[2] = r->org_z;
-    p->dir[0] = r->dir_x;
-    p->dir[1] = r->dir_y;
-    p->dir[2] = r->dir_z;
+    const float org[3] = {r->org_x, r->org_y, r->org_z}, dir[3] = {r->dir_x, r->dir_y, r->dir_z};
     static const size_t lower[3] = {offsetof(rtk_bvh4_node, lower_x), offsetof(rtk_bvh4_node, lower_y),
                                     offsetof(rtk_bvh4_node, lower_z)};
     static const size_t upper[3] = {offsetof(rtk_bvh4_node, upper_x), offsetof(rtk_bvh4_node, upper_y),
                                     offsetof(rtk_bvh4_node, upper_z)};
     for (int k = 0; k < 3; k++) {
-        p->inv[k] = safe_rcp(p->dir[k]);
-        const int neg = signbit(p->inv[k]) != 0;
+        const float inv = safe_rcp(dir[k]);
+        const int neg = signbit(inv) != 0;
+        p->org[k] = vf4_set1(org[k]);
+        p->dir[k] = vf4_set1(dir[k]);
+        p->inv[k] = vf4_set1(inv);
         p->near_off[k] = neg ? upper[k] : lower[k];
         p->far_off[k] = neg ? lower[k] : upper[k];
     }
 }
 
-static inline const float *plane(const rtk_bvh4_node *n, size_t off)
+static inline vfloat4 plane(const rtk_bvh4_node *n, size_t off)
 {
-    return (const float *)((const char *)n + off);
+    return vf4_load((const float *)((const char *)n + off));
 }
 
-/* Tests the four child boxes; returns a bit mask of those entered within
- * [tnear, tfar] and their entry distances. */
-static inline unsigned node_intersect(const rtk_bvh4_node *n, const ray_pre *p, float tnear, float tfar,
-                                      float dist[4])
+/* Tests the four child boxes at once; returns a bit mask of those entered
+ * within [tnear, tfar] and their entry distances. */
+static inline unsigned node_intersect(const rtk_bvh4_node *n, const ray_pre *p, vfloat4 tnear, vfloat4 tfar,
+                                      vfloat4 *dist)
 {
-    const float *nx = plane(n, p->near_off[0]), *ny = plane(n, p->near_off[1]), *nz = plane(n, p->near_off[2]);
-    const float *fx = plane(n, p->far_off[0]), *fy = plane(n, p->far_off[1]), *fz = plane(n, p->far_off[2]);
-    unsigned mask = 0;
-    for (int i = 0; i < 4; i++) {
-        float t0x = (nx[i] - p->org[0]) * p->inv[0];
-        float t0y = (ny[i] - p->org[1]) * p->inv[1];
-        float t0z = (nz[i] - p->org[2]) * p->inv[2];
-        float t1x = (fx[i] - p->org[0]) * p->inv[0];
-        float t1y = (fy[i] - p->org[1]) * p->inv[1];
-        float t1z = (fz[i] - p->org[2]) * p->inv[2];
-        float tmin = t0x > t0y ? t0x : t0y;
-        tmin = t0z > tmin ? t0z : tmin;
-        tmin = tnear > tmin ? tnear : tmin;
-        float tmax = t1x < t1y ? t1x : t1y;
-        tmax = t1z < tmax ? t1z : tmax;
-        tmax *= RTK_BOX_FAR_SCALE;
-        tmax = tfar < tmax ? tfar : tmax;
-        dist[i] = tmin;
-        mask |= (unsigned)(tmin <= tmax) << i;
-    }
-    return mask;
+    const vfloat4 t0x = vf4_mul(vf4_sub(plane(n, p->near_off[0]), p->org[0]), p->inv[0]);
+    const vfloat4 t0y = vf4_mul(vf4_sub(plane(n, p->near_off[1]), p->org[1]), p->inv[1]);
+    const vfloat4 t0z = vf4_mul(vf4_sub(plane(n, p->near_off[2]), p->org[2]), p->inv[2]);
+    const vfloat4 t1x = vf4_mul(vf4_sub(plane(n, p->far_off[0]), p->org[0]), p->inv[0]);
+    const vfloat4 t1y = vf4_mul(vf4_sub(plane(n, p->far_off[1]), p->org[1]), p->inv[1]);
+    const vfloat4 t1z = vf4_mul(vf4_sub(plane(n, p->far_off[2]), p->org[2]), p->inv[2]);
+    const vfloat4 tmin = vf4_max(vf4_max(t0x, t0y), vf4_max(t0z, tnear));
+    vfloat4 tmax = vf4_mul(vf4_min(vf4_min(t1x, t1y), t1z), vf4_set1(RTK_BOX_FAR_SCALE));
+    tmax = vf4_min(tmax, tfar);
+    *dist = tmin;
+    return (unsigned)vb4_mask(vf4_le(tmin, tmax));
 }
 
 typedef struct stack_entry {
@@ -96,26 +89,67 @@ typedef struct stack_entry {
     float dist;
 } stack_entry;
 
-/* Pushes the hit children farthest first, so the nearest is popped next. */
-static inline int push_children(const rtk_bvh4_node *n, unsigned mask, const float dist[4], stack_entry *stack,
-                                int sp)
+/* Pushes the hit children farthest first, so the nearest is popped next:
+ * an insertion sort straight onto the stack (at most four entries). */
+static inline int push_children(const rtk_bvh4_node *n, unsigned mask, vfloat4 dists, stack_entry *stack, int sp)
 {
-    stack_entry hit[4];
-    int count = 0;
-    for (int i = 0; i < 4; i++) {
-        if (!(mask >> i & 1u))
-            continue;
-        stack_entry e = {n->child[i], dist[i]};
-        int j = count++;
-        while (j > 0 && hit[j - 1].dist < e.dist) { /* sort by decreasing distance */
-            hit[j] = hit[j - 1];
+    _Alignas(16) float dist[4];
+    vf4_store(dist, dists);
+    const int base = sp;
+    for (; mask; mask &= mask - 1) {
+        const int i = __builtin_ctz(mask);
+        const stack_entry e = {n->child[i], dist[i]};
+        int j = sp++;
+        while (j > base && stack[j - 1].dist < e.dist) { /* decreasing distance */
+            stack[j] = stack[j - 1];
             j--;
         }
-        hit[j] = e;
+        stack[j] = e;
     }
-    for (int i = 0; i < count; i++)
-        stack[sp++] = hit[i];
     return sp;
+}
+
+/* Moeller-Trumbore on four triangles at once, the same arithmetic as
+ * rtk_triangle_intersect (geometry/triangle.h) lane by lane.  Returns the
+ * mask of lanes hit within [tnear, tfar]; U, V, T and |det| per lane. */
+typedef struct tri4_hit {
+    vfloat4 U, V, T, absdet;
+} tri4_hit;
+
+static inline unsigned triangle4_intersect(const rtk_triangle4 *t, const ray_pre *p, vfloat4 tnear, vfloat4 tfar,
+                                           tri4_hit *h)
+{
+    const vfloat4 e1x = vf4_load(t->e1x), e1y = vf4_load(t->e1y), e1z = vf4_load(t->e1z);
+    const vfloat4 e2x = vf4_load(t->e2x), e2y = vf4_load(t->e2y), e2z = vf4_load(t->e2z);
+    const vfloat4 dx = p->dir[0], dy = p->dir[1], dz = p->dir[2];
+    /* p = cross(d, e2) */
+    const vfloat4 px = vf4_sub(vf4_mul(dy, e2z), vf4_mul(dz, e2y));
+    const vfloat4 py = vf4_sub(vf4_mul(dz, e2x), vf4_mul(dx, e2z));
+    const vfloat4 pz = vf4_sub(vf4_mul(dx, e2y), vf4_mul(dy, e2x));
+    const vfloat4 det = vf4_add(vf4_add(vf4_mul(e1x, px), vf4_mul(e1y, py)), vf4_mul(e1z, pz));
+    const vfloat4 absdet = vf4_abs(det);
+    /* s = o - v0 */
+    const vfloat4 sx = vf4_sub(p->org[0], vf4_load(t->v0x));
+    const vfloat4 sy = vf4_sub(p->org[1], vf4_load(t->v0y));
+    const vfloat4 sz = vf4_sub(p->org[2], vf4_load(t->v0z));
+    const vfloat4 U = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(sx, px), vf4_mul(sy, py)), vf4_mul(sz, pz)), det);
+    /* q = cross(s, e1) */
+    const vfloat4 qx = vf4_sub(vf4_mul(sy, e1z), vf4_mul(sz, e1y));
+    const vfloat4 qy = vf4_sub(vf4_mul(sz, e1x), vf4_mul(sx, e1z));
+    const vfloat4 qz = vf4_sub(vf4_mul(sx, e1y), vf4_mul(sy, e1x));
+    const vfloat4 V = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(dx, qx), vf4_mul(dy, qy)), vf4_mul(dz, qz)), det);
+    const vfloat4 T = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(e2x, qx), vf4_mul(e2y, qy)), vf4_mul(e2z, qz)), det);
+    const vfloat4 zero = vf4_set1(0.0f);
+    vbool4 ok = vb4_and(vf4_ge(U, zero), vf4_ge(V, zero));
+    ok = vb4_and(ok, vf4_le(vf4_add(U, V), absdet));
+    ok = vb4_and(ok, vf4_gt(absdet, zero));
+    ok = vb4_and(ok, vf4_ge(T, vf4_mul(tnear, absdet)));
+    ok = vb4_and(ok, vf4_le(T, vf4_mul(tfar, absdet)));
+    h->U = U;
+    h->V = V;
+    h->T = T;
+    h->absdet = absdet;
+    return (unsigned)vb4_mask(ok);
 }
 
 static inline void lane_triangle(const rtk_triangle4 *t, int lane, float v0[3], float e1[3], float e2[3])
@@ -131,56 +165,130 @@ static inline void lane_triangle(const rtk_triangle4 *t, int lane, float v0[3], 
     e2[2] = t->e2z[lane];
 }
 
+/* Descends from `cur` through inner nodes until it reaches a leaf, following
+ * the nearest child hit and pushing the others (farthest first).  Returns 0
+ * when no child is hit on the way and the stack is empty, else 1 with the
+ * leaf in *leaf.  Entries popped whose distance is beyond tfar are dropped. */
+static inline int next_leaf(const rtk_accel *accel, const ray_pre *p, vfloat4 tnear, float tfar_s, vfloat4 tfar,
+                            stack_entry *stack, int *sp_io, uint32_t *cur_io)
+{
+    int sp = *sp_io;
+    uint32_t cur = *cur_io;
+    for (;;) {
+        if (cur & RTK_BVH4_LEAF_BIT) {
+            *sp_io = sp;
+            *cur_io = cur;
+            return 1;
+        }
+        const rtk_bvh4_node *n = &accel->nodes[cur];
+        vfloat4 dists;
+        unsigned mask = node_intersect(n, p, tnear, tfar, &dists);
+        if (mask && !(mask & (mask - 1))) { /* one child: no stack traffic */
+            cur = n->child[__builtin_ctz(mask)];
+            continue;
+        }
+        if (mask) {
+            _Alignas(16) float dist[4];
+            vf4_store(dist, dists);
+            const int i0 = __builtin_ctz(mask);
+            mask &= mask - 1;
+            const int i1 = __builtin_ctz(mask);
+            mask &= mask - 1;
+            if (!mask) { /* two children: push the far one, go to the near one */
+                const int near = dist[i1] < dist[i0] ? i1 : i0, far = i0 + i1 - near;
+                stack[sp++] = (stack_entry){n->child[far], dist[far]};
+                cur = n->child[near];
+                continue;
+            }
+            sp = push_children(n, (1u << i0) | (1u << i1) | mask, dists, stack, sp);
+        }
+        /* pop the nearest pending entry still in range */
+        for (;;) {
+            if (sp == 0)
+                return 0;
+            const stack_entry e = stack[--sp];
+            if (e.dist <= tfar_s) {
+                cur = e.ref;
+                break;
+            }
+        }
+    }
+}
+
 void RTK_SYM(rtk_bvh4_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     ray_pre p;
     ray_pre_init(&p, &rayhit->ray);
-    const float tnear = rayhit->ray.tnear;
-    float tfar = rayhit->ray.tfar;
+    const float tnear_s = rayhit->ray.tnear;
+    const vfloat4 tnear = vf4_set1(tnear_s);
+    float tfar_s = rayhit->ray.tfar;
+    vfloat4 tfar = vf4_set1(tfar_s);
     const rtk_triangle4 *best_leaf = NULL;
     int best_lane = 0;
-    rtk_tri_hit best = {0};
+    float best_u = 0.0f, best_v = 0.0f;
 
     stack_entry stack[RTK_BVH4_STACK_SIZE];
     int sp = 0;
-    stack[sp++] = (stack_entry){accel->root, tnear};
-    while (sp > 0) {
-        stack_entry e = stack[--sp];
-        if (e.dist > tfar)
-            continue;
-        if (!(e.ref & RTK_BVH4_LEAF_BIT)) {
-            const rtk_bvh4_node *n = &accel->nodes[e.ref];
-            float dist[4];
-            unsigned mask = node_intersect(n, &p, tnear, tfar, dist);
-            sp = push_children(n, mask, dist, stack, sp);
-            continue;
+    uint32_t cur = accel->root;
+    for (;;) {
+        if (!next_leaf(accel, &p, tnear, tfar_s, tfar, stack, &sp, &cur))
+            break;
+        const rtk_triangle4 *t = &accel->tris[cur & ~RTK_BVH4_LEAF_BIT];
+        tri4_hit h;
+        unsigned mask = triangle4_intersect(t, &p, tnear, tfar, &h);
+        if (mask) {
+            /* the nearest of the lanes hit */
+            _Alignas(16) float T[4], absdet[4], U[4], V[4];
+            vf4_store(T, h.T);
+            vf4_store(absdet, h.absdet);
+            int lane = -1;
+            float t_lane = 0.0f;
+            for (; mask; mask &= mask - 1) {
+                const int i = __builtin_ctz(mask);
+                float ti = T[i] * (1.0f / absdet[i]);
+                if (lane < 0 || ti < t_lane) {
+                    lane = i;
+                    t_lane = ti;
+                }
+            }
+            /* The product may round past an end of the interval the unscaled
+             * test accepted; clamp so tnear <= t <= tfar always holds. */
+            t_lane = t_lane < tnear_s ? tnear_s : (t_lane > tfar_s ? tfar_s : t_lane);
+            vf4_store(U, h.U);
+            vf4_store(V, h.V);
+            const float inv = 1.0f / absdet[lane];
+            best_u = U[lane] * inv;
+            best_v = V[lane] * inv;
+            best_leaf = t;
+            best_lane = lane;
+            tfar_s = t_lane;
+            tfar = vf4_set1(tfar_s);
         }
-        const rtk_triangle4 *t = &accel->tris[e.ref & ~RTK_BVH4_LEAF_BIT];
-        for (int lane = 0; lane < 4 && t->prim[lane] != RTK_BVH4_EMPTY; lane++) {
-            float v0[3], e1[3], e2[3];
-            rtk_tri_hit h;
-            lane_triangle(t, lane, v0, e1, e2);
-            if (rtk_triangle_intersect(p.org, p.dir, tnear, tfar, v0, e1, e2, &h)) {
-                tfar = h.t;
-                best = h;
-                best_leaf = t;
-                best_lane = lane;
+        /* continue from the stack */
+        for (;;) {
+            if (sp == 0)
+                goto done;
+            const stack_entry e = stack[--sp];
+            if (e.dist <= tfar_s) {
+                cur = e.ref;
+                break;
             }
         }
     }
+done:
     if (!best_leaf)
         return;
     float v0[3], e1[3], e2[3], ng[3];
     lane_triangle(best_leaf, best_lane, v0, e1, e2);
     rtk_triangle_normal(e1, e2, ng);
-    rayhit->ray.tfar = best.t;
+    rayhit->ray.tfar = tfar_s;
     rayhit->hit.Ng_x = ng[0];
     rayhit->hit.Ng_y = ng[1];
     rayhit->hit.Ng_z = ng[2];
-    rayhit->hit.u = best.u;
-    rayhit->hit.v = best.v;
+    rayhit->hit.u = best_u;
+    rayhit->hit.v = best_v;
     rayhit->hit.primID = best_leaf->prim[best_lane];
     rayhit->hit.geomID = best_leaf->geom[best_lane];
     rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
@@ -192,29 +300,22 @@ void RTK_SYM(rtk_bvh4_occluded1)(const rtk_accel *accel, rtk_ray *ray)
         return;
     ray_pre p;
     ray_pre_init(&p, ray);
-    const float tnear = ray->tnear, tfar = ray->tfar;
+    const float tfar_s = ray->tfar;
+    const vfloat4 tnear = vf4_set1(ray->tnear), tfar = vf4_set1(tfar_s);
 
     stack_entry stack[RTK_BVH4_STACK_SIZE];
     int sp = 0;
-    stack[sp++] = (stack_entry){accel->root, tnear};
-    while (sp > 0) {
-        stack_entry e = stack[--sp];
-        if (!(e.ref & RTK_BVH4_LEAF_BIT)) {
-            const rtk_bvh4_node *n = &accel->nodes[e.ref];
-            float dist[4];
-            unsigned mask = node_intersect(n, &p, tnear, tfar, dist);
-            sp = push_children(n, mask, dist, stack, sp);
-            continue;
+    uint32_t cur = accel->root;
+    for (;;) {
+        if (!next_leaf(accel, &p, tnear, tfar_s, tfar, stack, &sp, &cur))
+            return;
+        tri4_hit h;
+        if (triangle4_intersect(&accel->tris[cur & ~RTK_BVH4_LEAF_BIT], &p, tnear, tfar, &h)) {
+            ray->tfar = -INFINITY;
+            return;
         }
-        const rtk_triangle4 *t = &accel->tris[e.ref & ~RTK_BVH4_LEAF_BIT];
-        for (int lane = 0; lane < 4 && t->prim[lane] != RTK_BVH4_EMPTY; lane++) {
-            float v0[3], e1[3], e2[3];
-            rtk_tri_hit h;
-            lane_triangle(t, lane, v0, e1, e2);
-            if (rtk_triangle_intersect(p.org, p.dir, tnear, tfar, v0, e1, e2, &h)) {
-                ray->tfar = -INFINITY;
-                return;
-            }
-        }
+        if (sp == 0)
+            return;
+        cur = stack[--sp].ref;
     }
 }
