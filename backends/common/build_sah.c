@@ -451,15 +451,7 @@ static size_t page_round(size_t size)
 static void *reserve(size_t size)
 {
     void *p = mmap(NULL, page_round(size), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
-    if (p == MAP_FAILED)
-        return NULL;
-#ifdef MADV_HUGEPAGE
-    /* Large pages where the system allows them: one fault per 2 MiB instead
-     * of per 4 KiB, and fewer TLB misses in traversal.  Advice only. */
-    if (size >= ((size_t)2 << 20))
-        madvise(p, page_round(size), MADV_HUGEPAGE);
-#endif
-    return p;
+    return p == MAP_FAILED ? NULL : p;
 }
 
 static void unreserve(void *p, size_t size)
