@@ -1,0 +1,147 @@
+/*
+ * The SIMD layer's documented semantics, checked for one implementation per
+ * build of this file: tests/CMakeLists.txt compiles it once with the
+ * baseline flags (GNU C vectors, as the scalar backend sees the layer) and
+ * once with -msse4.1 (intrinsics, as sse41/avx/avx2 see it), and both
+ * binaries must pass the same expectations.
+ */
+#include <math.h>
+#include <setjmp.h>
+#include <stdarg.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <cmocka.h>
+
+#include "simd/simd.h"
+
+static void get4(vfloat4 v, float out[4])
+{
+    _Alignas(16) float t[4];
+    vf4_store(t, v);
+    for (int i = 0; i < 4; i++)
+        out[i] = t[i];
+}
+
+static void geti4(vint4 v, int32_t out[4])
+{
+    _Alignas(16) int32_t t[4];
+    vi4_store(t, v);
+    for (int i = 0; i < 4; i++)
+        out[i] = t[i];
+}
+
+static void test_min_max_nan(void **state)
+{
+    (void)state;
+    const float nan = NAN;
+    vfloat4 a = vf4_set(1.0f, nan, 3.0f, -0.0f), b = vf4_set(2.0f, 5.0f, nan, 0.0f);
+    float r[4];
+    get4(vf4_min(a, b), r);
+    assert_true(r[0] == 1.0f);
+    assert_true(r[1] == 5.0f); /* NaN in a: b wins */
+    assert_true(isnan(r[2]));  /* NaN in b: b is returned */
+    assert_true(r[3] == 0.0f && !signbit(r[3])); /* -0 < 0 is false: b */
+    get4(vf4_max(a, b), r);
+    assert_true(r[0] == 2.0f);
+    assert_true(r[1] == 5.0f);
+    assert_true(isnan(r[2]));
+    assert_true(r[3] == 0.0f && !signbit(r[3]));
+}
+
+static void test_compare_select_mask(void **state)
+{
+    (void)state;
+    vfloat4 a = vf4_set(1.0f, 2.0f, NAN, 4.0f), b = vf4_set(2.0f, 2.0f, 1.0f, 3.0f);
+    assert_int_equal(vb4_mask(vf4_lt(a, b)), 0x1);
+    assert_int_equal(vb4_mask(vf4_le(a, b)), 0x3);
+    assert_int_equal(vb4_mask(vf4_gt(a, b)), 0x8);
+    assert_int_equal(vb4_mask(vf4_ge(a, b)), 0xa);
+    assert_int_equal(vb4_mask(vf4_eq(a, b)), 0x2);
+    assert_int_equal(vb4_mask(vb4_from_bits(0x5)), 0x5);
+    assert_int_equal(vb4_mask(vb4_andnot(vb4_from_bits(0x7), vb4_from_bits(0x2))), 0x5);
+    assert_int_equal(vb4_mask(vb4_or(vb4_from_bits(0x1), vb4_from_bits(0x8))), 0x9);
+    float r[4];
+    get4(vf4_select(vb4_from_bits(0x6), a, b), r);
+    assert_true(r[0] == 2.0f && r[1] == 2.0f && isnan(r[2]) && r[3] == 3.0f);
+    get4(vf4_keep(vb4_from_bits(0x9), b), r);
+    assert_true(r[0] == 2.0f && r[1] == 0.0f && r[2] == 0.0f && r[3] == 3.0f);
+}
+
+static void test_arithmetic(void **state)
+{
+    (void)state;
+    vfloat4 a = vf4_set(1.5f, -2.0f, 3.0f, 0.25f), b = vf4_set(2.0f, 4.0f, -1.0f, 8.0f);
+    float r[4];
+    get4(vf4_madd(a, b, vf4_set1(1.0f)), r);
+    assert_true(r[0] == 4.0f && r[1] == -7.0f && r[2] == -2.0f && r[3] == 3.0f);
+    get4(vf4_msub(a, b, vf4_set1(1.0f)), r);
+    assert_true(r[0] == 2.0f && r[1] == -9.0f && r[2] == -4.0f && r[3] == 1.0f);
+    get4(vf4_div(a, b), r);
+    assert_true(r[0] == 0.75f && r[1] == -0.5f && r[2] == -3.0f && r[3] == 0.03125f);
+    get4(vf4_abs(vf4_set(-1.0f, -0.0f, 2.0f, -INFINITY)), r);
+    assert_true(r[0] == 1.0f && r[1] == 0.0f && !signbit(r[1]) && r[2] == 2.0f && r[3] == INFINITY);
+    get4(vf4_xor_sign(vf4_set(1.0f, 1.0f, -1.0f, 0.0f), vf4_set(-3.0f, 3.0f, -0.0f, -1.0f)), r);
+    assert_true(r[0] == -1.0f && r[1] == 1.0f && r[2] == 1.0f && r[3] == 0.0f && signbit(r[3]));
+    assert_true(vf4_reduce_min(vf4_set(3.0f, 1.0f, 2.0f, -5.0f)) == -5.0f);
+    assert_true(vf4_reduce_min3(vf4_set(3.0f, 1.0f, 2.0f, -5.0f)) == 1.0f);
+    assert_true(vf4_reduce_max3(vf4_set(3.0f, 1.0f, 2.0f, 9.0f)) == 3.0f);
+    assert_true(vf4_lane0(a) == 1.5f);
+    get4(vf4_broadcast(a, 2), r);
+    assert_true(r[0] == 3.0f && r[3] == 3.0f);
+}
+
+static void test_transpose(void **state)
+{
+    (void)state;
+    vfloat4 a = vf4_set(0, 1, 2, 3), b = vf4_set(4, 5, 6, 7), c = vf4_set(8, 9, 10, 11), d = vf4_set(12, 13, 14, 15);
+    vf4_transpose(&a, &b, &c, &d);
+    float r[4][4];
+    get4(a, r[0]);
+    get4(b, r[1]);
+    get4(c, r[2]);
+    get4(d, r[3]);
+    for (int i = 0; i < 4; i++)
+        for (int j = 0; j < 4; j++)
+            assert_true(r[i][j] == (float)(4 * j + i));
+}
+
+static void test_int(void **state)
+{
+    (void)state;
+    int32_t r[4];
+    geti4(vi4_from_vf4_trunc(vf4_set(1.9f, -1.9f, 31.999f, 0.0f)), r);
+    assert_true(r[0] == 1 && r[1] == -1 && r[2] == 31 && r[3] == 0);
+    _Alignas(16) const int32_t p[4] = {5, -7, INT32_MAX, 0};
+    vint4 a = vi4_load(p);
+    geti4(vi4_add(a, vi4_set1(1)), r);
+    assert_true(r[0] == 6 && r[1] == -6 && r[2] == INT32_MIN && r[3] == 1); /* wraps */
+    geti4(vi4_min(a, vi4_set1(0)), r);
+    assert_true(r[0] == 0 && r[1] == -7 && r[2] == 0 && r[3] == 0);
+    geti4(vi4_max(a, vi4_set1(0)), r);
+    assert_true(r[0] == 5 && r[1] == 0 && r[2] == INT32_MAX && r[3] == 0);
+    geti4(vi4_shr(vi4_set1(-1), 28), r);
+    assert_true(r[0] == 15); /* logical shift */
+    assert_int_equal(vb4_mask(vi4_lt(a, vi4_set1(0))), 0x2);
+    assert_int_equal(vb4_mask(vi4_eq(a, vi4_set1(0))), 0x8);
+    geti4(vi4_select(vb4_from_bits(0x3), a, vi4_set1(9)), r);
+    assert_true(r[0] == 5 && r[1] == -7 && r[2] == 9 && r[3] == 9);
+    assert_int_equal(vi4_lane(a, 1), -7);
+    float f[4];
+    get4(vf4_from_vi4(a), f);
+    assert_true(f[0] == 5.0f && f[1] == -7.0f);
+    geti4(vf4_bits(vf4_set1(1.0f)), r);
+    assert_true(r[0] == 0x3f800000);
+    get4(vf4_from_bits(vi4_set1(0x40000000)), f);
+    assert_true(f[3] == 2.0f);
+}
+
+int main(void)
+{
+    print_message("SIMD layer implementation: %s\n", RTK_SIMD_ISA);
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_min_max_nan), cmocka_unit_test(test_compare_select_mask),
+        cmocka_unit_test(test_arithmetic),  cmocka_unit_test(test_transpose),
+        cmocka_unit_test(test_int),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
