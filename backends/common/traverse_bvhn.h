@@ -1,0 +1,360 @@
+/*
+ * Single-ray traversal of the bvhN.triangle4 layouts (N = 4 or 8): closest
+ * hit and any hit.  A template: traverse_bvh4.c and traverse_bvh8.c define
+ * RTK_BVHN and include it, so both widths share this one source.
+ *
+ * Written once with the 4-wide types of simd/ (SSE4.1 in the sse41, avx and
+ * avx2 backends, GNU C vectors in the scalar one).  Children are tested four
+ * at a time against slabs whose near and far planes
+ * are picked once per ray from the signs of the direction (so -0.0 behaves as
+ * a negative direction, consistently with its reciprocal), visited nearest
+ * first, and skipped when their entry distance is already beyond the closest
+ * hit.  Direction components smaller than 1e-18 in magnitude are replaced by
+ * +-1e-18 before taking the reciprocal (as Embree does), so no 0 * inf NaN can
+ * appear in a slab test.  The far slab distance is scaled by 1 + 2*gamma(3)
+ * (Ize 2013), which makes the box test conservative against the rounding of
+ * the slab arithmetic: a triangle whose hit lies on a box face or edge (rays
+ * aimed at vertices do that) is not culled by its box.  A leaf's four
+ * triangles are tested at once with the arithmetic of rtk_triangle_intersect.
+ *
+ * The core checks ray validity before calling in: org/dir finite, 0 <= tnear <= tfar.
+ */
+#include <math.h>
+#include <stddef.h>
+
+#include "backend_common.h"
+#include "bvh4_triangle4.h"
+#include "geometry/triangle.h"
+#include "kernels.h"
+#include "simd/simd.h"
+
+#if RTK_BVHN == 4
+typedef rtk_bvh4_node node_t;
+typedef vfloat4 vnode;
+#define vn_load vf4_load
+#define vn_set1 vf4_set1
+#define vn_sub vf4_sub
+#define vn_mul vf4_mul
+#define vn_min vf4_min
+#define vn_max vf4_max
+#define vn_le vf4_le
+#define vn_mask vb4_mask
+#define vn_store vf4_store
+#define BVHN_NODES(accel) ((const rtk_bvh4_node *)(accel)->nodes)
+#define BVHN_INTERSECT1 RTK_SYM(rtk_bvh4_intersect1)
+#define BVHN_OCCLUDED1 RTK_SYM(rtk_bvh4_occluded1)
+#elif RTK_BVHN == 8
+typedef rtk_bvh8_node node_t;
+typedef vfloat8 vnode;
+#define vn_load vf8_load
+#define vn_set1 vf8_set1
+#define vn_sub vf8_sub
+#define vn_mul vf8_mul
+#define vn_min vf8_min
+#define vn_max vf8_max
+#define vn_le vf8_le
+#define vn_mask vb8_mask
+#define vn_store vf8_store
+#define BVHN_NODES(accel) ((const rtk_bvh8_node *)(accel)->nodes)
+#define BVHN_INTERSECT1 RTK_SYM(rtk_bvh8_intersect1)
+#define BVHN_OCCLUDED1 RTK_SYM(rtk_bvh8_occluded1)
+#else
+#error "define RTK_BVHN to 4 or 8 before including traverse_bvhn.h"
+#endif
+
+/* 1 + 2 * gamma(3), gamma(n) = n * eps / (1 - n * eps), eps = 2^-24 */
+#define RTK_BOX_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
+
+/* The ray, broadcast: everything the inner loops need, computed once. */
+typedef struct ray_pre {
+    vfloat4 org[3], dir[3];   /* for the triangle tests */
+    vnode norg[3], ninv[3];   /* for the node tests */
+    size_t near_off[3], far_off[3]; /* byte offsets of the near/far planes in a node */
+} ray_pre;
+
+static inline float safe_rcp(float d)
+{
+    const float tiny = 1e-18f;
+    if (fabsf(d) < tiny)
+        d = copysignf(tiny, d);
+    return 1.0f / d;
+}
+
+static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
+{
+    const float org[3] = {r->org_x, r->org_y, r->org_z}, dir[3] = {r->dir_x, r->dir_y, r->dir_z};
+    static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
+    static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
+    for (int k = 0; k < 3; k++) {
+        const float inv = safe_rcp(dir[k]);
+        const int neg = signbit(inv) != 0;
+        p->org[k] = vf4_set1(org[k]);
+        p->dir[k] = vf4_set1(dir[k]);
+        p->norg[k] = vn_set1(org[k]);
+        p->ninv[k] = vn_set1(inv);
+        p->near_off[k] = neg ? upper[k] : lower[k];
+        p->far_off[k] = neg ? lower[k] : upper[k];
+    }
+}
+
+static inline vnode plane(const node_t *n, size_t off)
+{
+    return vn_load((const float *)((const char *)n + off));
+}
+
+/* Tests the N child boxes at once; returns a bit mask of those entered
+ * within [tnear, tfar] and their entry distances. */
+static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear, vnode tfar, vnode *dist)
+{
+    const vnode t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
+    const vnode t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
+    const vnode t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
+    const vnode t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv[0]);
+    const vnode t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv[1]);
+    const vnode t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv[2]);
+    const vnode tmin = vn_max(vn_max(t0x, t0y), vn_max(t0z, tnear));
+    vnode tmax = vn_mul(vn_min(vn_min(t1x, t1y), t1z), vn_set1(RTK_BOX_FAR_SCALE));
+    tmax = vn_min(tmax, tfar);
+    *dist = tmin;
+    return (unsigned)vn_mask(vn_le(tmin, tmax));
+}
+
+typedef struct stack_entry {
+    uint32_t ref;
+    float dist;
+} stack_entry;
+
+/* Pushes the hit children farthest first, so the nearest is popped next:
+ * an insertion sort straight onto the stack (at most N entries). */
+static inline int push_children(const node_t *n, unsigned mask, vnode dists, stack_entry *stack, int sp)
+{
+    _Alignas(32) float dist[RTK_BVHN];
+    vn_store(dist, dists);
+    const int base = sp;
+    for (; mask; mask &= mask - 1) {
+        const int i = __builtin_ctz(mask);
+        const stack_entry e = {n->child[i], dist[i]};
+        int j = sp++;
+        while (j > base && stack[j - 1].dist < e.dist) { /* decreasing distance */
+            stack[j] = stack[j - 1];
+            j--;
+        }
+        stack[j] = e;
+    }
+    return sp;
+}
+
+/* Moeller-Trumbore on four triangles at once, the same arithmetic as
+ * rtk_triangle_intersect (geometry/triangle.h) lane by lane.  Returns the
+ * mask of lanes hit within [tnear, tfar]; U, V, T and |det| per lane. */
+typedef struct tri4_hit {
+    vfloat4 U, V, T, absdet;
+} tri4_hit;
+
+static inline unsigned triangle4_intersect(const rtk_triangle4 *t, const ray_pre *p, vfloat4 tnear, vfloat4 tfar,
+                                           tri4_hit *h)
+{
+    const vfloat4 e1x = vf4_load(t->e1x), e1y = vf4_load(t->e1y), e1z = vf4_load(t->e1z);
+    const vfloat4 e2x = vf4_load(t->e2x), e2y = vf4_load(t->e2y), e2z = vf4_load(t->e2z);
+    const vfloat4 dx = p->dir[0], dy = p->dir[1], dz = p->dir[2];
+    /* p = cross(d, e2) */
+    const vfloat4 px = vf4_sub(vf4_mul(dy, e2z), vf4_mul(dz, e2y));
+    const vfloat4 py = vf4_sub(vf4_mul(dz, e2x), vf4_mul(dx, e2z));
+    const vfloat4 pz = vf4_sub(vf4_mul(dx, e2y), vf4_mul(dy, e2x));
+    const vfloat4 det = vf4_add(vf4_add(vf4_mul(e1x, px), vf4_mul(e1y, py)), vf4_mul(e1z, pz));
+    const vfloat4 absdet = vf4_abs(det);
+    /* s = o - v0 */
+    const vfloat4 sx = vf4_sub(p->org[0], vf4_load(t->v0x));
+    const vfloat4 sy = vf4_sub(p->org[1], vf4_load(t->v0y));
+    const vfloat4 sz = vf4_sub(p->org[2], vf4_load(t->v0z));
+    const vfloat4 U = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(sx, px), vf4_mul(sy, py)), vf4_mul(sz, pz)), det);
+    /* q = cross(s, e1) */
+    const vfloat4 qx = vf4_sub(vf4_mul(sy, e1z), vf4_mul(sz, e1y));
+    const vfloat4 qy = vf4_sub(vf4_mul(sz, e1x), vf4_mul(sx, e1z));
+    const vfloat4 qz = vf4_sub(vf4_mul(sx, e1y), vf4_mul(sy, e1x));
+    const vfloat4 V = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(dx, qx), vf4_mul(dy, qy)), vf4_mul(dz, qz)), det);
+    const vfloat4 T = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(e2x, qx), vf4_mul(e2y, qy)), vf4_mul(e2z, qz)), det);
+    const vfloat4 zero = vf4_set1(0.0f);
+    vbool4 ok = vb4_and(vf4_ge(U, zero), vf4_ge(V, zero));
+    ok = vb4_and(ok, vf4_le(vf4_add(U, V), absdet));
+    ok = vb4_and(ok, vf4_gt(absdet, zero));
+    ok = vb4_and(ok, vf4_ge(T, vf4_mul(tnear, absdet)));
+    ok = vb4_and(ok, vf4_le(T, vf4_mul(tfar, absdet)));
+    h->U = U;
+    h->V = V;
+    h->T = T;
+    h->absdet = absdet;
+    return (unsigned)vb4_mask(ok);
+}
+
+static inline void lane_triangle(const rtk_triangle4 *t, int lane, float v0[3], float e1[3], float e2[3])
+{
+    v0[0] = t->v0x[lane];
+    v0[1] = t->v0y[lane];
+    v0[2] = t->v0z[lane];
+    e1[0] = t->e1x[lane];
+    e1[1] = t->e1y[lane];
+    e1[2] = t->e1z[lane];
+    e2[0] = t->e2x[lane];
+    e2[1] = t->e2y[lane];
+    e2[2] = t->e2z[lane];
+}
+
+/* Descends from `cur` through inner nodes until it reaches a leaf, following
+ * the nearest child hit and pushing the others (farthest first).  Returns 0
+ * when no child is hit on the way and the stack is empty, else 1 with the
+ * leaf in *leaf.  Entries popped whose distance is beyond tfar are dropped. */
+static inline int next_leaf(const rtk_accel *accel, const ray_pre *p, vnode tnear, float tfar_s, vnode tfar,
+                            stack_entry *stack, int *sp_io, uint32_t *cur_io)
+{
+    int sp = *sp_io;
+    uint32_t cur = *cur_io;
+    for (;;) {
+        if (cur & RTK_BVH4_LEAF_BIT) {
+            *sp_io = sp;
+            *cur_io = cur;
+            return 1;
+        }
+        const node_t *n = &BVHN_NODES(accel)[cur];
+        vnode dists;
+        unsigned mask = node_intersect(n, p, tnear, tfar, &dists);
+        if (mask && !(mask & (mask - 1))) { /* one child: no stack traffic */
+            cur = n->child[__builtin_ctz(mask)];
+            continue;
+        }
+        if (mask) {
+            _Alignas(32) float dist[RTK_BVHN];
+            vn_store(dist, dists);
+            const int i0 = __builtin_ctz(mask);
+            mask &= mask - 1;
+            const int i1 = __builtin_ctz(mask);
+            mask &= mask - 1;
+            if (!mask) { /* two children: push the far one, go to the near one */
+                const int near = dist[i1] < dist[i0] ? i1 : i0, far = i0 + i1 - near;
+                stack[sp++] = (stack_entry){n->child[far], dist[far]};
+                cur = n->child[near];
+                continue;
+            }
+            sp = push_children(n, (1u << i0) | (1u << i1) | mask, dists, stack, sp);
+        }
+        /* pop the nearest pending entry still in range */
+        for (;;) {
+            if (sp == 0)
+                return 0;
+            const stack_entry e = stack[--sp];
+            if (e.dist <= tfar_s) {
+                cur = e.ref;
+                break;
+            }
+        }
+    }
+}
+
+void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    ray_pre p;
+    ray_pre_init(&p, &rayhit->ray);
+    const float tnear_s = rayhit->ray.tnear;
+    const vfloat4 tnear = vf4_set1(tnear_s);
+    const vnode ntnear = vn_set1(tnear_s);
+    float tfar_s = rayhit->ray.tfar;
+    vfloat4 tfar = vf4_set1(tfar_s);
+    vnode ntfar = vn_set1(tfar_s);
+    const rtk_triangle4 *best_leaf = NULL;
+    int best_lane = 0;
+    float best_u = 0.0f, best_v = 0.0f;
+
+    stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
+    int sp = 0;
+    uint32_t cur = accel->root;
+    for (;;) {
+        if (!next_leaf(accel, &p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
+            break;
+        const rtk_triangle4 *t = &accel->tris[cur & ~RTK_BVH4_LEAF_BIT];
+        tri4_hit h;
+        unsigned mask = triangle4_intersect(t, &p, tnear, tfar, &h);
+        if (mask) {
+            /* the nearest of the lanes hit */
+            _Alignas(16) float T[4], absdet[4], U[4], V[4];
+            vf4_store(T, h.T);
+            vf4_store(absdet, h.absdet);
+            int lane = -1;
+            float t_lane = 0.0f;
+            for (; mask; mask &= mask - 1) {
+                const int i = __builtin_ctz(mask);
+                float ti = T[i] * (1.0f / absdet[i]);
+                if (lane < 0 || ti < t_lane) {
+                    lane = i;
+                    t_lane = ti;
+                }
+            }
+            /* The product may round past an end of the interval the unscaled
+             * test accepted; clamp so tnear <= t <= tfar always holds. */
+            t_lane = t_lane < tnear_s ? tnear_s : (t_lane > tfar_s ? tfar_s : t_lane);
+            vf4_store(U, h.U);
+            vf4_store(V, h.V);
+            const float inv = 1.0f / absdet[lane];
+            best_u = U[lane] * inv;
+            best_v = V[lane] * inv;
+            best_leaf = t;
+            best_lane = lane;
+            tfar_s = t_lane;
+            tfar = vf4_set1(tfar_s);
+            ntfar = vn_set1(tfar_s);
+        }
+        /* continue from the stack */
+        for (;;) {
+            if (sp == 0)
+                goto done;
+            const stack_entry e = stack[--sp];
+            if (e.dist <= tfar_s) {
+                cur = e.ref;
+                break;
+            }
+        }
+    }
+done:
+    if (!best_leaf)
+        return;
+    float v0[3], e1[3], e2[3], ng[3];
+    lane_triangle(best_leaf, best_lane, v0, e1, e2);
+    rtk_triangle_normal(e1, e2, ng);
+    rayhit->ray.tfar = tfar_s;
+    rayhit->hit.Ng_x = ng[0];
+    rayhit->hit.Ng_y = ng[1];
+    rayhit->hit.Ng_z = ng[2];
+    rayhit->hit.u = best_u;
+    rayhit->hit.v = best_v;
+    rayhit->hit.primID = best_leaf->prim[best_lane];
+    rayhit->hit.geomID = best_leaf->geom[best_lane];
+    rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
+}
+
+void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    ray_pre p;
+    ray_pre_init(&p, ray);
+    const float tfar_s = ray->tfar;
+    const vfloat4 tnear = vf4_set1(ray->tnear), tfar = vf4_set1(tfar_s);
+    const vnode ntnear = vn_set1(ray->tnear), ntfar = vn_set1(tfar_s);
+
+    stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
+    int sp = 0;
+    uint32_t cur = accel->root;
+    for (;;) {
+        if (!next_leaf(accel, &p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
+            return;
+        tri4_hit h;
+        if (triangle4_intersect(&accel->tris[cur & ~RTK_BVH4_LEAF_BIT], &p, tnear, tfar, &h)) {
+            ray->tfar = -INFINITY;
+            return;
+        }
+        if (sp == 0)
+            return;
+        cur = stack[--sp].ref;
+    }
+}
