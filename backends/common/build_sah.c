@@ -167,8 +167,7 @@ static split find_split(const builder *b, const range *r)
     split best = {.axis = -1};
     const uint32_t n = r->end - r->begin;
     const int nb = bin_count(n);
-    _Alignas(16) float cmin[4], ext[4], scale[4] = {0, 0, 0, 0};
-    vf4_store(cmin, r->cent.lo);
+    _Alignas(16) float ext[4], scale[4] = {0, 0, 0, 0};
     vf4_store(ext, vf4_sub(r->cent.hi, r->cent.lo));
     int splittable = 0;
     for (int a = 0; a < 3; a++)
