@@ -162,6 +162,19 @@ static inline int bin_count(uint32_t n)
     return b < RTK_SAH_BINS ? (int)b : RTK_SAH_BINS;
 }
 
+/* Adds one reference's box to its bin on each axis (bin indices in lanes 0..2 of k). */
+static inline void bin_add(box4 bins[3][RTK_SAH_BINS], int32_t counts[RTK_SAH_BINS][4], vint4 k, vfloat4 lo,
+                           vfloat4 hi)
+{
+    const int x = vi4_lane(k, 0), y = vi4_lane(k, 1), z = vi4_lane(k, 2);
+    box_grow(&bins[0][x], lo, hi);
+    counts[x][0]++;
+    box_grow(&bins[1][y], lo, hi);
+    counts[y][1]++;
+    box_grow(&bins[2][z], lo, hi);
+    counts[z][2]++;
+}
+
 static split find_split(const builder *b, const range *r)
 {
     split best = {.axis = -1};
@@ -187,7 +200,8 @@ static split find_split(const builder *b, const range *r)
             bins[a][k] = box_empty();
     memset(counts, 0, sizeof counts);
 
-    /* Two references per step, so the two bin updates can overlap. */
+    /* Two references per step: both bin indices first, so the two sets of
+     * bin updates can overlap. */
     const primref *refs = b->refs;
     uint32_t i = r->begin;
     for (; i + 1 < r->end; i += 2) {
@@ -195,31 +209,12 @@ static split find_split(const builder *b, const range *r)
         vfloat4 lo1 = vf4_load(refs[i + 1].lo), hi1 = vf4_load(refs[i + 1].hi);
         vint4 k0 = bin_of(&map, centroid(lo0, hi0));
         vint4 k1 = bin_of(&map, centroid(lo1, hi1));
-        const int x0 = vi4_lane(k0, 0), y0 = vi4_lane(k0, 1), z0 = vi4_lane(k0, 2);
-        const int x1 = vi4_lane(k1, 0), y1 = vi4_lane(k1, 1), z1 = vi4_lane(k1, 2);
-        box_grow(&bins[0][x0], lo0, hi0);
-        counts[x0][0]++;
-        box_grow(&bins[1][y0], lo0, hi0);
-        counts[y0][1]++;
-        box_grow(&bins[2][z0], lo0, hi0);
-        counts[z0][2]++;
-        box_grow(&bins[0][x1], lo1, hi1);
-        counts[x1][0]++;
-        box_grow(&bins[1][y1], lo1, hi1);
-        counts[y1][1]++;
-        box_grow(&bins[2][z1], lo1, hi1);
-        counts[z1][2]++;
+        bin_add(bins, counts, k0, lo0, hi0);
+        bin_add(bins, counts, k1, lo1, hi1);
     }
     if (i < r->end) {
         vfloat4 lo0 = vf4_load(refs[i].lo), hi0 = vf4_load(refs[i].hi);
-        vint4 k0 = bin_of(&map, centroid(lo0, hi0));
-        const int x0 = vi4_lane(k0, 0), y0 = vi4_lane(k0, 1), z0 = vi4_lane(k0, 2);
-        box_grow(&bins[0][x0], lo0, hi0);
-        counts[x0][0]++;
-        box_grow(&bins[1][y0], lo0, hi0);
-        counts[y0][1]++;
-        box_grow(&bins[2][z0], lo0, hi0);
-        counts[z0][2]++;
+        bin_add(bins, counts, bin_of(&map, centroid(lo0, hi0)), lo0, hi0);
     }
 
     /* Sweep, the three axes at once in lanes 0..2: right_cost[k] is the cost

@@ -200,6 +200,20 @@ static inline void lane_triangle(const rtk_triangle4 *t, int lane, float v0[3], 
     e2[2] = t->e2z[lane];
 }
 
+/* Pops the nearest pending entry whose entry distance is within tfar into
+ * *cur, dropping those beyond it; 0 when the stack runs out. */
+static inline int pop_in_range(const stack_entry *stack, int *sp, float tfar_s, uint32_t *cur)
+{
+    while (*sp > 0) {
+        const stack_entry e = stack[--*sp];
+        if (e.dist <= tfar_s) {
+            *cur = e.ref;
+            return 1;
+        }
+    }
+    return 0;
+}
+
 /* Descends from `cur` through inner nodes until it reaches a leaf, following
  * the nearest child hit and pushing the others (farthest first).  Returns 0
  * when no child is hit on the way and the stack is empty, else 1 with the
@@ -237,16 +251,8 @@ static inline int next_leaf(const rtk_accel *accel, const ray_pre *p, vnode tnea
             }
             sp = push_children(n, (1u << i0) | (1u << i1) | mask, dists, stack, sp);
         }
-        /* pop the nearest pending entry still in range */
-        for (;;) {
-            if (sp == 0)
-                return 0;
-            const stack_entry e = stack[--sp];
-            if (e.dist <= tfar_s) {
-                cur = e.ref;
-                break;
-            }
-        }
+        if (!pop_in_range(stack, &sp, tfar_s, &cur))
+            return 0;
     }
 }
 
@@ -304,18 +310,9 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
             tfar = vf4_set1(tfar_s);
             ntfar = vn_set1(tfar_s);
         }
-        /* continue from the stack */
-        for (;;) {
-            if (sp == 0)
-                goto done;
-            const stack_entry e = stack[--sp];
-            if (e.dist <= tfar_s) {
-                cur = e.ref;
-                break;
-            }
-        }
+        if (!pop_in_range(stack, &sp, tfar_s, &cur))
+            break;
     }
-done:
     if (!best_leaf)
         return;
     float v0[3], e1[3], e2[3], ng[3];
@@ -353,8 +350,7 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
             ray->tfar = -INFINITY;
             return;
         }
-        if (sp == 0)
+        if (!pop_in_range(stack, &sp, tfar_s, &cur))
             return;
-        cur = stack[--sp].ref;
     }
 }
