@@ -184,6 +184,11 @@ static int check_tables(rtk_backend_entry *e, const rtk_backend_desc *d)
             return 0;
         }
     }
+    for (const rtk_kernel_entry *k = d->kernels; k->layout; k++)
+        if (!k->fn.any) {
+            reject(e, "kernel for layout %u, query %u, width %u has no function", k->layout, k->query, k->width);
+            return 0;
+        }
     for (const rtk_builder_entry *b = d->builders; b->name; b++) {
         int found = 0;
         for (const rtk_layout_entry *l = d->layouts; l->id; l++)

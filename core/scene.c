@@ -1,5 +1,6 @@
 /* Scenes, triangle-mesh geometry, commit, and the single-ray queries. */
 #include <math.h>
+#include <stddef.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -37,6 +38,12 @@ struct rtk_scene_s {
     const rtk_builder_entry *builder;
     rtk_intersect1_fn intersect1;
     rtk_occluded1_fn occluded1;
+    /* For packets of 4, 8, 16 rays: the widest packet kernel that divides
+     * the packet (width 1: none, ray by ray), per query. */
+    struct packet_kernel {
+        uint32_t width;
+        rtk_intersectN_fn fn; /* rtk_occludedN_fn has the same type */
+    } packet[2][3];
     rtk_build_output stats;
     double build_seconds;
 };
@@ -348,6 +355,19 @@ static const rtk_kernel_entry *find_kernel(const rtk_backend_desc *d, uint32_t l
     return NULL; /* not reached: the loader checked every layout has both */
 }
 
+static const uint32_t packet_widths[3] = {4, 8, 16};
+
+/* The widest packet kernel of at most `n` rays whose width divides n. */
+static struct packet_kernel find_packet_kernel(const rtk_backend_desc *d, uint32_t layout, uint32_t query, uint32_t n)
+{
+    struct packet_kernel best = {.width = 1};
+    for (const rtk_kernel_entry *k = d->kernels; k->layout; k++)
+        if (k->layout == layout && k->query == query && k->width > best.width && k->width <= n && n % k->width == 0 &&
+            (k->width == 4 || k->width == 8 || k->width == 16))
+            best = (struct packet_kernel){.width = k->width, .fn = k->fn.intersectN};
+    return best;
+}
+
 rtk_error rtk_scene_commit(rtk_scene s)
 {
     CHECK_HANDLE(s, "rtk_scene_commit");
@@ -435,6 +455,10 @@ rtk_error rtk_scene_commit(rtk_scene s)
     s->build_seconds = t1 - t0;
     s->intersect1 = find_kernel(bk, layout->id, RTK_QUERY_INTERSECT)->fn.intersect1;
     s->occluded1 = find_kernel(bk, layout->id, RTK_QUERY_OCCLUDED)->fn.occluded1;
+    for (int w = 0; w < 3; w++) {
+        s->packet[0][w] = find_packet_kernel(bk, layout->id, RTK_QUERY_INTERSECT, packet_widths[w]);
+        s->packet[1][w] = find_packet_kernel(bk, layout->id, RTK_QUERY_OCCLUDED, packet_widths[w]);
+    }
     if (out.prims_skipped)
         rtk_log(dev, 1, "scene: %llu triangles with NaN or infinite vertices left out (never hit)",
                 (unsigned long long)out.prims_skipped);
@@ -452,14 +476,15 @@ rtk_error rtk_scene_commit(rtk_scene s)
 rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
 {
     CHECK_HANDLE(s, "rtk_scene_get_info");
-    if (!info || info->struct_size < sizeof *info)
+    /* Callers built against the 0.1.0 struct (without packet_width) are served too. */
+    if (!info || info->struct_size < offsetof(rtk_scene_info, packet_width))
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_scene_get_info: info is NULL or its struct_size is not set");
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_scene_get_info: the scene was never committed");
     const rtk_build_output *o = &s->stats;
     size_t keep = info->struct_size;
-    memset(info, 0, sizeof *info);
+    memset(info, 0, keep < sizeof *info ? keep : sizeof *info);
     info->struct_size = keep;
     info->flags = s->flags;
     info->flags_not_honoured = s->flags & ~s->layout->scene_flags;
@@ -478,6 +503,9 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     info->sah_cost = o->sah_cost;
     memcpy(info->bounds_lower, o->lower, sizeof o->lower);
     memcpy(info->bounds_upper, o->upper, sizeof o->upper);
+    if (keep >= sizeof *info)
+        for (int w = 0; w < 3; w++)
+            info->packet_width[w] = s->packet[0][w].width;
     return RTK_OK;
 }
 
@@ -516,3 +544,93 @@ rtk_error rtk_occluded1(rtk_scene s, rtk_ray *ray)
         s->occluded1(s->accel, ray);
     return RTK_OK;
 }
+
+/* ---- packets ----
+ * Every ray type is an array of 4-byte fields in the order of rtk_rayhit's:
+ * rtk_rayhit is a packet of one, and field f of lane i of an N-packet is
+ * element f * N + i.  So lanes move between widths with one copy per field. */
+enum { RAY_FIELDS = sizeof(rtk_ray) / 4, RAYHIT_FIELDS = sizeof(rtk_rayhit) / 4 };
+_Static_assert(sizeof(rtk_ray) == 12 * 4 && sizeof(rtk_rayhit) == 20 * 4, "4-byte fields");
+_Static_assert(sizeof(rtk_ray4) == 4 * sizeof(rtk_ray) && sizeof(rtk_rayhit4) == 4 * sizeof(rtk_rayhit), "SoA 4");
+_Static_assert(sizeof(rtk_ray8) == 8 * sizeof(rtk_ray) && sizeof(rtk_rayhit8) == 8 * sizeof(rtk_rayhit), "SoA 8");
+_Static_assert(sizeof(rtk_ray16) == 16 * sizeof(rtk_ray) && sizeof(rtk_rayhit16) == 16 * sizeof(rtk_rayhit),
+               "SoA 16");
+_Static_assert(offsetof(rtk_rayhit8, hit) == sizeof(rtk_ray8) && offsetof(rtk_ray8, tfar) == 8 * 8 * 4, "order");
+
+static void copy_lanes(void *dst, size_t dst_n, size_t dst_lane, const void *src, size_t src_n, size_t src_lane,
+                       size_t lanes, size_t fields)
+{
+    for (size_t f = 0; f < fields; f++)
+        memcpy((uint32_t *)dst + f * dst_n + dst_lane, (const uint32_t *)src + f * src_n + src_lane, lanes * 4);
+}
+
+static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint32_t n, int occluded)
+{
+    char fn[24];
+    snprintf(fn, sizeof fn, "rtk_%s%u", occluded ? "occluded" : "intersect", n);
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (!packet)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: the packet is NULL", fn);
+    if ((uintptr_t)packet % (4 * n))
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: the packet at %p is not aligned to %u bytes", fn,
+                        packet, 4 * n);
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+
+    _Alignas(64) int32_t active[16];
+    int any = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        rtk_ray r;
+        copy_lanes(&r, 1, 0, packet, n, i, 1, RAY_FIELDS);
+        active[i] = (!valid || valid[i]) && ray_valid(&r) ? -1 : 0;
+        any |= active[i];
+    }
+    if (!any)
+        return RTK_OK;
+    const struct packet_kernel *k = &s->packet[occluded][n == 4 ? 0 : n == 8 ? 1 : 2];
+    const size_t fields = occluded ? RAY_FIELDS : RAYHIT_FIELDS;
+    if (k->width == n) {
+        k->fn(s->accel, active, packet);
+    } else if (k->width > 1) { /* narrower packets: through an aligned copy */
+        _Alignas(64) uint32_t sub[RAYHIT_FIELDS * 16];
+        for (uint32_t base = 0; base < n; base += k->width) {
+            int sub_any = 0;
+            for (uint32_t i = 0; i < k->width; i++)
+                sub_any |= active[base + i];
+            if (!sub_any)
+                continue;
+            copy_lanes(sub, k->width, 0, packet, n, base, k->width, fields);
+            k->fn(s->accel, active + base, sub);
+            for (uint32_t i = 0; i < k->width; i++)
+                if (active[base + i])
+                    copy_lanes(packet, n, base + i, sub, k->width, i, 1, fields);
+        }
+    } else { /* ray by ray */
+        for (uint32_t i = 0; i < n; i++) {
+            if (!active[i])
+                continue;
+            rtk_rayhit rh;
+            copy_lanes(&rh, 1, 0, packet, n, i, 1, fields);
+            if (occluded)
+                s->occluded1(s->accel, &rh.ray);
+            else
+                s->intersect1(s->accel, &rh);
+            copy_lanes(packet, n, i, &rh, 1, 0, 1, fields);
+        }
+    }
+    return RTK_OK;
+}
+
+#define RTK_PACKET_ENTRY_POINTS_(N)                                                                                    \
+    rtk_error rtk_intersect##N(rtk_scene s, const int *valid, rtk_rayhit##N *rayhit)                                  \
+    {                                                                                                                  \
+        return trace_packet(s, valid, rayhit, N, 0);                                                                   \
+    }                                                                                                                  \
+    rtk_error rtk_occluded##N(rtk_scene s, const int *valid, rtk_ray##N *ray)                                         \
+    {                                                                                                                  \
+        return trace_packet(s, valid, ray, N, 1);                                                                      \
+    }
+RTK_PACKET_ENTRY_POINTS_(4)
+RTK_PACKET_ENTRY_POINTS_(8)
+RTK_PACKET_ENTRY_POINTS_(16)

@@ -336,6 +336,55 @@ static void test_flags_reported(void **state)
     rtk_device_release(dev);
 }
 
+/* Packet calls: arguments checked like the single-ray ones, misaligned
+ * packets refused with a message, the empty scene, and the packet widths
+ * each backend reports. */
+static void test_packet_arguments(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene scene = NULL;
+        assert_int_equal(rtk_scene_new(dev, &scene), RTK_OK);
+        _Alignas(64) unsigned char mem[sizeof(rtk_rayhit16) + 64];
+        rtk_rayhit8 *rh8 = (rtk_rayhit8 *)mem;
+        memset(mem, 0, sizeof mem);
+        assert_int_equal(rtk_intersect8(scene, NULL, rh8), RTK_ERROR_INVALID_OPERATION); /* not committed */
+        assert_int_equal(rtk_scene_commit(scene), RTK_OK);
+        assert_int_equal(rtk_intersect8(NULL, NULL, rh8), RTK_ERROR_INVALID_ARGUMENT);
+        assert_int_equal(rtk_intersect8(scene, NULL, NULL), RTK_ERROR_INVALID_ARGUMENT);
+        assert_int_equal(rtk_occluded16(scene, NULL, NULL), RTK_ERROR_INVALID_ARGUMENT);
+        /* 16-byte aligned is enough for 4 rays, not for 8 or 16 */
+        assert_int_equal(rtk_occluded4(scene, NULL, (rtk_ray4 *)(mem + 16)), RTK_OK);
+        assert_int_equal(rtk_intersect8(scene, NULL, (rtk_rayhit8 *)(mem + 16)), RTK_ERROR_INVALID_ARGUMENT);
+        assert_non_null(strstr(rtk_device_get_error_message(dev), "not aligned to 32 bytes"));
+        assert_int_equal(rtk_occluded16(scene, NULL, (rtk_ray16 *)(mem + 32)), RTK_ERROR_INVALID_ARGUMENT);
+        assert_int_equal(rtk_intersect4(scene, NULL, (rtk_rayhit4 *)(mem + 4)), RTK_ERROR_INVALID_ARGUMENT);
+        /* the empty scene: valid rays, no hits, nothing written */
+        rtk_rayhit16 *rh16 = (rtk_rayhit16 *)mem;
+        for (int i = 0; i < 16; i++) {
+            rh16->ray.dir_z[i] = -1.0f;
+            rh16->ray.tfar[i] = INFINITY;
+            rh16->hit.geomID[i] = RTK_INVALID_GEOMETRY_ID;
+        }
+        rtk_rayhit16 copy = *rh16;
+        assert_int_equal(rtk_intersect16(scene, NULL, rh16), RTK_OK);
+        assert_int_equal(rtk_occluded16(scene, NULL, &rh16->ray), RTK_OK);
+        assert_memory_equal(rh16, &copy, sizeof copy);
+        /* widths: 8-ray kernels on the AVX backends, 4-ray ones elsewhere; wider packets are split */
+        rtk_scene_info info = {.struct_size = sizeof info};
+        assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
+        const int wide = !strcmp(names[b], "avx") || !strcmp(names[b], "avx2");
+        assert_int_equal(info.packet_width[0], 4);
+        assert_int_equal(info.packet_width[1], wide ? 8 : 4);
+        assert_int_equal(info.packet_width[2], wide ? 8 : 4);
+        rtk_scene_release(scene);
+        rtk_device_release(dev);
+    }
+}
+
 static void test_owned_buffer_copy_semantics(void **state)
 {
     (void)state;
@@ -372,6 +421,7 @@ int main(void)
         cmocka_unit_test(test_geometry_lifecycle),
         cmocka_unit_test(test_flags_reported),
         cmocka_unit_test(test_owned_buffer_copy_semantics),
+        cmocka_unit_test(test_packet_arguments),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

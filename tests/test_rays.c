@@ -51,8 +51,11 @@ static int teardown(void **state)
     return 0;
 }
 
+static void expect_packets(const char *what, rtk_ray r, const rtk_rayhit *single, const rtk_ray *single_occ);
+static size_t current; /* the backend expect_packets works on */
+
 /* Traces r on every backend; expects a hit on prim at t (prim == -1: no hit),
- * and the same answer from occluded1. */
+ * and the same answer from occluded1 and from every packet call. */
 static void expect(const char *what, rtk_ray r, int prim, float t)
 {
     for (size_t i = 0; i < nscenes; i++) {
@@ -84,6 +87,74 @@ static void expect(const char *what, rtk_ray r, int prim, float t)
         if (!(o.tfar == -INFINITY))
             fail_msg("%s [%s]: occluded1 missed", what, scenes[i].name);
     }
+    for (size_t i = 0; i < nscenes; i++) {
+        rtk_rayhit rh;
+        memset(&rh, 0x5a, sizeof rh);
+        rh.ray = r;
+        rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_intersect1(scenes[i].scene, &rh), RTK_OK);
+        rtk_ray o = r;
+        assert_int_equal(rtk_occluded1(scenes[i].scene, &o), RTK_OK);
+        current = i;
+        expect_packets(what, r, &rh, &o);
+    }
+}
+
+/* The ray in the first or last lane of a packet of each width, the other
+ * lanes either switched off or busy with a ray onto the square (so the
+ * packet both travels together and finishes rays alone): its lane must come
+ * back exactly as the single-ray call left it, the others as they were. */
+static void expect_packets(const char *what, rtk_ray r, const rtk_rayhit *single, const rtk_ray *single_occ)
+{
+    static const unsigned widths[3] = {4, 8, 16};
+    const rtk_ray filler = test_ray(0.5f, 0.5f, 2, 0.01f, -0.02f, -1, 0, INFINITY);
+    for (int wi = 0; wi < 3; wi++)
+        for (int occluded = 0; occluded < 2; occluded++)
+            for (int others_on = 0; others_on < 2; others_on++)
+                for (int end = 0; end < 2; end++) {
+                    const unsigned w = widths[wi], lane = end ? w - 1 : 0;
+                    _Alignas(64) uint32_t pk[20 * 16], before[20 * 16];
+                    int valid[16];
+                    for (unsigned j = 0; j < w; j++) {
+                        rtk_rayhit rh;
+                        memset(&rh, 0x5a, sizeof rh);
+                        rh.ray = j == lane ? r : filler;
+                        rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                        test_packet_put(pk, w, j, &rh, occluded);
+                        valid[j] = j == lane ? -1 : others_on;
+                    }
+                    memcpy(before, pk, sizeof pk);
+                    assert_int_equal(test_trace_packet(scenes[current].scene, w, occluded, valid, pk), RTK_OK);
+                    rtk_rayhit got, other;
+                    test_packet_get(pk, w, lane, &got, occluded);
+                    const int same = occluded ? !memcmp(&got.ray, single_occ, sizeof got.ray)
+                                              : !memcmp(&got, single, sizeof got);
+                    if (!same)
+                        fail_msg("%s [%s]: %s%u lane %u (other lanes %s) differs from the single-ray call: tfar %a "
+                                 "prim %u, single %a prim %u",
+                                 what, scenes[current].name, occluded ? "occluded" : "intersect", w, lane,
+                                 others_on ? "on" : "off", got.ray.tfar, got.hit.primID,
+                                 occluded ? single_occ->tfar : single->ray.tfar, single->hit.primID);
+                    for (unsigned j = 0; j < w; j++) {
+                        if (j == lane)
+                            continue;
+                        test_packet_get(pk, w, j, &other, occluded);
+                        if (others_on) {
+                            /* the filler hits the square (prim 0 or 1) at about t = 2 */
+                            const int hit = occluded ? other.ray.tfar == -INFINITY
+                                                     : other.hit.geomID == 0 && fabsf(other.ray.tfar - 2) < 1e-3f;
+                            if (!hit)
+                                fail_msg("%s [%s]: %s%u filler lane %u missed", what, scenes[current].name,
+                                         occluded ? "occluded" : "intersect", w, j);
+                        } else {
+                            rtk_rayhit was;
+                            test_packet_get(before, w, j, &was, occluded);
+                            if (memcmp(&was, &other, occluded ? sizeof was.ray : sizeof was))
+                                fail_msg("%s [%s]: %s%u inactive lane %u was written", what, scenes[current].name,
+                                         occluded ? "occluded" : "intersect", w, j);
+                        }
+                    }
+                }
 }
 
 static void test_axis_parallel_zero_and_negative_zero(void **state)

@@ -121,3 +121,30 @@ float rng_float(rng *r)
 {
     return (float)(rng_u32(r) >> 8) * 0x1p-24f;
 }
+
+void test_packet_put(void *packet, unsigned width, unsigned lane, const rtk_rayhit *rh, int occluded)
+{
+    const size_t fields = occluded ? 12 : 20;
+    for (size_t f = 0; f < fields; f++)
+        memcpy((uint32_t *)packet + f * width + lane, (const uint32_t *)rh + f, 4);
+}
+
+void test_packet_get(const void *packet, unsigned width, unsigned lane, rtk_rayhit *rh, int occluded)
+{
+    const size_t fields = occluded ? 12 : 20;
+    for (size_t f = 0; f < fields; f++)
+        memcpy((uint32_t *)rh + f, (const uint32_t *)packet + f * width + lane, 4);
+}
+
+rtk_error test_trace_packet(rtk_scene scene, unsigned width, int occluded, const int *valid, void *packet)
+{
+    switch (width * 2 + (unsigned)!!occluded) {
+    case 8: return rtk_intersect4(scene, valid, packet);
+    case 9: return rtk_occluded4(scene, valid, packet);
+    case 16: return rtk_intersect8(scene, valid, packet);
+    case 17: return rtk_occluded8(scene, valid, packet);
+    case 32: return rtk_intersect16(scene, valid, packet);
+    case 33: return rtk_occluded16(scene, valid, packet);
+    default: fail_msg("no packet width %u", width); return RTK_ERROR_INVALID_ARGUMENT;
+    }
+}

@@ -40,6 +40,13 @@ int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *ray, rtk_tri_hit *h
 
 rtk_ray test_ray(float ox, float oy, float oz, float dx, float dy, float dz, float tnear, float tfar);
 
+/* Packets of `width` rays (rtk.h's layout: field f of lane j is 4-byte word
+ * f * width + j; an occluded packet has only the 12 ray fields).  One lane
+ * in or out as an rtk_rayhit, and the call of that width. */
+void test_packet_put(void *packet, unsigned width, unsigned lane, const rtk_rayhit *rh, int occluded);
+void test_packet_get(const void *packet, unsigned width, unsigned lane, rtk_rayhit *rh, int occluded);
+rtk_error test_trace_packet(rtk_scene scene, unsigned width, int occluded, const int *valid, void *packet);
+
 typedef struct rng {
     uint64_t s;
 } rng;

@@ -69,9 +69,22 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersect1 = RTK_SYM(rtk_bvh8_intersect1)},
     {.layout = RTK_LAYOUT_BVH8_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 1,
      .fn.occluded1 = RTK_SYM(rtk_bvh8_occluded1)},
+    /* packets: the core splits 16 into 8s, and uses the 4-wide kernel for 4 */
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 4,
+     .fn.intersectN = RTK_SYM(rtk_bvh8_intersect4)},
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 4,
+     .fn.occludedN = RTK_SYM(rtk_bvh8_occluded4)},
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 8,
+     .fn.intersectN = RTK_SYM(rtk_bvh8_intersect8)},
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 8,
+     .fn.occludedN = RTK_SYM(rtk_bvh8_occluded8)},
 #endif
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 1, .fn.intersect1 = BVH4_INTERSECT1},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 1, .fn.occluded1 = BVH4_OCCLUDED1},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 4,
+     .fn.intersectN = RTK_SYM(rtk_bvh4_intersect4)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 4,
+     .fn.occludedN = RTK_SYM(rtk_bvh4_occluded4)},
     {0},
 };
 

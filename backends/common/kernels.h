@@ -10,4 +10,10 @@ RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect1)(const rtk_accel *accel, rtk_rayhit 
 RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
 RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet);
 #endif

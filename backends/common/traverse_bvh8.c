@@ -1,7 +1,12 @@
-/* Single-ray traversal of bvh8.triangle4: the template at width 8, in the
- * backends whose SIMD layer has 8-wide vectors (avx, avx2). */
+/* Traversal of bvh8.triangle4, in the backends whose SIMD layer has 8-wide
+ * vectors (avx, avx2): the single-ray template at width 8 and the packet
+ * template for 4- and 8-ray packets. */
 #include "simd/simd.h"
 #ifdef RTK_SIMD_HAS_8
 #define RTK_BVHN 8
 #include "traverse_bvhn.h"
+#define RTK_PACKET 4
+#include "traverse_packet.h"
+#define RTK_PACKET 8
+#include "traverse_packet.h"
 #endif

@@ -256,31 +256,35 @@ static inline int next_leaf(const rtk_accel *accel, const ray_pre *p, vnode tnea
     }
 }
 
-void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
+/* The closest hit found so far by one ray: the leaf block, the lane in it,
+ * and the barycentrics (the distance is the ray's tfar). */
+typedef struct closest_hit {
+    const rtk_triangle4 *leaf;
+    int lane;
+    float u, v;
+} closest_hit;
+
+/* Closest hit below `root` within [tnear, *tfar]: on a hit closer than *tfar,
+ * updates *tfar and *best.  The packet kernels call this too, for rays they
+ * finish alone. */
+static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s,
+                                float *tfar_io, closest_hit *best)
 {
-    if (accel->root == RTK_BVH4_EMPTY)
-        return;
-    ray_pre p;
-    ray_pre_init(&p, &rayhit->ray);
-    const float tnear_s = rayhit->ray.tnear;
     const vfloat4 tnear = vf4_set1(tnear_s);
     const vnode ntnear = vn_set1(tnear_s);
-    float tfar_s = rayhit->ray.tfar;
+    float tfar_s = *tfar_io;
     vfloat4 tfar = vf4_set1(tfar_s);
     vnode ntfar = vn_set1(tfar_s);
-    const rtk_triangle4 *best_leaf = NULL;
-    int best_lane = 0;
-    float best_u = 0.0f, best_v = 0.0f;
 
     stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
     int sp = 0;
-    uint32_t cur = accel->root;
+    uint32_t cur = root;
     for (;;) {
-        if (!next_leaf(accel, &p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
+        if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
             break;
         const rtk_triangle4 *t = &accel->tris[cur & ~RTK_BVH4_LEAF_BIT];
         tri4_hit h;
-        unsigned mask = triangle4_intersect(t, &p, tnear, tfar, &h);
+        unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
         if (mask) {
             /* the nearest of the lanes hit */
             _Alignas(16) float T[4], absdet[4], U[4], V[4];
@@ -297,15 +301,17 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
                 }
             }
             /* The product may round past an end of the interval the unscaled
-             * test accepted; clamp so tnear <= t <= tfar always holds. */
-            t_lane = t_lane < tnear_s ? tnear_s : (t_lane > tfar_s ? tfar_s : t_lane);
+             * test accepted; clamp so tnear <= t <= tfar always holds.  Ties
+             * go to the interval's end (so -0.0 becomes tnear's +0.0), as
+             * max/min do in the packet kernels. */
+            t_lane = t_lane <= tnear_s ? tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
             vf4_store(U, h.U);
             vf4_store(V, h.V);
             const float inv = 1.0f / absdet[lane];
-            best_u = U[lane] * inv;
-            best_v = V[lane] * inv;
-            best_leaf = t;
-            best_lane = lane;
+            best->u = U[lane] * inv;
+            best->v = V[lane] * inv;
+            best->leaf = t;
+            best->lane = lane;
             tfar_s = t_lane;
             tfar = vf4_set1(tfar_s);
             ntfar = vn_set1(tfar_s);
@@ -313,19 +319,58 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
             break;
     }
-    if (!best_leaf)
-        return;
-    float v0[3], e1[3], e2[3], ng[3];
-    lane_triangle(best_leaf, best_lane, v0, e1, e2);
+    *tfar_io = tfar_s;
+}
+
+/* Any hit below `root` within [tnear, tfar]: 1 when there is one. */
+static inline int any_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float tfar_s)
+{
+    const vfloat4 tnear = vf4_set1(tnear_s), tfar = vf4_set1(tfar_s);
+    const vnode ntnear = vn_set1(tnear_s), ntfar = vn_set1(tfar_s);
+
+    stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
+    int sp = 0;
+    uint32_t cur = root;
+    for (;;) {
+        if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
+            return 0;
+        tri4_hit h;
+        if (triangle4_intersect(&accel->tris[cur & ~RTK_BVH4_LEAF_BIT], p, tnear, tfar, &h))
+            return 1;
+        if (!pop_in_range(stack, &sp, tfar_s, &cur))
+            return 0;
+    }
+}
+
+/* The geometric normal and ids of a closest hit. */
+static inline void closest_hit_record(const closest_hit *best, float ng[3], uint32_t *prim, uint32_t *geom)
+{
+    float v0[3], e1[3], e2[3];
+    lane_triangle(best->leaf, best->lane, v0, e1, e2);
     rtk_triangle_normal(e1, e2, ng);
-    rayhit->ray.tfar = tfar_s;
+    *prim = best->leaf->prim[best->lane];
+    *geom = best->leaf->geom[best->lane];
+}
+
+void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    ray_pre p;
+    ray_pre_init(&p, &rayhit->ray);
+    closest_hit best = {0};
+    float tfar = rayhit->ray.tfar;
+    closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best);
+    if (!best.leaf)
+        return;
+    float ng[3];
+    closest_hit_record(&best, ng, &rayhit->hit.primID, &rayhit->hit.geomID);
+    rayhit->ray.tfar = tfar;
     rayhit->hit.Ng_x = ng[0];
     rayhit->hit.Ng_y = ng[1];
     rayhit->hit.Ng_z = ng[2];
-    rayhit->hit.u = best_u;
-    rayhit->hit.v = best_v;
-    rayhit->hit.primID = best_leaf->prim[best_lane];
-    rayhit->hit.geomID = best_leaf->geom[best_lane];
+    rayhit->hit.u = best.u;
+    rayhit->hit.v = best.v;
     rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
 }
 
@@ -335,22 +380,6 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
         return;
     ray_pre p;
     ray_pre_init(&p, ray);
-    const float tfar_s = ray->tfar;
-    const vfloat4 tnear = vf4_set1(ray->tnear), tfar = vf4_set1(tfar_s);
-    const vnode ntnear = vn_set1(ray->tnear), ntfar = vn_set1(tfar_s);
-
-    stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
-    int sp = 0;
-    uint32_t cur = accel->root;
-    for (;;) {
-        if (!next_leaf(accel, &p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
-            return;
-        tri4_hit h;
-        if (triangle4_intersect(&accel->tris[cur & ~RTK_BVH4_LEAF_BIT], &p, tnear, tfar, &h)) {
-            ray->tfar = -INFINITY;
-            return;
-        }
-        if (!pop_in_range(stack, &sp, tfar_s, &cur))
-            return;
-    }
+    if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar))
+        ray->tfar = -INFINITY;
 }

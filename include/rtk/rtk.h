@@ -224,6 +224,10 @@ typedef struct rtk_scene_info {
     double build_seconds;
     double sah_cost;
     float bounds_lower[3], bounds_upper[3];
+    /* Rays per packet-kernel call for rtk_intersect4/8/16 (and occluded):
+     * N when the backend traces the packet whole, less when it splits it,
+     * 1 when it traces ray by ray. */
+    uint32_t packet_width[3];
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -287,6 +291,53 @@ typedef struct rtk_rayhit {
 RTK_API rtk_error rtk_intersect1(rtk_scene scene, rtk_rayhit *rayhit);
 /* Any hit. */
 RTK_API rtk_error rtk_occluded1(rtk_scene scene, rtk_ray *ray);
+
+/* ---- ray packets -----------------------------------------------------------
+ * Packets of 4, 8 or 16 rays as structures of arrays: the fields of rtk_ray
+ * and rtk_hit, in the same order, one array of N per field.  A packet must be
+ * aligned to 4*N bytes (the types carry that alignment, so declared variables
+ * and memory from aligned_alloc are fine); a misaligned packet is
+ * RTK_ERROR_INVALID_ARGUMENT.
+ *
+ * valid[i] != 0 makes lane i active (valid == NULL: all lanes).  Each active
+ * lane gets the answer rtk_intersect1 / rtk_occluded1 gives for that ray
+ * (when two triangles are hit at exactly the same t, either may be reported);
+ * inactive lanes and invalid rays are left untouched.
+ *
+ * Packet traversal pays off for coherent rays (camera rays through
+ * neighbouring pixels): the packet visits each node once for all its rays,
+ * and switches to single-ray traversal for the few rays still active once it
+ * has spread out (the hybrid scheme of Embree).  Every width works on every
+ * backend: a packet wider than the backend's packet kernels is traced as
+ * several narrower packets, and a backend without packet kernels traces the
+ * rays one by one; rtk_scene_info.packet_width says which. */
+#define RTK_PACKET_TYPES_(N)                                                                                           \
+    typedef struct __attribute__((aligned(4 * N))) rtk_ray##N {                                                        \
+        float org_x[N], org_y[N], org_z[N];                                                                            \
+        float tnear[N];                                                                                                \
+        float dir_x[N], dir_y[N], dir_z[N];                                                                            \
+        float time[N];                                                                                                 \
+        float tfar[N];                                                                                                 \
+        uint32_t mask[N];                                                                                              \
+        uint32_t id[N];                                                                                                \
+        uint32_t flags[N];                                                                                             \
+    } rtk_ray##N;                                                                                                      \
+    typedef struct __attribute__((aligned(4 * N))) rtk_hit##N {                                                        \
+        float Ng_x[N], Ng_y[N], Ng_z[N];                                                                               \
+        float u[N], v[N];                                                                                              \
+        uint32_t primID[N];                                                                                            \
+        uint32_t geomID[N];                                                                                            \
+        uint32_t instID[N];                                                                                            \
+    } rtk_hit##N;                                                                                                      \
+    typedef struct rtk_rayhit##N {                                                                                     \
+        rtk_ray##N ray;                                                                                                \
+        rtk_hit##N hit;                                                                                                \
+    } rtk_rayhit##N;                                                                                                   \
+    RTK_API rtk_error rtk_intersect##N(rtk_scene scene, const int *valid, rtk_rayhit##N *rayhit);                     \
+    RTK_API rtk_error rtk_occluded##N(rtk_scene scene, const int *valid, rtk_ray##N *ray);
+RTK_PACKET_TYPES_(4)
+RTK_PACKET_TYPES_(8)
+RTK_PACKET_TYPES_(16)
 
 #ifdef __cplusplus
 }

@@ -115,6 +115,14 @@ RTK_BACKEND_FN(int, rtk_build, (const rtk_build_input *in, rtk_build_output *out
 RTK_BACKEND_FN(void, rtk_accel_release, (rtk_accel *accel));
 RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit));
 RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray));
+/* Packet kernels of width N (4, 8 or 16): `packet` is an rtk_rayhitN
+ * (intersect) or rtk_rayN (occluded), aligned to 4*N bytes; `active` holds N
+ * int32 lanes, -1 where the lane is active and its ray valid (the core has
+ * checked validity, as for the single-ray kernels), 0 elsewhere, aligned like
+ * the packet.  At least one lane is active.  Inactive lanes must not be
+ * written. */
+RTK_BACKEND_FN(void, rtk_intersectN, (const rtk_accel *accel, const int32_t *active, void *packet));
+RTK_BACKEND_FN(void, rtk_occludedN, (const rtk_accel *accel, const int32_t *active, void *packet));
 
 enum rtk_query_kind {
     RTK_QUERY_NONE = 0, /* ends a table */
@@ -150,11 +158,13 @@ typedef struct rtk_layout_entry {
 typedef struct rtk_kernel_entry {
     uint32_t layout;        /* 0 ends the table */
     uint32_t query;         /* enum rtk_query_kind */
-    uint32_t width;         /* rays per call: 1 (packets come later) */
+    uint32_t width;         /* rays per call: 1 (required), or 4, 8, 16 (optional packet kernels) */
     uint32_t reserved;
     union {
-        rtk_intersect1_fn intersect1;
+        rtk_intersect1_fn intersect1; /* width 1 */
         rtk_occluded1_fn occluded1;
+        rtk_intersectN_fn intersectN; /* width 4, 8, 16 */
+        rtk_occludedN_fn occludedN;
         void (*any)(void);
     } fn;
 } rtk_kernel_entry;

@@ -104,5 +104,6 @@ RTK_INLINE vbool4 vb4_or(vbool4 a, vbool4 b) { return a | b; }
 RTK_INLINE vbool4 vb4_andnot(vbool4 a, vbool4 b) { return a & ~b; }
 RTK_INLINE vbool4 vb4_from_bits(int m) { return -((vint4){m, m >> 1, m >> 2, m >> 3} & 1); }
 RTK_INLINE int vb4_mask(vbool4 a) { return (a[0] & 1) | (a[1] & 2) | (a[2] & 4) | (a[3] & 8); }
+RTK_INLINE vbool4 vb4_load(const int32_t *p) { return vi4_load(p); } /* lanes 0 or -1 */
 
 #endif

@@ -113,5 +113,7 @@ RTK_INLINE vbool4 vb4_from_bits(int m)
     return _mm_castsi128_ps(_mm_setr_epi32(-(m & 1), -((m >> 1) & 1), -((m >> 2) & 1), -((m >> 3) & 1)));
 }
 RTK_INLINE int vb4_mask(vbool4 a) { return _mm_movemask_ps(a); }            /* bit i = lane i */
+/* four int32 lanes (16-byte aligned), each 0 or -1, as a mask */
+RTK_INLINE vbool4 vb4_load(const int32_t *p) { return _mm_load_ps((const float *)p); }
 
 #endif

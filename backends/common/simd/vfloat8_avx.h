@@ -1,6 +1,7 @@
 /* 8-wide float vectors and masks on AVX (the avx and avx2 backends).  Only
- * what the 8-wide kernels need; integer vectors stay 4-wide (AVX has no
- * 256-bit integer arithmetic). */
+ * what the 8-wide kernels need (8-wide nodes, 8-ray packets); integer vectors
+ * stay 4-wide (AVX has no 256-bit integer arithmetic).  Same semantics as the
+ * vf4_ / vb4_ functions of the same names. */
 #ifndef RTK_VFLOAT8_AVX_H
 #define RTK_VFLOAT8_AVX_H
 
@@ -15,9 +16,25 @@ RTK_INLINE vfloat8 vf8_set1(float a) { return _mm256_set1_ps(a); }
 RTK_INLINE vfloat8 vf8_add(vfloat8 a, vfloat8 b) { return _mm256_add_ps(a, b); }
 RTK_INLINE vfloat8 vf8_sub(vfloat8 a, vfloat8 b) { return _mm256_sub_ps(a, b); }
 RTK_INLINE vfloat8 vf8_mul(vfloat8 a, vfloat8 b) { return _mm256_mul_ps(a, b); }
-RTK_INLINE vfloat8 vf8_min(vfloat8 a, vfloat8 b) { return _mm256_min_ps(a, b); }
+RTK_INLINE vfloat8 vf8_div(vfloat8 a, vfloat8 b) { return _mm256_div_ps(a, b); }
+RTK_INLINE vfloat8 vf8_min(vfloat8 a, vfloat8 b) { return _mm256_min_ps(a, b); } /* b where either is NaN */
 RTK_INLINE vfloat8 vf8_max(vfloat8 a, vfloat8 b) { return _mm256_max_ps(a, b); }
+RTK_INLINE vbool8 vf8_lt(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_LT_OQ); }
 RTK_INLINE vbool8 vf8_le(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_LE_OQ); }
-RTK_INLINE int vb8_mask(vbool8 a) { return _mm256_movemask_ps(a); } /* bit i = lane i */
+RTK_INLINE vbool8 vf8_gt(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_GT_OQ); }
+RTK_INLINE vbool8 vf8_ge(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_GE_OQ); }
+RTK_INLINE vfloat8 vf8_select(vbool8 m, vfloat8 a, vfloat8 b) { return _mm256_blendv_ps(b, a, m); } /* m ? a : b */
+RTK_INLINE vfloat8 vf8_abs(vfloat8 a) { return _mm256_andnot_ps(_mm256_set1_ps(-0.0f), a); }
+RTK_INLINE vfloat8 vf8_xor_sign(vfloat8 a, vfloat8 s)
+{
+    return _mm256_xor_ps(a, _mm256_and_ps(s, _mm256_set1_ps(-0.0f)));
+}
+
+RTK_INLINE vbool8 vb8_and(vbool8 a, vbool8 b) { return _mm256_and_ps(a, b); }
+RTK_INLINE vbool8 vb8_or(vbool8 a, vbool8 b) { return _mm256_or_ps(a, b); }
+RTK_INLINE vbool8 vb8_andnot(vbool8 a, vbool8 b) { return _mm256_andnot_ps(b, a); } /* a & ~b */
+RTK_INLINE int vb8_mask(vbool8 a) { return _mm256_movemask_ps(a); }               /* bit i = lane i */
+/* eight int32 lanes (32-byte aligned), each 0 or -1, as a mask */
+RTK_INLINE vbool8 vb8_load(const int32_t *p) { return _mm256_load_ps((const float *)p); }
 
 #endif
