@@ -373,13 +373,15 @@ static void test_packet_arguments(void **state)
         assert_int_equal(rtk_intersect16(scene, NULL, rh16), RTK_OK);
         assert_int_equal(rtk_occluded16(scene, NULL, &rh16->ray), RTK_OK);
         assert_memory_equal(rh16, &copy, sizeof copy);
-        /* widths: 8-ray kernels on the AVX backends, 4-ray ones elsewhere; wider packets are split */
+        /* widths: 8-ray kernels on the AVX backends, 4-ray ones on sse41, wider
+         * packets split; scalar has none and goes ray by ray */
         rtk_scene_info info = {.struct_size = sizeof info};
         assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
         const int wide = !strcmp(names[b], "avx") || !strcmp(names[b], "avx2");
-        assert_int_equal(info.packet_width[0], 4);
-        assert_int_equal(info.packet_width[1], wide ? 8 : 4);
-        assert_int_equal(info.packet_width[2], wide ? 8 : 4);
+        const unsigned narrow = strcmp(names[b], "scalar") ? 4 : 1;
+        assert_int_equal(info.packet_width[0], narrow);
+        assert_int_equal(info.packet_width[1], wide ? 8 : narrow);
+        assert_int_equal(info.packet_width[2], wide ? 8 : narrow);
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }

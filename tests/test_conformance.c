@@ -1,0 +1,744 @@
+/*
+ * The conformance suite: every backend of this build, one device each in
+ * this process, traces the same rays through intersect1, occluded1 and the
+ * packet calls of every width (4, 8, 16), on every mesh of the shared test
+ * set and on procedural scenes made to be hard (shared edges and vertices hit
+ * dead on, needles and fans, overlapping soup).  The scalar backend's
+ * intersect1 / occluded1 answers are the baseline.
+ *
+ * Rules, per ray:
+ *   - hit or miss must equal the baseline's, for every backend and width;
+ *   - on a hit, primID must equal the baseline's, unless the two triangles
+ *     are a tie: the double-precision reference below finds both hit, give
+ *     or take its tolerance, at distances it cannot tell apart;
+ *   - with the same primID, t within 1e-6 relative of the baseline's, u and
+ *     v within 1e-5 (all backends share the arithmetic, so in practice these
+ *     are equal to the bit);
+ *   - lanes switched off by the valid mask come back untouched, bit for bit.
+ *
+ * The double-precision reference (only consulted on a disagreement): the
+ * Moeller-Trumbore test in double on the mesh's float vertices, over every
+ * triangle, with tolerances of 16 times the forward error bound of a float
+ * test of the same ray and triangle (see dref_one: tight for a ray through a
+ * triangle's middle, wide for one grazing its plane).  A hit on triangle P is
+ * consistent with it when P is hit give or take the tolerance and no
+ * triangle is hit beyond doubt at a t nearer than P's by more than the
+ * tolerances; a miss is consistent when no triangle is hit beyond doubt.  So
+ * a ray through a shared edge or vertex may hit any triangle there or, with
+ * the fast (non-watertight) test, none; a ray through the middle of a
+ * triangle must hit it, and the nearest such one.
+ *
+ * With Embree 3 present (RTK_HAVE_EMBREE) the same rays go through
+ * rtcIntersect1 / rtcOccluded1.  Where the answers differ, the reference
+ * settles it: locally when it can (a tie between two hits; a hit on P against
+ * a miss where P is grazed, hit within the tolerance but not beyond doubt),
+ * else by searching every triangle.  Agreement (the same answer, or one
+ * where the reference allows both) is printed and must be at least 99.99%,
+ * and at every disagreement rtk's answer must be one the reference allows.
+ *
+ * Rays per mesh: RTK_CONFORMANCE_RAYS (default 1048576), a third each
+ * primary (4x4 pixel tiles, so packets are coherent), random and shadow.
+ * Every disagreement prints the ray in full (%a floats) for replay.
+ */
+#include <dirent.h>
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#ifdef RTK_HAVE_EMBREE
+#include <embree3/rtcore.h>
+#endif
+
+#include "mesh_import.h"
+#include "testlib.h"
+
+#define MAX_REPORTS 10
+#define MAX_ADJUDICATIONS 20000 /* per query: each searches every triangle in double */
+#define T_REL 1e-6f
+#define UV_ABS 1e-5f
+
+typedef struct scene_data {
+    char name[256];
+    const float *v;
+    size_t nv;
+    const uint32_t *idx;
+    size_t nt;
+    double (*sphere)[4]; /* per triangle: centre and radius, to skip far triangles in the brute force */
+    size_t brute_force;  /* adjudications that searched every triangle */
+} scene_data;
+
+typedef struct answer {
+    float t, u, v;
+    uint32_t prim;  /* RTK_INVALID_GEOMETRY_ID: miss */
+    int occluded;
+} answer;
+
+static size_t ray_count(void)
+{
+    const char *e = getenv("RTK_CONFORMANCE_RAYS");
+    size_t n = e && *e ? strtoull(e, NULL, 10) : (size_t)1 << 20;
+    n -= n % 48;
+    return n < 48 ? 48 : n;
+}
+
+/* ---- rays ---- */
+
+static void make_rays(const scene_data *s, rtk_ray *rays, size_t n, uint64_t seed)
+{
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, c[3];
+    for (size_t i = 0; i < s->nv; i++)
+        for (int k = 0; k < 3; k++) {
+            lo[k] = fminf(lo[k], s->v[3 * i + k]);
+            hi[k] = fmaxf(hi[k], s->v[3 * i + k]);
+        }
+    float diag = 0.0f;
+    for (int k = 0; k < 3; k++) {
+        c[k] = 0.5f * (lo[k] + hi[k]);
+        diag += (hi[k] - lo[k]) * (hi[k] - lo[k]);
+    }
+    diag = sqrtf(diag);
+    /* grow the box by a tenth of the diagonal on every side, so flat scenes
+     * get a volume (origins on a surface are test_rays.c's business) */
+    for (int k = 0; k < 3; k++) {
+        lo[k] -= 0.1f * diag;
+        hi[k] += 0.1f * diag;
+    }
+    rng r = {seed};
+    const size_t third = n / 3;
+    /* primary: a camera at 1.2 diagonals framing the box, pixels in 4x4
+     * tiles, so ray i..i+15 are one tile */
+    const size_t tiled = third / 4 * 3;
+    size_t side = 4;
+    while ((side + 4) * (side + 4) <= tiled)
+        side += 4;
+    const float eye[3] = {c[0] + 0.45f * diag, c[1] + 0.35f * diag, c[2] + 1.1f * diag};
+    float fwd[3] = {c[0] - eye[0], c[1] - eye[1], c[2] - eye[2]};
+    float fl = sqrtf(fwd[0] * fwd[0] + fwd[1] * fwd[1] + fwd[2] * fwd[2]);
+    for (int k = 0; k < 3; k++)
+        fwd[k] /= fl;
+    float right[3] = {fwd[2], 0.0f, -fwd[0]}; /* fwd x up(0,1,0) */
+    float rl = sqrtf(right[0] * right[0] + right[2] * right[2]);
+    right[0] /= rl;
+    right[2] /= rl;
+    const float up[3] = {right[1] * fwd[2] - right[2] * fwd[1], right[2] * fwd[0] - right[0] * fwd[2],
+                         right[0] * fwd[1] - right[1] * fwd[0]};
+    const float half = 0.5f * diag / fl; /* tan of the half field of view */
+    size_t i = 0;
+    for (size_t ty = 0; ty < side; ty += 4)
+        for (size_t tx = 0; tx < side; tx += 4)
+            for (size_t p = 0; p < 16; p++) {
+                const float sx = (2.0f * ((float)(tx + p % 4) + 0.5f) / (float)side - 1.0f) * half;
+                const float sy = (1.0f - 2.0f * ((float)(ty + p / 4) + 0.5f) / (float)side) * half;
+                rays[i++] = test_ray(eye[0], eye[1], eye[2], fwd[0] + sx * right[0] + sy * up[0],
+                                     fwd[1] + sx * right[1] + sy * up[1], fwd[2] + sx * right[2] + sy * up[2], 0.0f,
+                                     INFINITY);
+            }
+    /* the rest of the primary third (at least a quarter): aimed exactly at
+     * vertices and edge midpoints, the hard cases */
+    rng rv = {seed ^ 0x5555u};
+    for (; i < third; i++) {
+        const uint32_t tri = rng_u32(&rv) % (uint32_t)s->nt;
+        const float *a = s->v + 3 * (size_t)s->idx[3 * tri], *b = s->v + 3 * (size_t)s->idx[3 * tri + 1];
+        const int mid = rng_u32(&rv) & 1;
+        float target[3];
+        for (int k = 0; k < 3; k++)
+            target[k] = mid ? 0.5f * (a[k] + b[k]) : a[k];
+        rays[i] = test_ray(eye[0], eye[1], eye[2], target[0] - eye[0], target[1] - eye[1], target[2] - eye[2], 0.0f,
+                           INFINITY);
+    }
+    /* random: origins in the grown box, uniform directions; then shadow
+     * segments between two random points of that box */
+    for (; i < n; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++)
+            o[k] = lo[k] + (hi[k] - lo[k]) * rng_float(&r);
+        float tfar = INFINITY;
+        if (i < 2 * third) {
+            const float z = 2.0f * rng_float(&r) - 1.0f, phi = 6.2831853f * rng_float(&r), rr = sqrtf(1.0f - z * z);
+            d[0] = rr * cosf(phi);
+            d[1] = rr * sinf(phi);
+            d[2] = z;
+        } else {
+            for (int k = 0; k < 3; k++)
+                d[k] = lo[k] + (hi[k] - lo[k]) * rng_float(&r) - o[k];
+            tfar = 1.0f;
+        }
+        rays[i] = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, tfar);
+    }
+}
+
+static void print_ray(const char *what, const scene_data *s, size_t i, const rtk_ray *r)
+{
+    print_message("%s: %s ray %zu: org %a %a %a dir %a %a %a tnear %a tfar %a\n", s->name, what, i, r->org_x,
+                  r->org_y, r->org_z, r->dir_x, r->dir_y, r->dir_z, r->tnear, r->tfar);
+}
+
+/* ---- the double-precision reference ---- */
+
+/* One triangle in double: the exact-arithmetic answer (up to double
+ * rounding) and how far a float test of the same ray could be off.  The
+ * barycentrics u = s.(d x e2)/det, v = d.(s x e1)/det, w = 1 - u - v carry
+ * float errors of about eps |s| |d| |e| / |det| (large for rays grazing the
+ * plane, where det is small), s = org - v0 itself off by eps (|org| + |v0|);
+ * the tolerances are 16 times that bound, so they cover any float
+ * Moeller-Trumbore-like test, rtk's or Embree's. */
+typedef struct dref {
+    double t, u, v, w;
+    double tol_u, tol_v, tol_t;
+} dref;
+
+static double norm3(const double a[3])
+{
+    return sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2]);
+}
+
+static int dref_one(const scene_data *s, uint32_t prim, const rtk_ray *r, dref *h)
+{
+    const float *a = s->v + 3 * (size_t)s->idx[3 * prim], *b = s->v + 3 * (size_t)s->idx[3 * prim + 1],
+                *c = s->v + 3 * (size_t)s->idx[3 * prim + 2];
+    const double o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    const double v0[3] = {a[0], a[1], a[2]};
+    double e1[3], e2[3], sv[3], p[3], q[3];
+    for (int k = 0; k < 3; k++) {
+        e1[k] = (double)b[k] - a[k];
+        e2[k] = (double)c[k] - a[k];
+        sv[k] = o[k] - a[k];
+    }
+    p[0] = d[1] * e2[2] - d[2] * e2[1];
+    p[1] = d[2] * e2[0] - d[0] * e2[2];
+    p[2] = d[0] * e2[1] - d[1] * e2[0];
+    const double det = e1[0] * p[0] + e1[1] * p[1] + e1[2] * p[2];
+    if (det == 0.0 || !isfinite(det))
+        return 0;
+    q[0] = sv[1] * e1[2] - sv[2] * e1[1];
+    q[1] = sv[2] * e1[0] - sv[0] * e1[2];
+    q[2] = sv[0] * e1[1] - sv[1] * e1[0];
+    h->u = (sv[0] * p[0] + sv[1] * p[1] + sv[2] * p[2]) / det;
+    h->v = (d[0] * q[0] + d[1] * q[1] + d[2] * q[2]) / det;
+    h->w = 1.0 - h->u - h->v;
+    h->t = (e2[0] * q[0] + e2[1] * q[1] + e2[2] * q[2]) / det;
+    const double k = 16.0 * 0x1p-24 / fabs(det);
+    const double sl = norm3(sv) + norm3(o) + norm3(v0), dl = norm3(d), l1 = norm3(e1), l2 = norm3(e2);
+    h->tol_u = k * sl * dl * l2;
+    h->tol_v = k * sl * dl * l1;
+    h->tol_t = k * sl * l1 * l2 + 16.0 * 0x1p-24 * fabs(h->t);
+    return h->t >= (double)r->tnear - h->tol_t && h->t <= (double)r->tfar + h->tol_t;
+}
+
+/* Hit, give or take the tolerance / hit beyond doubt. */
+static int dref_within(const dref *h)
+{
+    return h->u >= -h->tol_u && h->v >= -h->tol_v && h->w >= -(h->tol_u + h->tol_v);
+}
+
+static int dref_clear(const dref *h)
+{
+    return h->u > h->tol_u && h->v > h->tol_v && h->w > h->tol_u + h->tol_v && h->t >= 0.0;
+}
+
+static void make_spheres(scene_data *s)
+{
+    s->sphere = malloc((s->nt ? s->nt : 1) * sizeof *s->sphere);
+    assert_non_null(s->sphere);
+    for (size_t i = 0; i < s->nt; i++) {
+        double c[3] = {0, 0, 0}, r = 0.0;
+        for (int j = 0; j < 3; j++)
+            for (int k = 0; k < 3; k++)
+                c[k] += s->v[3 * (size_t)s->idx[3 * i + j] + k] / 3.0;
+        for (int j = 0; j < 3; j++) {
+            const float *p = s->v + 3 * (size_t)s->idx[3 * i + j];
+            const double d[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
+            r = fmax(r, norm3(d));
+        }
+        memcpy(s->sphere[i], c, sizeof c);
+        s->sphere[i][3] = r;
+    }
+}
+
+/* Triangles the ray's line passes within twice their bounding radius of:
+ * every triangle hit beyond doubt is among them, and so is any hit within
+ * the tolerance unless the tolerance exceeds the triangle's own size. */
+static int near_line(const scene_data *s, size_t i, const rtk_ray *r)
+{
+    const double *c = s->sphere[i];
+    const double d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    const double w[3] = {c[0] - r->org_x, c[1] - r->org_y, c[2] - r->org_z};
+    const double x[3] = {w[1] * d[2] - w[2] * d[1], w[2] * d[0] - w[0] * d[2], w[0] * d[1] - w[1] * d[0]};
+    const double dist = norm3(x) / norm3(d);
+    return dist <= 2.0 * c[3] + 1e-6 * (norm3(w) + norm3(c));
+}
+
+/* How far the nearest hit beyond doubt can be: min of t + tolerance over
+ * the triangles hit beyond doubt, or +inf. */
+static double dref_clear_nearest(const scene_data *s, const rtk_ray *r)
+{
+    double best = INFINITY;
+    for (size_t i = 0; i < s->nt; i++) {
+        dref h;
+        if (near_line(s, i, r) && dref_one(s, (uint32_t)i, r, &h) && dref_clear(&h) && h.t + h.tol_t < best)
+            best = h.t + h.tol_t;
+    }
+    return best;
+}
+
+/* Is this answer one the reference allows?  A hit: its triangle is hit give
+ * or take the tolerance, and no triangle is hit beyond doubt surely nearer
+ * (their t intervals of +-tolerance do not overlap).
+ * A miss: no triangle is hit beyond doubt.  Occluded: some triangle is hit
+ * give or take the tolerance. */
+static int consistent(scene_data *s, const rtk_ray *r, const answer *a, int occluded)
+{
+    s->brute_force++;
+    const double clear = dref_clear_nearest(s, r);
+    if (occluded) {
+        if (!a->occluded)
+            return isinf(clear);
+        for (size_t i = 0; i < s->nt; i++) {
+            dref h;
+            if (near_line(s, i, r) && dref_one(s, (uint32_t)i, r, &h) && dref_within(&h))
+                return 1;
+        }
+        return 0;
+    }
+    if (a->prim == RTK_INVALID_GEOMETRY_ID)
+        return isinf(clear);
+    dref h;
+    return dref_one(s, a->prim, r, &h) && dref_within(&h) && h.t - h.tol_t <= clear;
+}
+
+/* Two hits on different triangles are a tie when the reference finds both
+ * triangles hit (give or take the tolerances) at overlapping distances. */
+static int tie(const scene_data *s, const rtk_ray *r, const answer *a, const answer *b)
+{
+    dref ha, hb;
+    return dref_one(s, a->prim, r, &ha) && dref_one(s, b->prim, r, &hb) && dref_within(&ha) && dref_within(&hb) &&
+           fabs(ha.t - hb.t) <= ha.tol_t + hb.tol_t;
+}
+
+/* ---- tracing ---- */
+
+static void trace1(rtk_scene scene, const rtk_ray *rays, size_t n, int occluded, answer *out)
+{
+    for (size_t i = 0; i < n; i++) {
+        if (occluded) {
+            rtk_ray r = rays[i];
+            assert_int_equal(rtk_occluded1(scene, &r), RTK_OK);
+            out[i] = (answer){.occluded = r.tfar == -INFINITY, .prim = RTK_INVALID_GEOMETRY_ID};
+        } else {
+            rtk_rayhit rh = {.ray = rays[i]};
+            rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
+            assert_int_equal(rtk_intersect1(scene, &rh), RTK_OK);
+            out[i] = (answer){.t = rh.ray.tfar, .u = rh.hit.u, .v = rh.hit.v,
+                              .prim = rh.hit.geomID == RTK_INVALID_GEOMETRY_ID ? RTK_INVALID_GEOMETRY_ID
+                                                                              : rh.hit.primID};
+        }
+    }
+}
+
+/* Packets of w: lane j of field f lives at f * w + j (rtk.h's layout).  Lanes
+ * whose global index is 5 mod 13 are switched off and must come back as
+ * they went in; they are then traced alone so every ray has an answer. */
+static int trace_packets(rtk_scene scene, const rtk_ray *rays, size_t n, unsigned w, int occluded, answer *out,
+                         const scene_data *s, const char *backend)
+{
+    _Alignas(64) uint32_t pk[20 * 16], before[20 * 16];
+    const size_t fields = occluded ? 12 : 20;
+    int failures = 0;
+    for (size_t base = 0; base < n; base += w) {
+        int valid[16];
+        for (unsigned j = 0; j < w; j++) {
+            rtk_rayhit rh = {.ray = rays[base + j]};
+            rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
+            test_packet_put(pk, w, j, &rh, occluded);
+            valid[j] = (base + j) % 13 != 5;
+        }
+        memcpy(before, pk, fields * w * 4);
+        assert_int_equal(test_trace_packet(scene, w, occluded, valid, pk), RTK_OK);
+        for (unsigned j = 0; j < w; j++) {
+            const size_t i = base + j;
+            if (!valid[j]) {
+                for (size_t f = 0; f < fields; f++)
+                    if (pk[f * w + j] != before[f * w + j]) {
+                        if (failures++ < MAX_REPORTS)
+                            print_message("%s [%s] packet %u: inactive lane %u was written (field %zu)\n", s->name,
+                                          backend, w, j, f);
+                        break;
+                    }
+                trace1(scene, &rays[i], 1, occluded, &out[i]);
+                continue;
+            }
+            rtk_rayhit rh;
+            test_packet_get(pk, w, j, &rh, occluded);
+            if (occluded)
+                out[i] = (answer){.occluded = rh.ray.tfar == -INFINITY, .prim = RTK_INVALID_GEOMETRY_ID};
+            else
+                out[i] = (answer){.t = rh.ray.tfar, .u = rh.hit.u, .v = rh.hit.v,
+                                  .prim = rh.hit.geomID == RTK_INVALID_GEOMETRY_ID ? RTK_INVALID_GEOMETRY_ID
+                                                                                  : rh.hit.primID};
+        }
+    }
+    return failures;
+}
+
+/* Compares one pass against the baseline; returns the failures. */
+static int compare(const scene_data *s, const rtk_ray *rays, size_t n, int occluded, const answer *base,
+                   const answer *got, const char *what, size_t *ties)
+{
+    int failures = 0;
+    for (size_t i = 0; i < n; i++) {
+        const answer *a = &base[i], *b = &got[i];
+        const char *why = NULL;
+        if (occluded) {
+            if (a->occluded != b->occluded)
+                why = "occluded differs";
+        } else if ((a->prim == RTK_INVALID_GEOMETRY_ID) != (b->prim == RTK_INVALID_GEOMETRY_ID)) {
+            why = "hit/miss differs";
+        } else if (a->prim != RTK_INVALID_GEOMETRY_ID) {
+            if (a->prim != b->prim) {
+                /* a tie in t; or, for a ray grazing both triangles' planes,
+                 * two hits at distances the reference cannot tell apart */
+                if (tie(s, &rays[i], a, b))
+                    ++*ties;
+                else
+                    why = "primID differs and the reference does not call it a tie";
+            } else if (!(fabsf(a->t - b->t) <= T_REL * fabsf(a->t))) {
+                why = "t differs";
+            } else if (!(fabsf(a->u - b->u) <= UV_ABS && fabsf(a->v - b->v) <= UV_ABS)) {
+                why = "u/v differ";
+            }
+        }
+        if (why && failures++ < MAX_REPORTS) {
+            print_ray(what, s, i, &rays[i]);
+            print_message("    %s: baseline prim %u t %a u %a v %a occ %d; got prim %u t %a u %a v %a occ %d\n", why,
+                          a->prim, a->t, a->u, a->v, a->occluded, b->prim, b->t, b->u, b->v, b->occluded);
+        }
+    }
+    return failures;
+}
+
+#ifdef RTK_HAVE_EMBREE
+/* The same rays through Embree; returns rtk's answers inconsistent with the
+ * reference where the two disagree. */
+static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const answer *base_hit,
+                         const answer *base_occ)
+{
+    RTCDevice dev = rtcNewDevice(NULL);
+    assert_non_null(dev);
+    RTCScene scene = rtcNewScene(dev);
+    RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
+    float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12, s->nv);
+    uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, s->nt);
+    memcpy(vb, s->v, s->nv * 12);
+    memcpy(ib, s->idx, s->nt * 12);
+    rtcCommitGeometry(g);
+    rtcAttachGeometry(scene, g);
+    rtcReleaseGeometry(g);
+    rtcCommitScene(scene);
+    struct RTCIntersectContext ctx;
+    uint32_t *embree_prim = malloc(n * sizeof *embree_prim);
+    assert_non_null(embree_prim);
+    size_t agree[2] = {0, 0}, rtk_ok[2] = {0, 0}, embree_ok[2] = {0, 0}, both_ok[2] = {0, 0}, judged[2] = {0, 0};
+    int failures = 0;
+    for (int occluded = 0; occluded < 2; occluded++)
+        for (size_t i = 0; i < n; i++) {
+            const rtk_ray *r = &rays[i];
+            struct RTCRayHit rh;
+            memset(&rh, 0, sizeof rh);
+            rh.ray.org_x = r->org_x, rh.ray.org_y = r->org_y, rh.ray.org_z = r->org_z;
+            rh.ray.dir_x = r->dir_x, rh.ray.dir_y = r->dir_y, rh.ray.dir_z = r->dir_z;
+            rh.ray.tnear = r->tnear, rh.ray.tfar = r->tfar, rh.ray.mask = 0xffffffffu;
+            rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+            rtcInitIntersectContext(&ctx);
+            answer e = {.prim = RTK_INVALID_GEOMETRY_ID};
+            if (occluded) {
+                rtcOccluded1(scene, &ctx, &rh.ray);
+                e.occluded = rh.ray.tfar == -INFINITY;
+            } else {
+                rtcIntersect1(scene, &ctx, &rh);
+                if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID)
+                    e = (answer){.t = rh.ray.tfar, .u = rh.hit.u, .v = rh.hit.v, .prim = rh.hit.primID};
+            }
+            const answer *a = occluded ? &base_occ[i] : &base_hit[i];
+            if (!occluded)
+                embree_prim[i] = e.prim;
+            if (occluded ? a->occluded == e.occluded : a->prim == e.prim) {
+                agree[occluded]++;
+                continue;
+            }
+            /* Settled locally first.  Two hits on different triangles: a tie?
+             * A hit on P against a miss (for occluded, P is the closest hit
+             * of the side that says hit): both allowed when P is hit within
+             * the tolerance but not beyond doubt, a graze. */
+            int local = 0;
+            if (!occluded && a->prim != RTK_INVALID_GEOMETRY_ID && e.prim != RTK_INVALID_GEOMETRY_ID) {
+                local = tie(s, r, a, &e);
+            } else {
+                const uint32_t p = occluded ? (a->occluded ? base_hit[i].prim : embree_prim[i])
+                                            : (a->prim != RTK_INVALID_GEOMETRY_ID ? a->prim : e.prim);
+                dref h;
+                local = p != RTK_INVALID_GEOMETRY_ID && dref_one(s, p, r, &h) && dref_within(&h) && !dref_clear(&h);
+            }
+            if (local) {
+                rtk_ok[occluded]++, embree_ok[occluded]++, both_ok[occluded]++;
+                continue;
+            }
+            if (judged[occluded]++ >= MAX_ADJUDICATIONS)
+                continue;
+            const int ok_rtk = consistent(s, r, a, occluded), ok_embree = consistent(s, r, &e, occluded);
+            rtk_ok[occluded] += (size_t)ok_rtk;
+            embree_ok[occluded] += (size_t)ok_embree;
+            both_ok[occluded] += (size_t)(ok_rtk && ok_embree);
+            if (!ok_rtk && failures++ < MAX_REPORTS) {
+                print_ray(occluded ? "occluded1 vs Embree" : "intersect1 vs Embree", s, i, r);
+                print_message("    rtk prim %u t %a occ %d; Embree prim %u t %a occ %d; the reference sides with "
+                              "%s\n", a->prim, a->t, a->occluded, e.prim, e.t, e.occluded,
+                              ok_embree ? "Embree" : "neither");
+            }
+        }
+    for (int q = 0; q < 2; q++) {
+        /* agreement: the same answer, or a tie (both answers allowed by the reference) */
+        const double same = 100.0 * (double)agree[q] / (double)n;
+        const double rate = 100.0 * (double)(agree[q] + both_ok[q]) / (double)n;
+        print_message("%s: Embree %s: the same answer for %.4f%% of %zu rays; %zu differ, of which the reference "
+                      "allows rtk's answer in %zu, Embree's in %zu, both in %zu: agreement %.4f%%\n",
+                      s->name, q ? "occluded1" : "intersect1", same, n, n - agree[q], rtk_ok[q], embree_ok[q],
+                      both_ok[q], rate);
+        if (rate < 99.99) {
+            print_message("%s: agreement with Embree below 99.99%%\n", s->name);
+            failures++;
+        }
+        if (judged[q] > MAX_ADJUDICATIONS) {
+            print_message("%s: more disagreements with Embree than can be adjudicated\n", s->name);
+            failures++;
+        }
+    }
+    free(embree_prim);
+    rtcReleaseScene(scene);
+    rtcReleaseDevice(dev);
+    return failures;
+}
+#endif
+
+static int check_scene(scene_data *s, char names[][32], size_t nb)
+{
+    const size_t n = ray_count();
+    rtk_ray *rays = malloc(n * sizeof *rays);
+    answer *base[2] = {malloc(n * sizeof(answer)), malloc(n * sizeof(answer))};
+    answer *got = malloc(n * sizeof(answer));
+    assert_true(rays && base[0] && base[1] && got);
+    make_rays(s, rays, n, 0x9e3779b9u ^ (uint64_t)s->nt);
+    make_spheres(s);
+
+    int failures = 0;
+    size_t ties = 0, hits = 0, occl = 0;
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene scene = test_scene(dev, s->v, s->nv, s->idx, s->nt);
+        if (b == 0) { /* the baseline: scalar, single rays */
+            assert_string_equal(names[0], "scalar");
+            trace1(scene, rays, n, 0, base[0]);
+            trace1(scene, rays, n, 1, base[1]);
+            for (size_t i = 0; i < n; i++) {
+                hits += base[0][i].prim != RTK_INVALID_GEOMETRY_ID;
+                occl += (size_t)base[1][i].occluded;
+                /* intersect and occluded must agree with each other */
+                if ((base[0][i].prim != RTK_INVALID_GEOMETRY_ID) != base[1][i].occluded && failures++ < MAX_REPORTS)
+                    print_ray("intersect1 and occluded1 differ on", s, i, &rays[i]);
+            }
+        }
+        static const unsigned widths[4] = {1, 4, 8, 16};
+        for (int wi = (b == 0); wi < 4; wi++)
+            for (int occluded = 0; occluded < 2; occluded++) {
+                char what[64];
+                snprintf(what, sizeof what, "[%s] %s%u", names[b], occluded ? "occluded" : "intersect", widths[wi]);
+                if (widths[wi] == 1)
+                    trace1(scene, rays, n, occluded, got);
+                else
+                    failures += trace_packets(scene, rays, n, widths[wi], occluded, got, s, names[b]);
+                failures += compare(s, rays, n, occluded, base[occluded], got, what, &ties);
+            }
+        rtk_scene_release(scene);
+        rtk_device_release(dev);
+    }
+    print_message("%s: %zu triangles, %zu rays x %zu backends x 8 calls: %zu hits, %zu occluded, %zu ties "
+                  "adjudicated, %d failures\n",
+                  s->name, s->nt, n, nb, hits, occl, ties, failures);
+#ifdef RTK_HAVE_EMBREE
+    failures += versus_embree(s, rays, n, base[0], base[1]);
+#endif
+    free(s->sphere);
+    free(rays);
+    free(base[0]);
+    free(base[1]);
+    free(got);
+    return failures;
+}
+
+/* ---- scenes ---- */
+
+static int cmp(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+static unsigned part = 1, parts = 1; /* this run's share of the meshes: see main */
+
+/* Backends with scalar first (the baseline). */
+static size_t backends(char names[][32])
+{
+    size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    assert_true(nb >= 1);
+    for (size_t i = 0; i < nb; i++)
+        if (!strcmp(names[i], "scalar") && i) {
+            char t[32];
+            memcpy(t, names[0], 32);
+            memcpy(names[0], names[i], 32);
+            memcpy(names[i], t, 32);
+        }
+    return nb;
+}
+
+static void test_shared_meshes(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = backends(names);
+    DIR *d = opendir(RTK_TEST_MESHES);
+    if (!d)
+        fail_msg("cannot open the shared meshes at %s", RTK_TEST_MESHES);
+    char *files[64];
+    size_t n = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) && n < 64) {
+        size_t len = strlen(e->d_name);
+        const char *only = getenv("RTK_CONFORMANCE_ONLY"); /* one mesh file name, for replays */
+        if (len > 4 && !strcmp(e->d_name + len - 4, ".ply") && (!only || !*only || !strcmp(only, e->d_name))) {
+            files[n] = malloc(strlen(RTK_TEST_MESHES) + len + 2);
+            sprintf(files[n++], "%s/%s", RTK_TEST_MESHES, e->d_name);
+        }
+    }
+    closedir(d);
+    assert_true(n >= 1);
+    qsort(files, n, sizeof files[0], cmp);
+    int failures = 0;
+    for (size_t i = 0; i < n; i++) {
+        if (i % parts != part - 1) {
+            free(files[i]);
+            continue;
+        }
+        rtk_mesh m;
+        char err[1024];
+        if (rtk_mesh_load(files[i], &m, err, sizeof err))
+            fail_msg("%s", err);
+        scene_data s = {.v = m.vertices, .nv = m.vertex_count, .idx = m.indices, .nt = m.triangle_count};
+        snprintf(s.name, sizeof s.name, "%s", strrchr(files[i], '/') + 1);
+        failures += check_scene(&s, names, nb);
+        rtk_mesh_free(&m);
+        free(files[i]);
+    }
+    assert_int_equal(failures, 0);
+}
+
+/* A regular grid of quads, two triangles each, on the plane z = 0: every
+ * interior edge and vertex is shared, and the camera rays of make_rays aimed
+ * at vertices and edge midpoints land exactly on them. */
+static void test_grid(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = backends(names);
+    enum { G = 256 };
+    float *v = malloc((G + 1) * (G + 1) * 3 * sizeof *v);
+    uint32_t *idx = malloc(G * G * 6 * sizeof *idx);
+    for (int y = 0; y <= G; y++)
+        for (int x = 0; x <= G; x++) {
+            float *p = v + 3 * (y * (G + 1) + x);
+            p[0] = (float)x / G;
+            p[1] = (float)y / G;
+            p[2] = 0.0f;
+        }
+    size_t nt = 0;
+    for (int y = 0; y < G; y++)
+        for (int x = 0; x < G; x++) {
+            const uint32_t a = (uint32_t)(y * (G + 1) + x), b = a + 1, c = a + G + 1, d = c + 1;
+            const uint32_t t[6] = {a, b, d, a, d, c};
+            memcpy(idx + 3 * nt, t, sizeof t);
+            nt += 2;
+        }
+    scene_data s = {.name = "procedural grid", .v = v, .nv = (G + 1) * (G + 1), .idx = idx, .nt = nt};
+    assert_int_equal(check_scene(&s, names, nb), 0);
+    free(v);
+    free(idx);
+}
+
+/* A UV sphere (needles and fans of thin triangles at the poles) inside a
+ * soup of random overlapping triangles, some far thinner than wide. */
+static void test_sphere_and_soup(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = backends(names);
+    enum { RINGS = 200, SEGS = 400, SOUP = 50000 };
+    const size_t nv = (size_t)(RINGS + 1) * SEGS + 3 * SOUP, nt = (size_t)RINGS * SEGS * 2 + SOUP;
+    float *v = malloc(nv * 3 * sizeof *v);
+    uint32_t *idx = malloc(nt * 3 * sizeof *idx);
+    size_t k = 0, t = 0;
+    for (int r = 0; r <= RINGS; r++)
+        for (int s = 0; s < SEGS; s++) {
+            const float th = 3.14159265f * (float)r / RINGS, ph = 6.2831853f * (float)s / SEGS;
+            v[3 * k] = sinf(th) * cosf(ph);
+            v[3 * k + 1] = cosf(th);
+            v[3 * k + 2] = sinf(th) * sinf(ph);
+            k++;
+        }
+    for (int r = 0; r < RINGS; r++)
+        for (int s = 0; s < SEGS; s++) {
+            const uint32_t a = (uint32_t)(r * SEGS + s), b = (uint32_t)(r * SEGS + (s + 1) % SEGS), c = a + SEGS,
+                           d = b + SEGS;
+            const uint32_t q[6] = {a, b, d, a, d, c};
+            memcpy(idx + 3 * t, q, sizeof q);
+            t += 2;
+        }
+    rng g = {42};
+    for (int i = 0; i < SOUP; i++) {
+        float c[3], e[3];
+        for (int j = 0; j < 3; j++)
+            c[j] = 3.0f * rng_float(&g) - 1.5f;
+        const float size = (i % 5 == 0 ? 0.3f : 0.03f) * rng_float(&g) + 1e-4f;
+        for (int vtx = 0; vtx < 3; vtx++) {
+            for (int j = 0; j < 3; j++)
+                e[j] = (rng_float(&g) - 0.5f) * size * (i % 7 == 0 && j ? 1e-3f : 1.0f);
+            for (int j = 0; j < 3; j++)
+                v[3 * k + j] = c[j] + e[j];
+            idx[3 * t + vtx] = (uint32_t)k++;
+        }
+        t++;
+    }
+    scene_data s = {.name = "procedural sphere and soup", .v = v, .nv = k, .idx = idx, .nt = t};
+    assert_int_equal(check_scene(&s, names, nb), 0);
+    free(v);
+    free(idx);
+}
+
+/* "test_conformance K/N" runs part K of N, so ctest can spread the suite
+ * over cores: the procedural scenes in part 1, the shared meshes dealt out
+ * in turn (by sorted name).  No argument: everything. */
+int main(int argc, char **argv)
+{
+    if (argc > 1 && (sscanf(argv[1], "%u/%u", &part, &parts) != 2 || part < 1 || part > parts)) {
+        fprintf(stderr, "usage: test_conformance [K/N]\n");
+        return 2;
+    }
+    const struct CMUnitTest all[] = {
+        cmocka_unit_test(test_grid),
+        cmocka_unit_test(test_sphere_and_soup),
+        cmocka_unit_test(test_shared_meshes),
+    };
+    if (part == 1)
+        return cmocka_run_group_tests(all, NULL, NULL);
+    const struct CMUnitTest meshes_only[] = {
+        cmocka_unit_test(test_shared_meshes),
+    };
+    return cmocka_run_group_tests(meshes_only, NULL, NULL);
+}
