@@ -109,11 +109,9 @@ static void make_secondary(const rtk_mesh *m, RTCScene scene, const rayset *prim
             len = -len; /* face the camera */
         for (int k = 0; k < 3; k++)
             n[k] /= len;
-        const float dl = sqrtf(q->dir_x * q->dir_x + q->dir_y * q->dir_y + q->dir_z * q->dir_z);
         const float eps = 1e-4f * diag;
         float p[3] = {q->org_x + rh.ray.tfar * q->dir_x, q->org_y + rh.ray.tfar * q->dir_y,
                       q->org_z + rh.ray.tfar * q->dir_z};
-        (void)dl;
         for (int k = 0; k < 3; k++)
             p[k] += eps * n[k];
         /* cosine-weighted: a uniform disk point lifted onto the hemisphere */

@@ -566,17 +566,17 @@ static void copy_lanes(void *dst, size_t dst_n, size_t dst_lane, const void *src
 
 static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint32_t n, int occluded)
 {
-    char fn[24];
-    snprintf(fn, sizeof fn, "rtk_%s%u", occluded ? "occluded" : "intersect", n);
+    /* The name for messages, e.g. "rtk_intersect8": formatted by rtk_fail only on an error. */
+    const char *q = occluded ? "occluded" : "intersect";
     if (!s)
-        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_%s%u: scene is NULL", q, n);
     if (!packet)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: the packet is NULL", fn);
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_%s%u: the packet is NULL", q, n);
     if ((uintptr_t)packet % (4 * n))
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: the packet at %p is not aligned to %u bytes", fn,
-                        packet, 4 * n);
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_%s%u: the packet at %p is not aligned to %u bytes",
+                        q, n, packet, 4 * n);
     if (!s->accel)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_%s%u: the scene was never committed", q, n);
 
     _Alignas(64) int32_t active[16];
     int any = 0;

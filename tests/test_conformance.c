@@ -40,7 +40,6 @@
  * primary (4x4 pixel tiles, so packets are coherent), random and shadow.
  * Every disagreement prints the ray in full (%a floats) for replay.
  */
-#include <dirent.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -577,11 +576,6 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
 
 /* ---- scenes ---- */
 
-static int cmp(const void *a, const void *b)
-{
-    return strcmp(*(char *const *)a, *(char *const *)b);
-}
-
 static unsigned part = 1, parts = 1; /* this run's share of the meshes: see main */
 
 /* Backends with scalar first (the baseline). */
@@ -604,23 +598,9 @@ static void test_shared_meshes(void **state)
     (void)state;
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = backends(names);
-    DIR *d = opendir(RTK_TEST_MESHES);
-    if (!d)
-        fail_msg("cannot open the shared meshes at %s", RTK_TEST_MESHES);
     char *files[64];
-    size_t n = 0;
-    struct dirent *e;
-    while ((e = readdir(d)) && n < 64) {
-        size_t len = strlen(e->d_name);
-        const char *only = getenv("RTK_CONFORMANCE_ONLY"); /* one mesh file name, for replays */
-        if (len > 4 && !strcmp(e->d_name + len - 4, ".ply") && (!only || !*only || !strcmp(only, e->d_name))) {
-            files[n] = malloc(strlen(RTK_TEST_MESHES) + len + 2);
-            sprintf(files[n++], "%s/%s", RTK_TEST_MESHES, e->d_name);
-        }
-    }
-    closedir(d);
+    const size_t n = test_mesh_files(files, 64, getenv("RTK_CONFORMANCE_ONLY") /* one mesh, for replays */);
     assert_true(n >= 1);
-    qsort(files, n, sizeof files[0], cmp);
     int failures = 0;
     for (size_t i = 0; i < n; i++) {
         if (i % parts != part - 1) {

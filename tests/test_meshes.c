@@ -1,7 +1,6 @@
 /* Every backend, one device each in this process, against a brute-force
  * reference on every mesh of the shared test set: coherent (camera) and
  * random rays through intersect1, and shadow segments through occluded1. */
-#include <dirent.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -131,11 +130,6 @@ static int check_mesh(const char *path, char names[][32], size_t nb)
     return failures;
 }
 
-static int cmp(const void *a, const void *b)
-{
-    return strcmp(*(char *const *)a, *(char *const *)b);
-}
-
 static void test_all_meshes_all_backends(void **state)
 {
     (void)state;
@@ -143,22 +137,9 @@ static void test_all_meshes_all_backends(void **state)
     size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     assert_true(nb >= 4); /* scalar, sse41, avx, avx2 on any CPU of this project's machines */
 
-    DIR *d = opendir(RTK_TEST_MESHES);
-    if (!d)
-        fail_msg("cannot open the shared meshes at %s", RTK_TEST_MESHES);
     char *files[64];
-    size_t n = 0;
-    struct dirent *e;
-    while ((e = readdir(d)) && n < 64) {
-        size_t len = strlen(e->d_name);
-        if (len > 4 && !strcmp(e->d_name + len - 4, ".ply")) {
-            files[n] = malloc(strlen(RTK_TEST_MESHES) + len + 2);
-            sprintf(files[n++], "%s/%s", RTK_TEST_MESHES, e->d_name);
-        }
-    }
-    closedir(d);
+    const size_t n = test_mesh_files(files, 64, NULL);
     assert_true(n >= 8);
-    qsort(files, n, sizeof files[0], cmp);
     int failures = 0;
     for (size_t i = 0; i < n; i++) {
         failures += check_mesh(files[i], names, nb);

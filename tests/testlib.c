@@ -1,5 +1,7 @@
 #include "testlib.h"
 
+#include <dirent.h>
+
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -147,4 +149,29 @@ rtk_error test_trace_packet(rtk_scene scene, unsigned width, int occluded, const
     case 33: return rtk_occluded16(scene, valid, packet);
     default: fail_msg("no packet width %u", width); return RTK_ERROR_INVALID_ARGUMENT;
     }
+}
+
+static int cmp_names(const void *a, const void *b)
+{
+    return strcmp(*(char *const *)a, *(char *const *)b);
+}
+
+size_t test_mesh_files(char *files[], size_t max, const char *only)
+{
+    DIR *d = opendir(RTK_TEST_MESHES);
+    if (!d)
+        fail_msg("cannot open the shared meshes at %s", RTK_TEST_MESHES);
+    size_t n = 0;
+    struct dirent *e;
+    while ((e = readdir(d)) && n < max) {
+        size_t len = strlen(e->d_name);
+        if (len > 4 && !strcmp(e->d_name + len - 4, ".ply") && (!only || !*only || !strcmp(only, e->d_name))) {
+            files[n] = malloc(strlen(RTK_TEST_MESHES) + len + 2);
+            assert_non_null(files[n]);
+            sprintf(files[n++], "%s/%s", RTK_TEST_MESHES, e->d_name);
+        }
+    }
+    closedir(d);
+    qsort(files, n, sizeof files[0], cmp_names);
+    return n;
 }

@@ -47,6 +47,11 @@ void test_packet_put(void *packet, unsigned width, unsigned lane, const rtk_rayh
 void test_packet_get(const void *packet, unsigned width, unsigned lane, rtk_rayhit *rh, int occluded);
 rtk_error test_trace_packet(rtk_scene scene, unsigned width, int occluded, const int *valid, void *packet);
 
+/* The .ply files of the shared mesh directory (only == NULL or "": all;
+ * else just that file name), full paths sorted by name, malloc'd: the
+ * caller frees each.  Fails the test when the directory cannot be read. */
+size_t test_mesh_files(char *files[], size_t max, const char *only);
+
 typedef struct rng {
     uint64_t s;
 } rng;
