@@ -407,9 +407,11 @@ int main(int argc, char **argv)
         }
         rtk_scene_info info = {.struct_size = sizeof info};
         rtk_scene_get_info(scene, &info);
-        printf("rtk %-12s build %6.2f Mtris/s (%.2fx)  [%s, %.1f B/tri, packets of 8 as %u]\n", isas[b],
-               m.triangle_count / build * 1e-6, ref_build / build, info.layout, info.bytes_per_triangle,
-               info.packet_width[1]);
+        printf("rtk %-12s build %6.2f Mtris/s (%.2fx)  [%s, %.1f B/tri, packets of 8 as %u; %llu nodes, "
+               "%llu leaves, depth %u, SAH %.1f]\n",
+               isas[b], m.triangle_count / build * 1e-6, ref_build / build, info.layout, info.bytes_per_triangle,
+               info.packet_width[1], (unsigned long long)info.nodes, (unsigned long long)info.leaves, info.depth,
+               info.sah_cost);
         size_t disagree = 0;
         for (int t = 0; t < nthreads && !build_only; t++) {
             int n = snprintf(line[t], sizeof line[t], "  %d thread%s", threads[t], threads[t] > 1 ? "s" : " ");

@@ -35,6 +35,7 @@ typedef vfloat4 vnode;
 #define vn_set1 vf4_set1
 #define vn_sub vf4_sub
 #define vn_mul vf4_mul
+#define vn_msub vf4_msub
 #define vn_min vf4_min
 #define vn_max vf4_max
 #define vn_le vf4_le
@@ -50,6 +51,7 @@ typedef vfloat8 vnode;
 #define vn_set1 vf8_set1
 #define vn_sub vf8_sub
 #define vn_mul vf8_mul
+#define vn_msub vf8_msub
 #define vn_min vf8_min
 #define vn_max vf8_max
 #define vn_le vf8_le
@@ -62,13 +64,20 @@ typedef vfloat8 vnode;
 #error "define RTK_BVHN to 4 or 8 before including traverse_bvhn.h"
 #endif
 
-/* 1 + 2 * gamma(3), gamma(n) = n * eps / (1 - n * eps), eps = 2^-24 */
-#define RTK_BOX_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
+/* 1 + 2 * gamma(4), gamma(n) = n * u / (1 - n * u), u = 2^-24: the far
+ * slab distances are computed with a reciprocal direction scaled by this, so
+ * they come out no smaller than the exact ones however the near and far
+ * distances round (at most four roundings between them; Ize 2013). */
+#define RTK_BOX_FAR_SCALE (1.0f + 2.0f * (4.0f * 0x1p-24f) / (1.0f - 4.0f * 0x1p-24f))
 
 /* The ray, broadcast: everything the inner loops need, computed once. */
 typedef struct ray_pre {
     vfloat4 org[3], dir[3];   /* for the triangle tests */
-    vnode norg[3], ninv[3];   /* for the node tests */
+    vnode norg[3], ninv[3], ninv_far[3]; /* for the node tests */
+#if RTK_SIMD_HAS_FMA
+    vnode c_near[3], c_far[3]; /* org * inv, moved up and down (see ray_pre_init) */
+    int fma;                   /* 0: org * inv is out of range, use the sub-mul test */
+#endif
     size_t near_off[3], far_off[3]; /* byte offsets of the near/far planes in a node */
 } ray_pre;
 
@@ -86,12 +95,33 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
     static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
     static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
     for (int k = 0; k < 3; k++) {
-        const float inv = safe_rcp(dir[k]);
+        const float inv = safe_rcp(dir[k]), inv_far = inv * RTK_BOX_FAR_SCALE;
         const int neg = signbit(inv) != 0;
         p->org[k] = vf4_set1(org[k]);
         p->dir[k] = vf4_set1(dir[k]);
         p->norg[k] = vn_set1(org[k]);
         p->ninv[k] = vn_set1(inv);
+        p->ninv_far[k] = vn_set1(inv_far);
+#if RTK_SIMD_HAS_FMA
+        /* c = org * inv rounded: the product can be off by u|c|, and the
+         * fused plane * inv - c subtracts it exactly, so the error is
+         * absolute, not relative to the distance.  Moving c by 4u|c| (plus
+         * the smallest normal, for products in the subnormal range) away on
+         * each side keeps the near distances no larger and the far ones no
+         * smaller than the exact ones.  Where org * inv is near the float
+         * range (a huge origin, a direction component near zero) c_near and
+         * c_far could become infinite or NaN, the slab would drop out of
+         * the test, and with all three gone the empty child slots would be
+         * entered; such rays take the subtract-then-multiply test. */
+        const float c = org[k] * inv, cf = org[k] * inv_far;
+        const float e = fabsf(c) * 0x1p-22f + 0x1p-126f, ef = fabsf(cf) * 0x1p-22f + 0x1p-126f;
+        if (k == 0)
+            p->fma = 1;
+        if (!(fabsf(cf) <= 0x1p126f))
+            p->fma = 0;
+        p->c_near[k] = vn_set1(c + e);
+        p->c_far[k] = vn_set1(cf - ef);
+#endif
         p->near_off[k] = neg ? upper[k] : lower[k];
         p->far_off[k] = neg ? lower[k] : upper[k];
     }
@@ -103,18 +133,33 @@ static inline vnode plane(const node_t *n, size_t off)
 }
 
 /* Tests the N child boxes at once; returns a bit mask of those entered
- * within [tnear, tfar] and their entry distances. */
+ * within [tnear, tfar] and their entry distances.  Single-ray traversal is
+ * one chain of dependent node tests, so the test is kept short: with FMA one
+ * fused plane * inv - c per plane (as Embree does), without it one
+ * subtraction and one multiplication, the far scale folded into inv_far. */
 static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear, vnode tfar, vnode *dist)
 {
-    const vnode t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
-    const vnode t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
-    const vnode t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
-    const vnode t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv[0]);
-    const vnode t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv[1]);
-    const vnode t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv[2]);
+    vnode t0x, t0y, t0z, t1x, t1y, t1z;
+#if RTK_SIMD_HAS_FMA
+    if (__builtin_expect(p->fma, 1)) {
+        t0x = vn_msub(plane(n, p->near_off[0]), p->ninv[0], p->c_near[0]);
+        t0y = vn_msub(plane(n, p->near_off[1]), p->ninv[1], p->c_near[1]);
+        t0z = vn_msub(plane(n, p->near_off[2]), p->ninv[2], p->c_near[2]);
+        t1x = vn_msub(plane(n, p->far_off[0]), p->ninv_far[0], p->c_far[0]);
+        t1y = vn_msub(plane(n, p->far_off[1]), p->ninv_far[1], p->c_far[1]);
+        t1z = vn_msub(plane(n, p->far_off[2]), p->ninv_far[2], p->c_far[2]);
+    } else
+#endif
+    {
+        t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
+        t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
+        t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
+        t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
+        t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
+        t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
+    }
     const vnode tmin = vn_max(vn_max(t0x, t0y), vn_max(t0z, tnear));
-    vnode tmax = vn_mul(vn_min(vn_min(t1x, t1y), t1z), vn_set1(RTK_BOX_FAR_SCALE));
-    tmax = vn_min(tmax, tfar);
+    const vnode tmax = vn_min(vn_min(t1x, t1y), vn_min(t1z, tfar));
     *dist = tmin;
     return (unsigned)vn_mask(vn_le(tmin, tmax));
 }

@@ -52,22 +52,44 @@
 /* static helpers, one set per packet width */
 #define PK_(name) RTK_CAT(RTK_CAT(name, _k), RTK_PACKET)
 
-/* The packet, loaded once. */
+/* The packet, loaded once.  rinv_lo / rinv_hi are the reciprocal direction
+ * for the lower and upper planes, the one of the far plane (by the sign of
+ * the direction) scaled by RTK_BOX_FAR_SCALE, as inv_far in ray_pre. */
 typedef struct PK_(packet_pre) {
-    vk org[3], dir[3], rdir[3];
+    vk org[3], dir[3], rinv_lo[3], rinv_hi[3];
+#if RTK_SIMD_HAS_FMA
+    vk c_lo[3], c_hi[3]; /* org * rinv moved toward the near side, as c_near / c_far in ray_pre */
+#endif
     vk tnear;
 } PK_(packet_pre);
 
 static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb active)
 {
     const float *org[3] = {r->org_x, r->org_y, r->org_z}, *dir[3] = {r->dir_x, r->dir_y, r->dir_z};
-    const vk tiny = VK(set1)(1e-18f), one = VK(set1)(1.0f);
+    const vk tiny = VK(set1)(1e-18f), one = VK(set1)(1.0f), zero = VK(set1)(0.0f);
+    const vk scale = VK(set1)(RTK_BOX_FAR_SCALE);
     for (int k = 0; k < 3; k++) {
         p->org[k] = VK(load)(org[k]);
         p->dir[k] = VK(load)(dir[k]);
         /* as safe_rcp: components below 1e-18 in magnitude become +-1e-18 */
         const vk d = VK(select)(VK(lt)(VK(abs)(p->dir[k]), tiny), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
-        p->rdir[k] = VK(div)(one, d);
+        const vk rinv = VK(div)(one, d), rinv_far = VK(mul)(rinv, scale);
+        const vkb neg = VK(lt)(rinv, zero);
+        p->rinv_lo[k] = VK(select)(neg, rinv_far, rinv);
+        p->rinv_hi[k] = VK(select)(neg, rinv, rinv_far);
+#if RTK_SIMD_HAS_FMA
+        /* As in ray_pre_init, moved by 4u|c| toward the near side: up for
+         * the near plane, down for the far one.  A product out of range
+         * makes its slab drop out (NaN and infinite distances lose in the
+         * min/max of box_intersect, which ends with tnear and tfar, never
+         * NaN); unlike the single-ray test that is harmless here, as the
+         * packet loop never visits empty child slots. */
+        const vk c_lo = VK(mul)(p->org[k], p->rinv_lo[k]), c_hi = VK(mul)(p->org[k], p->rinv_hi[k]);
+        const vk e_lo = VK(add)(VK(mul)(VK(abs)(c_lo), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f));
+        const vk e_hi = VK(add)(VK(mul)(VK(abs)(c_hi), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f));
+        p->c_lo[k] = VK(add)(c_lo, VK(xor_sign)(e_lo, rinv)); /* lower is near where rinv > 0 */
+        p->c_hi[k] = VK(sub)(c_hi, VK(xor_sign)(e_hi, rinv));
+#endif
     }
     /* inactive lanes start beyond everything: they never enter a box */
     p->tnear = VK(select)(active, VK(load)(r->tnear), VK(set1)(INFINITY));
@@ -77,16 +99,23 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
  * [tnear, tfar], +inf elsewhere; the mask of rays that enter. */
 static inline int PK_(box_intersect)(const node_t *n, int i, const PK_(packet_pre) *p, vk tfar, vk *dist)
 {
-    const vk t0x = VK(mul)(VK(sub)(VK(set1)(n->lower_x[i]), p->org[0]), p->rdir[0]);
-    const vk t1x = VK(mul)(VK(sub)(VK(set1)(n->upper_x[i]), p->org[0]), p->rdir[0]);
-    const vk t0y = VK(mul)(VK(sub)(VK(set1)(n->lower_y[i]), p->org[1]), p->rdir[1]);
-    const vk t1y = VK(mul)(VK(sub)(VK(set1)(n->upper_y[i]), p->org[1]), p->rdir[1]);
-    const vk t0z = VK(mul)(VK(sub)(VK(set1)(n->lower_z[i]), p->org[2]), p->rdir[2]);
-    const vk t1z = VK(mul)(VK(sub)(VK(set1)(n->upper_z[i]), p->org[2]), p->rdir[2]);
+#if RTK_SIMD_HAS_FMA
+    const vk t0x = VK(msub)(VK(set1)(n->lower_x[i]), p->rinv_lo[0], p->c_lo[0]);
+    const vk t1x = VK(msub)(VK(set1)(n->upper_x[i]), p->rinv_hi[0], p->c_hi[0]);
+    const vk t0y = VK(msub)(VK(set1)(n->lower_y[i]), p->rinv_lo[1], p->c_lo[1]);
+    const vk t1y = VK(msub)(VK(set1)(n->upper_y[i]), p->rinv_hi[1], p->c_hi[1]);
+    const vk t0z = VK(msub)(VK(set1)(n->lower_z[i]), p->rinv_lo[2], p->c_lo[2]);
+    const vk t1z = VK(msub)(VK(set1)(n->upper_z[i]), p->rinv_hi[2], p->c_hi[2]);
+#else
+    const vk t0x = VK(mul)(VK(sub)(VK(set1)(n->lower_x[i]), p->org[0]), p->rinv_lo[0]);
+    const vk t1x = VK(mul)(VK(sub)(VK(set1)(n->upper_x[i]), p->org[0]), p->rinv_hi[0]);
+    const vk t0y = VK(mul)(VK(sub)(VK(set1)(n->lower_y[i]), p->org[1]), p->rinv_lo[1]);
+    const vk t1y = VK(mul)(VK(sub)(VK(set1)(n->upper_y[i]), p->org[1]), p->rinv_hi[1]);
+    const vk t0z = VK(mul)(VK(sub)(VK(set1)(n->lower_z[i]), p->org[2]), p->rinv_lo[2]);
+    const vk t1z = VK(mul)(VK(sub)(VK(set1)(n->upper_z[i]), p->org[2]), p->rinv_hi[2]);
+#endif
     const vk tmin = VK(max)(VK(max)(VK(min)(t0x, t1x), VK(min)(t0y, t1y)), VK(max)(VK(min)(t0z, t1z), p->tnear));
-    vk tmax = VK(mul)(VK(min)(VK(min)(VK(max)(t0x, t1x), VK(max)(t0y, t1y)), VK(max)(t0z, t1z)),
-                      VK(set1)(RTK_BOX_FAR_SCALE));
-    tmax = VK(min)(tmax, tfar);
+    const vk tmax = VK(min)(VK(min)(VK(max)(t0x, t1x), VK(max)(t0y, t1y)), VK(min)(VK(max)(t0z, t1z), tfar));
     const vkb hit = VK(le)(tmin, tmax);
     *dist = VK(select)(hit, tmin, VK(set1)(INFINITY));
     return VKB(mask)(hit);

@@ -20,12 +20,20 @@
  *   vi4_from_vf4_trunc       truncates toward zero; lanes must be in int32
  *                            range (callers clamp in float first)
  *   vbool4                   a lane is all ones or all zeros
+ *   vf4_madd / vf4_msub      fused (one rounding) where the ISA has FMA,
+ *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
+ *                            which, for kernels whose error bounds depend on
+ *                            it (vf8_msub exists only with FMA)
  */
 #ifndef RTK_SIMD_H
 #define RTK_SIMD_H
 
 #include <stdint.h>
 #include <string.h>
+
+#if defined(__FMA__)
+#define RTK_SIMD_HAS_FMA 1
+#endif
 
 #if defined(__SSE4_1__)
 #define RTK_SIMD_ISA "sse4.1"

@@ -16,6 +16,10 @@ RTK_INLINE vfloat8 vf8_set1(float a) { return _mm256_set1_ps(a); }
 RTK_INLINE vfloat8 vf8_add(vfloat8 a, vfloat8 b) { return _mm256_add_ps(a, b); }
 RTK_INLINE vfloat8 vf8_sub(vfloat8 a, vfloat8 b) { return _mm256_sub_ps(a, b); }
 RTK_INLINE vfloat8 vf8_mul(vfloat8 a, vfloat8 b) { return _mm256_mul_ps(a, b); }
+#if defined(__FMA__)
+/* a * b - c with one rounding (only where the ISA has FMA: RTK_SIMD_HAS_FMA) */
+RTK_INLINE vfloat8 vf8_msub(vfloat8 a, vfloat8 b, vfloat8 c) { return _mm256_fmsub_ps(a, b, c); }
+#endif
 RTK_INLINE vfloat8 vf8_div(vfloat8 a, vfloat8 b) { return _mm256_div_ps(a, b); }
 RTK_INLINE vfloat8 vf8_min(vfloat8 a, vfloat8 b) { return _mm256_min_ps(a, b); } /* b where either is NaN */
 RTK_INLINE vfloat8 vf8_max(vfloat8 a, vfloat8 b) { return _mm256_max_ps(a, b); }
