@@ -1,5 +1,5 @@
 /*
- * bench_vs_embree MESH [--rays N] [--repeat N] [--builds N] [--threads LIST] [--build-only]
+ * bench_vs_embree MESH [--repeat N] [--builds N] [--threads LIST] [--build-only] [--compact]
  *
  * Builds MESH once per rtk backend and with Embree 3 (medium quality, at
  * isa=avx2 and at its default), in this one process, and traces the same
@@ -15,7 +15,10 @@
  * Prints Mtris/s for builds (best of --builds builds, each from the shared
  * buffers to a committed scene, single-threaded) and Mrays/s for traces (best
  * of --repeat passes), each also as a ratio to Embree (isa=avx2), and counts
- * hit/miss disagreements with Embree.  --build-only skips the traces.
+ * hit/miss disagreements with Embree.  --build-only skips the traces;
+ * --compact builds both libraries' scenes with their compact flag.  Memory
+ * is reported per input triangle: rtk's from rtk_scene_info.bytes, Embree's
+ * from its memory monitor callback (what the scene commit kept allocated).
  * A benchmark, not a test: run it and read it.
  */
 #define _POSIX_C_SOURCE 200809L
@@ -251,9 +254,24 @@ static double trace(int embree, void *scene, const rayset *s, unsigned char *hit
     return (double)s->n / best * 1e-6;
 }
 
+static int compact; /* --compact: RTC_SCENE_FLAG_COMPACT / RTK_SCENE_FLAG_COMPACT */
+
+/* Embree's memory, as its monitor callback reports it (allocations minus
+ * frees), to compare bytes per triangle. */
+static long long embree_bytes;
+static bool embree_monitor(void *user, ssize_t bytes, bool post)
+{
+    (void)user;
+    (void)post;
+    __atomic_add_fetch(&embree_bytes, (long long)bytes, __ATOMIC_RELAXED);
+    return true;
+}
+
 static RTCScene embree_scene(RTCDevice dev, const rtk_mesh *m, const float *ev)
 {
     RTCScene scene = rtcNewScene(dev);
+    if (compact)
+        rtcSetSceneFlags(scene, RTC_SCENE_FLAG_COMPACT);
     rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_MEDIUM);
     RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
     rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, ev, 0, 12, m->vertex_count);
@@ -270,6 +288,7 @@ static rtk_scene rtk_build_scene(rtk_device dev, const rtk_mesh *m)
     rtk_scene scene = NULL;
     rtk_geometry g = NULL;
     rtk_scene_new(dev, &scene);
+    rtk_scene_set_flags(scene, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
     rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g);
     rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count);
     rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count);
@@ -299,6 +318,8 @@ int main(int argc, char **argv)
                 threads[nthreads++] = atoi(t);
         } else if (!strcmp(argv[i], "--build-only"))
             build_only = 1;
+        else if (!strcmp(argv[i], "--compact"))
+            compact = 1;
         else
             path = argv[i];
     }
@@ -306,7 +327,8 @@ int main(int argc, char **argv)
     for (int t = 0; t < nthreads; t++)
         bad |= threads[t] < 1 || threads[t] > 16;
     if (bad) {
-        fprintf(stderr, "usage: bench_vs_embree MESH [--repeat N] [--builds N] [--threads 1,2] [--build-only]\n");
+        fprintf(stderr,
+                "usage: bench_vs_embree MESH [--repeat N] [--builds N] [--threads 1,2] [--build-only] [--compact]\n");
         return 2;
     }
     rtk_mesh m;
@@ -337,6 +359,8 @@ int main(int argc, char **argv)
            builds, repeat);
     printf("primary8: packets of 8 (4x2 pixels) through rtk_intersect8 / rtcIntersect8 with "
            "RTC_INTERSECT_CONTEXT_FLAG_COHERENT\n");
+    printf("scenes: %s; B/tri counts the BVH and leaves (not the application's buffers) per input triangle\n",
+           compact ? "compact (RTC_SCENE_FLAG_COMPACT, RTK_SCENE_FLAG_COMPACT)" : "default flags");
 
     unsigned char *ref_hits[NSETS], *hits = malloc(sets[0].n);
     double ref_rate[4][NSETS] = {{0}}, ref_build = 0;
@@ -362,9 +386,13 @@ int main(int argc, char **argv)
             rtcReleaseScene(sc);
         }
         rtcReleaseDevice(dev1);
+        rtcSetDeviceMemoryMonitorFunction(dev, embree_monitor, NULL);
+        const long long bytes0 = embree_bytes;
         RTCScene scene = embree_scene(dev, &m, ev);
+        const long long bytes = embree_bytes - bytes0;
         const char *name = e ? "embree default" : "embree isa=avx2";
-        printf("%-16s build %6.2f Mtris/s", name, m.triangle_count / build * 1e-6);
+        printf("%-16s build %6.2f Mtris/s  [%.1f B/tri, its memory monitor]", name, m.triangle_count / build * 1e-6,
+               (double)bytes / (double)m.triangle_count);
         if (e == 0)
             ref_build = build;
         else
@@ -409,7 +437,8 @@ int main(int argc, char **argv)
         rtk_scene_get_info(scene, &info);
         printf("rtk %-12s build %6.2f Mtris/s (%.2fx)  [%s, %.1f B/tri, packets of 8 as %u; %llu nodes, "
                "%llu leaves, depth %u, SAH %.1f]\n",
-               isas[b], m.triangle_count / build * 1e-6, ref_build / build, info.layout, info.bytes_per_triangle,
+               isas[b], m.triangle_count / build * 1e-6, ref_build / build, info.layout,
+               (double)info.bytes / (double)m.triangle_count,
                info.packet_width[1], (unsigned long long)info.nodes, (unsigned long long)info.leaves, info.depth,
                info.sah_cost);
         size_t disagree = 0;

@@ -8,10 +8,25 @@
 
 #include "internal.h"
 
+/* Memory rtk allocates for a buffer, reference-counted: a compact scene's
+ * BVH reads vertices from it, so the scene holds a reference until its next
+ * commit and the memory outlives a buffer replaced or a geometry released
+ * in the meantime. */
+typedef struct blob {
+    atomic_int refs;
+    _Alignas(16) unsigned char data[];
+} blob;
+
+static void blob_release(blob *m)
+{
+    if (m && atomic_fetch_sub(&m->refs, 1) == 1)
+        free(m);
+}
+
 typedef struct buffer {
     const char *data; /* first element */
     size_t stride, count;
-    void *owned;      /* non-NULL when rtk allocated it */
+    blob *owned;      /* non-NULL when rtk allocated it */
 } buffer;
 
 struct rtk_geometry_s {
@@ -46,6 +61,10 @@ struct rtk_scene_s {
     } packet[2][3];
     rtk_build_output stats;
     double build_seconds;
+    /* A compact layout reads the vertex buffers: the rtk-allocated ones it
+     * uses are held here until the next commit. */
+    blob **pinned;
+    uint32_t pinned_count;
 };
 
 #define CHECK_HANDLE(h, fn)                                                                \
@@ -84,7 +103,7 @@ void rtk_geometry_retain(rtk_geometry g)
 
 static void buffer_free(buffer *b)
 {
-    free(b->owned);
+    blob_release(b->owned);
     memset(b, 0, sizeof *b);
 }
 
@@ -145,18 +164,20 @@ rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size
     rtk_error err = check_buffer_args(g, type, byte_stride, count, "rtk_geometry_set_new_buffer");
     if (err)
         return err;
-    void *mem = calloc(count ? count : 1, byte_stride);
+    const size_t bytes = (count ? count : 1) * byte_stride; /* no overflow: checked above */
+    blob *mem = bytes > SIZE_MAX - sizeof(blob) ? NULL : calloc(1, sizeof(blob) + bytes);
     if (!mem)
         return rtk_fail(g->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_geometry_set_new_buffer: out of memory for %zu bytes",
                         count * byte_stride);
+    atomic_init(&mem->refs, 1);
     buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
     buffer_free(b);
     b->owned = mem;
-    b->data = mem;
+    b->data = (const char *)mem->data;
     b->stride = byte_stride;
     b->count = count;
     g->committed = 0;
-    *out = mem;
+    *out = mem->data;
     return RTK_OK;
 }
 
@@ -230,6 +251,11 @@ static void scene_drop_accel(rtk_scene s)
 {
     if (s->accel)
         s->layout->release(s->accel);
+    for (uint32_t i = 0; i < s->pinned_count; i++)
+        blob_release(s->pinned[i]);
+    free(s->pinned);
+    s->pinned = NULL;
+    s->pinned_count = 0;
     s->accel = NULL;
     s->intersect1 = NULL;
     s->occluded1 = NULL;
@@ -368,6 +394,14 @@ static struct packet_kernel find_packet_kernel(const rtk_backend_desc *d, uint32
     return best;
 }
 
+static const rtk_layout_entry *find_layout(const rtk_backend_desc *d, uint32_t id)
+{
+    for (const rtk_layout_entry *l = d->layouts; l->id; l++)
+        if (l->id == id)
+            return l;
+    return NULL;
+}
+
 rtk_error rtk_scene_commit(rtk_scene s)
 {
     CHECK_HANDLE(s, "rtk_scene_commit");
@@ -408,21 +442,36 @@ rtk_error rtk_scene_commit(rtk_scene s)
         };
     }
 
-    /* The leanest layout that serves: the first builder for this quality,
-     * else the first builder at all (and say so). */
+    /* The leanest layout that serves: among the builders for this quality
+     * (else all of them, saying so), the first whose layout honours the most
+     * of the scene's flags and nothing the scene did not ask for (a compact
+     * layout is slower; a robust one costs time too). */
     const rtk_builder_entry *builder = NULL;
-    for (const rtk_builder_entry *b = bk->builders; b->name && !builder; b++)
-        if (b->qualities & (1u << s->quality))
-            builder = b;
-    if (!builder) {
-        builder = &bk->builders[0];
-        rtk_log(dev, 1, "scene: no builder for quality %d in backend %s; using %s", (int)s->quality, bk->name,
-                builder->name);
-    }
     const rtk_layout_entry *layout = NULL;
-    for (const rtk_layout_entry *l = bk->layouts; l->id; l++)
-        if (l->id == builder->layout)
-            layout = l;
+    for (int any_quality = 0; any_quality < 2 && !builder; any_quality++) {
+        int best = -1;
+        for (const rtk_builder_entry *b = bk->builders; b->name; b++) {
+            if (!any_quality && !(b->qualities & (1u << s->quality)))
+                continue;
+            const rtk_layout_entry *l = find_layout(bk, b->layout);
+            if (!l || (l->scene_flags & ~s->flags))
+                continue;
+            const int score = __builtin_popcount(l->scene_flags & s->flags);
+            if (score > best) {
+                best = score;
+                builder = b;
+                layout = l;
+            }
+        }
+        if (builder && any_quality)
+            rtk_log(dev, 1, "scene: no builder for quality %d in backend %s; using %s", (int)s->quality, bk->name,
+                    builder->name);
+    }
+    if (!builder) {
+        free(in_geoms);
+        return rtk_fail(dev, RTK_ERROR_UNKNOWN, "rtk_scene_commit: backend %s has no builder for a scene with flags 0x%x",
+                        bk->name, s->flags);
+    }
     unsigned not_honoured = s->flags & ~layout->scene_flags;
     if (not_honoured) {
         char names[64];
@@ -447,7 +496,28 @@ rtk_error rtk_scene_commit(rtk_scene s)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "rtk_scene_commit: build failed: %s", out.message[0] ? out.message : "no reason given");
 
+    /* A compact layout reads vertices from the geometries' buffers: hold
+     * the ones rtk allocated (the application keeps its shared ones). */
+    blob **pinned = NULL;
+    uint32_t pinned_count = 0;
+    if (layout->scene_flags & RTK_SCENE_FLAG_COMPACT) {
+        pinned = calloc(n ? n : 1, sizeof *pinned);
+        if (!pinned) {
+            layout->release(out.accel);
+            return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_commit: out of memory");
+        }
+        for (uint32_t i = 0; i < s->geom_count; i++) {
+            rtk_geometry g = s->geoms[i];
+            if (g && g->enabled && g->vertex.owned) {
+                atomic_fetch_add(&g->vertex.owned->refs, 1);
+                pinned[pinned_count++] = g->vertex.owned;
+            }
+        }
+    }
+
     scene_drop_accel(s);
+    s->pinned = pinned;
+    s->pinned_count = pinned_count;
     s->accel = out.accel;
     s->layout = layout;
     s->builder = builder;

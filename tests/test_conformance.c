@@ -1,7 +1,8 @@
 /*
  * The conformance suite: every backend of this build, one device each in
  * this process, traces the same rays through intersect1, occluded1 and the
- * packet calls of every width (4, 8, 16), on every mesh of the shared test
+ * packet calls of every width (4, 8, 16), with the backend's default layout
+ * and with the compact one (RTK_SCENE_FLAG_COMPACT), on every mesh of the shared test
  * set and on procedural scenes made to be hard (shared edges and vertices hit
  * dead on, needles and fans, overlapping soup).  The scalar backend's
  * intersect1 / occluded1 answers are the baseline.
@@ -531,10 +532,14 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
 
     int failures = 0;
     size_t ties = 0, hits = 0, occl = 0;
-    for (size_t b = 0; b < nb; b++) {
+    /* every backend with its default layout, then every backend compact */
+    for (size_t bc = 0; bc < 2 * nb; bc++) {
+        const size_t b = bc % nb;
+        const int compact = bc >= nb;
         rtk_device dev = test_device(names[b]);
-        rtk_scene scene = test_scene(dev, s->v, s->nv, s->idx, s->nt);
-        if (b == 0) { /* the baseline: scalar, single rays */
+        rtk_scene scene = test_scene_flags(dev, s->v, s->nv, s->idx, s->nt,
+                                           compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
+        if (bc == 0) { /* the baseline: scalar, default layout, single rays */
             assert_string_equal(names[0], "scalar");
             trace1(scene, rays, n, 0, base[0]);
             trace1(scene, rays, n, 1, base[1]);
@@ -547,10 +552,11 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
             }
         }
         static const unsigned widths[4] = {1, 4, 8, 16};
-        for (int wi = (b == 0); wi < 4; wi++)
+        for (int wi = (bc == 0); wi < 4; wi++)
             for (int occluded = 0; occluded < 2; occluded++) {
                 char what[64];
-                snprintf(what, sizeof what, "[%s] %s%u", names[b], occluded ? "occluded" : "intersect", widths[wi]);
+                snprintf(what, sizeof what, "[%s%s] %s%u", names[b], compact ? " compact" : "",
+                         occluded ? "occluded" : "intersect", widths[wi]);
                 if (widths[wi] == 1)
                     trace1(scene, rays, n, occluded, got);
                 else
@@ -560,7 +566,7 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }
-    print_message("%s: %zu triangles, %zu rays x %zu backends x 8 calls: %zu hits, %zu occluded, %zu ties "
+    print_message("%s: %zu triangles, %zu rays x %zu backends x 2 layouts x 8 calls: %zu hits, %zu occluded, %zu ties "
                   "adjudicated, %d failures\n",
                   s->name, s->nt, n, nb, hits, occl, ties, failures);
 #ifdef RTK_HAVE_EMBREE

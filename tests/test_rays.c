@@ -29,18 +29,22 @@ typedef struct backend_scene {
     rtk_scene scene;
 } backend_scene;
 
-static backend_scene scenes[TEST_MAX_BACKENDS];
+/* every backend, with its default layout and compact */
+static backend_scene scenes[2 * TEST_MAX_BACKENDS];
 static size_t nscenes;
 
 static int setup(void **state)
 {
     (void)state;
     char names[TEST_MAX_BACKENDS][32];
-    nscenes = test_backend_names(names, TEST_MAX_BACKENDS);
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    nscenes = 2 * nb;
     for (size_t i = 0; i < nscenes; i++) {
-        snprintf(scenes[i].name, sizeof scenes[i].name, "%s", names[i]);
-        scenes[i].dev = test_device(names[i]);
-        scenes[i].scene = test_scene(scenes[i].dev, V, NV, I, NT);
+        const int compact = i >= nb;
+        snprintf(scenes[i].name, sizeof scenes[i].name, "%s%s", names[i % nb], compact ? " compact" : "");
+        scenes[i].dev = test_device(names[i % nb]);
+        scenes[i].scene = test_scene_flags(scenes[i].dev, V, NV, I, NT,
+                                           compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
     }
     return 0;
 }

@@ -39,9 +39,15 @@ rtk_device test_device(const char *isa)
 
 rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt)
 {
+    return test_scene_flags(dev, v, nv, idx, nt, RTK_SCENE_FLAG_NONE);
+}
+
+rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags)
+{
     rtk_scene scene = NULL;
     rtk_geometry g = NULL;
     assert_int_equal(rtk_scene_new(dev, &scene), RTK_OK);
+    assert_int_equal(rtk_scene_set_flags(scene, flags), RTK_OK);
     assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
     assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, nv), RTK_OK);
     assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, idx, 0, 12, nt), RTK_OK);

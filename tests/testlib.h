@@ -21,6 +21,8 @@ size_t test_backend_names(char names[][32], size_t max);
 rtk_device test_device(const char *isa);
 /* One committed triangle-mesh scene over the arrays (shared, not copied). */
 rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt);
+/* The same with scene flags (RTK_SCENE_FLAG_COMPACT: the index-leaf layout). */
+rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags);
 
 /* The reference's view of a mesh: v0, e1, e2 per triangle, computed the way
  * the builders compute them, and whether the builders keep it. */

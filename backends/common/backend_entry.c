@@ -52,6 +52,9 @@ static const rtk_builder_entry builders[] = {
     {.name = "sah-binned", .qualities = ALL_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4, .build = BUILD_SAH},
 #endif
     {.name = "sah-binned", .qualities = ALL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4, .build = BUILD_SAH},
+    /* compact scenes: 4-wide nodes (half the bytes of 8-wide ones per
+     * child slot filled) and index leaves, on every backend */
+    {.name = "sah-binned", .qualities = ALL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .build = BUILD_SAH},
     {0},
 };
 
@@ -60,6 +63,8 @@ static const rtk_layout_entry layouts[] = {
     {.id = RTK_LAYOUT_BVH8_TRIANGLE4, .scene_flags = 0, .name = "bvh8.triangle4", .release = RTK_SYM(rtk_bvh4_release)},
 #endif
     {.id = RTK_LAYOUT_BVH4_TRIANGLE4, .scene_flags = 0, .name = "bvh4.triangle4", .release = RTK_SYM(rtk_bvh4_release)},
+    {.id = RTK_LAYOUT_BVH4_TRIANGLE4I, .scene_flags = RTK_SCENE_FLAG_COMPACT, .name = "bvh4.triangle4i",
+     .release = RTK_SYM(rtk_bvh4_release)},
     {0},
 };
 
@@ -89,6 +94,16 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersectN = RTK_SYM(rtk_bvh4_intersect4)},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 4,
      .fn.occludedN = RTK_SYM(rtk_bvh4_occluded4)},
+#endif
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_bvh4i_intersect1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_bvh4i_occluded1)},
+#ifdef __SSE4_1__
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_INTERSECT, .width = 4,
+     .fn.intersectN = RTK_SYM(rtk_bvh4i_intersect4)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 4,
+     .fn.occludedN = RTK_SYM(rtk_bvh4i_occluded4)},
 #endif
     {0},
 };

@@ -1,6 +1,6 @@
 /*
- * Binned SAH builder for the bvh4.triangle4 and bvh8.triangle4 layouts
- * (object splits only).
+ * Binned SAH builder for the bvh4.triangle4, bvh8.triangle4 and
+ * bvh4.triangle4i layouts (object splits only).
  *
  * Builds the N-wide tree directly, as Embree's builders do: a node starts
  * with one child holding all its primitives, and the child with the largest
@@ -55,7 +55,9 @@ typedef struct builder {
     int width;         /* 4 or 8 children per node */
     size_t node_size;  /* sizeof(rtk_bvh4_node) or sizeof(rtk_bvh8_node) */
     void *nodes;
-    rtk_triangle4 *tris;
+    rtk_triangle4 *tris;   /* leaf blocks, triangle4 layouts */
+    rtk_triangle4i *trisi; /* leaf blocks, triangle4i */
+    size_t leaf_size;      /* the size of one of those */
     uint64_t node_count, leaf_count;
     uint32_t depth;
     double sah;
@@ -348,9 +350,35 @@ static const uint32_t *triangle_at(const rtk_build_geometry *g, size_t prim)
     return (const uint32_t *)((const char *)g->indices + prim * g->index_stride);
 }
 
+/* A leaf of vertex indices: the triangles stay in the application's buffers. */
+static void make_leaf_indexed(builder *b, const range *r, uint64_t index)
+{
+    rtk_triangle4i *t = &b->trisi[index];
+    for (uint32_t lane = 0; lane < 4; lane++) {
+        if (r->begin + lane >= r->end) {
+            t->v0[lane] = t->v1[lane] = t->v2[lane] = t->v0[0];
+            t->geom[lane] = t->geom[0];
+            t->prim[lane] = RTK_BVH4_EMPTY;
+            continue;
+        }
+        const primref *p = &b->refs[r->begin + lane];
+        const uint32_t *tri = triangle_at(&b->in->geometries[ref_geom(p)], ref_prim(p));
+        t->v0[lane] = tri[0];
+        t->v1[lane] = tri[1];
+        t->v2[lane] = tri[2];
+        t->geom[lane] = ref_geom(p);
+        t->prim[lane] = ref_prim(p);
+    }
+}
+
 static uint32_t make_leaf(builder *b, const range *r)
 {
     uint64_t index = b->leaf_count++;
+    b->sah += box_half_area(&r->geom);
+    if (b->trisi) {
+        make_leaf_indexed(b, r, index);
+        return (uint32_t)index | RTK_BVH4_LEAF_BIT;
+    }
     rtk_triangle4 *t = &b->tris[index];
     const float nan = NAN;
     for (uint32_t lane = 0; lane < 4; lane++) {
@@ -364,20 +392,9 @@ static uint32_t make_leaf(builder *b, const range *r)
         const primref *p = &b->refs[r->begin + lane];
         const rtk_build_geometry *g = &b->in->geometries[ref_geom(p)];
         const uint32_t *tri = triangle_at(g, ref_prim(p));
-        const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
-        t->v0x[lane] = v0[0];
-        t->v0y[lane] = v0[1];
-        t->v0z[lane] = v0[2];
-        t->e1x[lane] = v1[0] - v0[0];
-        t->e1y[lane] = v1[1] - v0[1];
-        t->e1z[lane] = v1[2] - v0[2];
-        t->e2x[lane] = v2[0] - v0[0];
-        t->e2y[lane] = v2[1] - v0[1];
-        t->e2z[lane] = v2[2] - v0[2];
-        t->geom[lane] = g->geom_id;
-        t->prim[lane] = ref_prim(p);
+        rtk_triangle4_set_lane(t, (int)lane, vertex_at(g, tri[0]), vertex_at(g, tri[1]), vertex_at(g, tri[2]),
+                               g->geom_id, ref_prim(p));
     }
-    b->sah += box_half_area(&r->geom);
     return (uint32_t)index | RTK_BVH4_LEAF_BIT;
 }
 
@@ -505,19 +522,22 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     for (uint32_t g = 0; g < in->geometry_count; g++)
         total += in->geometries[g].prim_count;
     if (total >= RTK_BVH4_LEAF_BIT) {
-        set_message(out, "too many triangles for one bvh4.triangle4 structure (limit 2^31 - 1)");
+        set_message(out, "too many triangles for one BVH (limit 2^31 - 1)");
         return RTK_ERROR_INVALID_ARGUMENT;
     }
 
-    builder b = {.in = in};
+    builder b = {.in = in, .leaf_size = sizeof(rtk_triangle4)};
+    const int indexed = in->layout == RTK_LAYOUT_BVH4_TRIANGLE4I;
     if (in->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
         b.width = 8;
         b.node_size = sizeof(rtk_bvh8_node);
-    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4) {
+    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4 || indexed) {
         b.width = 4;
         b.node_size = sizeof(rtk_bvh4_node);
+        if (indexed)
+            b.leaf_size = sizeof(rtk_triangle4i);
     } else {
-        set_message(out, "the sah-binned builder makes bvh4.triangle4 and bvh8.triangle4 only");
+        set_message(out, "the sah-binned builder makes bvh4.triangle4, bvh8.triangle4 and bvh4.triangle4i only");
         return RTK_ERROR_INVALID_ARGUMENT;
     }
     struct rtk_accel *accel = calloc(1, sizeof *accel);
@@ -565,16 +585,29 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
 
     /* Upper bounds: at most one leaf per triangle and fewer inner nodes than
      * leaves. */
-    const size_t node_bytes = (n ? n : 1) * b.node_size, tri_bytes = (n ? n : 1) * sizeof *b.tris;
+    const size_t node_bytes = (n ? n : 1) * b.node_size, tri_bytes = (n ? n : 1) * b.leaf_size;
+    const size_t geom_bytes = indexed ? (in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms : 0;
     b.nodes = reserve(node_bytes);
-    b.tris = reserve(tri_bytes);
-    if (!b.nodes || !b.tris) {
+    void *leaves = reserve(tri_bytes);
+    if (indexed) {
+        b.trisi = leaves;
+        accel->geoms = malloc(geom_bytes);
+    } else {
+        b.tris = leaves;
+    }
+    if (!b.nodes || !leaves || (indexed && !accel->geoms)) {
         unreserve(b.nodes, node_bytes);
-        unreserve(b.tris, tri_bytes);
+        unreserve(leaves, tri_bytes);
         unreserve(b.refs, ref_bytes);
+        free(accel->geoms);
         free(accel);
         set_message(out, "out of memory for the BVH");
         return RTK_ERROR_OUT_OF_MEMORY;
+    }
+    for (uint32_t gi = 0; indexed && gi < in->geometry_count; gi++) {
+        const rtk_build_geometry *g = &in->geometries[gi];
+        accel->geoms[gi] = (rtk_leaf_geometry){.vertices = g->vertices, .stride = g->vertex_stride,
+                                               .geom_id = g->geom_id};
     }
 
     accel->layout = in->layout;
@@ -583,8 +616,9 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
 
     accel->nodes = b.nodes;
     accel->tris = b.tris;
+    accel->trisi = b.trisi;
     accel->nodes_mapped = trim(b.nodes, node_bytes, b.node_count * b.node_size);
-    accel->tris_mapped = trim(b.tris, tri_bytes, b.leaf_count * sizeof *b.tris);
+    accel->tris_mapped = trim(leaves, tri_bytes, b.leaf_count * b.leaf_size);
     accel->node_count = b.node_count;
     accel->leaf_count = b.leaf_count;
 
@@ -594,7 +628,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     out->prims_degenerate = degenerate;
     out->nodes = b.node_count;
     out->leaves = b.leaf_count;
-    out->bytes = b.node_count * b.node_size + b.leaf_count * sizeof(rtk_triangle4);
+    out->bytes = b.node_count * b.node_size + b.leaf_count * b.leaf_size + geom_bytes;
     out->depth = n ? b.depth : 0;
     float root_area = box_half_area(&root.geom);
     out->sah_cost = root_area > 0.0f ? b.sah / root_area : 0.0;
@@ -610,6 +644,7 @@ void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
     if (!accel)
         return;
     unreserve(accel->nodes, accel->nodes_mapped);
-    unreserve(accel->tris, accel->tris_mapped);
+    unreserve(accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped);
+    free(accel->geoms);
     free(accel);
 }

@@ -6,6 +6,12 @@
  * application's buffers).  The 8-wide nodes are used by the AVX backends,
  * where one 8-wide box test costs what a 4-wide one does.
  *
+ * Layout "bvh4.triangle4i", for scenes flagged compact: the same 4-wide
+ * nodes, and leaves that hold only the vertex indices of their triangles
+ * (80 bytes per block of four, against 176); traversal reads the vertices
+ * from the geometries' vertex buffers, which must then stay valid and
+ * unchanged while the scene is in use (rtk.h, RTK_SCENE_FLAG_COMPACT).
+ *
  * This file is the layout only; the builder (build_sah.c) and the traversal
  * (traverse_bvh4.c) are separate, so either can change without the other.
  */
@@ -54,13 +60,51 @@ typedef struct rtk_triangle4 {
     uint32_t prim[4];
 } rtk_triangle4;
 
+/* Writes one lane of a triangle4 block: v0 and the two edges from it.  The
+ * builder and the triangle4i traversal both go through here, so the two
+ * layouts hold the same floats and give the same answers to the bit. */
+static inline void rtk_triangle4_set_lane(rtk_triangle4 *t, int lane, const float *v0, const float *v1,
+                                          const float *v2, uint32_t geom, uint32_t prim)
+{
+    t->v0x[lane] = v0[0];
+    t->v0y[lane] = v0[1];
+    t->v0z[lane] = v0[2];
+    t->e1x[lane] = v1[0] - v0[0];
+    t->e1y[lane] = v1[1] - v0[1];
+    t->e1z[lane] = v1[2] - v0[2];
+    t->e2x[lane] = v2[0] - v0[0];
+    t->e2y[lane] = v2[1] - v0[1];
+    t->e2z[lane] = v2[2] - v0[2];
+    t->geom[lane] = geom;
+    t->prim[lane] = prim;
+}
+
+/* Up to four triangles by vertex index; geom[] indexes rtk_accel.geoms (not
+ * the geometry's id).  Unused lanes have prim = RTK_BVH4_EMPTY and all three
+ * vertices equal to lane 0's first one, so they have no area and never hit. */
+typedef struct rtk_triangle4i {
+    uint32_t v0[4], v1[4], v2[4];
+    uint32_t geom[4];
+    uint32_t prim[4];
+} rtk_triangle4i;
+
+/* Where a triangle4i leaf finds its vertices. */
+typedef struct rtk_leaf_geometry {
+    const char *vertices; /* the geometry's vertex buffer at build time */
+    size_t stride;
+    uint32_t geom_id;
+    uint32_t reserved;
+} rtk_leaf_geometry;
+
 struct rtk_accel {
-    uint32_t layout; /* RTK_LAYOUT_BVH4_TRIANGLE4 or RTK_LAYOUT_BVH8_TRIANGLE4 */
+    uint32_t layout; /* RTK_LAYOUT_BVH4_TRIANGLE4, _BVH8_TRIANGLE4 or _BVH4_TRIANGLE4I */
     uint32_t root;   /* a child reference */
     void *nodes;     /* rtk_bvh4_node or rtk_bvh8_node, by layout */
-    rtk_triangle4 *tris;
+    rtk_triangle4 *tris;   /* the leaf blocks of the triangle4 layouts, else NULL */
+    rtk_triangle4i *trisi; /* those of bvh4.triangle4i, else NULL */
+    rtk_leaf_geometry *geoms; /* bvh4.triangle4i: one per geometry in the build input */
     uint64_t node_count, leaf_count;
-    size_t nodes_mapped, tris_mapped; /* bytes mapped for each array (page-rounded) */
+    size_t nodes_mapped, tris_mapped; /* bytes mapped for the node and leaf arrays (page-rounded) */
 };
 
 #endif

@@ -1,7 +1,8 @@
 /*
- * Single-ray traversal of the bvhN.triangle4 layouts (N = 4 or 8): closest
- * hit and any hit.  A template: traverse_bvh4.c and traverse_bvh8.c define
- * RTK_BVHN and include it, so both widths share this one source.
+ * Single-ray traversal of the bvhN.triangle4 layouts (N = 4 or 8) and of
+ * bvh4.triangle4i: closest hit and any hit.  A template: traverse_bvh4.c,
+ * traverse_bvh8.c and traverse_bvh4i.c define RTK_BVHN (and
+ * RTK_LEAF_INDEXED) and include it, so all share this one source.
  *
  * Written once with the 4-wide types of simd/ (SSE4.1 in the sse41, avx and
  * avx2 backends, GNU C vectors in the scalar one).  Children are tested four
@@ -42,8 +43,6 @@ typedef vfloat4 vnode;
 #define vn_mask vb4_mask
 #define vn_store vf4_store
 #define BVHN_NODES(accel) ((const rtk_bvh4_node *)(accel)->nodes)
-#define BVHN_INTERSECT1 RTK_SYM(rtk_bvh4_intersect1)
-#define BVHN_OCCLUDED1 RTK_SYM(rtk_bvh4_occluded1)
 #elif RTK_BVHN == 8
 typedef rtk_bvh8_node node_t;
 typedef vfloat8 vnode;
@@ -58,11 +57,24 @@ typedef vfloat8 vnode;
 #define vn_mask vb8_mask
 #define vn_store vf8_store
 #define BVHN_NODES(accel) ((const rtk_bvh8_node *)(accel)->nodes)
-#define BVHN_INTERSECT1 RTK_SYM(rtk_bvh8_intersect1)
-#define BVHN_OCCLUDED1 RTK_SYM(rtk_bvh8_occluded1)
 #else
 #error "define RTK_BVHN to 4 or 8 before including traverse_bvhn.h"
 #endif
+
+/* RTK_LEAF_INDEXED 1: triangle4i leaves (vertex indices), else triangle4.
+ * The kernels are named rtk_bvh<N>[i]_<query><width>. */
+#ifndef RTK_LEAF_INDEXED
+#define RTK_LEAF_INDEXED 0
+#endif
+#if RTK_LEAF_INDEXED
+#define BVHN_TAG RTK_CAT(RTK_BVHN, i)
+#else
+#define BVHN_TAG RTK_BVHN
+#endif
+#define BVHN_NAME_(tag, what) rtk_bvh##tag##_##what
+#define BVHN_NAME(tag, what) BVHN_NAME_(tag, what)
+#define BVHN_INTERSECT1 RTK_SYM(BVHN_NAME(BVHN_TAG, intersect1))
+#define BVHN_OCCLUDED1 RTK_SYM(BVHN_NAME(BVHN_TAG, occluded1))
 
 /* 1 + 2 * gamma(4), gamma(n) = n * u / (1 - n * u), u = 2^-24: the far
  * slab distances are computed with a reciprocal direction scaled by this, so
@@ -189,6 +201,29 @@ static inline int push_children(const node_t *n, unsigned mask, vnode dists, sta
     return sp;
 }
 
+/* Leaf block `index` as triangle4: the block itself, or for triangle4i
+ * leaves a copy made in *scratch from the geometries' vertex buffers, with
+ * the edges computed exactly as the triangle4 builder computes them (so both
+ * layouts give the same answers to the bit).  An unused lane's three
+ * vertices are one point: no area, never hit. */
+static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t index, rtk_triangle4 *scratch)
+{
+#if RTK_LEAF_INDEXED
+    const rtk_triangle4i *t = &accel->trisi[index];
+    for (int lane = 0; lane < 4; lane++) {
+        const rtk_leaf_geometry *g = &accel->geoms[t->geom[lane]];
+        const float *v0 = (const float *)(g->vertices + (size_t)t->v0[lane] * g->stride);
+        const float *v1 = (const float *)(g->vertices + (size_t)t->v1[lane] * g->stride);
+        const float *v2 = (const float *)(g->vertices + (size_t)t->v2[lane] * g->stride);
+        rtk_triangle4_set_lane(scratch, lane, v0, v1, v2, g->geom_id, t->prim[lane]);
+    }
+    return scratch;
+#else
+    (void)scratch;
+    return &accel->tris[index];
+#endif
+}
+
 /* Moeller-Trumbore on four triangles at once, the same arithmetic as
  * rtk_triangle_intersect (geometry/triangle.h) lane by lane.  Returns the
  * mask of lanes hit within [tnear, tfar]; U, V, T and |det| per lane. */
@@ -301,13 +336,15 @@ static inline int next_leaf(const rtk_accel *accel, const ray_pre *p, vnode tnea
     }
 }
 
-/* The closest hit found so far by one ray: the leaf block, the lane in it,
- * and the barycentrics (the distance is the ray's tfar). */
+/* The closest hit found so far by one ray: the leaf block's index, the lane
+ * in it (-1: no hit yet), and the barycentrics (the distance is the ray's
+ * tfar). */
 typedef struct closest_hit {
-    const rtk_triangle4 *leaf;
+    uint32_t leaf;
     int lane;
     float u, v;
 } closest_hit;
+#define CLOSEST_HIT_NONE ((closest_hit){.lane = -1})
 
 /* Closest hit below `root` within [tnear, *tfar]: on a hit closer than *tfar,
  * updates *tfar and *best.  The packet kernels call this too, for rays they
@@ -327,7 +364,8 @@ static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray
     for (;;) {
         if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
             break;
-        const rtk_triangle4 *t = &accel->tris[cur & ~RTK_BVH4_LEAF_BIT];
+        rtk_triangle4 scratch;
+        const rtk_triangle4 *t = leaf_block(accel, cur & ~RTK_BVH4_LEAF_BIT, &scratch);
         tri4_hit h;
         unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
         if (mask) {
@@ -355,7 +393,7 @@ static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray
             const float inv = 1.0f / absdet[lane];
             best->u = U[lane] * inv;
             best->v = V[lane] * inv;
-            best->leaf = t;
+            best->leaf = cur & ~RTK_BVH4_LEAF_BIT;
             best->lane = lane;
             tfar_s = t_lane;
             tfar = vf4_set1(tfar_s);
@@ -380,7 +418,8 @@ static inline int any_from(const rtk_accel *accel, uint32_t root, const ray_pre 
         if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur))
             return 0;
         tri4_hit h;
-        if (triangle4_intersect(&accel->tris[cur & ~RTK_BVH4_LEAF_BIT], p, tnear, tfar, &h))
+        rtk_triangle4 scratch;
+        if (triangle4_intersect(leaf_block(accel, cur & ~RTK_BVH4_LEAF_BIT, &scratch), p, tnear, tfar, &h))
             return 1;
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
             return 0;
@@ -388,13 +427,16 @@ static inline int any_from(const rtk_accel *accel, uint32_t root, const ray_pre 
 }
 
 /* The geometric normal and ids of a closest hit. */
-static inline void closest_hit_record(const closest_hit *best, float ng[3], uint32_t *prim, uint32_t *geom)
+static inline void closest_hit_record(const rtk_accel *accel, const closest_hit *best, float ng[3], uint32_t *prim,
+                                      uint32_t *geom)
 {
     float v0[3], e1[3], e2[3];
-    lane_triangle(best->leaf, best->lane, v0, e1, e2);
+    rtk_triangle4 scratch;
+    const rtk_triangle4 *t = leaf_block(accel, best->leaf, &scratch);
+    lane_triangle(t, best->lane, v0, e1, e2);
     rtk_triangle_normal(e1, e2, ng);
-    *prim = best->leaf->prim[best->lane];
-    *geom = best->leaf->geom[best->lane];
+    *prim = t->prim[best->lane];
+    *geom = t->geom[best->lane];
 }
 
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
@@ -403,13 +445,13 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
         return;
     ray_pre p;
     ray_pre_init(&p, &rayhit->ray);
-    closest_hit best = {0};
+    closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best);
-    if (!best.leaf)
+    if (best.lane < 0)
         return;
     float ng[3];
-    closest_hit_record(&best, ng, &rayhit->hit.primID, &rayhit->hit.geomID);
+    closest_hit_record(accel, &best, ng, &rayhit->hit.primID, &rayhit->hit.geomID);
     rayhit->ray.tfar = tfar;
     rayhit->hit.Ng_x = ng[0];
     rayhit->hit.Ng_y = ng[1];

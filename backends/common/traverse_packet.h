@@ -1,5 +1,5 @@
 /*
- * Packet traversal of the bvhN.triangle4 layouts: K rays (K = 4 or 8) through
+ * Packet traversal of the bvhN.triangle4 layouts and bvh4.triangle4i: K rays (K = 4 or 8) through
  * N-wide nodes, closest hit and any hit, in the hybrid scheme of Embree
  * (Benthin, Wald, Woop, Ernst, Mark: "Combining Single and Packet-Ray
  * Tracing for Arbitrary Ray Distributions on the Intel MIC Architecture",
@@ -47,8 +47,8 @@
 
 #define PK_NAME_(n, k, what) rtk_bvh##n##_##what##k
 #define PK_NAME(n, k, what) PK_NAME_(n, k, what)
-#define PK_INTERSECT RTK_SYM(PK_NAME(RTK_BVHN, RTK_PACKET, intersect))
-#define PK_OCCLUDED RTK_SYM(PK_NAME(RTK_BVHN, RTK_PACKET, occluded))
+#define PK_INTERSECT RTK_SYM(PK_NAME(BVHN_TAG, RTK_PACKET, intersect))
+#define PK_OCCLUDED RTK_SYM(PK_NAME(BVHN_TAG, RTK_PACKET, occluded))
 /* static helpers, one set per packet width */
 #define PK_(name) RTK_CAT(RTK_CAT(name, _k), RTK_PACKET)
 
@@ -207,12 +207,12 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 ray_pre rp;
                 PK_(lane_ray_pre)(&rp, ray, i);
                 if (closest) {
-                    closest_hit best = {0};
+                    closest_hit best = CLOSEST_HIT_NONE;
                     closest_from(accel, cur, &rp, ray->tnear[i], &lane_t[i], &best);
-                    if (best.leaf) {
+                    if (best.lane >= 0) {
                         lane_u[i] = best.u;
                         lane_v[i] = best.v;
-                        ref_out[i] = (uint32_t)(best.leaf - accel->tris) * 4u + (uint32_t)best.lane;
+                        ref_out[i] = best.leaf * 4u + (uint32_t)best.lane;
                     }
                 } else if (any_from(accel, cur, &rp, ray->tnear[i], lane_t[i])) {
                     lane_t[i] = -INFINITY;
@@ -254,7 +254,8 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         if (!(cur & RTK_BVH4_LEAF_BIT))
             continue;
         const uint32_t leaf = cur & ~RTK_BVH4_LEAF_BIT;
-        const rtk_triangle4 *t = &accel->tris[leaf];
+        rtk_triangle4 scratch;
+        const rtk_triangle4 *t = leaf_block(accel, leaf, &scratch);
         /* Only the rays that entered the leaf's box test its triangles, as
          * alone: a ray grazing a triangle's plane can get a hit whose
          * rounded position lies outside the triangle's box, and it must not
@@ -317,9 +318,9 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet)
     for (int i = 0; i < RTK_PACKET; i++) {
         if (ref[i] == UINT32_MAX)
             continue;
-        const closest_hit best = {.leaf = &accel->tris[ref[i] / 4], .lane = (int)(ref[i] % 4)};
+        const closest_hit best = {.leaf = ref[i] / 4, .lane = (int)(ref[i] % 4)};
         float ng[3];
-        closest_hit_record(&best, ng, &rh->hit.primID[i], &rh->hit.geomID[i]);
+        closest_hit_record(accel, &best, ng, &rh->hit.primID[i], &rh->hit.geomID[i]);
         rh->ray.tfar[i] = t[i];
         rh->hit.Ng_x[i] = ng[0];
         rh->hit.Ng_y[i] = ng[1];

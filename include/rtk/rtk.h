@@ -174,7 +174,13 @@ RTK_API const char *rtk_device_get_search_path(rtk_device device);
 /* ---- scenes ----------------------------------------------------------------*/
 typedef enum rtk_scene_flags {
     RTK_SCENE_FLAG_NONE = 0,
-    RTK_SCENE_FLAG_COMPACT = 1 << 0, /* smallest memory (index leaves) */
+    /* Smallest memory: leaves hold vertex indices (layout bvh4.triangle4i,
+     * about half the bytes), and traversal reads the vertices from the
+     * geometries' vertex buffers, so those must stay valid and unchanged
+     * until the scene is committed again or released (buffers rtk
+     * allocated are kept alive by the scene until then; shared ones are
+     * the application's to keep).  Slower than the default layout. */
+    RTK_SCENE_FLAG_COMPACT = 1 << 0,
     RTK_SCENE_FLAG_ROBUST = 1 << 1,  /* watertight intersection */
     RTK_SCENE_FLAG_DYNAMIC = 1 << 2, /* geometry changes often: cheap rebuilds */
 } rtk_scene_flags;
@@ -213,7 +219,7 @@ typedef struct rtk_scene_info {
     unsigned flags_not_honoured; /* requested but not implemented in this version */
     rtk_build_quality quality;
     const char *builder;         /* e.g. "sah-binned" */
-    const char *layout;          /* e.g. "bvh4.triangle4" */
+    const char *layout;          /* e.g. "bvh8.triangle4", "bvh4.triangle4i" (compact) */
     uint64_t triangles;          /* in the BVH */
     uint64_t triangles_skipped;  /* left out: a NaN or infinite vertex */
     uint64_t triangles_degenerate; /* left out: zero area (never hit) */
@@ -247,7 +253,9 @@ RTK_API void rtk_geometry_release(rtk_geometry geometry);
 
 /* The application's memory, read at rtk_scene_commit (it must stay valid and
  * unchanged until then; after a commit rtk keeps its own copy of what the BVH
- * needs, so changes show only after the next commit). */
+ * needs, so changes show only after the next commit).  Scenes flagged
+ * RTK_SCENE_FLAG_COMPACT copy only the indices: their vertex buffers must
+ * stay valid and unchanged while the scene uses them. */
 RTK_API rtk_error rtk_geometry_set_shared_buffer(rtk_geometry geometry, rtk_buffer_type type, const void *ptr,
                                                  size_t byte_offset, size_t byte_stride, size_t count);
 /* Memory owned by rtk (zeroed), returned in *out for the application to fill. */

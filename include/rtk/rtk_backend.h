@@ -133,7 +133,8 @@ enum rtk_query_kind {
 /* Layout ids are global so the core can name and choose them. */
 #define RTK_LAYOUT_LIST(X)                                                                                             \
     X(RTK_LAYOUT_BVH4_TRIANGLE4, 1, "bvh4.triangle4")                                                                  \
-    X(RTK_LAYOUT_BVH8_TRIANGLE4, 2, "bvh8.triangle4")
+    X(RTK_LAYOUT_BVH8_TRIANGLE4, 2, "bvh8.triangle4")                                                                  \
+    X(RTK_LAYOUT_BVH4_TRIANGLE4I, 3, "bvh4.triangle4i")
 enum rtk_layout_id {
     RTK_LAYOUT_NONE = 0,
 #define RTK_X_(id, value, text) id = value,
