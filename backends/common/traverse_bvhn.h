@@ -106,6 +106,9 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
     const float org[3] = {r->org_x, r->org_y, r->org_z}, dir[3] = {r->dir_x, r->dir_y, r->dir_z};
     static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
     static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
+#if RTK_SIMD_HAS_FMA
+    p->fma = 1;
+#endif
     for (int k = 0; k < 3; k++) {
         const float inv = safe_rcp(dir[k]), inv_far = inv * RTK_BOX_FAR_SCALE;
         const int neg = signbit(inv) != 0;
@@ -127,8 +130,6 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
          * entered; such rays take the subtract-then-multiply test. */
         const float c = org[k] * inv, cf = org[k] * inv_far;
         const float e = fabsf(c) * 0x1p-22f + 0x1p-126f, ef = fabsf(cf) * 0x1p-22f + 0x1p-126f;
-        if (k == 0)
-            p->fma = 1;
         if (!(fabsf(cf) <= 0x1p126f))
             p->fma = 0;
         p->c_near[k] = vn_set1(c + e);
