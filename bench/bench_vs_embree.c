@@ -1,5 +1,5 @@
 /*
- * bench_vs_embree MESH [--repeat N] [--builds N] [--threads LIST] [--build-only] [--compact]
+ * bench_vs_embree MESH [--repeat N] [--builds N] [--threads LIST] [--build-only] [--compact] [--isa LIST]
  *
  * Builds MESH once per rtk backend and with Embree 3 (medium quality, at
  * isa=avx2 and at its default), in this one process, and traces the same
@@ -16,7 +16,9 @@
  * buffers to a committed scene, single-threaded) and Mrays/s for traces (best
  * of --repeat passes), each also as a ratio to Embree (isa=avx2), and counts
  * hit/miss disagreements with Embree.  --build-only skips the traces;
- * --compact builds both libraries' scenes with their compact flag.  Memory
+ * --compact builds both libraries' scenes with their compact flag;
+ * --isa limits the rtk backends run (e.g. "avx2" or "sse41,avx2", for
+ * profiling).  Memory
  * is reported per input triangle: rtk's from rtk_scene_info.bytes, Embree's
  * from its memory monitor callback (what the scene commit kept allocated).
  * A benchmark, not a test: run it and read it.
@@ -302,11 +304,26 @@ static rtk_scene rtk_build_scene(rtk_device dev, const rtk_mesh *m)
     return scene;
 }
 
+/* 1 when `name` is an item of the comma-separated `list` */
+static int list_has(const char *list, const char *name)
+{
+    const size_t n = strlen(name);
+    for (const char *p = list; *p;) {
+        const char *end = strchr(p, ',');
+        const size_t len = end ? (size_t)(end - p) : strlen(p);
+        if (len == n && !strncmp(p, name, n))
+            return 1;
+        p += len + (end != NULL);
+    }
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     const char *path = NULL;
     int repeat = 3, builds = 1, build_only = 0;
     int threads[4] = {1, 2}, nthreads = 2;
+    const char *isa_list = NULL;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--repeat") && i + 1 < argc)
             repeat = atoi(argv[++i]);
@@ -320,6 +337,8 @@ int main(int argc, char **argv)
             build_only = 1;
         else if (!strcmp(argv[i], "--compact"))
             compact = 1;
+        else if (!strcmp(argv[i], "--isa") && i + 1 < argc)
+            isa_list = argv[++i];
         else
             path = argv[i];
     }
@@ -328,7 +347,8 @@ int main(int argc, char **argv)
         bad |= threads[t] < 1 || threads[t] > 16;
     if (bad) {
         fprintf(stderr,
-                "usage: bench_vs_embree MESH [--repeat N] [--builds N] [--threads 1,2] [--build-only] [--compact]\n");
+                "usage: bench_vs_embree MESH [--repeat N] [--builds N] [--threads 1,2] [--build-only] [--compact]\n"
+                "       [--isa scalar,sse41,avx,avx2]\n");
         return 2;
     }
     rtk_mesh m;
@@ -417,6 +437,8 @@ int main(int argc, char **argv)
 
     static const char *isas[] = {"scalar", "sse41", "avx", "avx2"};
     for (int b = 0; b < 4; b++) {
+        if (isa_list && !list_has(isa_list, isas[b]))
+            continue;
         char cfg[32];
         snprintf(cfg, sizeof cfg, "isa=%s", isas[b]);
         rtk_device dev = NULL;
