@@ -261,6 +261,82 @@ static void test_huge_coordinates(void **state)
            test_ray(0x1p127f, 0x1p127f, 0x1p127f, -0.5f, -0.5f, -0.5f, 0, 1e38f), -1, 0);
 }
 
+/* Packets of rays that spread out on purpose (origins on both sides of the
+ * boxes' planes, half of them aimed at corners of the boxes, direction
+ * components from 1e-20 to 1, all eight octants, lanes switched off): every
+ * lane must get exactly the single-ray answer.  A lane that visits a box it
+ * does not enter alone can hit a triangle edge it grazes in float arithmetic
+ * (a packet lane with tfar = +inf once did); one that skips a box it enters
+ * misses or hits farther. */
+static uint32_t rng_state = 12345;
+static float rnd01(void)
+{
+    rng_state = rng_state * 1664525u + 1013904223u;
+    return (float)(rng_state >> 8) * 0x1p-24f;
+}
+
+static void test_spread_packets(void **state)
+{
+    (void)state;
+    static const unsigned widths[3] = {4, 8, 16};
+    for (size_t i = 0; i < nscenes; i++)
+        for (int round = 0; round < 2000; round++) {
+            const unsigned w = widths[round % 3], octant = (unsigned)round / 3 % 8;
+            const int occluded = round / 24 % 2;
+            _Alignas(64) uint32_t pk[20 * 16];
+            rtk_rayhit single[16];
+            int valid[16];
+            for (unsigned j = 0; j < w; j++) {
+                float d[3];
+                for (int k = 0; k < 3; k++) {
+                    const float mag = rnd01() < 0.1f ? 1e-20f : powf(10.0f, -3.0f * rnd01());
+                    d[k] = octant >> k & 1 ? -mag : mag;
+                }
+                /* Half the rays start anywhere around the scene; the others
+                 * are aimed at a corner of the square, the wall or the floor
+                 * (corners of the boxes too), where a frustum a rounding too
+                 * tight would lose them. */
+                float o[3];
+                const float *aim = &V[3 * (rng_state % 12)];
+                const int at_corner = rnd01() < 0.5f;
+                for (int k = 0; k < 3; k++)
+                    o[k] = at_corner ? aim[k] - (1 + rnd01()) * 4 * d[k] / fmaxf(fabsf(d[k]), 0.1f)
+                                     : 1 - 6 * (float)(octant >> k & 1) + 3 * rnd01();
+                const rtk_ray r = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], rnd01() < 0.2f ? rnd01() : 0,
+                                           rnd01() < 0.2f ? 5 * rnd01() : INFINITY);
+                valid[j] = rnd01() < 0.9f ? -1 : 0;
+                memset(&single[j], 0x5a, sizeof single[j]);
+                single[j].ray = r;
+                single[j].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                test_packet_put(pk, w, j, &single[j], occluded);
+                if (!valid[j])
+                    continue;
+                if (occluded)
+                    assert_int_equal(rtk_occluded1(scenes[i].scene, &single[j].ray), RTK_OK);
+                else
+                    assert_int_equal(rtk_intersect1(scenes[i].scene, &single[j]), RTK_OK);
+            }
+            assert_int_equal(test_trace_packet(scenes[i].scene, w, occluded, valid, pk), RTK_OK);
+            for (unsigned j = 0; j < w; j++) {
+                rtk_rayhit got;
+                test_packet_get(pk, w, j, &got, occluded);
+                /* the same distance to the bit; the primitive may differ
+                 * only where two are hit at that same distance (the
+                 * square's diagonal) */
+                const int hit = !occluded && got.hit.geomID != RTK_INVALID_GEOMETRY_ID;
+                const int single_hit = !occluded && single[j].hit.geomID != RTK_INVALID_GEOMETRY_ID;
+                const rtk_ray *r = &got.ray;
+                if (memcmp(&got.ray.tfar, &single[j].ray.tfar, sizeof(float)) || hit != single_hit)
+                    fail_msg("[%s] %s%u round %d lane %u%s: org %a %a %a dir %a %a %a tnear %a: tfar %a prim %u, "
+                             "single-ray %a prim %u",
+                             scenes[i].name, occluded ? "occluded" : "intersect", w, round, j,
+                             valid[j] ? "" : " (inactive)", r->org_x, r->org_y, r->org_z, r->dir_x, r->dir_y,
+                             r->dir_z, r->tnear, got.ray.tfar, got.hit.primID, single[j].ray.tfar,
+                             single[j].hit.primID);
+            }
+        }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -270,6 +346,7 @@ int main(void)
         cmocka_unit_test(test_origin_on_surface),
         cmocka_unit_test(test_closest_of_several),
         cmocka_unit_test(test_huge_coordinates),
+        cmocka_unit_test(test_spread_packets),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -96,7 +96,10 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
 }
 
 /* One child box against the packet: the entry distance where entered within
- * [tnear, tfar], +inf elsewhere; the mask of rays that enter. */
+ * [tnear, tfar], NaN elsewhere; the mask of rays that enter.  NaN, not +inf:
+ * `dist <= tfar` says which rays want a subtree, and with +inf a ray whose
+ * tfar is +inf would want every box its packet enters, and test triangles
+ * it would never reach alone. */
 static inline int PK_(box_intersect)(const node_t *n, int i, const PK_(packet_pre) *p, vk tfar, vk *dist)
 {
 #if RTK_SIMD_HAS_FMA
@@ -117,7 +120,7 @@ static inline int PK_(box_intersect)(const node_t *n, int i, const PK_(packet_pr
     const vk tmin = VK(max)(VK(max)(VK(min)(t0x, t1x), VK(min)(t0y, t1y)), VK(max)(VK(min)(t0z, t1z), p->tnear));
     const vk tmax = VK(min)(VK(min)(VK(max)(t0x, t1x), VK(max)(t0y, t1y)), VK(min)(VK(max)(t0z, t1z), tfar));
     const vkb hit = VK(le)(tmin, tmax);
-    *dist = VK(select)(hit, tmin, VK(set1)(INFINITY));
+    *dist = VK(select)(hit, tmin, VK(set1)(NAN));
     return VKB(mask)(hit);
 }
 
@@ -157,7 +160,7 @@ static inline int PK_(triangle_intersect)(const rtk_triangle4 *t, int j, const P
 }
 
 typedef struct PK_(pstack_entry) {
-    vk dist; /* per ray: entry distance, +inf for rays that do not enter */
+    vk dist; /* per ray: entry distance, NaN for rays that do not enter */
     uint32_t ref;
 } PK_(pstack_entry);
 
