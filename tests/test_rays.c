@@ -222,6 +222,10 @@ static void test_origin_on_surface(void **state)
     /* Starting exactly on the square with tnear = 0: a hit at t = 0. */
     expect("on surface, leaving", test_ray(0.75f, 0.25f, 0, 0, 0, 1, 0, INFINITY), 0, 0);
     expect("on surface, entering", test_ray(0.75f, 0.25f, 0, 0, 0, -1, 0, INFINITY), 0, 0);
+    /* The same with -0.0 as tnear and tfar (valid: -0.0 >= 0), which must
+     * not upset a box test that orders floats by their bits. */
+    expect("on surface, [-0, -0]", test_ray(0.75f, 0.25f, 0, 0, 0, 1, -0.0f, -0.0f), 0, 0);
+    expect("on surface, [-0, inf]", test_ray(0.75f, 0.25f, 0, 0, 0, -1, -0.0f, INFINITY), 0, 0);
     /* A small tnear steps off it: the next surface is the floor. */
     expect("on surface, tnear 1e-4", test_ray(0.75f, 0.25f, 0, 0, 0, -1, 1e-4f, INFINITY), 4, 10);
     expect("on surface, away", test_ray(0.75f, 0.25f, 0, 0, 0, 1, 1e-4f, INFINITY), -1, 0);

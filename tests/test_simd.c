@@ -135,13 +135,31 @@ static void test_int(void **state)
     assert_true(f[3] == 2.0f);
 }
 
+/* The integer order of float bits: the float order for non-negative values
+ * (+0.0 included), negatives (-0.0 included) below all of them. */
+static void test_integer_order(void **state)
+{
+    (void)state;
+    float r[4];
+    const vfloat4 a = vf4_set(0.0f, 1.5f, -0.0f, -3.0f), b = vf4_set(0x1p-149f, INFINITY, 0.0f, 2.0f);
+    get4(vf4_maxi(a, b), r);
+    assert_true(r[0] == 0x1p-149f && r[1] == INFINITY && r[2] == 0.0f && !signbit(r[2]) && r[3] == 2.0f);
+    get4(vf4_mini(a, b), r);
+    assert_true(r[0] == 0.0f && r[1] == 1.5f && r[2] == 0.0f && signbit(r[2]) && r[3] == -3.0f);
+    assert_int_equal(vb4_mask(vf4_gti(a, b)), 0x0);
+    assert_int_equal(vb4_mask(vf4_gti(b, a)), 0xf);
+    /* among negatives the order is that of the magnitudes: callers must
+     * keep them out of anything but "below every non-negative value" */
+    assert_int_equal(vb4_mask(vf4_gti(vf4_set1(-2.0f), vf4_set1(-1.0f))), 0xf);
+}
+
 int main(void)
 {
     print_message("SIMD layer implementation: %s\n", RTK_SIMD_ISA);
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_min_max_nan), cmocka_unit_test(test_compare_select_mask),
         cmocka_unit_test(test_arithmetic),  cmocka_unit_test(test_transpose),
-        cmocka_unit_test(test_int),
+        cmocka_unit_test(test_int),         cmocka_unit_test(test_integer_order),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

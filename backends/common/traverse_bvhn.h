@@ -48,6 +48,9 @@ typedef vfloat4 vnode;
 #define vn_select vf4_select
 #define vn_mask vb4_mask
 #define vn_store vf4_store
+#define vn_maxi vf4_maxi
+#define vn_mini vf4_mini
+#define vn_gti vf4_gti
 #define BVHN_NODES(accel) ((const rtk_bvh4_node *)(accel)->nodes)
 #elif RTK_BVHN == 8
 typedef rtk_bvh8_node node_t;
@@ -64,6 +67,9 @@ typedef vfloat8 vnode;
 #define vn_select vf8_select
 #define vn_mask vb8_mask
 #define vn_store vf8_store
+#define vn_maxi vf8_maxi
+#define vn_mini vf8_mini
+#define vn_gti vf8_gti
 #define BVHN_NODES(accel) ((const rtk_bvh8_node *)(accel)->nodes)
 #else
 #error "define RTK_BVHN to 4 or 8 before including traverse_bvhn.h"
@@ -157,7 +163,24 @@ static inline vnode plane(const node_t *n, size_t off)
  * within [tnear, tfar] and their entry distances.  Single-ray traversal is
  * one chain of dependent node tests, so the test is kept short: with FMA one
  * fused plane * inv - c per plane (as Embree does), without it one
- * subtraction and one multiplication, the far scale folded into inv_far. */
+ * subtraction and one multiplication, the far scale folded into inv_far.
+ *
+ * With FMA the maxima, minima and the comparison are done on the floats'
+ * bits as integers (as Embree does on AVX2): one cycle each instead of four,
+ * on the critical path of every node visit (measured on dragon.ply, avx2:
+ * camera, diffuse and shadow rays 8-10% faster).  That is the float order
+ * for non-negative values; tnear and tfar are at least +0.0 (ray_pre_init
+ * and its callers add +0.0, so -0.0 never appears), so tmin is exactly the
+ * float maximum, and a negative far distance, which the integer minimum
+ * passes on, rejects the box as it would as a float.  The one difference is
+ * a far distance of exactly -0.0 with tmin = +0: the integer order rejects
+ * the box, the float order enters it.  The fused form gives -0.0 only as
+ * (-0) - (+0): a plane at zero and c_far exactly +0, which takes org * inv
+ * within about 2^-125 of zero, and then the exact far distance is -org * inv
+ * < 0: the box lies behind the origin, and rejecting it is exact.  The
+ * sub-mul form gives -0.0 for an origin exactly on a far plane (x - x is
+ * +0, times a negative reciprocal), a box touched at t = 0, so it keeps the
+ * float ops. */
 static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear, vnode tfar, vnode *dist)
 {
     vnode t0x, t0y, t0z, t1x, t1y, t1z;
@@ -169,7 +192,11 @@ static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode t
         t1x = vn_msub(plane(n, p->far_off[0]), p->ninv_far[0], p->c_far[0]);
         t1y = vn_msub(plane(n, p->far_off[1]), p->ninv_far[1], p->c_far[1]);
         t1z = vn_msub(plane(n, p->far_off[2]), p->ninv_far[2], p->c_far[2]);
-    } else
+        const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, tnear));
+        const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
+        *dist = tmin;
+        return (unsigned)vn_mask(vn_gti(tmin, tmax)) ^ ((1u << RTK_BVHN) - 1);
+    }
 #endif
     {
         t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
@@ -377,10 +404,10 @@ static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray
                                 float *tfar_io, closest_hit *best)
 {
     const vfloat4 tnear = vf4_set1(tnear_s);
-    const vnode ntnear = vn_set1(tnear_s);
+    const vnode ntnear = vn_set1(tnear_s + 0.0f); /* -0.0 -> +0.0 for node_intersect */
     float tfar_s = *tfar_io;
     vfloat4 tfar = vf4_set1(tfar_s);
-    vnode ntfar = vn_set1(tfar_s);
+    vnode ntfar = vn_set1(tfar_s + 0.0f);
 
     stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
     int sp = 0;
@@ -421,7 +448,7 @@ static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray
             best->lane = lane;
             tfar_s = t_lane;
             tfar = vf4_set1(tfar_s);
-            ntfar = vn_set1(tfar_s);
+            ntfar = vn_set1(tfar_s + 0.0f);
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
             break;
@@ -433,7 +460,7 @@ static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray
 static inline int any_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float tfar_s)
 {
     const vfloat4 tnear = vf4_set1(tnear_s), tfar = vf4_set1(tfar_s);
-    const vnode ntnear = vn_set1(tnear_s), ntfar = vn_set1(tfar_s);
+    const vnode ntnear = vn_set1(tnear_s + 0.0f), ntfar = vn_set1(tfar_s + 0.0f); /* no -0.0 */
 
     stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
     int sp = 0;

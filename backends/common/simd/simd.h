@@ -20,6 +20,14 @@
  *   vi4_from_vf4_trunc       truncates toward zero; lanes must be in int32
  *                            range (callers clamp in float first)
  *   vbool4                   a lane is all ones or all zeros
+ *   vf4_maxi / vf4_mini /    max, min and a > b of the lanes' bit patterns
+ *   vf4_gti                  as signed integers (SSE4.1; vf8_ ones on AVX2
+ *                            only): the float order wherever both lanes are
+ *                            non-negative (+0.0 included), and a negative
+ *                            value (-0.0 included) is below every one of
+ *                            those.  One cycle of latency where the float
+ *                            ops take four, for kernels that can tell their
+ *                            operands' signs apart
  *   vf4_madd / vf4_msub      fused (one rounding) where the ISA has FMA,
  *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
  *                            which, for kernels whose error bounds depend on

@@ -42,6 +42,10 @@ RTK_INLINE vfloat4 vf4_max(vfloat4 a, vfloat4 b)
     return RTK_V4_LANES(RTK_MAX_LANE);
 #undef RTK_MAX_LANE
 }
+/* max / min / a > b of the lanes' bits as signed integers (see simd.h) */
+RTK_INLINE vbool4 vf4_gti(vfloat4 a, vfloat4 b) { return (vint4)a > (vint4)b; }
+RTK_INLINE vfloat4 vf4_maxi(vfloat4 a, vfloat4 b) { return rtk_v4_blend(vf4_gti(a, b), a, b); }
+RTK_INLINE vfloat4 vf4_mini(vfloat4 a, vfloat4 b) { return rtk_v4_blend(vf4_gti(a, b), b, a); }
 RTK_INLINE vfloat4 vf4_madd(vfloat4 a, vfloat4 b, vfloat4 c) { return a * b + c; }
 RTK_INLINE vfloat4 vf4_msub(vfloat4 a, vfloat4 b, vfloat4 c) { return a * b - c; }
 RTK_INLINE vbool4 vf4_lt(vfloat4 a, vfloat4 b) { return a < b; }

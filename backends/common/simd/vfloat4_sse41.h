@@ -26,6 +26,19 @@ RTK_INLINE vfloat4 vf4_mul(vfloat4 a, vfloat4 b) { return _mm_mul_ps(a, b); }
 RTK_INLINE vfloat4 vf4_div(vfloat4 a, vfloat4 b) { return _mm_div_ps(a, b); }
 RTK_INLINE vfloat4 vf4_min(vfloat4 a, vfloat4 b) { return _mm_min_ps(a, b); }
 RTK_INLINE vfloat4 vf4_max(vfloat4 a, vfloat4 b) { return _mm_max_ps(a, b); }
+/* max / min / a > b of the lanes' bits as signed integers (see simd.h) */
+RTK_INLINE vfloat4 vf4_maxi(vfloat4 a, vfloat4 b)
+{
+    return _mm_castsi128_ps(_mm_max_epi32(_mm_castps_si128(a), _mm_castps_si128(b)));
+}
+RTK_INLINE vfloat4 vf4_mini(vfloat4 a, vfloat4 b)
+{
+    return _mm_castsi128_ps(_mm_min_epi32(_mm_castps_si128(a), _mm_castps_si128(b)));
+}
+RTK_INLINE vbool4 vf4_gti(vfloat4 a, vfloat4 b)
+{
+    return _mm_castsi128_ps(_mm_cmpgt_epi32(_mm_castps_si128(a), _mm_castps_si128(b)));
+}
 /* a * b + c, fused where the ISA has FMA (one rounding) */
 RTK_INLINE vfloat4 vf4_madd(vfloat4 a, vfloat4 b, vfloat4 c)
 {

@@ -20,6 +20,21 @@ RTK_INLINE vfloat8 vf8_mul(vfloat8 a, vfloat8 b) { return _mm256_mul_ps(a, b); }
 /* a * b - c with one rounding (only where the ISA has FMA: RTK_SIMD_HAS_FMA) */
 RTK_INLINE vfloat8 vf8_msub(vfloat8 a, vfloat8 b, vfloat8 c) { return _mm256_fmsub_ps(a, b, c); }
 #endif
+#if defined(__AVX2__)
+/* As vf4_maxi / vf4_mini / vf4_gti (AVX2 only) */
+RTK_INLINE vfloat8 vf8_maxi(vfloat8 a, vfloat8 b)
+{
+    return _mm256_castsi256_ps(_mm256_max_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
+}
+RTK_INLINE vfloat8 vf8_mini(vfloat8 a, vfloat8 b)
+{
+    return _mm256_castsi256_ps(_mm256_min_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
+}
+RTK_INLINE vbool8 vf8_gti(vfloat8 a, vfloat8 b)
+{
+    return _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
+}
+#endif
 RTK_INLINE vfloat8 vf8_div(vfloat8 a, vfloat8 b) { return _mm256_div_ps(a, b); }
 RTK_INLINE vfloat8 vf8_min(vfloat8 a, vfloat8 b) { return _mm256_min_ps(a, b); } /* b where either is NaN */
 RTK_INLINE vfloat8 vf8_max(vfloat8 a, vfloat8 b) { return _mm256_max_ps(a, b); }
