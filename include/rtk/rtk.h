@@ -313,9 +313,11 @@ RTK_API rtk_error rtk_occluded1(rtk_scene scene, rtk_ray *ray);
  * inactive lanes and invalid rays are left untouched.
  *
  * Packet traversal pays off for coherent rays (camera rays through
- * neighbouring pixels): the packet visits each node once for all its rays,
- * and switches to single-ray traversal for the few rays still active once it
- * has spread out (the hybrid scheme of Embree).  Every width works on every
+ * neighbouring pixels): the packet visits each node once for all its rays
+ * (testing the node against the frustum of the whole packet first when its
+ * rays share their direction signs), and switches to single-ray traversal
+ * for the few rays still active once it has spread out (the hybrid scheme
+ * of Embree).  Every width works on every
  * backend: a packet wider than the backend's packet kernels is traced as
  * several narrower packets, and a backend without packet kernels traces the
  * rays one by one; rtk_scene_info.packet_width says which. */
