@@ -343,6 +343,64 @@ static void test_spread_packets(void **state)
         }
 }
 
+/* Sixteen small triangles stacked 0.01 apart along z: splitting them buys
+ * nothing (every half has the stack's footprint), so the SAH makes them one
+ * leaf of four blocks, the largest there is, at the root.  Every block must
+ * be searched, by single rays and packets: the nearest triangle from above
+ * is the last one, from below the first. */
+static void test_multi_block_leaf(void **state)
+{
+    (void)state;
+    float v[16 * 9];
+    uint32_t idx[16 * 3];
+    for (int i = 0; i < 16; i++) {
+        const float z = 0.01f * (float)i, tri[9] = {0, 0, z, 1, 0, z, 0, 1, z};
+        memcpy(&v[9 * i], tri, sizeof tri);
+        for (int k = 0; k < 3; k++)
+            idx[3 * i + k] = (uint32_t)(3 * i + k);
+    }
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t b = 0; b < 2 * nb; b++) {
+        rtk_device dev = test_device(names[b % nb]);
+        rtk_scene scene = test_scene_flags(dev, v, 48, idx, 16, b >= nb ? RTK_SCENE_FLAG_COMPACT : 0);
+        rtk_scene_info info = {.struct_size = sizeof info};
+        assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
+        if (info.nodes != 0 || info.leaves != 4)
+            fail_msg("[%s] %llu nodes, %llu leaf blocks; expected one leaf of 4 blocks", names[b % nb],
+                     (unsigned long long)info.nodes, (unsigned long long)info.leaves);
+        static const struct {
+            float org[3], dir[3];
+            int prim;
+        } cases[] = {{{0.25f, 0.25f, 1}, {0, 0, -1}, 15}, {{0.25f, 0.25f, -1}, {0, 0, 1}, 0}};
+        for (int c = 0; c < 2; c++) {
+            rtk_rayhit rh = {.ray = test_ray(cases[c].org[0], cases[c].org[1], cases[c].org[2], cases[c].dir[0],
+                                             cases[c].dir[1], cases[c].dir[2], 0, INFINITY),
+                             .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+            assert_int_equal(rtk_intersect1(scene, &rh), RTK_OK);
+            if (rh.hit.primID != (uint32_t)cases[c].prim)
+                fail_msg("[%s] case %d: prim %u, expected %d", names[b % nb], c, rh.hit.primID, cases[c].prim);
+            _Alignas(64) uint32_t pk[20 * 16];
+            for (unsigned w = 4; w <= 16; w *= 2) {
+                rtk_rayhit lane = rh;
+                lane.ray.tfar = INFINITY;
+                lane.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                for (unsigned j = 0; j < w; j++)
+                    test_packet_put(pk, w, j, &lane, 0);
+                assert_int_equal(test_trace_packet(scene, w, 0, NULL, pk), RTK_OK);
+                for (unsigned j = 0; j < w; j++) {
+                    test_packet_get(pk, w, j, &lane, 0);
+                    if (lane.hit.primID != (uint32_t)cases[c].prim || lane.ray.tfar != rh.ray.tfar)
+                        fail_msg("[%s] case %d intersect%u lane %u: prim %u", names[b % nb], c, w, j,
+                                 lane.hit.primID);
+                }
+            }
+        }
+        rtk_scene_release(scene);
+        rtk_device_release(dev);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -353,6 +411,7 @@ int main(void)
         cmocka_unit_test(test_closest_of_several),
         cmocka_unit_test(test_huge_coordinates),
         cmocka_unit_test(test_spread_packets),
+        cmocka_unit_test(test_multi_block_leaf),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

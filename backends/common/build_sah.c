@@ -150,8 +150,9 @@ static inline vint4 bin_of(const binmap *m, vfloat4 c)
 }
 
 typedef struct split {
-    int axis; /* -1: no object split possible */
-    int pos;  /* left = bins [0, pos) */
+    int axis;   /* -1: no object split possible */
+    int pos;    /* left = bins [0, pos) */
+    float cost; /* the two halves' areas times their blocks of four */
     binmap map;
 } split;
 
@@ -257,6 +258,7 @@ static split find_split(const builder *b, const range *r)
             best.axis = a;
             best.pos = pos[a];
         }
+    best.cost = c;
     best.map = map;
     return best;
 }
@@ -283,11 +285,14 @@ static void range_recompute(const builder *b, range *r)
         range_add(r, vf4_load(b->refs[i].lo), vf4_load(b->refs[i].hi));
 }
 
-/* Splits r into two non-empty halves. */
-static void split_range(builder *b, const range *r, int median, range *left, range *right)
+/* Splits r into two non-empty halves, along *given if not NULL (a split
+ * find_split made for r), else along the best one (median: halves). */
+static void split_range(builder *b, const range *r, int median, const split *given, range *left, range *right)
 {
     split s = {.axis = -1};
-    if (!median)
+    if (given)
+        s = *given;
+    else if (!median)
         s = find_split(b, r);
     if (s.axis < 0) {
         /* All centroids coincide, or the tree is deep: any even split is as good. */
@@ -371,13 +376,12 @@ static void make_leaf_indexed(builder *b, const range *r, uint64_t index)
     }
 }
 
-static uint32_t make_leaf(builder *b, const range *r)
+/* One leaf block: the (up to) four triangles of r from r->begin. */
+static void make_block(builder *b, const range *r, uint64_t index)
 {
-    uint64_t index = b->leaf_count++;
-    b->sah += box_half_area(&r->geom);
     if (b->trisi) {
         make_leaf_indexed(b, r, index);
-        return (uint32_t)index | RTK_BVH4_LEAF_BIT;
+        return;
     }
     rtk_triangle4 *t = &b->tris[index];
     const float nan = NAN;
@@ -395,7 +399,21 @@ static uint32_t make_leaf(builder *b, const range *r)
         rtk_triangle4_set_lane(t, (int)lane, vertex_at(g, tri[0]), vertex_at(g, tri[1]), vertex_at(g, tri[2]),
                                g->geom_id, ref_prim(p));
     }
-    return (uint32_t)index | RTK_BVH4_LEAF_BIT;
+}
+
+/* A leaf of ceil(n / 4) consecutive blocks (at most RTK_LEAF_MAX_BLOCKS). */
+static uint32_t make_leaf(builder *b, const range *r)
+{
+    const uint32_t blocks = (r->end - r->begin + 3) / 4;
+    const uint64_t first = b->leaf_count;
+    b->leaf_count += blocks;
+    b->sah += (double)box_half_area(&r->geom) * blocks;
+    for (uint32_t k = 0; k < blocks; k++) {
+        range part = *r;
+        part.begin = r->begin + 4 * k;
+        make_block(b, &part, first + k);
+    }
+    return rtk_leaf_ref((uint32_t)first, blocks);
 }
 
 /* Writes inner node `index` with the boxes of its nc children; empty slots
@@ -445,10 +463,24 @@ static uint32_t build_node(builder *b, const range *r, uint32_t depth)
 {
     if (depth > b->depth)
         b->depth = depth;
-    if (r->end - r->begin <= 4)
+    const uint32_t n = r->end - r->begin;
+    if (n <= 4)
         return make_leaf(b, r);
 
     const int median = depth >= RTK_SAH_MEDIAN_DEPTH;
+    /* A small range becomes one leaf of several blocks where the SAH says
+     * an inner node over its best split would cost more (one box test, at
+     * the price of one block of triangles, as in Embree): an inner node
+     * over a handful of triangles would mostly hold empty slots. */
+    split first = {.axis = -1};
+    int have_first = 0;
+    if (n <= 4 * RTK_LEAF_MAX_BLOCKS && !median) {
+        first = find_split(b, r);
+        const float area = box_half_area(&r->geom);
+        if (first.axis < 0 || (float)((n + 3) / 4) * area <= area + first.cost)
+            return make_leaf(b, r);
+        have_first = 1;
+    }
     range child[8];
     int nc = 1;
     child[0] = *r;
@@ -468,7 +500,7 @@ static uint32_t build_node(builder *b, const range *r, uint32_t depth)
         if (pick < 0)
             break;
         range l, rr;
-        split_range(b, &child[pick], median, &l, &rr);
+        split_range(b, &child[pick], median, have_first && nc == 1 ? &first : NULL, &l, &rr);
         child[pick] = l;
         child[nc++] = rr;
     }
@@ -546,8 +578,8 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     uint64_t total = 0;
     for (uint32_t g = 0; g < in->geometry_count; g++)
         total += in->geometries[g].prim_count;
-    if (total >= RTK_BVH4_LEAF_BIT) {
-        set_message(out, "too many triangles for one BVH (limit 2^31 - 1)");
+    if (total >= RTK_LEAF_INDEX_LIMIT) {
+        set_message(out, "too many triangles for one BVH (limit 2^29 - 1)");
         return RTK_ERROR_INVALID_ARGUMENT;
     }
 

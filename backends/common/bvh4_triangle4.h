@@ -1,9 +1,9 @@
 /*
  * Layouts "bvh4.triangle4" and "bvh8.triangle4": 4- or 8-wide BVH nodes whose
  * child boxes are stored as structure-of-arrays (ready for 4- or 8-wide SIMD
- * box tests), and leaves that each hold one block of up to four triangles
- * with precomputed edges (a vertex copy: traversal never touches the
- * application's buffers).  The 8-wide nodes are used by the AVX backends,
+ * box tests), and leaves of one to four consecutive blocks of up to four
+ * triangles with precomputed edges (a vertex copy: traversal never touches
+ * the application's buffers; the builder's SAH sizes the leaves).  The 8-wide nodes are used by the AVX backends,
  * where one 8-wide box test costs what a 4-wide one does.
  *
  * Layout "bvh4.triangle4i", for scenes flagged compact: the same 4-wide
@@ -23,11 +23,21 @@
 #include "backend_common.h"
 #include "rtk/rtk_backend.h"
 
-/* A child reference: an inner node index, a leaf block index with the top bit
- * set, or RTK_BVH4_EMPTY.  An empty slot has an inverted box (lower = +inf,
+/* A child reference: an inner node index, a leaf, or RTK_BVH4_EMPTY.  A leaf
+ * has the top bit set, its number of blocks minus one in the next two bits
+ * and the index of its first block in the low 29 (its blocks are
+ * consecutive).  An empty slot has an inverted box (lower = +inf,
  * upper = -inf) so no ray ever enters it. */
 #define RTK_BVH4_LEAF_BIT 0x80000000u
 #define RTK_BVH4_EMPTY 0xffffffffu
+#define RTK_LEAF_MAX_BLOCKS 4
+#define RTK_LEAF_INDEX_LIMIT (1u << 29) /* leaf blocks per BVH */
+static inline uint32_t rtk_leaf_ref(uint32_t first, uint32_t blocks)
+{
+    return RTK_BVH4_LEAF_BIT | (blocks - 1) << 29 | first;
+}
+static inline uint32_t rtk_leaf_first(uint32_t ref) { return ref & (RTK_LEAF_INDEX_LIMIT - 1); }
+static inline uint32_t rtk_leaf_blocks(uint32_t ref) { return (ref >> 29 & 3) + 1; }
 /* Builders never go deeper than this, so a traversal stack of
  * 3 * RTK_BVH4_MAX_DEPTH + 1 entries can never overflow. */
 #define RTK_BVH4_MAX_DEPTH 64

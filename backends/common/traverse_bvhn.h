@@ -415,40 +415,43 @@ static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray
     for (;;) {
         if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur, 0))
             break;
-        rtk_triangle4 scratch;
-        const rtk_triangle4 *t = leaf_block(accel, cur & ~RTK_BVH4_LEAF_BIT, &scratch);
-        tri4_hit h;
-        unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
-        if (mask) {
-            /* the nearest of the lanes hit */
-            _Alignas(16) float T[4], absdet[4], U[4], V[4];
-            vf4_store(T, h.T);
-            vf4_store(absdet, h.absdet);
-            int lane = -1;
-            float t_lane = 0.0f;
-            for (; mask; mask &= mask - 1) {
-                const int i = __builtin_ctz(mask);
-                float ti = T[i] * (1.0f / absdet[i]);
-                if (lane < 0 || ti < t_lane) {
-                    lane = i;
-                    t_lane = ti;
+        const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+        for (uint32_t block = first; block < end; block++) {
+            rtk_triangle4 scratch;
+            const rtk_triangle4 *t = leaf_block(accel, block, &scratch);
+            tri4_hit h;
+            unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
+            if (mask) {
+                /* the nearest of the lanes hit */
+                _Alignas(16) float T[4], absdet[4], U[4], V[4];
+                vf4_store(T, h.T);
+                vf4_store(absdet, h.absdet);
+                int lane = -1;
+                float t_lane = 0.0f;
+                for (; mask; mask &= mask - 1) {
+                    const int i = __builtin_ctz(mask);
+                    float ti = T[i] * (1.0f / absdet[i]);
+                    if (lane < 0 || ti < t_lane) {
+                        lane = i;
+                        t_lane = ti;
+                    }
                 }
+                /* The product may round past an end of the interval the unscaled
+                 * test accepted; clamp so tnear <= t <= tfar always holds.  Ties
+                 * go to the interval's end (so -0.0 becomes tnear's +0.0), as
+                 * max/min do in the packet kernels. */
+                t_lane = t_lane <= tnear_s ? tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
+                vf4_store(U, h.U);
+                vf4_store(V, h.V);
+                const float inv = 1.0f / absdet[lane];
+                best->u = U[lane] * inv;
+                best->v = V[lane] * inv;
+                best->leaf = block;
+                best->lane = lane;
+                tfar_s = t_lane;
+                tfar = vf4_set1(tfar_s);
+                ntfar = vn_set1(tfar_s + 0.0f);
             }
-            /* The product may round past an end of the interval the unscaled
-             * test accepted; clamp so tnear <= t <= tfar always holds.  Ties
-             * go to the interval's end (so -0.0 becomes tnear's +0.0), as
-             * max/min do in the packet kernels. */
-            t_lane = t_lane <= tnear_s ? tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
-            vf4_store(U, h.U);
-            vf4_store(V, h.V);
-            const float inv = 1.0f / absdet[lane];
-            best->u = U[lane] * inv;
-            best->v = V[lane] * inv;
-            best->leaf = cur & ~RTK_BVH4_LEAF_BIT;
-            best->lane = lane;
-            tfar_s = t_lane;
-            tfar = vf4_set1(tfar_s);
-            ntfar = vn_set1(tfar_s + 0.0f);
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
             break;
@@ -468,10 +471,13 @@ static inline int any_from(const rtk_accel *accel, uint32_t root, const ray_pre 
     for (;;) {
         if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur, 1))
             return 0;
-        tri4_hit h;
-        rtk_triangle4 scratch;
-        if (triangle4_intersect(leaf_block(accel, cur & ~RTK_BVH4_LEAF_BIT, &scratch), p, tnear, tfar, &h))
-            return 1;
+        const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+        for (uint32_t block = first; block < end; block++) {
+            tri4_hit h;
+            rtk_triangle4 scratch;
+            if (triangle4_intersect(leaf_block(accel, block, &scratch), p, tnear, tfar, &h))
+                return 1;
+        }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
             return 0;
     }

@@ -443,36 +443,38 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         }
         if (!(cur & RTK_BVH4_LEAF_BIT))
             continue;
-        const uint32_t leaf = cur & ~RTK_BVH4_LEAF_BIT;
-        rtk_triangle4 scratch;
-        const rtk_triangle4 *t = leaf_block(accel, leaf, &scratch);
         /* Only the rays that entered the leaf's box test its triangles, as
          * alone: a ray grazing a triangle's plane can get a hit whose
          * rounded position lies outside the triangle's box, and it must not
          * get it here when it would not alone. */
         const vkb entered = VK(le)(cur_dist, tfar);
         int any = 0;
-        for (int j = 0; j < 4 && t->prim[j] != RTK_BVH4_EMPTY; j++) {
-            vk U, V, T, absdet;
-            const vkb ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);
-            const unsigned hit = (unsigned)VKB(mask)(ok);
-            if (!hit)
-                continue;
-            any = 1;
-            /* blends, not lane stores: a vector load of just-stored lanes
-             * would stall on store forwarding */
-            if (closest) {
-                const vk rcp = VK(div)(VK(set1)(1.0f), absdet);
-                vk tt = VK(mul)(T, rcp);
-                tt = VK(min)(VK(max)(tt, p.tnear), tfar); /* the clamp of the single-ray kernel */
-                tfar = VK(select)(ok, tt, tfar);
-                hu = VK(select)(ok, VK(mul)(U, rcp), hu);
-                hv = VK(select)(ok, VK(mul)(V, rcp), hv);
-                for (unsigned m = hit; m; m &= m - 1)
-                    ref_out[__builtin_ctz(m)] = leaf * 4u + (uint32_t)j;
-            } else {
-                tfar = VK(select)(ok, VK(set1)(-INFINITY), tfar);
-                done |= hit;
+        const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+        for (uint32_t leaf = first; leaf < end; leaf++) {
+            rtk_triangle4 scratch;
+            const rtk_triangle4 *t = leaf_block(accel, leaf, &scratch);
+            for (int j = 0; j < 4 && t->prim[j] != RTK_BVH4_EMPTY; j++) {
+                vk U, V, T, absdet;
+                const vkb ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);
+                const unsigned hit = (unsigned)VKB(mask)(ok);
+                if (!hit)
+                    continue;
+                any = 1;
+                /* blends, not lane stores: a vector load of just-stored lanes
+                 * would stall on store forwarding */
+                if (closest) {
+                    const vk rcp = VK(div)(VK(set1)(1.0f), absdet);
+                    vk tt = VK(mul)(T, rcp);
+                    tt = VK(min)(VK(max)(tt, p.tnear), tfar); /* the clamp of the single-ray kernel */
+                    tfar = VK(select)(ok, tt, tfar);
+                    hu = VK(select)(ok, VK(mul)(U, rcp), hu);
+                    hv = VK(select)(ok, VK(mul)(V, rcp), hv);
+                    for (unsigned m = hit; m; m &= m - 1)
+                        ref_out[__builtin_ctz(m)] = leaf * 4u + (uint32_t)j;
+                } else {
+                    tfar = VK(select)(ok, VK(set1)(-INFINITY), tfar);
+                    done |= hit;
+                }
             }
         }
         if (any && p.frustum)

@@ -223,7 +223,7 @@ typedef struct rtk_scene_info {
     uint64_t triangles;          /* in the BVH */
     uint64_t triangles_skipped;  /* left out: a NaN or infinite vertex */
     uint64_t triangles_degenerate; /* left out: zero area (never hit) */
-    uint64_t nodes, leaves;
+    uint64_t nodes, leaves;      /* inner nodes; leaf blocks of up to 4 triangles (a leaf holds 1 to 4) */
     uint32_t depth;
     uint64_t bytes;              /* BVH nodes + leaf primitives */
     double bytes_per_triangle;
