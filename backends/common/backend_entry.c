@@ -95,6 +95,13 @@ static const rtk_kernel_entry kernels[] = {
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 4,
      .fn.occludedN = RTK_SYM(rtk_bvh4_occluded4)},
 #endif
+#ifdef RTK_SIMD_HAS_8
+    /* 8-ray packets over 4-wide nodes where vectors are 8 wide */
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 8,
+     .fn.intersectN = RTK_SYM(rtk_bvh4_intersect8)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 8,
+     .fn.occludedN = RTK_SYM(rtk_bvh4_occluded8)},
+#endif
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_INTERSECT, .width = 1,
      .fn.intersect1 = RTK_SYM(rtk_bvh4i_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 1,
@@ -104,6 +111,12 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersectN = RTK_SYM(rtk_bvh4i_intersect4)},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 4,
      .fn.occludedN = RTK_SYM(rtk_bvh4i_occluded4)},
+#endif
+#ifdef RTK_SIMD_HAS_8
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_INTERSECT, .width = 8,
+     .fn.intersectN = RTK_SYM(rtk_bvh4i_intersect8)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 8,
+     .fn.occludedN = RTK_SYM(rtk_bvh4i_occluded8)},
 #endif
     {0},
 };

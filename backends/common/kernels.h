@@ -20,4 +20,8 @@ RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect1)(const rtk_accel *accel, rtk_rayhit
 RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet);
 #endif

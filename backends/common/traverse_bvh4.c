@@ -1,6 +1,11 @@
 /* Traversal of bvh4.triangle4: the single-ray template at width 4 and the
- * packet template for 4-ray packets. */
+ * packet template for 4-ray packets (and 8-ray ones where the SIMD layer has
+ * 8-wide vectors: avx, avx2). */
 #define RTK_BVHN 4
 #include "traverse_bvhn.h"
 #define RTK_PACKET 4
 #include "traverse_packet.h"
+#ifdef RTK_SIMD_HAS_8
+#define RTK_PACKET 8
+#include "traverse_packet.h"
+#endif

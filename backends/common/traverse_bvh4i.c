@@ -1,8 +1,13 @@
 /* Traversal of bvh4.triangle4i (compact scenes): the single-ray template at
- * width 4 and the packet template for 4-ray packets, with leaves that read
+ * width 4 and the packet template for 4-ray packets (and 8-ray ones where
+ * the SIMD layer has 8-wide vectors: avx, avx2), with leaves that read
  * their vertices from the geometries' buffers. */
 #define RTK_BVHN 4
 #define RTK_LEAF_INDEXED 1
 #include "traverse_bvhn.h"
 #define RTK_PACKET 4
 #include "traverse_packet.h"
+#ifdef RTK_SIMD_HAS_8
+#define RTK_PACKET 8
+#include "traverse_packet.h"
+#endif
