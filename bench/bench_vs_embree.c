@@ -147,6 +147,17 @@ typedef struct job {
     size_t begin, end;
 } job;
 
+/* Rays q[0..7] into the packet p, an rtk_rayhit8 or an RTCRayHit8 (whose
+ * fields have the same names), no hit yet. */
+#define PACKET8_LOAD(p, q, invalid_id)                                                                            \
+    for (int k = 0; k < 8; k++) {                                                                                  \
+        const rtk_ray *r_ = &(q)[k];                                                                               \
+        (p).ray.org_x[k] = r_->org_x, (p).ray.org_y[k] = r_->org_y, (p).ray.org_z[k] = r_->org_z;                   \
+        (p).ray.dir_x[k] = r_->dir_x, (p).ray.dir_y[k] = r_->dir_y, (p).ray.dir_z[k] = r_->dir_z;                   \
+        (p).ray.tnear[k] = r_->tnear, (p).ray.tfar[k] = r_->tfar, (p).ray.time[k] = 0, (p).ray.mask[k] = ~0u;       \
+        (p).ray.id[k] = 0, (p).ray.flags[k] = 0, (p).hit.geomID[k] = (invalid_id);                                  \
+    }
+
 static void run_rtk(const job *j)
 {
     const rayset *s = j->set;
@@ -154,13 +165,7 @@ static void run_rtk(const job *j)
     if (s->packet) {
         for (size_t i = j->begin; i < j->end; i += 8) {
             rtk_rayhit8 p;
-            for (int k = 0; k < 8; k++) {
-                const rtk_ray *q = &s->rays[i + k];
-                p.ray.org_x[k] = q->org_x, p.ray.org_y[k] = q->org_y, p.ray.org_z[k] = q->org_z;
-                p.ray.dir_x[k] = q->dir_x, p.ray.dir_y[k] = q->dir_y, p.ray.dir_z[k] = q->dir_z;
-                p.ray.tnear[k] = q->tnear, p.ray.tfar[k] = q->tfar, p.ray.time[k] = 0, p.ray.mask[k] = ~0u;
-                p.ray.id[k] = 0, p.ray.flags[k] = 0, p.hit.geomID[k] = RTK_INVALID_GEOMETRY_ID;
-            }
+            PACKET8_LOAD(p, &s->rays[i], RTK_INVALID_GEOMETRY_ID);
             rtk_intersect8(scene, NULL, &p);
             for (int k = 0; k < 8; k++)
                 j->hits[i + k] = p.hit.geomID[k] != RTK_INVALID_GEOMETRY_ID;
@@ -191,13 +196,7 @@ static void run_embree(const job *j)
         const int valid[8] = {-1, -1, -1, -1, -1, -1, -1, -1};
         for (size_t i = j->begin; i < j->end; i += 8) {
             struct RTCRayHit8 p __attribute__((aligned(32)));
-            for (int k = 0; k < 8; k++) {
-                const rtk_ray *q = &s->rays[i + k];
-                p.ray.org_x[k] = q->org_x, p.ray.org_y[k] = q->org_y, p.ray.org_z[k] = q->org_z;
-                p.ray.dir_x[k] = q->dir_x, p.ray.dir_y[k] = q->dir_y, p.ray.dir_z[k] = q->dir_z;
-                p.ray.tnear[k] = q->tnear, p.ray.tfar[k] = q->tfar, p.ray.time[k] = 0, p.ray.mask[k] = ~0u;
-                p.ray.id[k] = 0, p.ray.flags[k] = 0, p.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
-            }
+            PACKET8_LOAD(p, &s->rays[i], RTC_INVALID_GEOMETRY_ID);
             rtcIntersect8(valid, scene, &ctx, &p);
             for (int k = 0; k < 8; k++)
                 j->hits[i + k] = p.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID;

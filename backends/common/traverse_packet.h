@@ -123,11 +123,10 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, unsigned all)
     _Alignas(64) float tn[RTK_PACKET];
     VK(store)(tn, p->tnear);
     float tnear_min = INFINITY;
-    for (unsigned m = all; m; m &= m - 1)
-        {
-            const float t = tn[__builtin_ctz(m)];
-            tnear_min = t < tnear_min ? t : tnear_min;
-        }
+    for (unsigned m = all; m; m &= m - 1) {
+        const float t = tn[__builtin_ctz(m)];
+        tnear_min = t < tnear_min ? t : tnear_min;
+    }
     for (int k = 0; k < 3; k++) {
         const unsigned neg = (unsigned)VKB(mask)(VK(lt)(p->rinv_lo[k], zero)) & all;
         if (neg && neg != all)
