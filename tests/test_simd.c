@@ -1,7 +1,7 @@
 /*
  * The SIMD layer's documented semantics, checked for one implementation per
  * build of this file: tests/CMakeLists.txt compiles it once with the
- * baseline flags (GNU C vectors, as the scalar backend sees the layer) and
+ * baseline flags (the width-1 version, as the scalar backend sees the layer) and
  * once with -msse4.1 (intrinsics, as sse41/avx/avx2 see it), and both
  * binaries must pass the same expectations.
  */

@@ -87,9 +87,9 @@ static const rtk_kernel_entry kernels[] = {
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 1, .fn.intersect1 = BVH4_INTERSECT1},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 1, .fn.occluded1 = BVH4_OCCLUDED1},
 #ifdef __SSE4_1__
-    /* Not in the scalar backend: with GNU C vectors the packet kernel traced
-     * primary rays 13% slower than ray by ray (bench_vs_embree, dragon:
-     * 2.90 against 3.34 Mrays/s), so there the core goes ray by ray. */
+    /* Not in the scalar backend, where the core goes ray by ray: there the
+     * packet kernel is no faster (bench_vs_embree primary8: dragon 2.56
+     * against 2.41 Mrays/s ray by ray, San Miguel 5.36 against 5.45). */
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_INTERSECT, .width = 4,
      .fn.intersectN = RTK_SYM(rtk_bvh4_intersect4)},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4, .query = RTK_QUERY_OCCLUDED, .width = 4,

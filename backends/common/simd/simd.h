@@ -4,8 +4,9 @@
  * hand-tuned overrides, nowhere else.
  *
  *   vfloat4 / vint4 / vbool4   4 lanes: SSE4.1 in the sse41, avx and avx2
- *                              backends, GNU C vector extensions (no
- *                              intrinsics) in the scalar backend
+ *                              backends; in the scalar backend the width-1
+ *                              version (vfloat4_scalar.h), plain C run one
+ *                              lane at a time with the vectorizers off
  *   vfloat8 / vbool8           8 lanes, AVX (avx and avx2 backends only;
  *                              RTK_SIMD_HAS_8 says they exist)
  *
@@ -51,8 +52,8 @@
 #include "vfloat8_avx.h"
 #endif
 #else
-#define RTK_SIMD_ISA "c"
-#include "vfloat4_c.h"
+#define RTK_SIMD_ISA "scalar"
+#include "vfloat4_scalar.h"
 #endif
 
 #endif
