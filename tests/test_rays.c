@@ -33,9 +33,9 @@ typedef struct backend_scene {
 static backend_scene scenes[2 * TEST_MAX_BACKENDS];
 static size_t nscenes;
 
-static int setup(void **state)
+/* scenes[] over the given triangles, on every backend in both layouts */
+static void build_scenes(const float *v, size_t nv, const uint32_t *idx, size_t nt)
 {
-    (void)state;
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     nscenes = 2 * nb;
@@ -43,9 +43,15 @@ static int setup(void **state)
         const int compact = i >= nb;
         snprintf(scenes[i].name, sizeof scenes[i].name, "%s%s", names[i % nb], compact ? " compact" : "");
         scenes[i].dev = test_device(names[i % nb]);
-        scenes[i].scene = test_scene_flags(scenes[i].dev, V, NV, I, NT,
+        scenes[i].scene = test_scene_flags(scenes[i].dev, v, nv, idx, nt,
                                            compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
     }
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    build_scenes(V, NV, I, NT);
     return 0;
 }
 
@@ -231,6 +237,45 @@ static void test_origin_on_surface(void **state)
     expect("on surface, away", test_ray(0.75f, 0.25f, 0, 0, 0, 1, 1e-4f, INFINITY), -1, 0);
 }
 
+/* Rays starting on a triangle that lies in its boxes' far plane (every box
+ * of this scene is flat in z, the triangles all at z = 0), leaving through
+ * that plane: the far distance of every box on the way is (0 - 0) times a
+ * negative reciprocal, -0.0, and the boxes must still be entered, to give the
+ * hit at t = 0 that a ray leaving any other way gets.  A box test ordering
+ * floats by their bits rejects them unless it turns -0.0 into +0.0. */
+static int setup_flat_squares(void **state)
+{
+    enum { squares = 16 };
+    static float v[squares * 12]; /* static: compact scenes keep using them */
+    static uint32_t idx[squares * 6];
+    for (int k = 0; k < squares; k++) {
+        const float x = 3.0f * (float)k, sq[12] = {x, 0, 0, x + 1, 0, 0, x + 1, 1, 0, x, 1, 0};
+        static const uint32_t two[6] = {0, 1, 2, 0, 2, 3};
+        memcpy(&v[12 * k], sq, sizeof sq);
+        for (int j = 0; j < 6; j++)
+            idx[6 * k + j] = (uint32_t)(4 * k) + two[j];
+    }
+    teardown(state);
+    build_scenes(v, squares * 4, idx, squares * 2);
+    return 0;
+}
+
+static int restore_fixture(void **state)
+{
+    teardown(state);
+    return setup(state);
+}
+
+static void test_origin_on_box_far_plane(void **state)
+{
+    (void)state;
+    expect("far plane, -z", test_ray(0.75f, 0.25f, 0, 0, 0, -1, 0, INFINITY), 0, 0);
+    expect("far plane, -z, -0.0 x y", test_ray(0.75f, 0.25f, 0, -0.0f, -0.0f, -1, 0, INFINITY), 0, 0);
+    expect("far plane, oblique", test_ray(0.75f, 0.25f, 0, 0.3f, 0.2f, -1, 0, INFINITY), 0, 0);
+    expect("far plane, square 11", test_ray(33.25f, 0.75f, 0, -0.1f, 0, -1, 0, INFINITY), 23, 0);
+    expect("far plane, +z", test_ray(0.75f, 0.25f, 0, 0, 0, 1, 0, INFINITY), 0, 0);
+}
+
 static void test_closest_of_several(void **state)
 {
     (void)state;
@@ -408,6 +453,7 @@ int main(void)
         cmocka_unit_test(test_nan_and_inf),
         cmocka_unit_test(test_interval),
         cmocka_unit_test(test_origin_on_surface),
+        cmocka_unit_test_setup_teardown(test_origin_on_box_far_plane, setup_flat_squares, restore_fixture),
         cmocka_unit_test(test_closest_of_several),
         cmocka_unit_test(test_huge_coordinates),
         cmocka_unit_test(test_spread_packets),

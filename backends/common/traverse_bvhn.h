@@ -38,6 +38,7 @@ typedef rtk_bvh4_node node_t;
 typedef vfloat4 vnode;
 #define vn_load vf4_load
 #define vn_set1 vf4_set1
+#define vn_add vf4_add
 #define vn_sub vf4_sub
 #define vn_mul vf4_mul
 #define vn_msub vf4_msub
@@ -52,11 +53,13 @@ typedef vfloat4 vnode;
 #define vn_mini vf4_mini
 #define vn_gti vf4_gti
 #define BVHN_NODES(accel) ((const rtk_bvh4_node *)(accel)->nodes)
+#define RTK_NODE_INT_ORDER RTK_SIMD_INT_ORDER_4
 #elif RTK_BVHN == 8
 typedef rtk_bvh8_node node_t;
 typedef vfloat8 vnode;
 #define vn_load vf8_load
 #define vn_set1 vf8_set1
+#define vn_add vf8_add
 #define vn_sub vf8_sub
 #define vn_mul vf8_mul
 #define vn_msub vf8_msub
@@ -71,6 +74,7 @@ typedef vfloat8 vnode;
 #define vn_mini vf8_mini
 #define vn_gti vf8_gti
 #define BVHN_NODES(accel) ((const rtk_bvh8_node *)(accel)->nodes)
+#define RTK_NODE_INT_ORDER RTK_SIMD_INT_ORDER_8
 #else
 #error "define RTK_BVHN to 4 or 8 before including traverse_bvhn.h"
 #endif
@@ -165,10 +169,11 @@ static inline vnode plane(const node_t *n, size_t off)
  * fused plane * inv - c per plane (as Embree does), without it one
  * subtraction and one multiplication, the far scale folded into inv_far.
  *
- * With FMA the maxima, minima and the comparison are done on the floats'
- * bits as integers (as Embree does on AVX2): one cycle each instead of four,
- * on the critical path of every node visit (measured on dragon.ply, avx2:
- * camera, diffuse and shadow rays 8-10% faster).  That is the float order
+ * Where the ISA has them cheap (RTK_SIMD_INT_ORDER_N: SSE4.1 for 4 wide,
+ * AVX2 for 8) the maxima, minima and the comparison are done on the floats'
+ * bits as integers (as Embree does): one cycle each instead of four, on the
+ * critical path of every node visit (measured on dragon.ply, avx2: camera,
+ * diffuse and shadow rays 8-10% faster).  That is the float order
  * for non-negative values; tnear and tfar are at least +0.0 (ray_pre_init
  * and its callers add +0.0, so -0.0 never appears), so tmin is exactly the
  * float maximum, and a negative far distance, which the integer minimum
@@ -179,8 +184,8 @@ static inline vnode plane(const node_t *n, size_t off)
  * within about 2^-125 of zero, and then the exact far distance is -org * inv
  * < 0: the box lies behind the origin, and rejecting it is exact.  The
  * sub-mul form gives -0.0 for an origin exactly on a far plane (x - x is
- * +0, times a negative reciprocal), a box touched at t = 0, so it keeps the
- * float ops. */
+ * +0, times a negative reciprocal), a box touched at t = 0 that must be
+ * entered, so there the far distances get + 0.0 first. */
 static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear, vnode tfar, vnode *dist)
 {
     vnode t0x, t0y, t0z, t1x, t1y, t1z;
@@ -198,18 +203,30 @@ static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode t
         return (unsigned)vn_mask(vn_gti(tmin, tmax)) ^ ((1u << RTK_BVHN) - 1);
     }
 #endif
-    {
-        t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
-        t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
-        t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
-        t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
-        t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
-        t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
-    }
+    t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
+    t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
+    t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
+    t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
+    t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
+    t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
+#if RTK_NODE_INT_ORDER
+    /* + 0.0 turns the far distances' -0.0 into +0.0, the one value where the
+     * integer order and the float order disagree here, and changes nothing
+     * else: three additions beside the critical path buy integer ops on it */
+    const vnode zero = vn_set1(0.0f);
+    t1x = vn_add(t1x, zero);
+    t1y = vn_add(t1y, zero);
+    t1z = vn_add(t1z, zero);
+    const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, tnear));
+    const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
+    *dist = tmin;
+    return (unsigned)vn_mask(vn_gti(tmin, tmax)) ^ ((1u << RTK_BVHN) - 1);
+#else
     const vnode tmin = vn_max(vn_max(t0x, t0y), vn_max(t0z, tnear));
     const vnode tmax = vn_min(vn_min(t1x, t1y), vn_min(t1z, tfar));
     *dist = tmin;
     return (unsigned)vn_mask(vn_le(tmin, tmax));
+#endif
 }
 
 typedef struct stack_entry {

@@ -29,6 +29,9 @@
  *                            those.  One cycle of latency where the float
  *                            ops take four, for kernels that can tell their
  *                            operands' signs apart
+ *                            RTK_SIMD_INT_ORDER_4 / _8 say where they are
+ *                            cheaper than the float ops at that width
+ *                            (SSE4.1 / AVX2), so kernels use them there
  *   vf4_madd / vf4_msub      fused (one rounding) where the ISA has FMA,
  *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
  *                            which, for kernels whose error bounds depend on
@@ -47,13 +50,23 @@
 #if defined(__SSE4_1__)
 #define RTK_SIMD_ISA "sse4.1"
 #include "vfloat4_sse41.h"
+#define RTK_SIMD_INT_ORDER_4 1
 #if defined(__AVX__)
 #define RTK_SIMD_HAS_8 1
 #include "vfloat8_avx.h"
 #endif
+#if defined(__AVX2__)
+#define RTK_SIMD_INT_ORDER_8 1
+#endif
 #else
 #define RTK_SIMD_ISA "scalar"
 #include "vfloat4_scalar.h"
+#endif
+#ifndef RTK_SIMD_INT_ORDER_4
+#define RTK_SIMD_INT_ORDER_4 0
+#endif
+#ifndef RTK_SIMD_INT_ORDER_8
+#define RTK_SIMD_INT_ORDER_8 0
 #endif
 
 #endif
