@@ -1,11 +1,15 @@
 /* Mesh import: every input triangle kept, polygons triangulated, malformed
- * files rejected with a clear error (and never a crash). */
+ * files rejected with a clear error (and never a crash); rtk's .rtkm file
+ * (round trip, damage detected) and the clean-ups of rtktool convert. */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
 #include "mesh_import.h"
+#include "mesh_tools.h"
+#include "rtkm.h"
 #include "testlib.h"
 
 static char dir[256];
@@ -146,12 +150,165 @@ static void test_malformed(void **state)
     expect_error(write_text("empty.stl", ""), "empty file");
 }
 
+/* The sum of the triangles' areas. */
+static double mesh_area(const rtk_mesh *m)
+{
+    double sum = 0.0;
+    for (size_t t = 0; t < m->triangle_count; t++) {
+        const float *a = &m->vertices[3 * m->indices[3 * t]], *b = &m->vertices[3 * m->indices[3 * t + 1]],
+                    *c = &m->vertices[3 * m->indices[3 * t + 2]];
+        const double e[3] = {b[0] - a[0], b[1] - a[1], b[2] - a[2]}, f[3] = {c[0] - a[0], c[1] - a[1], c[2] - a[2]};
+        const double n[3] = {e[1] * f[2] - e[2] * f[1], e[2] * f[0] - e[0] * f[2], e[0] * f[1] - e[1] * f[0]};
+        sum += 0.5 * sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    }
+    return sum;
+}
+
+static void test_om(void **state)
+{
+    (void)state;
+    /* OpenMesh 9's OM writer on a PolyMesh: the unit quad 0-1-2-3 and the
+     * triangle 1-4-2 with v4 = (2, 0, 0). */
+    static const unsigned char om[] = {
+        0x4f, 0x4d, 0x50, 0x42, 0x05, 0x00, 0x00, 0x00, 0x02, 0x00, 0x00, 0x00, 0x06, 0x00, 0x00, 0x00, 0x00, 0x16,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80, 0x3f, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80, 0x3f, 0x00, 0x00, 0x80, 0x3f, 0x00, 0x00, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x80, 0x3f, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0x40, 0x00, 0x00,
+        0x00, 0x00, 0x00, 0x00, 0x00, 0x00, 0xf8, 0x16, 0x02, 0x01, 0x00, 0x07, 0x00, 0xff, 0x04, 0x02, 0x00, 0x08,
+        0x01, 0x01, 0x06, 0x03, 0x00, 0x0b, 0x02, 0xff, 0x00, 0x00, 0x00, 0x05, 0x03, 0xff, 0x0a, 0x04, 0x01, 0x01,
+        0x01, 0xff, 0x03, 0x02, 0x01, 0x09, 0x04, 0xff, 0xe0, 0x06, 0x07, 0x01, 0x0b, 0x05, 0x09, 0xe8, 0x06, 0x06,
+        0x03, 0x1c, 0x00};
+    rtk_mesh m;
+    char err[512];
+    if (rtk_mesh_load(write_file("quad.om", om, sizeof om), &m, err, sizeof err))
+        fail_msg("%s", err);
+    assert_int_equal(m.vertex_count, 5);
+    assert_int_equal(m.faces_read, 2);
+    assert_int_equal(m.polygons_triangulated, 1);
+    assert_int_equal(m.triangle_count, 3);
+    assert_float_equal(mesh_area(&m), 1.5, 1e-12);
+    rtk_mesh_free(&m);
+    expect_error(write_file("cut.om", om, 40), "OpenMesh could not read it");
+}
+
+static void test_rtkm_round_trip(void **state)
+{
+    (void)state;
+    rtk_mesh a, b;
+    char err[512];
+    assert_int_equal(rtk_mesh_load(RTK_TEST_DATA "/bunny.ply", &a, err, sizeof err), 0);
+    char path[512];
+    snprintf(path, sizeof path, "%s/bunny.rtkm", dir);
+    if (rtkm_save(path, &a, err, sizeof err))
+        fail_msg("%s", err);
+    if (rtk_mesh_load(path, &b, err, sizeof err))
+        fail_msg("%s", err);
+    assert_int_equal(b.vertex_count, a.vertex_count);
+    assert_int_equal(b.triangle_count, a.triangle_count);
+    assert_memory_equal(b.vertices, a.vertices, 12 * a.vertex_count);
+    assert_memory_equal(b.indices, a.indices, 12 * a.triangle_count);
+    rtk_mesh_free(&b);
+    /* An empty mesh is a valid file too. */
+    rtk_mesh empty = {0};
+    snprintf(path, sizeof path, "%s/empty.rtkm", dir);
+    assert_int_equal(rtkm_save(path, &empty, err, sizeof err), 0);
+    assert_int_equal(rtk_mesh_load(path, &b, err, sizeof err), 0);
+    assert_int_equal(b.triangle_count, 0);
+    rtk_mesh_free(&b);
+    /* Out-of-range indices are never written. */
+    a.indices[7] = (uint32_t)a.vertex_count;
+    snprintf(path, sizeof path, "%s/bad.rtkm", dir);
+    assert_int_not_equal(rtkm_save(path, &a, err, sizeof err), 0);
+    assert_non_null(strstr(err, "triangle 2 refers to vertex 35947 of 35947"));
+    rtk_mesh_free(&a);
+}
+
+/* A small valid file's bytes, for damaging. */
+static size_t small_rtkm(unsigned char *buf, size_t cap)
+{
+    static float v[] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 1, 1, 0};
+    static uint32_t idx[] = {0, 1, 2, 1, 3, 2};
+    const rtk_mesh m = {.vertices = v, .indices = idx, .vertex_count = 4, .triangle_count = 2};
+    char err[256], path[512];
+    snprintf(path, sizeof path, "%s/small.rtkm", dir);
+    assert_int_equal(rtkm_save(path, &m, err, sizeof err), 0);
+    FILE *f = fopen(path, "rb");
+    assert_non_null(f);
+    const size_t n = fread(buf, 1, cap, f);
+    fclose(f);
+    return n;
+}
+
+static void test_rtkm_damage(void **state)
+{
+    (void)state;
+    unsigned char good[1024], bad[1024];
+    const size_t n = small_rtkm(good, sizeof good);
+    assert_int_equal(n, 192 + 24); /* header, 4 vertices at 128, the indices at 192 */
+    rtk_mesh m;
+    char err[256];
+    assert_int_equal(rtk_mesh_load(write_file("ok.rtkm", good, n), &m, err, sizeof err), 0);
+    rtk_mesh_free(&m);
+    memcpy(bad, good, n);
+    bad[0] = 'X';
+    expect_error(write_file("magic.rtkm", bad, n), "not an .rtkm file (bad magic)");
+    memcpy(bad, good, n);
+    bad[8] = 2;
+    expect_error(write_file("v2.rtkm", bad, n), ".rtkm version 2; this build reads version 1");
+    expect_error(write_file("cut.rtkm", good, n - 1), "file is 215 bytes, the header says 216");
+    expect_error(write_file("hdr.rtkm", good, 100), "truncated or malformed header");
+    expect_error(write_file("tiny.rtkm", good, 5), "bad magic");
+    memcpy(bad, good, n);
+    bad[16] = 5; /* the vertex count */
+    expect_error(write_file("count.rtkm", bad, n), "header checksum mismatch");
+    memcpy(bad, good, n);
+    bad[130] ^= 1; /* a vertex coordinate */
+    expect_error(write_file("payload.rtkm", bad, n), "checksum mismatch (damaged file)");
+    memcpy(bad, good, n);
+    memcpy(bad + n, "\0\0\0\0", 4);
+    expect_error(write_file("long.rtkm", bad, n + 4), "file is 220 bytes, the header says 216");
+}
+
+static void test_merge_and_drop(void **state)
+{
+    (void)state;
+    /* v3 repeats v1 (with -0.0 for +0.0), v4 repeats v0; v5 is NaN.
+     * Triangles: a good one, the same over the duplicates, one with a
+     * repeated vertex, one collinear, one with the NaN vertex. */
+    float v[] = {0, 0, 0, 1, 0, 0, 0, 1, 0, 1, -0.0f, 0, 0, 0, 0, NAN, 0, 0, 2, 0, 0};
+    uint32_t idx[] = {0, 1, 2, 4, 3, 2, 0, 0, 1, 0, 1, 6, 0, 5, 2};
+    rtk_mesh m = {.vertices = malloc(sizeof v), .indices = malloc(sizeof idx), .vertex_count = 7,
+                  .triangle_count = 5};
+    memcpy(m.vertices, v, sizeof v);
+    memcpy(m.indices, idx, sizeof idx);
+    size_t degenerate, non_finite;
+    rtk_mesh_count_unhittable(&m, &degenerate, &non_finite);
+    assert_int_equal(degenerate, 2);
+    assert_int_equal(non_finite, 1);
+    assert_int_equal(rtk_mesh_merge_vertices(&m), 2);
+    assert_int_equal(m.vertex_count, 5);
+    const uint32_t merged[] = {0, 1, 2, 0, 1, 2, 0, 0, 1, 0, 1, 4, 0, 3, 2};
+    assert_memory_equal(m.indices, merged, sizeof merged);
+    assert_true(isnan(m.vertices[9]));
+    assert_float_equal(m.vertices[12], 2.0f, 0.0f);
+    rtk_mesh_drop_unhittable(&m, &degenerate, &non_finite);
+    assert_int_equal(degenerate, 2);
+    assert_int_equal(non_finite, 1);
+    assert_int_equal(m.triangle_count, 2);
+    assert_memory_equal(m.indices, merged, 6 * sizeof(uint32_t));
+    rtk_mesh_free(&m);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_obj_polygons_and_nonmanifold),
         cmocka_unit_test(test_ply_off_stl),
         cmocka_unit_test(test_malformed),
+        cmocka_unit_test(test_om),
+        cmocka_unit_test(test_rtkm_round_trip),
+        cmocka_unit_test(test_rtkm_damage),
+        cmocka_unit_test(test_merge_and_drop),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -1,5 +1,6 @@
 // Mesh import through OpenMesh's readers into a triangle soup.  See mesh_import.h.
 #include "mesh_import.h"
+#include "rtkm.h"
 
 #include <cctype>
 #include <cerrno>
@@ -18,6 +19,7 @@
 #include <OpenMesh/Core/IO/IOManager.hh>
 #include <OpenMesh/Core/IO/Options.hh>
 #include <OpenMesh/Core/IO/importer/BaseImporter.hh>
+#include <OpenMesh/Core/Mesh/PolyMesh_ArrayKernelT.hh>
 #include <OpenMesh/Core/System/omstream.hh>
 
 namespace {
@@ -44,15 +46,22 @@ public:
     FaceHandle add_face(const VHandles &idx) override
     {
         faces++;
+        add_polygon(idx, faces - 1);
+        return FaceHandle(int(faces - 1));
+    }
+
+    // Splits one face (vertex handles in order) into a fan of triangles.
+    void add_polygon(const VHandles &idx, size_t face)
+    {
         const size_t nv = points.size() / 3;
         if (idx.size() < 3) {
-            note_bad("a face with fewer than three vertices");
-            return FaceHandle();
+            note_bad(face, "a face with fewer than three vertices");
+            return;
         }
         for (const VertexHandle &v : idx)
             if (v.idx() < 0 || size_t(v.idx()) >= nv) {
-                note_bad("a face refers to vertex " + std::to_string(v.idx()) + " of " + std::to_string(nv));
-                return FaceHandle();
+                note_bad(face, "a face refers to vertex " + std::to_string(v.idx()) + " of " + std::to_string(nv));
+                return;
             }
         if (idx.size() > 3)
             polygons++;
@@ -67,18 +76,19 @@ public:
             tris.push_back(uint32_t(idx[k].idx()));
             tris.push_back(uint32_t(idx[k + 1].idx()));
         }
-        return FaceHandle(int(faces - 1));
     }
 
-    void note_bad(const std::string &what)
+    void note_bad(size_t face, const std::string &what)
     {
         if (!bad_faces++)
-            first_bad = "face " + std::to_string(faces - 1) + ": " + what;
+            first_bad = "face " + std::to_string(face) + ": " + what;
     }
 
-    // Topology-based input (OM's halfedge records) is not a soup: refused.
+    // Topology-based input is OpenMesh's own OM format, read through a
+    // PolyMesh instead (read_om): refused here.
     HalfedgeHandle add_edge(VertexHandle, VertexHandle) override { return HalfedgeHandle(); }
     FaceHandle add_face(HalfedgeHandle) override { return FaceHandle(); }
+    void set_next(HalfedgeHandle, HalfedgeHandle) override {}
 
     // Attributes rtk does not use.
     void add_face_texcoords(FaceHandle, VertexHandle, const std::vector<Vec2f> &) override {}
@@ -99,7 +109,6 @@ public:
     void set_color(VertexHandle, const Vec4f &) override {}
     void set_texcoord(VertexHandle, const Vec2f &) override {}
     void set_status(VertexHandle, const Attributes::StatusInfo &) override {}
-    void set_next(HalfedgeHandle, HalfedgeHandle) override {}
     void set_face(HalfedgeHandle, FaceHandle) override {}
     void request_face_texcoords2D() override {}
     void set_texcoord(HalfedgeHandle, const Vec2f &) override {}
@@ -134,6 +143,26 @@ public:
 };
 
 std::mutex import_lock;
+
+// OM files hold OpenMesh's halfedge structure, so they can only ever contain
+// what OpenMesh's mesh accepted: reading them into a PolyMesh loses nothing.
+// Its faces are then passed to the soup in order.
+bool read_om(const char *path, SoupImporter &soup)
+{
+    PolyMesh_ArrayKernelT<> mesh;
+    if (!IO::read_mesh(mesh, path))
+        return false;
+    for (auto v : mesh.vertices())
+        soup.add_vertex(mesh.point(v));
+    IO::BaseImporter::VHandles idx;
+    for (auto f : mesh.faces()) {
+        idx.clear();
+        for (auto v : mesh.fv_range(f))
+            idx.push_back(VertexHandle(v.idx()));
+        soup.add_face(idx);
+    }
+    return true;
+}
 
 // OpenMesh's OFF reader goes on with uninitialised counts when the header
 // does not parse, so the header is checked here first: the keyword
@@ -225,6 +254,12 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
         return 1;
     }
 
+    const char *dot = std::strrchr(path, '.');
+    if (dot && std::strlen(dot) == 5 && std::tolower((unsigned char)dot[1]) == 'r' &&
+        std::tolower((unsigned char)dot[2]) == 't' && std::tolower((unsigned char)dot[3]) == 'k' &&
+        std::tolower((unsigned char)dot[4]) == 'm')
+        return rtkm_load(path, mesh, err, err_size); // rtk's own format, no OpenMesh
+
     std::lock_guard<std::mutex> guard(import_lock);
     SoupImporter soup;
     // OpenMesh's diagnostics go to a capture stream of ours, redirected once
@@ -250,16 +285,16 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
             c = char(std::tolower((unsigned char)c));
         // (IOManager::can_read opens a dummy file name for some formats, so
         // the extension is checked here.)
-        static const char *const known[] = {"obj", "ply", "off", "stl", "stla", "stlb"};
+        static const char *const known[] = {"obj", "ply", "off", "stl", "stla", "stlb", "om"};
         bool readable = false;
         for (const char *k : known)
             readable = readable || ext == k;
         if (!readable) {
-            failure = "unknown mesh format (rtk reads .obj, .ply, .off, .stl)";
+            failure = "unknown mesh format (rtk reads .rtkm, .obj, .ply, .off, .stl, .om)";
         } else if (ext == "off" && !off_header_ok(path, failure)) {
             // failure says why
         } else {
-            ok = IO::IOManager().read(path, soup, opt);
+            ok = ext == "om" ? read_om(path, soup) : IO::IOManager().read(path, soup, opt);
         }
     } catch (const std::bad_alloc &) {
         failure = "out of memory while reading";

@@ -1,7 +1,7 @@
 /*
  * Mesh import through OpenMesh, behind a C interface (the only C++ in rtk).
  *
- * Reads OBJ, PLY (ascii and binary), OFF and STL (ascii and binary) with
+ * Reads OBJ, PLY (ascii and binary), OFF, STL (ascii and binary) and OM with
  * OpenMesh's readers into a triangle soup: polygons are split into fans, and
  * every input face is kept exactly as written.  OpenMesh's own mesh importer
  * drops faces with a repeated vertex and splits non-manifold faces off onto
@@ -11,6 +11,9 @@
  * lies in OpenMesh's OBJ reader itself, which drops faces that repeat a
  * vertex before rtk sees them (they have no area and could never be hit);
  * the PLY and OFF readers pass them on, and they are kept and counted.
+ * OpenMesh's own OM files hold its halfedge structure, so they can only hold
+ * what its mesh accepted; they are read through a PolyMesh.  Files named
+ * *.rtkm are rtk's own mesh files (rtkm.h), read without OpenMesh.
  */
 #ifndef RTK_TOOLS_MESH_IMPORT_H
 #define RTK_TOOLS_MESH_IMPORT_H

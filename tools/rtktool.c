@@ -1,6 +1,7 @@
 /*
  * rtktool: how people meet rtk.  `info` shows the CPU and the backends;
- * `trace` renders a mesh and measures build and trace speed.
+ * `convert` turns a mesh into rtk's own .rtkm file; `trace` renders a mesh
+ * and measures build and trace speed.
  */
 #include <errno.h>
 #include <math.h>
@@ -8,11 +9,14 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <strings.h>
 #include <time.h>
 #include <unistd.h>
 
 #include "mesh_import.h"
+#include "mesh_tools.h"
 #include "png_write.h"
+#include "rtkm.h"
 #include "rtk/rtk.h"
 
 static double now(void)
@@ -187,7 +191,7 @@ static void trace_usage(FILE *f)
 {
     fprintf(f,
             "usage: rtktool trace MESH [options]\n"
-            "  Renders MESH (.obj .ply .off .stl) with eye-light shading from a camera\n"
+            "  Renders MESH (.rtkm .obj .ply .off .stl .om) with eye-light shading from a camera\n"
             "  that frames it, and prints the backend, build time and rays per second.\n"
             "  -o FILE        output PNG (default: trace.png)\n"
             "  --size WxH     image size (default: 1024x768)\n"
@@ -325,10 +329,106 @@ done:
     return rc;
 }
 
+static void convert_usage(FILE *f)
+{
+    fprintf(f, "usage: rtktool convert IN OUT.rtkm [options]\n"
+               "  Reads IN (.obj .ply .off .stl .om .rtkm, through OpenMesh) as triangles: polygons\n"
+               "  split into fans, every face kept, no vertex duplicated; writes rtk's mesh file,\n"
+               "  which every rtktool command reads without parsing (tools/rtkm.h).\n"
+               "  --merge-vertices   merge vertices at the same position (reports how many)\n"
+               "  --drop-degenerate  drop the triangles rtk never hits: zero area, or a NaN or\n"
+               "                     infinite vertex (without it they are counted and kept)\n");
+}
+
+static int ends_with(const char *s, const char *suffix)
+{
+    const size_t n = strlen(s), m = strlen(suffix);
+    return n >= m && !strcasecmp(s + n - m, suffix);
+}
+
+static int cmd_convert(int argc, char **argv)
+{
+    const char *in = NULL, *out = NULL;
+    int merge = 0, drop = 0;
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            convert_usage(stdout);
+            return 0;
+        } else if (!strcmp(a, "--merge-vertices"))
+            merge = 1;
+        else if (!strcmp(a, "--drop-degenerate"))
+            drop = 1;
+        else if (a[0] != '-' && !in)
+            in = a;
+        else if (a[0] != '-' && !out)
+            out = a;
+        else {
+            fprintf(stderr, "rtktool convert: unknown argument '%s'\n", a);
+            convert_usage(stderr);
+            return 2;
+        }
+    }
+    if (!in || !out) {
+        convert_usage(stderr);
+        return 2;
+    }
+    if (!ends_with(out, ".rtkm")) {
+        fprintf(stderr, "rtktool convert: the output name must end in .rtkm (got '%s')\n", out);
+        return 2;
+    }
+    char err[1024];
+    rtk_mesh mesh;
+    double t0 = now();
+    if (rtk_mesh_load(in, &mesh, err, sizeof err)) {
+        fprintf(stderr, "rtktool: %s\n", err);
+        return 1;
+    }
+    printf("read:     %s: %zu faces (%zu polygons triangulated, %zu repeating a vertex), %zu vertices, "
+           "%zu triangles, %.2f s\n",
+           in, mesh.faces_read, mesh.polygons_triangulated, mesh.faces_repeated_vertex, mesh.vertex_count,
+           mesh.triangle_count, now() - t0);
+    printf("          %zu vertices duplicated to keep every face\n", mesh.vertices_duplicated);
+    if (merge) {
+        const size_t merged = rtk_mesh_merge_vertices(&mesh);
+        if (merged == (size_t)-1) {
+            fprintf(stderr, "rtktool: out of memory merging vertices\n");
+            rtk_mesh_free(&mesh);
+            return 1;
+        }
+        printf("merged:   %zu vertices at positions already seen\n", merged);
+    }
+    size_t degenerate, non_finite;
+    if (drop) {
+        rtk_mesh_drop_unhittable(&mesh, &degenerate, &non_finite);
+        printf("dropped:  %zu triangles of zero area, %zu with a NaN or infinite vertex\n", degenerate, non_finite);
+    } else {
+        rtk_mesh_count_unhittable(&mesh, &degenerate, &non_finite);
+        if (degenerate || non_finite)
+            printf("kept:     %zu triangles of zero area, %zu with a NaN or infinite vertex (never hit; "
+                   "--drop-degenerate drops them)\n",
+                   degenerate, non_finite);
+    }
+    t0 = now();
+    if (rtkm_save(out, &mesh, err, sizeof err)) {
+        fprintf(stderr, "rtktool: %s\n", err);
+        rtk_mesh_free(&mesh);
+        return 1;
+    }
+    float lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+    if (mesh.vertex_count)
+        rtk_mesh_bounds(&mesh, lo, hi);
+    printf("wrote:    %s: %zu vertices, %zu triangles, bounds [%g %g %g]..[%g %g %g], %.2f s\n", out,
+           mesh.vertex_count, mesh.triangle_count, lo[0], lo[1], lo[2], hi[0], hi[1], hi[2], now() - t0);
+    rtk_mesh_free(&mesh);
+    return 0;
+}
+
 static void usage(FILE *f)
 {
     fprintf(f, "usage: rtktool COMMAND [options]\n"
                "  info                 CPU features, backends found and rejected, the active one\n"
+               "  convert IN OUT.rtkm  import a mesh into rtk's mesh file (rtktool convert --help)\n"
                "  trace MESH [opts]    render MESH to a PNG and measure (rtktool trace --help)\n"
                "  help                 this text\n");
 }
@@ -341,6 +441,8 @@ int main(int argc, char **argv)
     }
     if (!strcmp(argv[1], "info"))
         return cmd_info(argc - 2, argv + 2);
+    if (!strcmp(argv[1], "convert"))
+        return cmd_convert(argc - 2, argv + 2);
     if (!strcmp(argv[1], "trace"))
         return cmd_trace(argc - 2, argv + 2);
     if (!strcmp(argv[1], "help") || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {

@@ -1,0 +1,105 @@
+/* Mesh clean-ups for rtktool convert.  See mesh_tools.h. */
+#include "mesh_tools.h"
+
+#include <stdlib.h>
+#include <string.h>
+
+#include "geometry/triangle.h"
+
+/* The position's bits with -0.0 made +0.0, so equal floats hash alike. */
+static uint64_t position_hash(const float *p)
+{
+    uint64_t h = 0xcbf29ce484222325ull;
+    for (int k = 0; k < 3; k++) {
+        const float x = p[k] == 0.0f ? 0.0f : p[k];
+        uint32_t b;
+        memcpy(&b, &x, sizeof b);
+        h = (h ^ b) * 0x100000001b3ull;
+    }
+    return h ^ (h >> 29);
+}
+
+size_t rtk_mesh_merge_vertices(rtk_mesh *mesh)
+{
+    const size_t nv = mesh->vertex_count;
+    if (nv == 0)
+        return 0;
+    size_t cap = 16;
+    while (cap < 2 * nv)
+        cap *= 2;
+    uint32_t *table = malloc(cap * sizeof *table); /* vertex + 1, 0 = empty */
+    uint32_t *remap = malloc(nv * sizeof *remap);
+    if (!table || !remap) {
+        free(table);
+        free(remap);
+        return (size_t)-1;
+    }
+    memset(table, 0, cap * sizeof *table);
+    /* remap[i]: the first vertex at i's position */
+    for (size_t i = 0; i < nv; i++) {
+        const float *p = &mesh->vertices[3 * i];
+        size_t slot = (size_t)position_hash(p) & (cap - 1);
+        remap[i] = (uint32_t)i;
+        for (;; slot = (slot + 1) & (cap - 1)) {
+            if (!table[slot]) {
+                table[slot] = (uint32_t)i + 1;
+                break;
+            }
+            const float *q = &mesh->vertices[3 * (size_t)(table[slot] - 1)];
+            if (p[0] == q[0] && p[1] == q[1] && p[2] == q[2]) {
+                remap[i] = table[slot] - 1;
+                break;
+            }
+        }
+    }
+    free(table);
+    /* compact: the vertices that are their own representative, in order */
+    size_t kept = 0;
+    for (size_t i = 0; i < nv; i++) {
+        if (remap[i] == i) {
+            memmove(&mesh->vertices[3 * kept], &mesh->vertices[3 * i], 3 * sizeof(float));
+            remap[i] = (uint32_t)kept++;
+        } else {
+            remap[i] = remap[remap[i]]; /* the representative comes first: already renumbered */
+        }
+    }
+    for (size_t i = 0; i < 3 * mesh->triangle_count; i++)
+        mesh->indices[i] = remap[mesh->indices[i]];
+    free(remap);
+    mesh->vertex_count = kept;
+    return nv - kept;
+}
+
+/* 0: hittable, 1: degenerate, 2: non-finite */
+static int classify(const rtk_mesh *mesh, size_t t)
+{
+    const uint32_t *i = &mesh->indices[3 * t];
+    const float *a = &mesh->vertices[3 * (size_t)i[0]], *b = &mesh->vertices[3 * (size_t)i[1]],
+                *c = &mesh->vertices[3 * (size_t)i[2]];
+    if (!rtk_triangle_is_finite(a, b, c))
+        return 2;
+    return rtk_triangle_is_degenerate(a, b, c) ? 1 : 0;
+}
+
+void rtk_mesh_count_unhittable(const rtk_mesh *mesh, size_t *degenerate, size_t *non_finite)
+{
+    size_t n[3] = {0, 0, 0};
+    for (size_t t = 0; t < mesh->triangle_count; t++)
+        n[classify(mesh, t)]++;
+    *degenerate = n[1];
+    *non_finite = n[2];
+}
+
+void rtk_mesh_drop_unhittable(rtk_mesh *mesh, size_t *degenerate, size_t *non_finite)
+{
+    size_t n[3] = {0, 0, 0}, kept = 0;
+    for (size_t t = 0; t < mesh->triangle_count; t++) {
+        const int c = classify(mesh, t);
+        n[c]++;
+        if (c == 0)
+            memmove(&mesh->indices[3 * kept++], &mesh->indices[3 * t], 3 * sizeof(uint32_t));
+    }
+    mesh->triangle_count = kept;
+    *degenerate = n[1];
+    *non_finite = n[2];
+}

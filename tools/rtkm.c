@@ -1,0 +1,209 @@
+/* The .rtkm mesh file: writer and validating reader.  See rtkm.h. */
+#define _POSIX_C_SOURCE 200809L
+#include "rtkm.h"
+
+#include <errno.h>
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <sys/types.h>
+
+static const char magic[8] = "RTKMESH";
+
+static int fail(char *err, size_t size, const char *fmt, ...)
+{
+    if (err && size) {
+        va_list ap;
+        va_start(ap, fmt);
+        vsnprintf(err, size, fmt, ap);
+        va_end(ap);
+    }
+    return 1;
+}
+
+static void put32(unsigned char *p, uint32_t v)
+{
+    for (int i = 0; i < 4; i++)
+        p[i] = (unsigned char)(v >> (8 * i));
+}
+static void put64(unsigned char *p, uint64_t v)
+{
+    for (int i = 0; i < 8; i++)
+        p[i] = (unsigned char)(v >> (8 * i));
+}
+static uint32_t get32(const unsigned char *p)
+{
+    uint32_t v = 0;
+    for (int i = 3; i >= 0; i--)
+        v = v << 8 | p[i];
+    return v;
+}
+static uint64_t get64(const unsigned char *p)
+{
+    uint64_t v = 0;
+    for (int i = 7; i >= 0; i--)
+        v = v << 8 | p[i];
+    return v;
+}
+static void putf(unsigned char *p, float f)
+{
+    uint32_t v;
+    memcpy(&v, &f, sizeof v);
+    put32(p, v);
+}
+
+uint64_t rtkm_checksum(const void *data, size_t size, uint64_t seed)
+{
+    const unsigned char *p = data;
+    uint64_t h = seed;
+    for (; size >= 8; size -= 8, p += 8)
+        h = (h ^ get64(p)) * 0x100000001b3ull;
+    if (size) {
+        unsigned char tail[8] = {0};
+        memcpy(tail, p, size);
+        h = (h ^ get64(tail)) * 0x100000001b3ull;
+    }
+    return h;
+}
+
+static uint64_t align64(uint64_t x) { return (x + 63) & ~(uint64_t)63; }
+
+/* The payload checksum: vertices, then indices, seeded with their sizes. */
+static uint64_t payload_checksum(const float *v, uint64_t nv, const uint32_t *idx, uint64_t nt)
+{
+    uint64_t h = rtkm_checksum(NULL, 0, 0xcbf29ce484222325ull ^ (nv * 12) ^ ((nt * 12) << 1));
+    h = rtkm_checksum(v, (size_t)nv * 12, h);
+    return rtkm_checksum(idx, (size_t)nt * 12, h);
+}
+
+int rtkm_save(const char *path, const rtk_mesh *mesh, char *err, size_t err_size)
+{
+    for (size_t i = 0; i < 3 * mesh->triangle_count; i++)
+        if (mesh->indices[i] >= mesh->vertex_count)
+            return fail(err, err_size, "%s: not written: triangle %zu refers to vertex %u of %zu", path, i / 3,
+                        mesh->indices[i], mesh->vertex_count);
+    const uint64_t nv = mesh->vertex_count, nt = mesh->triangle_count;
+    const uint64_t voff = align64(RTKM_HEADER_SIZE), ioff = align64(voff + nv * 12);
+    unsigned char h[RTKM_HEADER_SIZE] = {0};
+    memcpy(h, magic, sizeof magic);
+    put32(h + 8, RTKM_VERSION);
+    put32(h + 12, RTKM_HEADER_SIZE);
+    put64(h + 16, nv);
+    put64(h + 24, nt);
+    put64(h + 32, voff);
+    put64(h + 40, ioff);
+    float lower[3] = {0, 0, 0}, upper[3] = {0, 0, 0};
+    if (nv)
+        rtk_mesh_bounds(mesh, lower, upper);
+    for (int k = 0; k < 3; k++) {
+        putf(h + 48 + 4 * k, lower[k]);
+        putf(h + 60 + 4 * k, upper[k]);
+    }
+    put64(h + 72, payload_checksum(mesh->vertices, nv, mesh->indices, nt));
+    put64(h + 80, rtkm_checksum(h, 80, 0xcbf29ce484222325ull));
+
+    FILE *f = fopen(path, "wb");
+    if (!f)
+        return fail(err, err_size, "%s: %s", path, strerror(errno));
+    static const unsigned char zeros[64];
+    int ok = fwrite(h, 1, sizeof h, f) == sizeof h && fwrite(zeros, 1, voff - sizeof h, f) == voff - sizeof h &&
+             (!nv || fwrite(mesh->vertices, 12, nv, f) == nv) &&
+             fwrite(zeros, 1, ioff - voff - nv * 12, f) == ioff - voff - nv * 12 &&
+             (!nt || fwrite(mesh->indices, 12, nt, f) == nt);
+    const int saved_errno = errno;
+    if (fclose(f) != 0)
+        ok = 0;
+    if (!ok) {
+        remove(path);
+        return fail(err, err_size, "%s: write failed: %s", path, strerror(saved_errno ? saved_errno : EIO));
+    }
+    return 0;
+}
+
+int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
+{
+    memset(mesh, 0, sizeof *mesh);
+    FILE *f = fopen(path, "rb");
+    if (!f)
+        return fail(err, err_size, "%s: %s", path, strerror(errno));
+    struct stat st;
+    unsigned char h[RTKM_HEADER_SIZE];
+    int bad = 1;
+    const char *why = NULL;
+    char whybuf[256];
+    if (fstat(fileno(f), &st) != 0) {
+        why = strerror(errno);
+        goto done;
+    }
+    const uint64_t size = (uint64_t)st.st_size;
+    if (size < 16 || fread(h, 1, 16, f) != 16 || memcmp(h, magic, sizeof magic) != 0) {
+        why = "not an .rtkm file (bad magic)";
+        goto done;
+    }
+    const uint32_t version = get32(h + 8), hsize = get32(h + 12);
+    if (version != RTKM_VERSION) {
+        snprintf(whybuf, sizeof whybuf, ".rtkm version %u; this build reads version %u", version, RTKM_VERSION);
+        why = whybuf;
+        goto done;
+    }
+    if (hsize != RTKM_HEADER_SIZE || size < RTKM_HEADER_SIZE || fread(h + 16, 1, hsize - 16, f) != hsize - 16) {
+        why = "truncated or malformed header";
+        goto done;
+    }
+    if (get64(h + 80) != rtkm_checksum(h, 80, 0xcbf29ce484222325ull)) {
+        why = "header checksum mismatch (damaged file)";
+        goto done;
+    }
+    const uint64_t nv = get64(h + 16), nt = get64(h + 24), voff = get64(h + 32), ioff = get64(h + 40);
+    if (nv > UINT32_MAX || nt > UINT32_MAX || voff % 64 || ioff % 64 || voff < RTKM_HEADER_SIZE ||
+        ioff < voff + nv * 12) {
+        why = "inconsistent counts or offsets in the header";
+        goto done;
+    }
+    if (size != ioff + nt * 12) {
+        snprintf(whybuf, sizeof whybuf, "file is %llu bytes, the header says %llu (truncated or padded)",
+                 (unsigned long long)size, (unsigned long long)(ioff + nt * 12));
+        why = whybuf;
+        goto done;
+    }
+    mesh->vertices = malloc(nv ? nv * 12 : 1);
+    mesh->indices = malloc(nt ? nt * 12 : 1);
+    if (!mesh->vertices || !mesh->indices) {
+        why = "out of memory";
+        goto done;
+    }
+    if (fseeko(f, (off_t)voff, SEEK_SET) != 0 || fread(mesh->vertices, 12, nv, f) != nv ||
+        fseeko(f, (off_t)ioff, SEEK_SET) != 0 || fread(mesh->indices, 12, nt, f) != nt) {
+        why = "read failed";
+        goto done;
+    }
+    if (get64(h + 72) != payload_checksum(mesh->vertices, nv, mesh->indices, nt)) {
+        why = "checksum mismatch (damaged file)";
+        goto done;
+    }
+    for (uint64_t i = 0; i < 3 * nt; i++)
+        if (mesh->indices[i] >= nv) {
+            snprintf(whybuf, sizeof whybuf, "triangle %llu refers to vertex %u of %llu", (unsigned long long)(i / 3),
+                     mesh->indices[i], (unsigned long long)nv);
+            why = whybuf;
+            goto done;
+        }
+    for (uint64_t t = 0; t < nt; t++) {
+        const uint32_t *i = &mesh->indices[3 * t];
+        mesh->faces_repeated_vertex += i[0] == i[1] || i[1] == i[2] || i[0] == i[2];
+    }
+    mesh->vertex_count = (size_t)nv;
+    mesh->triangle_count = (size_t)nt;
+    mesh->faces_read = (size_t)nt;
+    bad = 0;
+done:
+    fclose(f);
+    if (bad) {
+        rtk_mesh_free(mesh);
+        return fail(err, err_size, "%s: %s", path, why);
+    }
+    return 0;
+}
