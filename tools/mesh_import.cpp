@@ -254,10 +254,14 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
         return 1;
     }
 
-    const char *dot = std::strrchr(path, '.');
-    if (dot && std::strlen(dot) == 5 && std::tolower((unsigned char)dot[1]) == 'r' &&
-        std::tolower((unsigned char)dot[2]) == 't' && std::tolower((unsigned char)dot[3]) == 'k' &&
-        std::tolower((unsigned char)dot[4]) == 'm')
+    // The format is taken from the name: IOManager::can_read opens a dummy
+    // file name for some formats.
+    std::string ext(path);
+    const size_t dot = ext.rfind('.');
+    ext = dot == std::string::npos ? std::string() : ext.substr(dot + 1);
+    for (char &c : ext)
+        c = char(std::tolower((unsigned char)c));
+    if (ext == "rtkm")
         return rtkm_load(path, mesh, err, err_size); // rtk's own format, no OpenMesh
 
     std::lock_guard<std::mutex> guard(import_lock);
@@ -278,13 +282,6 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
     std::string failure;
     try {
         IO::Options opt;
-        std::string ext(path);
-        size_t dot = ext.rfind('.');
-        ext = dot == std::string::npos ? std::string() : ext.substr(dot + 1);
-        for (char &c : ext)
-            c = char(std::tolower((unsigned char)c));
-        // (IOManager::can_read opens a dummy file name for some formats, so
-        // the extension is checked here.)
         static const char *const known[] = {"obj", "ply", "off", "stl", "stla", "stlb", "om"};
         bool readable = false;
         for (const char *k : known)
