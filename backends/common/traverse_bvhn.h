@@ -186,6 +186,9 @@ static inline vnode plane(const node_t *n, size_t off)
  * sub-mul form gives -0.0 for an origin exactly on a far plane (x - x is
  * +0, times a negative reciprocal), a box touched at t = 0 that must be
  * entered, so there the far distances get + 0.0 first. */
+#if RTK_SIMD_HAS_FMA && !RTK_NODE_INT_ORDER
+#error "the fused node test orders by bits: an FMA backend needs the integer ops at this node width"
+#endif
 static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear, vnode tfar, vnode *dist)
 {
     vnode t0x, t0y, t0z, t1x, t1y, t1z;
@@ -197,26 +200,27 @@ static inline unsigned node_intersect(const node_t *n, const ray_pre *p, vnode t
         t1x = vn_msub(plane(n, p->far_off[0]), p->ninv_far[0], p->c_far[0]);
         t1y = vn_msub(plane(n, p->far_off[1]), p->ninv_far[1], p->c_far[1]);
         t1z = vn_msub(plane(n, p->far_off[2]), p->ninv_far[2], p->c_far[2]);
-        const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, tnear));
-        const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
-        *dist = tmin;
-        return (unsigned)vn_mask(vn_gti(tmin, tmax)) ^ ((1u << RTK_BVHN) - 1);
-    }
+    } else
 #endif
-    t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
-    t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
-    t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
-    t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
-    t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
-    t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
+    {
+        t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
+        t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
+        t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
+        t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
+        t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
+        t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
 #if RTK_NODE_INT_ORDER
-    /* + 0.0 turns the far distances' -0.0 into +0.0, the one value where the
-     * integer order and the float order disagree here, and changes nothing
-     * else: three additions beside the critical path buy integer ops on it */
-    const vnode zero = vn_set1(0.0f);
-    t1x = vn_add(t1x, zero);
-    t1y = vn_add(t1y, zero);
-    t1z = vn_add(t1z, zero);
+        /* + 0.0 turns the far distances' -0.0 into +0.0, the one value where
+         * the integer order and the float order disagree here, and changes
+         * nothing else: three additions beside the critical path buy integer
+         * ops on it */
+        const vnode zero = vn_set1(0.0f);
+        t1x = vn_add(t1x, zero);
+        t1y = vn_add(t1y, zero);
+        t1z = vn_add(t1z, zero);
+#endif
+    }
+#if RTK_NODE_INT_ORDER
     const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, tnear));
     const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
     *dist = tmin;

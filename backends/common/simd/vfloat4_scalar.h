@@ -15,13 +15,13 @@ typedef vint4 vbool4; /* lanes are 0 or -1 */
 #define RTK_INLINE static inline __attribute__((always_inline))
 
 /* r.<field>[k] = expr for k = 0..3; expr may use k */
-#define RTK_S4(type, field, expr)                                              \
+#define RTK_S4(field, expr)                                                    \
     do {                                                                       \
         for (int k = 0; k < 4; k++)                                            \
             r.field[k] = (expr);                                               \
     } while (0)
-#define RTK_S4_F(expr) vfloat4 r; RTK_S4(vfloat4, f, expr); return r
-#define RTK_S4_I(expr) vint4 r; RTK_S4(vint4, i, expr); return r
+#define RTK_S4_F(expr) vfloat4 r; RTK_S4(f, expr); return r
+#define RTK_S4_I(expr) vint4 r; RTK_S4(i, expr); return r
 
 RTK_INLINE int32_t rtk_s_bits(float a) { int32_t b; memcpy(&b, &a, sizeof b); return b; }
 RTK_INLINE float rtk_s_float(int32_t b) { float a; memcpy(&a, &b, sizeof a); return a; }
