@@ -393,26 +393,30 @@ static void test_spread_packets(void **state)
  * leaf of four blocks, the largest there is, at the root.  Every block must
  * be searched, by single rays and packets: the nearest triangle from above
  * is the last one, from below the first. */
-static void test_multi_block_leaf(void **state)
+static int setup_stacked_triangles(void **state)
 {
-    (void)state;
-    float v[16 * 9];
-    uint32_t idx[16 * 3];
+    static float v[16 * 9]; /* static: compact scenes keep using them */
+    static uint32_t idx[16 * 3];
     for (int i = 0; i < 16; i++) {
         const float z = 0.01f * (float)i, tri[9] = {0, 0, z, 1, 0, z, 0, 1, z};
         memcpy(&v[9 * i], tri, sizeof tri);
         for (int k = 0; k < 3; k++)
             idx[3 * i + k] = (uint32_t)(3 * i + k);
     }
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
-    for (size_t b = 0; b < 2 * nb; b++) {
-        rtk_device dev = test_device(names[b % nb]);
-        rtk_scene scene = test_scene_flags(dev, v, 48, idx, 16, b >= nb ? RTK_SCENE_FLAG_COMPACT : 0);
+    teardown(state);
+    build_scenes(v, 48, idx, 16);
+    return 0;
+}
+
+static void test_multi_block_leaf(void **state)
+{
+    (void)state;
+    for (size_t b = 0; b < nscenes; b++) {
+        const rtk_scene scene = scenes[b].scene;
         rtk_scene_info info = {.struct_size = sizeof info};
         assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
         if (info.nodes != 0 || info.leaves != 4)
-            fail_msg("[%s] %llu nodes, %llu leaf blocks; expected one leaf of 4 blocks", names[b % nb],
+            fail_msg("[%s] %llu nodes, %llu leaf blocks; expected one leaf of 4 blocks", scenes[b].name,
                      (unsigned long long)info.nodes, (unsigned long long)info.leaves);
         static const struct {
             float org[3], dir[3];
@@ -424,7 +428,7 @@ static void test_multi_block_leaf(void **state)
                              .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
             assert_int_equal(rtk_intersect1(scene, &rh), RTK_OK);
             if (rh.hit.primID != (uint32_t)cases[c].prim)
-                fail_msg("[%s] case %d: prim %u, expected %d", names[b % nb], c, rh.hit.primID, cases[c].prim);
+                fail_msg("[%s] case %d: prim %u, expected %d", scenes[b].name, c, rh.hit.primID, cases[c].prim);
             _Alignas(64) uint32_t pk[20 * 16];
             for (unsigned w = 4; w <= 16; w *= 2) {
                 rtk_rayhit lane = rh;
@@ -436,13 +440,11 @@ static void test_multi_block_leaf(void **state)
                 for (unsigned j = 0; j < w; j++) {
                     test_packet_get(pk, w, j, &lane, 0);
                     if (lane.hit.primID != (uint32_t)cases[c].prim || lane.ray.tfar != rh.ray.tfar)
-                        fail_msg("[%s] case %d intersect%u lane %u: prim %u", names[b % nb], c, w, j,
+                        fail_msg("[%s] case %d intersect%u lane %u: prim %u", scenes[b].name, c, w, j,
                                  lane.hit.primID);
                 }
             }
         }
-        rtk_scene_release(scene);
-        rtk_device_release(dev);
     }
 }
 
@@ -457,7 +459,7 @@ int main(void)
         cmocka_unit_test(test_closest_of_several),
         cmocka_unit_test(test_huge_coordinates),
         cmocka_unit_test(test_spread_packets),
-        cmocka_unit_test(test_multi_block_leaf),
+        cmocka_unit_test_setup_teardown(test_multi_block_leaf, setup_stacked_triangles, restore_fixture),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }
