@@ -81,4 +81,13 @@ RTK_INTERNAL rtk_error rtk_fail(rtk_device device, rtk_error code, const char *f
 /* A line on stderr when verbose >= level. */
 RTK_INTERNAL void rtk_log(rtk_device device, int level, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
+/* ---- bvh.c ---- */
+/* The tree (already through rtk_bvh_check) against the geometries it would
+ * be built over: see rtk_scene_commit_bvh.  RTK_ERROR_INVALID_ARGUMENT with
+ * the first problem in msg. */
+RTK_INTERNAL rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count,
+                                         char *msg, size_t size);
+/* Allocates the arrays of a tree of these sizes (leaves + 1 leaf_first). */
+RTK_INTERNAL rtk_error rtk_bvh_alloc(rtk_bvh *t, uint32_t width, uint64_t nodes, uint64_t leaves, uint64_t prims);
+
 #endif

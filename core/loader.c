@@ -198,6 +198,16 @@ static int check_tables(rtk_backend_entry *e, const rtk_backend_desc *d)
             return 0;
         }
     }
+    if (d->struct_size >= offsetof(rtk_backend_desc, layout_io) + sizeof d->layout_io && d->layout_io)
+        for (const rtk_layout_io_entry *io = d->layout_io; io->layout; io++) {
+            int found = 0;
+            for (const rtk_layout_entry *l = d->layouts; l->id; l++)
+                found |= l->id == io->layout;
+            if (!io->export_tree || !io->import_tree || !found) {
+                reject(e, "tree import/export for layout %u lacks a function or the layout", io->layout);
+                return 0;
+            }
+        }
     return 1;
 }
 

@@ -6,6 +6,7 @@
 #include <string.h>
 #include <time.h>
 
+#include "geometry/triangle.h"
 #include "internal.h"
 
 /* Memory rtk allocates for a buffer, reference-counted: a compact scene's
@@ -50,7 +51,7 @@ struct rtk_scene_s {
     /* After a successful commit: */
     rtk_accel *accel;
     const rtk_layout_entry *layout;
-    const rtk_builder_entry *builder;
+    const char *builder; /* the builder's name, or "tree" */
     rtk_intersect1_fn intersect1;
     rtk_occluded1_fn occluded1;
     /* For packets of 4, 8, 16 rays: the widest packet kernel that divides
@@ -351,7 +352,7 @@ static double now_seconds(void)
 }
 
 /* Index validation: every vertex index of every triangle in range. */
-static rtk_error check_indices(rtk_scene s, uint32_t id, const rtk_geometry g)
+static rtk_error check_indices(rtk_scene s, uint32_t id, const rtk_geometry g, const char *fn)
 {
     const size_t nv = g->vertex.count;
     for (size_t t = 0; t < g->index.count; t++) {
@@ -360,8 +361,8 @@ static rtk_error check_indices(rtk_scene s, uint32_t id, const rtk_geometry g)
         worst = tri[2] > worst ? tri[2] : worst;
         if (worst >= nv)
             return rtk_fail(s->device, RTK_ERROR_INVALID_GEOMETRY,
-                            "rtk_scene_commit: geometry %u, triangle %zu: vertex index %u out of range (%zu vertices)",
-                            id, t, worst, nv);
+                            "%s: geometry %u, triangle %zu: vertex index %u out of range (%zu vertices)", fn, id,
+                            t, worst, nv);
     }
     return RTK_OK;
 }
@@ -402,9 +403,20 @@ static const rtk_layout_entry *find_layout(const rtk_backend_desc *d, uint32_t i
     return NULL;
 }
 
-rtk_error rtk_scene_commit(rtk_scene s)
+static const rtk_layout_io_entry *find_layout_io(const rtk_backend_desc *d, uint32_t layout)
 {
-    CHECK_HANDLE(s, "rtk_scene_commit");
+    if (d->struct_size < offsetof(rtk_backend_desc, layout_io) + sizeof d->layout_io || !d->layout_io)
+        return NULL;
+    for (const rtk_layout_io_entry *e = d->layout_io; e->layout; e++)
+        if (e->layout == layout)
+            return e;
+    return NULL;
+}
+
+/* rtk_scene_commit (tree == NULL) and rtk_scene_commit_bvh: fn names the
+ * entry point in messages. */
+static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
+{
     rtk_device dev = s->device;
     const rtk_backend_desc *bk = dev->backend;
 
@@ -415,17 +427,17 @@ rtk_error rtk_scene_commit(rtk_scene s)
             continue;
         if (!g->committed)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
-                            "rtk_scene_commit: geometry %u is attached but not committed", i);
+                            "%s: geometry %u is attached but not committed", fn, i);
         if (!g->enabled)
             continue;
-        rtk_error err = check_indices(s, i, g);
+        rtk_error err = check_indices(s, i, g, fn);
         if (err)
             return err;
         n++;
     }
     rtk_build_geometry *in_geoms = calloc(n ? n : 1, sizeof *in_geoms);
     if (!in_geoms)
-        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_commit: out of memory");
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     n = 0;
     for (uint32_t i = 0; i < s->geom_count; i++) {
         rtk_geometry g = s->geoms[i];
@@ -469,7 +481,7 @@ rtk_error rtk_scene_commit(rtk_scene s)
     }
     if (!builder) {
         free(in_geoms);
-        return rtk_fail(dev, RTK_ERROR_UNKNOWN, "rtk_scene_commit: backend %s has no builder for a scene with flags 0x%x",
+        return rtk_fail(dev, RTK_ERROR_UNKNOWN, "%s: backend %s has no builder for a scene with flags 0x%x", fn,
                         bk->name, s->flags);
     }
     unsigned not_honoured = s->flags & ~layout->scene_flags;
@@ -489,12 +501,50 @@ rtk_error rtk_scene_commit(rtk_scene s)
     };
     rtk_build_output out = {.struct_size = sizeof out};
     double t0 = now_seconds();
-    int rc = builder->build(&in, &out);
+    int rc;
+    if (tree) {
+        /* Everything the backend will trust is checked here first. */
+        const rtk_layout_io_entry *io = find_layout_io(bk, layout->id);
+        char why[256];
+        if (!io) {
+            free(in_geoms);
+            return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot import a tree into layout %s", fn,
+                            bk->name, layout->name);
+        }
+        rtk_error err = rtk_bvh_check(tree, why, sizeof why);
+        if (!err)
+            err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, why, sizeof why);
+        if (err) {
+            free(in_geoms);
+            return rtk_fail(dev, err, "%s: %s", fn, why);
+        }
+        rc = io->import_tree(&in, tree, &out);
+    } else {
+        rc = builder->build(&in, &out);
+    }
     double t1 = now_seconds();
     free(in_geoms);
     if (rc != 0)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
-                        "rtk_scene_commit: build failed: %s", out.message[0] ? out.message : "no reason given");
+                        "%s: %s failed: %s", fn, tree ? "import" : "build",
+                        out.message[0] ? out.message : "no reason given");
+    if (tree) { /* the scene's own census of what the tree leaves out */
+        for (uint32_t i = 0; i < s->geom_count; i++) {
+            rtk_geometry g = s->geoms[i];
+            if (!g || !g->enabled)
+                continue;
+            for (size_t t = 0; t < g->index.count; t++) {
+                const uint32_t *tri = (const uint32_t *)(g->index.data + t * g->index.stride);
+                const float *v0 = (const float *)(g->vertex.data + tri[0] * g->vertex.stride);
+                const float *v1 = (const float *)(g->vertex.data + tri[1] * g->vertex.stride);
+                const float *v2 = (const float *)(g->vertex.data + tri[2] * g->vertex.stride);
+                if (!rtk_triangle_is_finite(v0, v1, v2))
+                    out.prims_skipped++;
+                else if (rtk_triangle_is_degenerate(v0, v1, v2))
+                    out.prims_degenerate++;
+            }
+        }
+    }
 
     /* A compact layout reads vertices from the geometries' buffers: hold
      * the ones rtk allocated (the application keeps its shared ones). */
@@ -504,7 +554,7 @@ rtk_error rtk_scene_commit(rtk_scene s)
         pinned = calloc(n ? n : 1, sizeof *pinned);
         if (!pinned) {
             layout->release(out.accel);
-            return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_commit: out of memory");
+            return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
         }
         for (uint32_t i = 0; i < s->geom_count; i++) {
             rtk_geometry g = s->geoms[i];
@@ -520,7 +570,7 @@ rtk_error rtk_scene_commit(rtk_scene s)
     s->pinned_count = pinned_count;
     s->accel = out.accel;
     s->layout = layout;
-    s->builder = builder;
+    s->builder = tree ? "tree" : builder->name;
     s->stats = out;
     s->build_seconds = t1 - t0;
     s->intersect1 = find_kernel(bk, layout->id, RTK_QUERY_INTERSECT)->fn.intersect1;
@@ -537,9 +587,51 @@ rtk_error rtk_scene_commit(rtk_scene s)
                 (unsigned long long)out.prims_degenerate);
     rtk_log(dev, 2, "scene: %s/%s on %s: %llu triangles, %llu nodes, %llu leaves, depth %u, %.1f bytes/triangle, "
             "SAH %.2f, %.3f s",
-            builder->name, layout->name, bk->name, (unsigned long long)out.prims, (unsigned long long)out.nodes,
+            s->builder, layout->name, bk->name, (unsigned long long)out.prims, (unsigned long long)out.nodes,
             (unsigned long long)out.leaves, out.depth, out.prims ? (double)out.bytes / (double)out.prims : 0.0,
             out.sah_cost, s->build_seconds);
+    return RTK_OK;
+}
+
+rtk_error rtk_scene_commit(rtk_scene s)
+{
+    CHECK_HANDLE(s, "rtk_scene_commit");
+    return commit(s, NULL, "rtk_scene_commit");
+}
+
+rtk_error rtk_scene_commit_bvh(rtk_scene s, const rtk_bvh *bvh)
+{
+    CHECK_HANDLE(s, "rtk_scene_commit_bvh");
+    if (!bvh)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_commit_bvh: bvh is NULL");
+    return commit(s, bvh, "rtk_scene_commit_bvh");
+}
+
+rtk_error rtk_scene_get_bvh(rtk_scene s, rtk_bvh *bvh)
+{
+    CHECK_HANDLE(s, "rtk_scene_get_bvh");
+    if (!bvh || bvh->struct_size < sizeof *bvh)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_scene_get_bvh: bvh is NULL or its struct_size is not set");
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_scene_get_bvh: the scene was never committed");
+    const rtk_layout_io_entry *io = find_layout_io(s->device->backend, s->layout->id);
+    if (!io)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_scene_get_bvh: backend %s cannot export layout %s",
+                        s->device->backend->name, s->layout->name);
+    /* Sizes from the build's counts: leaves counts blocks of up to four
+     * triangles, at least one per leaf. */
+    const rtk_build_output *o = &s->stats;
+    rtk_bvh t;
+    if (rtk_bvh_alloc(&t, 8, o->nodes, o->leaves, 4 * o->leaves))
+        return rtk_fail(s->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_get_bvh: out of memory");
+    int rc = io->export_tree(s->accel, &t);
+    if (rc) {
+        rtk_bvh_free(&t);
+        return rtk_fail(s->device, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+                        "rtk_scene_get_bvh: the export failed");
+    }
+    *bvh = t;
     return RTK_OK;
 }
 
@@ -559,7 +651,7 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     info->flags = s->flags;
     info->flags_not_honoured = s->flags & ~s->layout->scene_flags;
     info->quality = s->quality;
-    info->builder = s->builder->name;
+    info->builder = s->builder;
     info->layout = s->layout->name;
     info->triangles = o->prims;
     info->triangles_skipped = o->prims_skipped;

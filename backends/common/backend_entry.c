@@ -121,12 +121,24 @@ static const rtk_kernel_entry kernels[] = {
     {0},
 };
 
+/* Every layout converts to and from rtk_bvh the same way. */
+#define LAYOUT_IO(id) {.layout = id, .export_tree = RTK_SYM(rtk_bvh_export), .import_tree = RTK_SYM(rtk_bvh_import)}
+static const rtk_layout_io_entry layout_io[] = {
+#ifdef RTK_SIMD_HAS_8
+    LAYOUT_IO(RTK_LAYOUT_BVH8_TRIANGLE4),
+#endif
+    LAYOUT_IO(RTK_LAYOUT_BVH4_TRIANGLE4),
+    LAYOUT_IO(RTK_LAYOUT_BVH4_TRIANGLE4I),
+    {0},
+};
+
 static const rtk_backend_desc desc = {
     .struct_size = sizeof(rtk_backend_desc),
     .name = RTK_STR(RTK_BACKEND_NAME),
     .builders = builders,
     .layouts = layouts,
     .kernels = kernels,
+    .layout_io = layout_io,
 };
 
 #define HEADER_SYM RTK_CAT(RTK_CAT(rtk_backend_, RTK_BACKEND_NAME), _header)

@@ -573,6 +573,88 @@ static void set_message(rtk_build_output *out, const char *text)
     snprintf(out->message, sizeof out->message, "%s", text);
 }
 
+/* The node and leaf geometry of in->layout; 0, or an error with out->message. */
+static int layout_setup(builder *b, const rtk_build_input *in, rtk_build_output *out)
+{
+    *b = (builder){.in = in, .leaf_size = sizeof(rtk_triangle4), .width = 4, .node_size = sizeof(rtk_bvh4_node)};
+    if (in->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
+        b->width = 8;
+        b->node_size = sizeof(rtk_bvh8_node);
+    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4I) {
+        b->leaf_size = sizeof(rtk_triangle4i);
+    } else if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4) {
+        set_message(out, "this backend makes bvh4.triangle4, bvh8.triangle4 and bvh4.triangle4i only");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+    return RTK_OK;
+}
+
+/* An accel with node and leaf arrays reserved for up to `nodes` and
+ * `blocks` (the unused tail is trimmed by accel_finish), and the geometry
+ * table of bvh4.triangle4i; NULL when out of memory. */
+static struct rtk_accel *accel_reserve(builder *b, uint64_t nodes, uint64_t blocks)
+{
+    const rtk_build_input *in = b->in;
+    struct rtk_accel *accel = calloc(1, sizeof *accel);
+    if (!accel)
+        return NULL;
+    const int indexed = in->layout == RTK_LAYOUT_BVH4_TRIANGLE4I;
+    accel->layout = in->layout;
+    accel->nodes_mapped = (nodes ? nodes : 1) * b->node_size;
+    accel->tris_mapped = (blocks ? blocks : 1) * b->leaf_size;
+    b->nodes = reserve_traversed(accel->nodes_mapped);
+    void *leaves = reserve_traversed(accel->tris_mapped);
+    if (indexed) {
+        b->trisi = leaves;
+        accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
+    } else {
+        b->tris = leaves;
+    }
+    if (!b->nodes || !leaves || (indexed && !accel->geoms)) {
+        unreserve(b->nodes, accel->nodes_mapped);
+        unreserve(leaves, accel->tris_mapped);
+        free(accel->geoms);
+        free(accel);
+        return NULL;
+    }
+    for (uint32_t gi = 0; indexed && gi < in->geometry_count; gi++) {
+        const rtk_build_geometry *g = &in->geometries[gi];
+        accel->geoms[gi] = (rtk_leaf_geometry){.vertices = g->vertices, .stride = g->vertex_stride,
+                                               .geom_id = g->geom_id};
+    }
+    return accel;
+}
+
+/* Hands the arrays b wrote to accel (trimming the reservations) and
+ * describes the result in out; `bounds` holds the scene's box. */
+static void accel_finish(builder *b, struct rtk_accel *accel, uint32_t root, uint64_t prims, const box4 *bounds,
+                         rtk_build_output *out)
+{
+    accel->root = root;
+    accel->nodes = b->nodes;
+    accel->tris = b->tris;
+    accel->trisi = b->trisi;
+    void *leaves = b->tris ? (void *)b->tris : (void *)b->trisi;
+    accel->nodes_mapped = trim(b->nodes, accel->nodes_mapped, b->node_count * b->node_size);
+    accel->tris_mapped = trim(leaves, accel->tris_mapped, b->leaf_count * b->leaf_size);
+    accel->node_count = b->node_count;
+    accel->leaf_count = b->leaf_count;
+
+    const size_t geom_bytes = accel->geoms ? (b->in->geometry_count ? b->in->geometry_count : 1) * sizeof *accel->geoms : 0;
+    out->accel = accel;
+    out->prims = prims;
+    out->nodes = b->node_count;
+    out->leaves = b->leaf_count;
+    out->bytes = b->node_count * b->node_size + b->leaf_count * b->leaf_size + geom_bytes;
+    out->depth = prims ? b->depth : 0;
+    float root_area = box_half_area(bounds);
+    out->sah_cost = root_area > 0.0f ? b->sah / root_area : 0.0;
+    for (int k = 0; k < 3; k++) {
+        out->lower[k] = prims ? box_lo(bounds, k) : 0.0f;
+        out->upper[k] = prims ? box_hi(bounds, k) : 0.0f;
+    }
+}
+
 int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
 {
     uint64_t total = 0;
@@ -583,26 +665,13 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
         return RTK_ERROR_INVALID_ARGUMENT;
     }
 
-    builder b = {.in = in, .leaf_size = sizeof(rtk_triangle4)};
-    const int indexed = in->layout == RTK_LAYOUT_BVH4_TRIANGLE4I;
-    if (in->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
-        b.width = 8;
-        b.node_size = sizeof(rtk_bvh8_node);
-    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4 || indexed) {
-        b.width = 4;
-        b.node_size = sizeof(rtk_bvh4_node);
-        if (indexed)
-            b.leaf_size = sizeof(rtk_triangle4i);
-    } else {
-        set_message(out, "the sah-binned builder makes bvh4.triangle4, bvh8.triangle4 and bvh4.triangle4i only");
-        return RTK_ERROR_INVALID_ARGUMENT;
-    }
-    struct rtk_accel *accel = calloc(1, sizeof *accel);
+    builder b;
+    int rc = layout_setup(&b, in, out);
+    if (rc)
+        return rc;
     const size_t ref_bytes = (total ? total : 1) * sizeof *b.refs;
     b.refs = reserve(ref_bytes);
-    if (!accel || !b.refs) {
-        free(accel);
-        unreserve(b.refs, ref_bytes);
+    if (!b.refs) {
         set_message(out, "out of memory for the build's primitive references");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
@@ -642,57 +711,131 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
 
     /* Upper bounds: at most one leaf per triangle and fewer inner nodes than
      * leaves. */
-    const size_t node_bytes = (n ? n : 1) * b.node_size, tri_bytes = (n ? n : 1) * b.leaf_size;
-    const size_t geom_bytes = indexed ? (in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms : 0;
-    b.nodes = reserve_traversed(node_bytes);
-    void *leaves = reserve_traversed(tri_bytes);
-    if (indexed) {
-        b.trisi = leaves;
-        accel->geoms = malloc(geom_bytes);
-    } else {
-        b.tris = leaves;
-    }
-    if (!b.nodes || !leaves || (indexed && !accel->geoms)) {
-        unreserve(b.nodes, node_bytes);
-        unreserve(leaves, tri_bytes);
+    struct rtk_accel *accel = accel_reserve(&b, n, n);
+    if (!accel) {
         unreserve(b.refs, ref_bytes);
-        free(accel->geoms);
-        free(accel);
         set_message(out, "out of memory for the BVH");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
-    for (uint32_t gi = 0; indexed && gi < in->geometry_count; gi++) {
-        const rtk_build_geometry *g = &in->geometries[gi];
-        accel->geoms[gi] = (rtk_leaf_geometry){.vertices = g->vertices, .stride = g->vertex_stride,
-                                               .geom_id = g->geom_id};
-    }
-
-    accel->layout = in->layout;
-    accel->root = n ? build_node(&b, &root, 1) : RTK_BVH4_EMPTY;
+    const uint32_t root_ref = n ? build_node(&b, &root, 1) : RTK_BVH4_EMPTY;
     unreserve(b.refs, ref_bytes);
-
-    accel->nodes = b.nodes;
-    accel->tris = b.tris;
-    accel->trisi = b.trisi;
-    accel->nodes_mapped = trim(b.nodes, node_bytes, b.node_count * b.node_size);
-    accel->tris_mapped = trim(leaves, tri_bytes, b.leaf_count * b.leaf_size);
-    accel->node_count = b.node_count;
-    accel->leaf_count = b.leaf_count;
-
-    out->accel = accel;
-    out->prims = n;
+    accel_finish(&b, accel, root_ref, n, &root.geom, out);
     out->prims_skipped = skipped;
     out->prims_degenerate = degenerate;
-    out->nodes = b.node_count;
-    out->leaves = b.leaf_count;
-    out->bytes = b.node_count * b.node_size + b.leaf_count * b.leaf_size + geom_bytes;
-    out->depth = n ? b.depth : 0;
-    float root_area = box_half_area(&root.geom);
-    out->sah_cost = root_area > 0.0f ? b.sah / root_area : 0.0;
-    for (int k = 0; k < 3; k++) {
-        out->lower[k] = n ? box_lo(&root.geom, k) : 0.0f;
-        out->upper[k] = n ? box_hi(&root.geom, k) : 0.0f;
+    return RTK_OK;
+}
+
+/* ---- a tree given as data (rtk_bvh) ----
+ * The same node and leaf writers as the build, visited in the same order,
+ * so a tree exported from an accel imports to the same bytes and the same
+ * statistics. */
+
+static box4 slot_box(const rtk_bvh *t, uint64_t slot)
+{
+    const float *lo = t->child_lower + 3 * slot, *hi = t->child_upper + 3 * slot;
+    return (box4){vf4_set(lo[0], lo[1], lo[2], 0.0f), vf4_set(hi[0], hi[1], hi[2], 0.0f)};
+}
+
+static uint32_t import_ref(builder *b, const rtk_bvh *t, uint32_t ref, const box4 *box, uint32_t depth)
+{
+    if (depth > b->depth)
+        b->depth = depth;
+    if (ref & RTK_BVH_LEAF_BIT) {
+        const uint64_t j = ref & ~RTK_BVH_LEAF_BIT;
+        range r = {.begin = (uint32_t)t->leaf_first[j], .end = (uint32_t)t->leaf_first[j + 1], .geom = *box};
+        return make_leaf(b, &r);
     }
+    range child[8];
+    memset(child, 0, sizeof child);
+    uint32_t refs[8];
+    int nc = 0;
+    for (uint32_t c = 0; c < t->width; c++) {
+        const uint64_t slot = (uint64_t)ref * t->width + c;
+        if (t->children[slot] == RTK_BVH_EMPTY)
+            continue;
+        child[nc].geom = slot_box(t, slot);
+        refs[nc++] = t->children[slot];
+    }
+    const uint64_t index = b->node_count++;
+    write_node(b, index, child, nc);
+    b->sah += box_half_area(box);
+    for (int i = 0; i < nc; i++)
+        set_child(b, index, i, import_ref(b, t, refs[i], &child[i].geom, depth + 1));
+    return (uint32_t)index;
+}
+
+int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_build_output *out)
+{
+    builder b;
+    int rc = layout_setup(&b, in, out);
+    if (rc)
+        return rc;
+    if (t->width != (uint32_t)b.width) {
+        snprintf(out->message, sizeof out->message, "the tree has %u-wide nodes, the layout %d-wide ones", t->width,
+                 b.width);
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+    uint64_t blocks = 0;
+    for (uint64_t j = 0; j < t->leaf_count; j++) {
+        const uint64_t n = t->leaf_first[j + 1] - t->leaf_first[j];
+        if (n > 4 * RTK_LEAF_MAX_BLOCKS) {
+            snprintf(out->message, sizeof out->message, "leaf %llu holds %llu triangles; the layout's leaves hold %d",
+                     (unsigned long long)j, (unsigned long long)n, 4 * RTK_LEAF_MAX_BLOCKS);
+            return RTK_ERROR_INVALID_ARGUMENT;
+        }
+        blocks += (n + 3) / 4;
+    }
+    if (blocks >= RTK_LEAF_INDEX_LIMIT || t->node_count >= RTK_BVH4_LEAF_BIT) {
+        set_message(out, "too many leaf blocks or nodes for the layout");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+
+    /* The triangles as primitive references in tree order: the leaf
+     * writers read them from there.  geom_id -> index in the input. */
+    uint32_t max_id = 0;
+    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
+        max_id = in->geometries[gi].geom_id > max_id ? in->geometries[gi].geom_id : max_id;
+    uint32_t *index_of = malloc(((size_t)max_id + 1) * sizeof *index_of);
+    const size_t ref_bytes = (t->prim_count ? t->prim_count : 1) * sizeof *b.refs;
+    b.refs = reserve(ref_bytes);
+    struct rtk_accel *accel = index_of && b.refs ? accel_reserve(&b, t->node_count, blocks) : NULL;
+    if (!accel) {
+        free(index_of);
+        unreserve(b.refs, ref_bytes);
+        set_message(out, "out of memory for the BVH");
+        return RTK_ERROR_OUT_OF_MEMORY;
+    }
+    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
+        index_of[in->geometries[gi].geom_id] = gi;
+    for (uint64_t k = 0; k < t->prim_count; k++) {
+        b.refs[k].lo[3] = rtk_bits_float(index_of[t->prims[k].geom_id]);
+        b.refs[k].hi[3] = rtk_bits_float(t->prims[k].prim_id);
+    }
+    free(index_of);
+
+    /* The scene's box: the union of the root's slots, or of a root leaf's
+     * triangles. */
+    box4 bounds = box_empty();
+    if (t->root != RTK_BVH_EMPTY && !(t->root & RTK_BVH_LEAF_BIT)) {
+        for (uint32_t c = 0; c < t->width; c++)
+            if (t->children[(uint64_t)t->root * t->width + c] != RTK_BVH_EMPTY) {
+                box4 s = slot_box(t, (uint64_t)t->root * t->width + c);
+                box_grow(&bounds, s.lo, s.hi);
+            }
+    } else if (t->root != RTK_BVH_EMPTY) {
+        for (uint64_t k = 0; k < t->prim_count; k++) {
+            const rtk_build_geometry *g = &in->geometries[ref_geom(&b.refs[k])];
+            const uint32_t *tri = triangle_at(g, ref_prim(&b.refs[k]));
+            for (int v = 0; v < 3; v++) {
+                const float *p = vertex_at(g, tri[v]);
+                const vfloat4 q = vf4_set(p[0], p[1], p[2], 0.0f);
+                box_grow(&bounds, q, q);
+            }
+        }
+    }
+    const uint32_t root = t->root == RTK_BVH_EMPTY ? RTK_BVH4_EMPTY : import_ref(&b, t, t->root, &bounds, 1);
+    unreserve(b.refs, ref_bytes);
+    accel_finish(&b, accel, root, t->prim_count, &bounds, out);
     return RTK_OK;
 }
 

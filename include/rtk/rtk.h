@@ -237,6 +237,64 @@ typedef struct rtk_scene_info {
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
+/* ---- the BVH as data -------------------------------------------------------
+ * A layout-neutral copy of a committed scene's BVH: for inspecting the tree
+ * (rtktool build), saving it, and committing the same geometry again from
+ * the saved tree instead of building one (rtktool build --dump / --load).
+ * A scene committed from a tree traces exactly like the scene it came from.
+ *
+ * Inner node i has `width` child slots; slot c holds the reference
+ * children[i * width + c] and the box child_lower/child_upper[(i * width +
+ * c) * 3 + axis].  A reference is an inner node's index, RTK_BVH_LEAF_BIT |
+ * a leaf's index, or RTK_BVH_EMPTY (an unused slot; its box is ignored).
+ * Leaf j holds the triangles prims[leaf_first[j] .. leaf_first[j + 1]).  A
+ * tree with no inner node has a leaf (or, for an empty scene, RTK_BVH_EMPTY)
+ * as its root. */
+#define RTK_BVH_LEAF_BIT 0x80000000u
+#define RTK_BVH_EMPTY 0xffffffffu
+#define RTK_BVH_MAX_DEPTH 64 /* levels, the leaves' included */
+
+typedef struct rtk_bvh_prim {
+    uint32_t geom_id, prim_id;
+} rtk_bvh_prim;
+
+typedef struct rtk_bvh {
+    size_t struct_size; /* set by the caller to sizeof(rtk_bvh) */
+    uint32_t width;     /* child slots per inner node: 4 or 8 */
+    uint32_t root;      /* a reference */
+    uint64_t node_count, leaf_count, prim_count;
+    float *child_lower, *child_upper; /* node_count * width * 3 each */
+    uint32_t *children;               /* node_count * width */
+    uint64_t *leaf_first;             /* leaf_count + 1, ascending, from 0 to prim_count */
+    rtk_bvh_prim *prims;              /* prim_count */
+} rtk_bvh;
+
+/* Fills *bvh (struct_size set by the caller) with a copy of the committed
+ * scene's tree, in memory rtk_bvh_free releases.  Nodes come in depth-first
+ * order (a parent before its children) and leaves in the order of their
+ * triangles in memory. */
+RTK_API rtk_error rtk_scene_get_bvh(rtk_scene scene, rtk_bvh *bvh);
+/* Releases what rtk_scene_get_bvh allocated and zeroes the arrays; only for
+ * trees it filled. */
+RTK_API void rtk_bvh_free(rtk_bvh *bvh);
+/* Checks a tree's structure without any scene: width, counts, every
+ * reference in range, every node and leaf referenced exactly once and by a
+ * node of smaller index (so no cycles), at most RTK_BVH_MAX_DEPTH levels,
+ * leaf ranges ascending and non-empty, every used child box ordered and
+ * finite and containing the boxes of the child node's slots.  Returns
+ * RTK_OK, or RTK_ERROR_INVALID_ARGUMENT with the first problem in msg. */
+RTK_API rtk_error rtk_bvh_check(const rtk_bvh *bvh, char *msg, size_t msg_size);
+/* Commits the scene (as rtk_scene_commit does: the same geometry checks and
+ * the same layout choice) with `bvh` as its tree instead of building one.
+ * Besides rtk_bvh_check, the tree must fit the scene: each triangle it
+ * references belongs to an attached, enabled geometry, can be hit (finite,
+ * non-zero area) and lies inside the boxes above it; every such triangle
+ * is referenced exactly once; the width matches the layout's nodes and no
+ * leaf holds more triangles than the layout allows (16).  Anything else is
+ * RTK_ERROR_INVALID_ARGUMENT naming the problem, and the scene keeps its
+ * previous state.  rtk_scene_info.builder is then "tree". */
+RTK_API rtk_error rtk_scene_commit_bvh(rtk_scene scene, const rtk_bvh *bvh);
+
 /* ---- geometry --------------------------------------------------------------*/
 typedef enum rtk_geometry_type {
     RTK_GEOMETRY_TYPE_TRIANGLE = 0,

@@ -170,6 +170,29 @@ typedef struct rtk_kernel_entry {
     } fn;
 } rtk_kernel_entry;
 
+/* Converting a layout to and from the layout-neutral rtk_bvh (rtk.h).
+ *
+ * export: the core sizes the arrays from the accel's rtk_build_output:
+ * node_count * width slots (width: the layout's), leaves + 1 leaf_first
+ * entries and 4 * leaves prims (`leaves` counts blocks, so that is enough);
+ * the function sets width, root and the three counts and fills the arrays.
+ *
+ * import: builds the layout in->layout over in->geometries from `tree`,
+ * which the core has checked (rtk_bvh_check, and every referenced triangle
+ * exists, can be hit and lies inside its boxes); the function checks what
+ * is the layout's own (the width, triangles per leaf, sizes) and fills
+ * `out` as a builder does.  A tree exported from an accel imports to the
+ * same bytes. */
+RTK_BACKEND_FN(int, rtk_accel_export, (const rtk_accel *accel, rtk_bvh *tree));
+RTK_BACKEND_FN(int, rtk_accel_import, (const rtk_build_input *in, const rtk_bvh *tree, rtk_build_output *out));
+
+typedef struct rtk_layout_io_entry {
+    uint32_t layout;        /* 0 ends the table */
+    uint32_t reserved;
+    rtk_accel_export_fn export_tree;
+    rtk_accel_import_fn import_tree;
+} rtk_layout_io_entry;
+
 typedef struct rtk_backend_desc {
     uint32_t struct_size;
     uint32_t reserved;
@@ -177,6 +200,9 @@ typedef struct rtk_backend_desc {
     const rtk_builder_entry *builders;
     const rtk_layout_entry *layouts;
     const rtk_kernel_entry *kernels;
+    /* Added after rtk 0.1.0 (still interface version 1: read only when
+     * struct_size covers it; NULL or absent = no tree export or import). */
+    const rtk_layout_io_entry *layout_io;
 } rtk_backend_desc;
 
 #define RTK_BACKEND_EXPORT __attribute__((visibility("default")))
