@@ -1,6 +1,7 @@
 #!/bin/bash
 # rtktool's commands end to end: convert a bundled mesh to .rtkm (with the
-# clean-ups), trace the result, and refuse bad input with a clear message and
+# clean-ups), trace the result, build and dump its BVH, inspect the dump
+# alone and commit it again, and refuse bad input with a clear message and
 # a non-zero exit.  Usage: rtktool_test.sh RTKTOOL DATA_DIR WORK_DIR
 set -u
 tool=$1 data=$2 work=$3
@@ -26,4 +27,33 @@ head -c 100 "$work/bunny.rtkm" >"$work/cut.rtkm"
 expect 1 "truncated or malformed header" -- "$tool" trace "$work/cut.rtkm" --size 8x8 --frames 1
 expect 2 "usage: rtktool convert" -- "$tool" convert
 expect 0 "usage: rtktool convert" -- "$tool" convert --help
+
+# build: statistics, JSON, dump, picture; the dump read alone and with its mesh
+expect 0 "SAH cost:" -- "$tool" build "$work/bunny.rtkm" --dump "$work/bunny.rtkb" --png "$work/boxes.png"
+[ -s "$work/boxes.png" ] || fail "no picture of the boxes"
+expect 0 '"triangles": 69451' -- "$tool" build "$data/bunny.ply" --json --quality high --isa scalar
+expect 0 '"build_mtris_per_second"' -- "$tool" build "$data/bunny.ply" --json --compact
+expect 0 "checked (offsets, counts, checksums" -- "$tool" build --load "$work/bunny.rtkb"
+expect 0 '"mesh": null' -- "$tool" build --load "$work/bunny.rtkb" --json
+expect 0 "10000 identical, 0 ties settled differently, 0 different" -- \
+    "$tool" build --load "$work/bunny.rtkb" "$data/bunny.ply" --verify 10000
+expect 0 "dump:" -- "$tool" build "$data/bunny.ply" --compact --isa sse41 --dump "$work/compact.rtkb"
+expect 0 "bvh4.triangle4i" -- "$tool" build --load "$work/compact.rtkb" "$data/bunny.ply" --verify 2000
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n' >"$work/tri.obj"
+expect 1 "was built over another mesh" -- "$tool" build --load "$work/bunny.rtkb" "$work/tri.obj"
+expect 0 "build:      none: the tree of $work/bunny.rtkb" -- \
+    "$tool" trace "$data/bunny.ply" --load "$work/bunny.rtkb" --size 64x48 --frames 1 -o "$work/loaded.png"
+"$tool" trace "$data/bunny.ply" --size 64x48 --frames 1 -o "$work/built.png" >/dev/null || fail "trace"
+cmp -s "$work/loaded.png" "$work/built.png" || fail "the image traced with the dump differs from the built one"
+expect 1 "was built over another mesh" -- "$tool" trace "$work/tri.obj" --load "$work/bunny.rtkb" --size 8x8
+head -c 3000 "$work/bunny.rtkb" >"$work/cut.rtkb"
+expect 1 "cut.rtkb: file is 3000 bytes" -- "$tool" build --load "$work/cut.rtkb"
+cp "$work/bunny.rtkb" "$work/flip.rtkb"
+printf '\x01' | dd of="$work/flip.rtkb" bs=1 seek=5000 conv=notrunc 2>/dev/null
+expect 1 "checksum mismatch (damaged file)" -- "$tool" build --load "$work/flip.rtkb"
+expect 1 "not an .rtkb file" -- "$tool" build --load "$work/bunny.rtkm"
+expect 2 "must end in .rtkb" -- "$tool" build "$data/bunny.ply" --dump "$work/out.bin"
+expect 2 "--quality wants low, medium or high" -- "$tool" build "$data/bunny.ply" --quality best
+expect 2 "usage: rtktool build" -- "$tool" build
+expect 0 "examples:" -- "$tool" build --help
 echo "rtktool end to end: ok"

@@ -1,14 +1,18 @@
 /* Mesh import: every input triangle kept, polygons triangulated, malformed
  * files rejected with a clear error (and never a crash); rtk's .rtkm file
- * (round trip, damage detected) and the clean-ups of rtktool convert. */
+ * (round trip, damage detected) and the clean-ups of rtktool convert; the
+ * .rtkb BVH dump (round trip to the same hits, every damaged byte refused)
+ * and the tree statistics against what the library reports. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <unistd.h>
 
+#include "bvh_stats.h"
 #include "mesh_import.h"
 #include "mesh_tools.h"
+#include "rtkb.h"
 #include "rtkm.h"
 #include "testlib.h"
 
@@ -299,6 +303,168 @@ static void test_merge_and_drop(void **state)
     rtk_mesh_free(&m);
 }
 
+
+/* ---- the .rtkb BVH dump ---- */
+
+static rtk_scene scene_over(rtk_device dev, const rtk_mesh *m, const rtk_bvh *tree)
+{
+    rtk_scene s;
+    rtk_geometry g;
+    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count),
+                     RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count),
+                     RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
+    rtk_geometry_release(g);
+    const rtk_error err = tree ? rtk_scene_commit_bvh(s, tree) : rtk_scene_commit(s);
+    if (err)
+        fail_msg("commit: %s", rtk_device_get_error_message(dev));
+    return s;
+}
+
+static void save_dump(rtk_scene s, const rtk_mesh *m, const char *path)
+{
+    rtk_bvh t = {.struct_size = sizeof t};
+    assert_int_equal(rtk_scene_get_bvh(s, &t), RTK_OK);
+    rtkb_info info = {.mesh_triangles = m->triangle_count, .mesh_vertices = m->vertex_count,
+                      .mesh_checksum = rtkm_mesh_checksum(m), .bytes = 1234, .build_seconds = 0.5, .sah_cost = 7.0};
+    snprintf(info.layout, sizeof info.layout, "bvh8.triangle4");
+    snprintf(info.builder, sizeof info.builder, "sah-binned");
+    char err[512];
+    if (rtkb_save(path, &t, &info, err, sizeof err))
+        fail_msg("%s", err);
+    rtk_bvh_free(&t);
+}
+
+/* Saved, loaded, committed: the same tree, statistics and hits; and the
+ * statistics rtktool prints agree with the library's own. */
+static void test_rtkb_round_trip(void **state)
+{
+    (void)state;
+    rtk_mesh m;
+    char err[512], path[512];
+    assert_int_equal(rtk_mesh_load(RTK_TEST_DATA "/bunny.ply", &m, err, sizeof err), 0);
+    rtk_device dev;
+    assert_int_equal(rtk_device_new("", &dev), RTK_OK);
+    rtk_scene a = scene_over(dev, &m, NULL);
+    snprintf(path, sizeof path, "%s/bunny.rtkb", dir);
+    save_dump(a, &m, path);
+    rtkb_file f;
+    if (rtkb_load(path, &f, err, sizeof err))
+        fail_msg("%s", err);
+    assert_string_equal(f.info.layout, "bvh8.triangle4");
+    assert_string_equal(f.info.builder, "sah-binned");
+    assert_int_equal(f.info.mesh_checksum, rtkm_mesh_checksum(&m));
+    assert_true(f.info.build_seconds == 0.5 && f.info.sah_cost == 7.0 && f.info.bytes == 1234);
+    rtk_bvh t = {.struct_size = sizeof t};
+    assert_int_equal(rtk_scene_get_bvh(a, &t), RTK_OK);
+    assert_int_equal(f.tree.node_count, t.node_count);
+    assert_int_equal(f.tree.leaf_count, t.leaf_count);
+    assert_int_equal(f.tree.prim_count, t.prim_count);
+    assert_memory_equal(f.tree.children, t.children, t.node_count * t.width * 4);
+    assert_memory_equal(f.tree.child_lower, t.child_lower, t.node_count * t.width * 12);
+    assert_memory_equal(f.tree.child_upper, t.child_upper, t.node_count * t.width * 12);
+    assert_memory_equal(f.tree.leaf_first, t.leaf_first, (t.leaf_count + 1) * 8);
+    assert_memory_equal(f.tree.prims, t.prims, t.prim_count * 8);
+
+    /* rtktool's statistics against the library's */
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(a, &info), RTK_OK);
+    bvh_stats st;
+    assert_int_equal(bvh_stats_compute(&f.tree, &st), 0);
+    assert_int_equal(st.nodes, info.nodes);
+    assert_int_equal(st.leaf_blocks, info.leaves);
+    assert_int_equal(st.prims, info.triangles);
+    assert_int_equal(st.depth_max, info.depth);
+    assert_true(fabs(st.sah - info.sah_cost) <= 1e-4 * info.sah_cost);
+    uint64_t leaves = 0, prims = 0;
+    for (int b = 0; b < BVH_STATS_LEAF_BINS; b++) {
+        leaves += st.leaf_prims[b];
+        prims += st.leaf_prims[b] * (uint64_t)(b + 1);
+    }
+    assert_int_equal(leaves, st.leaves);
+    assert_int_equal(prims, st.prims); /* no leaf holds more than 16 */
+    assert_memory_equal(st.lower, info.bounds_lower, sizeof st.lower);
+    assert_memory_equal(st.upper, info.bounds_upper, sizeof st.upper);
+
+    /* The dump committed traces exactly like the built scene. */
+    rtk_scene b = scene_over(dev, &m, &f.tree);
+    rng r = {42};
+    for (int i = 0; i < 20000; i++) {
+        rtk_rayhit x = {.ray = test_ray(-0.2f + 0.4f * rng_float(&r), 0.3f * rng_float(&r), 0.3f,
+                                        rng_float(&r) - 0.5f, rng_float(&r) - 0.5f, -1.0f, 0.0f, INFINITY)};
+        x.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+        rtk_rayhit y = x;
+        rtk_intersect1(a, &x);
+        rtk_intersect1(b, &y);
+        assert_memory_equal(&x, &y, sizeof x);
+    }
+    snprintf(path, sizeof path, "%s/boxes.png", dir);
+    assert_int_equal(bvh_picture(&f.tree, &st, 8, 64, path, err, sizeof err), 0);
+    rtk_bvh_free(&t);
+    rtkb_free(&f);
+    rtk_scene_release(a);
+    rtk_scene_release(b);
+    rtk_device_release(dev);
+    rtk_mesh_free(&m);
+}
+
+/* A small dump damaged one byte at a time, everywhere, and cut short:
+ * always refused with a message, never loaded, never a crash. */
+static void test_rtkb_damage(void **state)
+{
+    (void)state;
+    static float v[60 * 9];
+    static uint32_t idx[60 * 3];
+    rng r = {77};
+    for (int i = 0; i < 60 * 9; i++)
+        v[i] = rng_float(&r);
+    for (uint32_t i = 0; i < 60 * 3; i++)
+        idx[i] = i;
+    const rtk_mesh m = {.vertices = v, .indices = idx, .vertex_count = 180, .triangle_count = 60};
+    rtk_device dev;
+    assert_int_equal(rtk_device_new("", &dev), RTK_OK);
+    rtk_scene s = scene_over(dev, &m, NULL);
+    char path[512], err[512];
+    snprintf(path, sizeof path, "%s/small.rtkb", dir);
+    save_dump(s, &m, path);
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+
+    FILE *fp = fopen(path, "rb");
+    assert_non_null(fp);
+    static unsigned char good[1 << 16], bad[1 << 16];
+    const size_t n = fread(good, 1, sizeof good, fp);
+    fclose(fp);
+    assert_true(n > 256 && n < sizeof good);
+    rtkb_file f;
+    assert_int_equal(rtkb_load(write_file("ok.rtkb", good, n), &f, err, sizeof err), 0);
+    rtkb_free(&f);
+    for (size_t at = 0; at < n; at++) {
+        memcpy(bad, good, n);
+        bad[at] ^= (unsigned char)(1u << (at % 8));
+        const char *p = write_file("bad.rtkb", bad, n);
+        if (rtkb_load(p, &f, err, sizeof err) == 0)
+            fail_msg("byte %zu flipped: the dump still loads", at);
+        assert_null(f.data);
+        assert_non_null(strstr(err, "bad.rtkb: "));
+    }
+    for (size_t cut = 0; cut < n; cut += 1 + cut / 3) {
+        if (rtkb_load(write_file("cut.rtkb", good, cut), &f, err, sizeof err) == 0)
+            fail_msg("cut to %zu bytes: the dump still loads", cut);
+    }
+    memcpy(bad, good, n);
+    bad[n] = 0;
+    assert_int_not_equal(rtkb_load(write_file("long.rtkb", bad, n + 1), &f, err, sizeof err), 0);
+    assert_non_null(strstr(err, "truncated or padded"));
+    bad[8] = 2;
+    assert_int_not_equal(rtkb_load(write_file("v2.rtkb", bad, n), &f, err, sizeof err), 0);
+    assert_non_null(strstr(err, ".rtkb version 2; this build reads version 1"));
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -309,6 +475,8 @@ int main(void)
         cmocka_unit_test(test_rtkm_round_trip),
         cmocka_unit_test(test_rtkm_damage),
         cmocka_unit_test(test_merge_and_drop),
+        cmocka_unit_test(test_rtkb_round_trip),
+        cmocka_unit_test(test_rtkb_damage),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -1,6 +1,7 @@
 /* The .rtkm mesh file: writer and validating reader.  See rtkm.h. */
 #define _POSIX_C_SOURCE 200809L
 #include "rtkm.h"
+#include "le_bytes.h"
 
 #include <errno.h>
 #include <math.h>
@@ -24,47 +25,16 @@ static int fail(char *err, size_t size, const char *fmt, ...)
     return 1;
 }
 
-static void put32(unsigned char *p, uint32_t v)
-{
-    for (int i = 0; i < 4; i++)
-        p[i] = (unsigned char)(v >> (8 * i));
-}
-static void put64(unsigned char *p, uint64_t v)
-{
-    for (int i = 0; i < 8; i++)
-        p[i] = (unsigned char)(v >> (8 * i));
-}
-static uint32_t get32(const unsigned char *p)
-{
-    uint32_t v = 0;
-    for (int i = 3; i >= 0; i--)
-        v = v << 8 | p[i];
-    return v;
-}
-static uint64_t get64(const unsigned char *p)
-{
-    uint64_t v = 0;
-    for (int i = 7; i >= 0; i--)
-        v = v << 8 | p[i];
-    return v;
-}
-static void putf(unsigned char *p, float f)
-{
-    uint32_t v;
-    memcpy(&v, &f, sizeof v);
-    put32(p, v);
-}
-
 uint64_t rtkm_checksum(const void *data, size_t size, uint64_t seed)
 {
     const unsigned char *p = data;
     uint64_t h = seed;
     for (; size >= 8; size -= 8, p += 8)
-        h = (h ^ get64(p)) * 0x100000001b3ull;
+        h = (h ^ le_get64(p)) * 0x100000001b3ull;
     if (size) {
         unsigned char tail[8] = {0};
         memcpy(tail, p, size);
-        h = (h ^ get64(tail)) * 0x100000001b3ull;
+        h = (h ^ le_get64(tail)) * 0x100000001b3ull;
     }
     return h;
 }
@@ -79,6 +49,11 @@ static uint64_t payload_checksum(const float *v, uint64_t nv, const uint32_t *id
     return rtkm_checksum(idx, (size_t)nt * 12, h);
 }
 
+uint64_t rtkm_mesh_checksum(const rtk_mesh *mesh)
+{
+    return payload_checksum(mesh->vertices, mesh->vertex_count, mesh->indices, mesh->triangle_count);
+}
+
 int rtkm_save(const char *path, const rtk_mesh *mesh, char *err, size_t err_size)
 {
     for (size_t i = 0; i < 3 * mesh->triangle_count; i++)
@@ -89,21 +64,21 @@ int rtkm_save(const char *path, const rtk_mesh *mesh, char *err, size_t err_size
     const uint64_t voff = align64(RTKM_HEADER_SIZE), ioff = align64(voff + nv * 12);
     unsigned char h[RTKM_HEADER_SIZE] = {0};
     memcpy(h, magic, sizeof magic);
-    put32(h + 8, RTKM_VERSION);
-    put32(h + 12, RTKM_HEADER_SIZE);
-    put64(h + 16, nv);
-    put64(h + 24, nt);
-    put64(h + 32, voff);
-    put64(h + 40, ioff);
+    le_put32(h + 8, RTKM_VERSION);
+    le_put32(h + 12, RTKM_HEADER_SIZE);
+    le_put64(h + 16, nv);
+    le_put64(h + 24, nt);
+    le_put64(h + 32, voff);
+    le_put64(h + 40, ioff);
     float lower[3] = {0, 0, 0}, upper[3] = {0, 0, 0};
     if (nv)
         rtk_mesh_bounds(mesh, lower, upper);
     for (int k = 0; k < 3; k++) {
-        putf(h + 48 + 4 * k, lower[k]);
-        putf(h + 60 + 4 * k, upper[k]);
+        le_putf(h + 48 + 4 * k, lower[k]);
+        le_putf(h + 60 + 4 * k, upper[k]);
     }
-    put64(h + 72, payload_checksum(mesh->vertices, nv, mesh->indices, nt));
-    put64(h + 80, rtkm_checksum(h, 80, 0xcbf29ce484222325ull));
+    le_put64(h + 72, payload_checksum(mesh->vertices, nv, mesh->indices, nt));
+    le_put64(h + 80, rtkm_checksum(h, 80, 0xcbf29ce484222325ull));
 
     FILE *f = fopen(path, "wb");
     if (!f)
@@ -143,7 +118,7 @@ int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
         why = "not an .rtkm file (bad magic)";
         goto done;
     }
-    const uint32_t version = get32(h + 8), hsize = get32(h + 12);
+    const uint32_t version = le_get32(h + 8), hsize = le_get32(h + 12);
     if (version != RTKM_VERSION) {
         snprintf(whybuf, sizeof whybuf, ".rtkm version %u; this build reads version %u", version, RTKM_VERSION);
         why = whybuf;
@@ -153,11 +128,11 @@ int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
         why = "truncated or malformed header";
         goto done;
     }
-    if (get64(h + 80) != rtkm_checksum(h, 80, 0xcbf29ce484222325ull)) {
+    if (le_get64(h + 80) != rtkm_checksum(h, 80, 0xcbf29ce484222325ull)) {
         why = "header checksum mismatch (damaged file)";
         goto done;
     }
-    const uint64_t nv = get64(h + 16), nt = get64(h + 24), voff = get64(h + 32), ioff = get64(h + 40);
+    const uint64_t nv = le_get64(h + 16), nt = le_get64(h + 24), voff = le_get64(h + 32), ioff = le_get64(h + 40);
     if (nv > UINT32_MAX || nt > UINT32_MAX || voff % 64 || ioff % 64 || voff < RTKM_HEADER_SIZE ||
         ioff < voff + nv * 12) {
         why = "inconsistent counts or offsets in the header";
@@ -180,7 +155,7 @@ int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
         why = "read failed";
         goto done;
     }
-    if (get64(h + 72) != payload_checksum(mesh->vertices, nv, mesh->indices, nt)) {
+    if (le_get64(h + 72) != payload_checksum(mesh->vertices, nv, mesh->indices, nt)) {
         why = "checksum mismatch (damaged file)";
         goto done;
     }

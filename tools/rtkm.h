@@ -44,6 +44,9 @@ int rtkm_save(const char *path, const rtk_mesh *mesh, char *err, size_t err_size
  * or non-zero with *mesh empty and err saying why.  rtk_mesh_load calls it
  * for files named *.rtkm. */
 int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size);
+/* The payload checksum of the format for this mesh: a fingerprint of its
+ * vertices and indices (an .rtkb file records the one it was built over). */
+uint64_t rtkm_mesh_checksum(const rtk_mesh *mesh);
 /* The checksum of the format over size bytes, continuing from seed. */
 uint64_t rtkm_checksum(const void *data, size_t size, uint64_t seed);
 

@@ -15,7 +15,9 @@
 
 #include "mesh_import.h"
 #include "mesh_tools.h"
+#include "bvh_stats.h"
 #include "png_write.h"
+#include "rtkb.h"
 #include "rtkm.h"
 #include "rtk/rtk.h"
 
@@ -76,6 +78,44 @@ static int cmd_info(int argc, char **argv)
         return 1;
     print_backends(dev);
     rtk_device_release(dev);
+    return 0;
+}
+
+/* A scene over one mesh (shared buffers), committed by building a BVH or,
+ * with `tree`, from that tree.  NULL with the library's message on stderr. */
+static rtk_scene mesh_scene(rtk_device dev, const rtk_mesh *mesh, unsigned flags, rtk_build_quality quality,
+                            const rtk_bvh *tree)
+{
+    rtk_scene scene = NULL;
+    rtk_geometry geom = NULL;
+    if (rtk_scene_new(dev, &scene) || rtk_scene_set_flags(scene, flags) ||
+        rtk_scene_set_build_quality(scene, quality) || rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &geom) ||
+        rtk_geometry_set_shared_buffer(geom, RTK_BUFFER_TYPE_VERTEX, mesh->vertices, 0, 12, mesh->vertex_count) ||
+        rtk_geometry_set_shared_buffer(geom, RTK_BUFFER_TYPE_INDEX, mesh->indices, 0, 12, mesh->triangle_count) ||
+        rtk_geometry_commit(geom) || rtk_scene_attach_geometry(scene, geom, NULL) ||
+        (tree ? rtk_scene_commit_bvh(scene, tree) : rtk_scene_commit(scene))) {
+        fprintf(stderr, "rtktool: %s\n", rtk_device_get_error_message(dev));
+        rtk_geometry_release(geom);
+        rtk_scene_release(scene);
+        return NULL;
+    }
+    rtk_geometry_release(geom);
+    return scene;
+}
+
+/* Whether a dump was built over this mesh (else says so on stderr). */
+static int dump_fits_mesh(const char *load, const rtkb_file *file, const char *mesh_path, const rtk_mesh *mesh)
+{
+    const rtkb_info *i = &file->info;
+    const uint64_t sum = rtkm_mesh_checksum(mesh);
+    if (i->mesh_triangles == mesh->triangle_count && i->mesh_vertices == mesh->vertex_count && i->mesh_checksum == sum)
+        return 1;
+    fprintf(stderr,
+            "rtktool: %s was built over another mesh (%llu triangles, %llu vertices, checksum %016llx), "
+            "not %s (%zu, %zu, %016llx)\n",
+            load, (unsigned long long)i->mesh_triangles, (unsigned long long)i->mesh_vertices,
+            (unsigned long long)i->mesh_checksum, mesh_path, mesh->triangle_count, mesh->vertex_count,
+            (unsigned long long)sum);
     return 0;
 }
 
@@ -198,12 +238,13 @@ static void trace_usage(FILE *f)
             "  --isa NAME     backend (scalar, sse41, avx, avx2; default: the best)\n"
             "  --threads N    render threads (default: all cores)\n"
             "  --frames N     render N times and report the best rate (default: 3)\n"
+            "  --load F.rtkb  trace with the BVH dumped by rtktool build --dump (no build)\n"
             "  --config STR   extra device config (e.g. verbose=1)\n");
 }
 
 static int cmd_trace(int argc, char **argv)
 {
-    const char *mesh_path = NULL, *out = "trace.png", *isa = NULL, *extra = "";
+    const char *mesh_path = NULL, *out = "trace.png", *isa = NULL, *extra = "", *load = NULL;
     int w = 1024, h = 768, frames = 3;
     long threads = sysconf(_SC_NPROCESSORS_ONLN);
     for (int i = 0; i < argc; i++) {
@@ -225,6 +266,8 @@ static int cmd_trace(int argc, char **argv)
             threads = strtol(argv[++i], NULL, 10);
         else if (!strcmp(a, "--frames") && more)
             frames = atoi(argv[++i]);
+        else if (!strcmp(a, "--load") && more)
+            load = argv[++i];
         else if (!strcmp(a, "--config") && more)
             extra = argv[++i];
         else if (a[0] != '-' && !mesh_path)
@@ -260,16 +303,20 @@ static int cmd_trace(int argc, char **argv)
     }
     double t_load = now() - t0;
 
-    rtk_scene scene = NULL;
-    rtk_geometry geom = NULL;
     int rc = 1;
-    if (rtk_scene_new(dev, &scene) || rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &geom) ||
-        rtk_geometry_set_shared_buffer(geom, RTK_BUFFER_TYPE_VERTEX, mesh.vertices, 0, 12, mesh.vertex_count) ||
-        rtk_geometry_set_shared_buffer(geom, RTK_BUFFER_TYPE_INDEX, mesh.indices, 0, 12, mesh.triangle_count) ||
-        rtk_geometry_commit(geom) || rtk_scene_attach_geometry(scene, geom, NULL) || rtk_scene_commit(scene)) {
-        fprintf(stderr, "rtktool: %s\n", rtk_device_get_error_message(dev));
+    rtk_scene scene = NULL;
+    rtkb_file dump;
+    memset(&dump, 0, sizeof dump);
+    if (load && rtkb_load(load, &dump, err, sizeof err)) {
+        fprintf(stderr, "rtktool: %s\n", err);
         goto done;
     }
+    if (load && !dump_fits_mesh(load, &dump, mesh_path, &mesh))
+        goto done;
+    scene = mesh_scene(dev, &mesh, load && strstr(dump.info.layout, "triangle4i") ? RTK_SCENE_FLAG_COMPACT : 0,
+                       RTK_BUILD_QUALITY_MEDIUM, load ? &dump.tree : NULL);
+    if (!scene)
+        goto done;
     rtk_scene_info info = {.struct_size = sizeof info};
     rtk_scene_get_info(scene, &info);
 
@@ -315,17 +362,20 @@ static int cmd_trace(int argc, char **argv)
     if (info.triangles_skipped || info.triangles_degenerate)
         printf("            left out: %llu triangles with non-finite vertices, %llu of zero area\n",
                (unsigned long long)info.triangles_skipped, (unsigned long long)info.triangles_degenerate);
-    printf("build:      %.3f s, %.2f Mtris/s (1 thread)\n", info.build_seconds,
-           info.build_seconds > 0 ? (double)mesh.triangle_count / info.build_seconds * 1e-6 : 0.0);
+    if (load)
+        printf("build:      none: the tree of %s, checked and committed in %.3f s\n", load, info.build_seconds);
+    else
+        printf("build:      %.3f s, %.2f Mtris/s (1 thread)\n", info.build_seconds,
+               info.build_seconds > 0 ? (double)mesh.triangle_count / info.build_seconds * 1e-6 : 0.0);
     printf("trace:      %dx%d primary rays, %.1f%% hit, %ld threads, best of %d frames: %.2f Mrays/s\n", w, h,
            100.0 * (double)hits / ((double)w * h), threads, frames, best * 1e-6);
     printf("image:      %s\n", out);
     rc = 0;
 done:
-    rtk_geometry_release(geom);
     rtk_scene_release(scene);
     rtk_device_release(dev);
     rtk_mesh_free(&mesh);
+    rtkb_free(&dump);
     return rc;
 }
 
@@ -424,11 +474,379 @@ static int cmd_convert(int argc, char **argv)
     return 0;
 }
 
+/* ---- build ---- */
+
+static void build_usage(FILE *f)
+{
+    fprintf(f,
+            "usage: rtktool build MESH [options]\n"
+            "       rtktool build --load FILE.rtkb [MESH] [options]\n"
+            "  Builds a BVH over MESH and prints what it is made of: nodes and leaves,\n"
+            "  depth, triangles per leaf, SAH cost, memory, build time.\n"
+            "  With --load, reads a dump instead: checks every offset, count and reference\n"
+            "  in it and prints the same statistics (no backend needed); given MESH too,\n"
+            "  commits MESH with the dumped tree and checks that it traces like a build.\n"
+            "  --quality low|medium|high  build quality (default: medium)\n"
+            "  --isa NAME                 backend (scalar, sse41, avx, avx2; default: the best)\n"
+            "  --compact                  the compact layout (index leaves, half the memory)\n"
+            "  --threads N                threads the device may use (default: all cores)\n"
+            "  --json                     the statistics as one JSON object on stdout\n"
+            "  --dump FILE.rtkb           write the tree to FILE.rtkb (tools/rtkb.h)\n"
+            "  --load FILE.rtkb           read a dump (see above)\n"
+            "  --png FILE                 draw the boxes of the first 8 levels, a panel per level\n"
+            "  --verify N                 with --load and MESH: rays to compare (default: 100000)\n"
+            "  --config STR               extra device config (e.g. verbose=1)\n"
+            "examples:\n"
+            "  rtktool build dragon.ply --json\n"
+            "  rtktool build bunny.ply --isa sse41 --dump bunny.rtkb --png bunny-boxes.png\n"
+            "  rtktool build --load bunny.rtkb\n"
+            "  rtktool build --load bunny.rtkb bunny.ply --isa sse41\n");
+}
+
+static const char *quality_name(unsigned q)
+{
+    return q == RTK_BUILD_QUALITY_LOW ? "low" : q == RTK_BUILD_QUALITY_HIGH ? "high" : "medium";
+}
+
+/* What is printed: the tree's statistics and what the library said. */
+typedef struct build_report {
+    const char *mesh, *backend, *layout, *builder;
+    unsigned quality;
+    uint64_t mesh_triangles;
+    uint64_t bytes;       /* 0: not known (a dump read alone records the original's) */
+    double build_seconds; /* < 0: not built here */
+    double sah_reported;
+    bvh_stats st;
+} build_report;
+
+static void print_report(const build_report *r)
+{
+    const bvh_stats *s = &r->st;
+    if (r->mesh)
+        printf("mesh:      %s (%llu triangles)\n", r->mesh, (unsigned long long)r->mesh_triangles);
+    else
+        printf("mesh:      not loaded (the dump was built over %llu triangles)\n",
+               (unsigned long long)r->mesh_triangles);
+    printf("backend:   %s\n", r->backend);
+    printf("bvh:       %s, %s builder, quality %s, %u-wide nodes\n", r->layout, r->builder, quality_name(r->quality),
+           s->width);
+    printf("nodes:     %llu inner, %llu leaves (%llu blocks of 4 triangles), %.2f children per node\n",
+           (unsigned long long)s->nodes, (unsigned long long)s->leaves, (unsigned long long)s->leaf_blocks,
+           s->nodes ? (double)s->slots_used / (double)s->nodes : 0.0);
+    printf("depth:     max %u, mean %.2f (levels, the leaves' included)\n", s->depth_max, s->depth_mean);
+    printf("triangles: %llu in leaves; per leaf:\n", (unsigned long long)s->prims);
+    uint64_t most = 1;
+    for (int b = 0; b < BVH_STATS_LEAF_BINS; b++)
+        most = s->leaf_prims[b] > most ? s->leaf_prims[b] : most;
+    for (int b = 0; b < BVH_STATS_LEAF_BINS; b++) {
+        if (!s->leaf_prims[b])
+            continue;
+        char bar[41];
+        const int n = (int)(40.0 * (double)s->leaf_prims[b] / (double)most + 0.5);
+        memset(bar, '#', (size_t)n);
+        bar[n] = '\0';
+        printf("  %s%2d %9llu %5.1f%% %s\n", b == 16 ? ">" : " ", b == 16 ? 16 : b + 1,
+               (unsigned long long)s->leaf_prims[b], 100.0 * (double)s->leaf_prims[b] / (double)(s->leaves ? s->leaves : 1),
+               bar);
+    }
+    printf("SAH cost:  %.3f (traversal step 1, block of 4 triangles 1, relative to the root)\n", s->sah);
+    if (r->bytes)
+        printf("memory:    %.2f MiB, %.1f bytes/triangle\n", (double)r->bytes / 1048576.0,
+               s->prims ? (double)r->bytes / (double)s->prims : 0.0);
+    if (r->build_seconds >= 0.0)
+        printf("build:     %.3f s, %.2f Mtris/s (1 thread)\n", r->build_seconds,
+               r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0);
+}
+
+static void json_string(const char *key, const char *v, int last)
+{
+    printf("  \"%s\": \"", key);
+    for (const char *p = v; *p; p++) {
+        if (*p == '"' || *p == '\\')
+            printf("\\%c", *p);
+        else if ((unsigned char)*p < 0x20)
+            printf("\\u%04x", *p);
+        else
+            putchar(*p);
+    }
+    printf("\"%s\n", last ? "" : ",");
+}
+
+static void print_json(const build_report *r)
+{
+    const bvh_stats *s = &r->st;
+    printf("{\n");
+    if (r->mesh)
+        json_string("mesh", r->mesh, 0);
+    else
+        printf("  \"mesh\": null,\n");
+    json_string("backend", r->backend, 0);
+    json_string("layout", r->layout, 0);
+    json_string("builder", r->builder, 0);
+    json_string("quality", quality_name(r->quality), 0);
+    printf("  \"mesh_triangles\": %llu,\n  \"triangles\": %llu,\n  \"nodes\": %llu,\n  \"leaves\": %llu,\n"
+           "  \"leaf_blocks\": %llu,\n  \"width\": %u,\n  \"children_per_node\": %.4f,\n  \"depth_max\": %u,\n  \"depth_mean\": %.4f,\n",
+           (unsigned long long)r->mesh_triangles, (unsigned long long)s->prims, (unsigned long long)s->nodes,
+           (unsigned long long)s->leaves, (unsigned long long)s->leaf_blocks, s->width,
+           s->nodes ? (double)s->slots_used / (double)s->nodes : 0.0, s->depth_max, s->depth_mean);
+    printf("  \"triangles_per_leaf\": {");
+    for (int b = 0, first = 1; b < BVH_STATS_LEAF_BINS; b++)
+        if (s->leaf_prims[b]) {
+            printf("%s\"%s%d\": %llu", first ? "" : ", ", b == 16 ? ">" : "", b == 16 ? 16 : b + 1,
+                   (unsigned long long)s->leaf_prims[b]);
+            first = 0;
+        }
+    printf("},\n  \"sah_cost\": %.6f,\n", s->sah);
+    if (r->bytes)
+        printf("  \"bytes\": %llu,\n  \"bytes_per_triangle\": %.3f,\n", (unsigned long long)r->bytes,
+               s->prims ? (double)r->bytes / (double)s->prims : 0.0);
+    else
+        printf("  \"bytes\": null,\n  \"bytes_per_triangle\": null,\n");
+    if (r->build_seconds >= 0.0)
+        printf("  \"build_seconds\": %.6f,\n  \"build_mtris_per_second\": %.4f\n}\n", r->build_seconds,
+               r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0);
+    else
+        printf("  \"build_seconds\": null,\n  \"build_mtris_per_second\": null\n}\n");
+}
+
+/* Random rays through both scenes: how many answers agree exactly (t, hit
+ * or miss, triangle) and how many only in t (a tie between two triangles
+ * the two trees settled differently). */
+static void compare_scenes(rtk_scene a, rtk_scene b, const float lo[3], const float hi[3], long n, long *same,
+                           long *tie)
+{
+    uint64_t state = 0x9e3779b97f4a7c15ull;
+    *same = *tie = 0;
+    for (long i = 0; i < n; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            state = state * 6364136223846793005ull + 1442695040888963407ull;
+            const float r1 = (float)(state >> 40) / 16777216.0f;
+            state = state * 6364136223846793005ull + 1442695040888963407ull;
+            const float r2 = (float)(state >> 40) / 16777216.0f;
+            const float e = hi[k] - lo[k];
+            o[k] = lo[k] - 0.5f * e + 2.0f * e * r1;
+            d[k] = lo[k] + e * r2 - o[k]; /* aimed into the box */
+        }
+        rtk_rayhit x;
+        memset(&x, 0, sizeof x);
+        x.ray = (rtk_ray){.org_x = o[0], .org_y = o[1], .org_z = o[2], .dir_x = d[0], .dir_y = d[1], .dir_z = d[2],
+                          .tfar = INFINITY, .mask = 0xffffffffu};
+        x.hit.geomID = x.hit.primID = RTK_INVALID_GEOMETRY_ID;
+        rtk_rayhit y = x;
+        rtk_intersect1(a, &x);
+        rtk_intersect1(b, &y);
+        if (!memcmp(&x, &y, sizeof x))
+            (*same)++;
+        else if (x.ray.tfar == y.ray.tfar && (x.hit.geomID == RTK_INVALID_GEOMETRY_ID) ==
+                                                 (y.hit.geomID == RTK_INVALID_GEOMETRY_ID))
+            (*tie)++;
+    }
+}
+
+static int cmd_build(int argc, char **argv)
+{
+    const char *mesh_path = NULL, *isa = NULL, *extra = "", *dump = NULL, *load = NULL, *png = NULL;
+    int json = 0, compact = 0;
+    long threads = 0, verify = 100000;
+    rtk_build_quality quality = RTK_BUILD_QUALITY_MEDIUM;
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        const int more = i + 1 < argc;
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            build_usage(stdout);
+            return 0;
+        } else if (!strcmp(a, "--quality") && more) {
+            const char *q = argv[++i];
+            if (!strcmp(q, "low"))
+                quality = RTK_BUILD_QUALITY_LOW;
+            else if (!strcmp(q, "medium"))
+                quality = RTK_BUILD_QUALITY_MEDIUM;
+            else if (!strcmp(q, "high"))
+                quality = RTK_BUILD_QUALITY_HIGH;
+            else {
+                fprintf(stderr, "rtktool build: --quality wants low, medium or high (got '%s')\n", q);
+                return 2;
+            }
+        } else if (!strcmp(a, "--isa") && more)
+            isa = argv[++i];
+        else if (!strcmp(a, "--compact"))
+            compact = 1;
+        else if (!strcmp(a, "--threads") && more) {
+            char *end;
+            threads = strtol(argv[++i], &end, 10);
+            if (*end || threads < 1 || threads > 1024) {
+                fprintf(stderr, "rtktool build: --threads wants 1..1024 (got '%s')\n", argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--json"))
+            json = 1;
+        else if (!strcmp(a, "--dump") && more)
+            dump = argv[++i];
+        else if (!strcmp(a, "--load") && more)
+            load = argv[++i];
+        else if (!strcmp(a, "--png") && more)
+            png = argv[++i];
+        else if (!strcmp(a, "--verify") && more) {
+            char *end;
+            verify = strtol(argv[++i], &end, 10);
+            if (*end || verify < 0) {
+                fprintf(stderr, "rtktool build: --verify wants a ray count (got '%s')\n", argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--config") && more)
+            extra = argv[++i];
+        else if (a[0] != '-' && !mesh_path)
+            mesh_path = a;
+        else {
+            fprintf(stderr, "rtktool build: unknown or incomplete argument '%s'\n", a);
+            build_usage(stderr);
+            return 2;
+        }
+    }
+    if (!mesh_path && !load) {
+        build_usage(stderr);
+        return 2;
+    }
+    if (dump && load) {
+        fprintf(stderr, "rtktool build: --dump and --load do not go together\n");
+        return 2;
+    }
+    if (dump && !ends_with(dump, ".rtkb")) {
+        fprintf(stderr, "rtktool build: the dump's name must end in .rtkb (got '%s')\n", dump);
+        return 2;
+    }
+
+    char err[1024];
+    rtkb_file file;
+    memset(&file, 0, sizeof file);
+    if (load && rtkb_load(load, &file, err, sizeof err)) {
+        fprintf(stderr, "rtktool: %s\n", err);
+        return 1;
+    }
+    build_report rep = {.quality = quality, .build_seconds = -1.0};
+    rtk_mesh mesh;
+    memset(&mesh, 0, sizeof mesh);
+    rtk_device dev = NULL;
+    rtk_scene scene = NULL, fresh = NULL;
+    rtk_bvh tree = {.struct_size = sizeof tree};
+    int owned_tree = 0, rc = 1;
+
+    if (load && !mesh_path) { /* offline: the file alone */
+        rep.backend = "none (the file alone)";
+        rep.layout = file.info.layout;
+        rep.builder = file.info.builder;
+        rep.quality = file.info.quality;
+        rep.mesh_triangles = file.info.mesh_triangles;
+        rep.bytes = file.info.bytes;
+        tree = file.tree;
+    } else {
+        if (rtk_mesh_load(mesh_path, &mesh, err, sizeof err)) {
+            fprintf(stderr, "rtktool: %s\n", err);
+            goto done;
+        }
+        if (load && !dump_fits_mesh(load, &file, mesh_path, &mesh))
+            goto done;
+        char config[512], threads_kv[32] = "";
+        if (threads)
+            snprintf(threads_kv, sizeof threads_kv, "threads=%ld,", threads);
+        snprintf(config, sizeof config, "%s%s%s%s", threads_kv, isa ? "isa=" : "", isa ? isa : "", extra);
+        dev = open_device(config);
+        if (!dev)
+            goto done;
+        if (load && strstr(file.info.layout, "triangle4i"))
+            compact = 1; /* the dump's leaves were index leaves: the same layout again */
+        const unsigned flags = compact ? RTK_SCENE_FLAG_COMPACT : 0;
+        scene = mesh_scene(dev, &mesh, flags, quality, load ? &file.tree : NULL);
+        if (!scene)
+            goto done;
+        rtk_scene_info info = {.struct_size = sizeof info};
+        rtk_scene_get_info(scene, &info);
+        if (rtk_scene_get_bvh(scene, &tree)) {
+            fprintf(stderr, "rtktool: %s\n", rtk_device_get_error_message(dev));
+            goto done;
+        }
+        owned_tree = 1;
+        rep.mesh = mesh_path;
+        rep.backend = rtk_device_get_backend_name(dev);
+        rep.layout = info.layout;
+        rep.builder = load ? file.info.builder : info.builder;
+        rep.quality = load ? file.info.quality : (unsigned)info.quality;
+        rep.mesh_triangles = mesh.triangle_count;
+        rep.bytes = info.bytes;
+        rep.build_seconds = load ? -1.0 : info.build_seconds;
+        rep.sah_reported = info.sah_cost;
+        if (load && verify > 0) { /* the dump against a fresh build */
+            fresh = mesh_scene(dev, &mesh, flags, (rtk_build_quality)file.info.quality, NULL);
+            if (!fresh)
+                goto done;
+            long same, tie;
+            compare_scenes(scene, fresh, info.bounds_lower, info.bounds_upper, verify, &same, &tie);
+            fprintf(json ? stderr : stdout,
+                    "verify:    %ld random rays against a fresh build: %ld identical, %ld ties settled differently, "
+                    "%ld different\n",
+                    verify, same, tie, verify - same - tie);
+            if (same + tie != verify) {
+                fprintf(stderr, "rtktool: the loaded tree traces differently from a fresh build\n");
+                goto done;
+            }
+        }
+    }
+    if (bvh_stats_compute(&tree, &rep.st)) {
+        fprintf(stderr, "rtktool: out of memory for the statistics\n");
+        goto done;
+    }
+    if (json)
+        print_json(&rep);
+    else
+        print_report(&rep);
+    if (load && !json)
+        printf("dump:      %s: checked (offsets, counts, checksums, every reference and box); written from %s, "
+               "built in %.3f s\n",
+               load, file.info.layout, file.info.build_seconds);
+    if (dump) {
+        rtkb_info bi = {.quality = rep.quality,
+                        .mesh_triangles = mesh.triangle_count,
+                        .mesh_vertices = mesh.vertex_count,
+                        .mesh_checksum = rtkm_mesh_checksum(&mesh),
+                        .bytes = rep.bytes,
+                        .build_seconds = rep.build_seconds,
+                        .sah_cost = rep.sah_reported};
+        snprintf(bi.layout, sizeof bi.layout, "%s", rep.layout);
+        snprintf(bi.builder, sizeof bi.builder, "%s", rep.builder);
+        if (rtkb_save(dump, &tree, &bi, err, sizeof err)) {
+            fprintf(stderr, "rtktool: %s\n", err);
+            goto done;
+        }
+        fprintf(json ? stderr : stdout, "dump:      %s\n", dump);
+    }
+    if (png) {
+        if (bvh_picture(&tree, &rep.st, 8, 320, png, err, sizeof err)) {
+            fprintf(stderr, "rtktool: %s\n", err);
+            goto done;
+        }
+        fprintf(json ? stderr : stdout,
+                "picture:   %s: panel n shows the boxes of the children of the nodes at depth n\n", png);
+    }
+    rc = 0;
+done:
+    if (owned_tree)
+        rtk_bvh_free(&tree);
+    rtk_scene_release(fresh);
+    rtk_scene_release(scene);
+    rtk_device_release(dev);
+    rtk_mesh_free(&mesh);
+    rtkb_free(&file);
+    return rc;
+}
+
 static void usage(FILE *f)
 {
     fprintf(f, "usage: rtktool COMMAND [options]\n"
                "  info                 CPU features, backends found and rejected, the active one\n"
                "  convert IN OUT.rtkm  import a mesh into rtk's mesh file (rtktool convert --help)\n"
+               "  build MESH [opts]    build a BVH and show its statistics; dump and inspect trees\n"
+               "                       (rtktool build --help)\n"
                "  trace MESH [opts]    render MESH to a PNG and measure (rtktool trace --help)\n"
                "  help                 this text\n");
 }
@@ -443,6 +861,8 @@ int main(int argc, char **argv)
         return cmd_info(argc - 2, argv + 2);
     if (!strcmp(argv[1], "convert"))
         return cmd_convert(argc - 2, argv + 2);
+    if (!strcmp(argv[1], "build"))
+        return cmd_build(argc - 2, argv + 2);
     if (!strcmp(argv[1], "trace"))
         return cmd_trace(argc - 2, argv + 2);
     if (!strcmp(argv[1], "help") || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
