@@ -101,16 +101,7 @@ static void assert_same_info(rtk_scene a, rtk_scene b)
 static rtk_error commit_tree(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags,
                              const rtk_bvh *tree, rtk_scene *out)
 {
-    rtk_scene s = NULL;
-    rtk_geometry g = NULL;
-    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-    assert_int_equal(rtk_scene_set_flags(s, flags), RTK_OK);
-    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
-    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, nv), RTK_OK);
-    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, idx, 0, 12, nt), RTK_OK);
-    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
-    rtk_geometry_release(g);
+    rtk_scene s = test_scene_uncommitted(dev, v, nv, idx, nt, flags);
     rtk_error err = rtk_scene_commit_bvh(s, tree);
     *out = s;
     return err;

@@ -308,17 +308,7 @@ static void test_merge_and_drop(void **state)
 
 static rtk_scene scene_over(rtk_device dev, const rtk_mesh *m, const rtk_bvh *tree)
 {
-    rtk_scene s;
-    rtk_geometry g;
-    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
-    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count),
-                     RTK_OK);
-    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count),
-                     RTK_OK);
-    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
-    rtk_geometry_release(g);
+    rtk_scene s = test_scene_uncommitted(dev, m->vertices, m->vertex_count, m->indices, m->triangle_count, 0);
     const rtk_error err = tree ? rtk_scene_commit_bvh(s, tree) : rtk_scene_commit(s);
     if (err)
         fail_msg("commit: %s", rtk_device_get_error_message(dev));

@@ -42,7 +42,8 @@ rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *
     return test_scene_flags(dev, v, nv, idx, nt, RTK_SCENE_FLAG_NONE);
 }
 
-rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags)
+rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt,
+                                 unsigned flags)
 {
     rtk_scene scene = NULL;
     rtk_geometry g = NULL;
@@ -54,6 +55,12 @@ rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint
     assert_int_equal(rtk_geometry_commit(g), RTK_OK);
     assert_int_equal(rtk_scene_attach_geometry(scene, g, NULL), RTK_OK);
     rtk_geometry_release(g);
+    return scene;
+}
+
+rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags)
+{
+    rtk_scene scene = test_scene_uncommitted(dev, v, nv, idx, nt, flags);
     if (rtk_scene_commit(scene) != RTK_OK)
         fail_msg("commit: %s", rtk_device_get_error_message(dev));
     return scene;

@@ -23,6 +23,9 @@ rtk_device test_device(const char *isa);
 rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt);
 /* The same with scene flags (RTK_SCENE_FLAG_COMPACT: the index-leaf layout). */
 rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags);
+/* The same scene, not committed yet. */
+rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt,
+                                 unsigned flags);
 
 /* The reference's view of a mesh: v0, e1, e2 per triangle, computed the way
  * the builders compute them, and whether the builders keep it. */

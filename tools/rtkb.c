@@ -3,29 +3,17 @@
 #include "rtkb.h"
 
 #include <errno.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
 
+#include "file_io.h"
 #include "le_bytes.h"
 #include "rtkm.h"
 
 static const char magic[8] = "RTKBVH";
 #define FNV_BASIS 0xcbf29ce484222325ull
-
-static int fail(char *err, size_t size, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
-static int fail(char *err, size_t size, const char *fmt, ...)
-{
-    if (err && size) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err, size, fmt, ap);
-        va_end(ap);
-    }
-    return 1;
-}
 
 enum { A_CHILDREN, A_LOWER, A_UPPER, A_LEAF_FIRST, A_PRIMS, A_COUNT };
 
@@ -67,7 +55,7 @@ int rtkb_save(const char *path, const rtk_bvh *t, const rtkb_info *info, char *e
 {
     uint64_t size[A_COUNT], off[A_COUNT];
     if (!array_sizes(t->width, t->node_count, t->leaf_count, t->prim_count, size))
-        return fail(err, err_size, "%s: not written: the tree is too large", path);
+        return file_error(err, err_size, "%s: not written: the tree is too large", path);
     uint64_t at = RTKB_HEADER_SIZE;
     for (int a = 0; a < A_COUNT; a++) {
         off[a] = align64(at);
@@ -97,25 +85,10 @@ int rtkb_save(const char *path, const rtk_bvh *t, const rtkb_info *info, char *e
     le_put64(h + 216, arrays_checksum(t, size));
     le_put64(h + 224, rtkm_checksum(h, 224, FNV_BASIS));
 
-    FILE *f = fopen(path, "wb");
-    if (!f)
-        return fail(err, err_size, "%s: %s", path, strerror(errno));
-    static const unsigned char zeros[64];
-    int ok = fwrite(h, 1, sizeof h, f) == sizeof h;
-    uint64_t pos = RTKB_HEADER_SIZE;
-    for (int a = 0; a < A_COUNT && ok; a++) {
-        ok = fwrite(zeros, 1, off[a] - pos, f) == off[a] - pos &&
-             (!size[a] || fwrite(array_data(t, a), 1, size[a], f) == size[a]);
-        pos = off[a] + size[a];
-    }
-    const int saved_errno = errno;
-    if (fclose(f) != 0)
-        ok = 0;
-    if (!ok) {
-        remove(path);
-        return fail(err, err_size, "%s: write failed: %s", path, strerror(saved_errno ? saved_errno : EIO));
-    }
-    return 0;
+    file_part parts[1 + A_COUNT] = {{h, 0, sizeof h}};
+    for (int a = 0; a < A_COUNT; a++)
+        parts[1 + a] = (file_part){array_data(t, a), off[a], size[a]};
+    return file_write_parts(path, parts, 1 + A_COUNT, err, err_size);
 }
 
 int rtkb_load(const char *path, rtkb_file *file, char *err, size_t err_size)
@@ -123,7 +96,7 @@ int rtkb_load(const char *path, rtkb_file *file, char *err, size_t err_size)
     memset(file, 0, sizeof *file);
     FILE *f = fopen(path, "rb");
     if (!f)
-        return fail(err, err_size, "%s: %s", path, strerror(errno));
+        return file_error(err, err_size, "%s: %s", path, strerror(errno));
     char why[320] = "";
     unsigned char *data = NULL;
     struct stat st;
@@ -227,7 +200,7 @@ done:
     free(data);
     if (why[0]) {
         memset(file, 0, sizeof *file);
-        return fail(err, err_size, "%s: %s", path, why);
+        return file_error(err, err_size, "%s: %s", path, why);
     }
     return 0;
 }

@@ -1,11 +1,11 @@
 /* The .rtkm mesh file: writer and validating reader.  See rtkm.h. */
 #define _POSIX_C_SOURCE 200809L
 #include "rtkm.h"
+#include "file_io.h"
 #include "le_bytes.h"
 
 #include <errno.h>
 #include <math.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -13,17 +13,6 @@
 #include <sys/types.h>
 
 static const char magic[8] = "RTKMESH";
-
-static int fail(char *err, size_t size, const char *fmt, ...)
-{
-    if (err && size) {
-        va_list ap;
-        va_start(ap, fmt);
-        vsnprintf(err, size, fmt, ap);
-        va_end(ap);
-    }
-    return 1;
-}
 
 uint64_t rtkm_checksum(const void *data, size_t size, uint64_t seed)
 {
@@ -58,7 +47,7 @@ int rtkm_save(const char *path, const rtk_mesh *mesh, char *err, size_t err_size
 {
     for (size_t i = 0; i < 3 * mesh->triangle_count; i++)
         if (mesh->indices[i] >= mesh->vertex_count)
-            return fail(err, err_size, "%s: not written: triangle %zu refers to vertex %u of %zu", path, i / 3,
+            return file_error(err, err_size, "%s: not written: triangle %zu refers to vertex %u of %zu", path, i / 3,
                         mesh->indices[i], mesh->vertex_count);
     const uint64_t nv = mesh->vertex_count, nt = mesh->triangle_count;
     const uint64_t voff = align64(RTKM_HEADER_SIZE), ioff = align64(voff + nv * 12);
@@ -80,22 +69,8 @@ int rtkm_save(const char *path, const rtk_mesh *mesh, char *err, size_t err_size
     le_put64(h + 72, payload_checksum(mesh->vertices, nv, mesh->indices, nt));
     le_put64(h + 80, rtkm_checksum(h, 80, 0xcbf29ce484222325ull));
 
-    FILE *f = fopen(path, "wb");
-    if (!f)
-        return fail(err, err_size, "%s: %s", path, strerror(errno));
-    static const unsigned char zeros[64];
-    int ok = fwrite(h, 1, sizeof h, f) == sizeof h && fwrite(zeros, 1, voff - sizeof h, f) == voff - sizeof h &&
-             (!nv || fwrite(mesh->vertices, 12, nv, f) == nv) &&
-             fwrite(zeros, 1, ioff - voff - nv * 12, f) == ioff - voff - nv * 12 &&
-             (!nt || fwrite(mesh->indices, 12, nt, f) == nt);
-    const int saved_errno = errno;
-    if (fclose(f) != 0)
-        ok = 0;
-    if (!ok) {
-        remove(path);
-        return fail(err, err_size, "%s: write failed: %s", path, strerror(saved_errno ? saved_errno : EIO));
-    }
-    return 0;
+    const file_part parts[3] = {{h, 0, sizeof h}, {mesh->vertices, voff, nv * 12}, {mesh->indices, ioff, nt * 12}};
+    return file_write_parts(path, parts, 3, err, err_size);
 }
 
 int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
@@ -103,7 +78,7 @@ int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
     memset(mesh, 0, sizeof *mesh);
     FILE *f = fopen(path, "rb");
     if (!f)
-        return fail(err, err_size, "%s: %s", path, strerror(errno));
+        return file_error(err, err_size, "%s: %s", path, strerror(errno));
     struct stat st;
     unsigned char h[RTKM_HEADER_SIZE];
     int bad = 1;
@@ -178,7 +153,7 @@ done:
     fclose(f);
     if (bad) {
         rtk_mesh_free(mesh);
-        return fail(err, err_size, "%s: %s", path, why);
+        return file_error(err, err_size, "%s: %s", path, why);
     }
     return 0;
 }

@@ -49,67 +49,37 @@ int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *t)
     t->leaf_count = 0;
     t->prim_count = 0;
 
-    /* Leaves are numbered in the order of their blocks (which is the
-     * builder's depth-first order): leaf_of[first block] = leaf number + 1. */
-    uint32_t *leaf_of = calloc(a->leaf_count ? a->leaf_count : 1, sizeof *leaf_of);
-    if (!leaf_of)
+    /* at[first block of a leaf] = that leaf's reference (never 0: the leaf
+     * bit is set); then, once the leaf is read, its number. */
+    uint32_t *at = calloc(a->leaf_count ? a->leaf_count : 1, sizeof *at);
+    if (!at)
         return RTK_ERROR_OUT_OF_MEMORY;
-    for (uint64_t i = 0; i < a->node_count; i++)
-        for (int c = 0; c < w; c++) {
-            float lo[3], hi[3];
-            uint32_t ref;
-            read_slot(a, i, c, lo, hi, &ref);
-            if (ref != RTK_BVH4_EMPTY && (ref & RTK_BVH4_LEAF_BIT))
-                leaf_of[rtk_leaf_first(ref)] = 1;
-        }
     if (a->root != RTK_BVH4_EMPTY && (a->root & RTK_BVH4_LEAF_BIT))
-        leaf_of[rtk_leaf_first(a->root)] = 1;
-    uint32_t leaves = 0;
-    for (uint64_t k = 0; k < a->leaf_count; k++)
-        if (leaf_of[k])
-            leaf_of[k] = ++leaves;
-    t->leaf_count = leaves;
-
-    /* Every leaf's triangles, in leaf order: walk the blocks, which are in
-     * that order, starting a new leaf at each first block. */
-    uint32_t *ref_of = calloc(leaves ? leaves : 1, sizeof *ref_of);
-    if (!ref_of) {
-        free(leaf_of);
-        return RTK_ERROR_OUT_OF_MEMORY;
-    }
-    for (uint64_t i = 0; i < a->node_count; i++)
-        for (int c = 0; c < w; c++) {
-            float lo[3], hi[3];
-            uint32_t ref;
-            read_slot(a, i, c, lo, hi, &ref);
-            if (ref != RTK_BVH4_EMPTY && (ref & RTK_BVH4_LEAF_BIT))
-                ref_of[leaf_of[rtk_leaf_first(ref)] - 1] = ref;
-        }
-    if (a->root != RTK_BVH4_EMPTY && (a->root & RTK_BVH4_LEAF_BIT))
-        ref_of[0] = a->root;
-    for (uint32_t j = 0; j < leaves; j++) {
-        t->leaf_first[j] = t->prim_count;
-        read_leaf(a, ref_of[j], t);
-    }
-    t->leaf_first[leaves] = t->prim_count;
-    free(ref_of);
-
-    /* Nodes keep their indices; leaf references become leaf numbers. */
+        at[rtk_leaf_first(a->root)] = a->root;
     for (uint64_t i = 0; i < a->node_count; i++)
         for (int c = 0; c < w; c++) {
             const uint64_t slot = i * (uint64_t)w + (uint64_t)c;
-            uint32_t ref;
-            read_slot(a, i, c, t->child_lower + 3 * slot, t->child_upper + 3 * slot, &ref);
+            read_slot(a, i, c, t->child_lower + 3 * slot, t->child_upper + 3 * slot, &t->children[slot]);
+            const uint32_t ref = t->children[slot];
             if (ref != RTK_BVH4_EMPTY && (ref & RTK_BVH4_LEAF_BIT))
-                ref = RTK_BVH_LEAF_BIT | (leaf_of[rtk_leaf_first(ref)] - 1);
-            t->children[slot] = ref;
+                at[rtk_leaf_first(ref)] = ref;
         }
-    if (a->root == RTK_BVH4_EMPTY)
-        t->root = RTK_BVH_EMPTY;
-    else if (a->root & RTK_BVH4_LEAF_BIT)
-        t->root = RTK_BVH_LEAF_BIT | 0u;
-    else
-        t->root = a->root;
-    free(leaf_of);
+    /* Leaves numbered in the order of their blocks (the builder's
+     * depth-first order), so an import lays the blocks out the same way. */
+    for (uint64_t k = 0; k < a->leaf_count; k++)
+        if (at[k]) {
+            t->leaf_first[t->leaf_count] = t->prim_count;
+            read_leaf(a, at[k], t);
+            at[k] = (uint32_t)t->leaf_count++;
+        }
+    t->leaf_first[t->leaf_count] = t->prim_count;
+    /* Nodes keep their indices; leaf references become leaf numbers. */
+    for (uint64_t slot = 0; slot < a->node_count * (uint64_t)w; slot++) {
+        const uint32_t ref = t->children[slot];
+        if (ref != RTK_BVH4_EMPTY && (ref & RTK_BVH4_LEAF_BIT))
+            t->children[slot] = RTK_BVH_LEAF_BIT | at[rtk_leaf_first(ref)];
+    }
+    t->root = a->root == RTK_BVH4_EMPTY || !(a->root & RTK_BVH4_LEAF_BIT) ? a->root : RTK_BVH_LEAF_BIT;
+    free(at);
     return RTK_OK;
 }
