@@ -141,32 +141,44 @@ static void cross(const float a[3], const float b[3], float c[3])
 }
 
 /* A camera that frames the bounding box: looking at its centre from the
- * front-right and a little above, at a distance where the bounding sphere
- * fills the 40-degree view. */
+ * front-right and a little above, with the 40-degree view (vertical) just
+ * wide enough for all eight corners of the box, 5% margin: so the mesh,
+ * not the background, fills the picture. */
 static camera frame_box(const float lo[3], const float hi[3], int w, int h)
 {
     camera c;
-    float center[3], radius = 0.0f;
+    float center[3], extent = 0.0f;
     for (int k = 0; k < 3; k++) {
         center[k] = 0.5f * (lo[k] + hi[k]);
-        float e = 0.5f * (hi[k] - lo[k]);
-        radius += e * e;
+        extent = fmaxf(extent, hi[k] - lo[k]);
     }
-    radius = sqrtf(radius);
-    if (!(radius > 0.0f))
-        radius = 1.0f;
+    if (!(extent > 0.0f))
+        extent = 1.0f;
     const float fov = 40.0f * 3.14159265f / 180.0f;
-    const float dist = 1.1f * radius / tanf(0.5f * fov);
+    const float half_h = tanf(0.5f * fov), half_w = half_h * (float)w / (float)h;
     float view[3] = {0.35f, 0.3f, 1.0f};
     normalize(view);
-    for (int k = 0; k < 3; k++)
-        c.eye[k] = center[k] + view[k] * dist;
     float fwd[3] = {-view[0], -view[1], -view[2]}, up[3] = {0, 1, 0}, right[3], vup[3];
     cross(fwd, up, right);
     normalize(right);
     cross(right, fwd, vup);
-    const float half_h = tanf(0.5f * fov), half_w = half_h * (float)w / (float)h;
+    /* The distance from the centre at which each corner fits: at depth
+     * dist + z a corner at (x, y) across the view must have |x| <= (dist +
+     * z) * half_w and |y| <= (dist + z) * half_h. */
+    float dist = 0.0f;
+    for (int i = 0; i < 8; i++) {
+        const float p[3] = {(i & 1 ? hi[0] : lo[0]) - center[0], (i & 2 ? hi[1] : lo[1]) - center[1],
+                            (i & 4 ? hi[2] : lo[2]) - center[2]};
+        const float x = p[0] * right[0] + p[1] * right[1] + p[2] * right[2];
+        const float y = p[0] * vup[0] + p[1] * vup[1] + p[2] * vup[2];
+        const float z = p[0] * fwd[0] + p[1] * fwd[1] + p[2] * fwd[2];
+        dist = fmaxf(dist, fabsf(x) / (0.95f * half_w) - z);
+        dist = fmaxf(dist, fabsf(y) / (0.95f * half_h) - z);
+    }
+    if (!(dist > 0.0f))
+        dist = extent;
     for (int k = 0; k < 3; k++) {
+        c.eye[k] = center[k] + view[k] * dist;
         c.du[k] = right[k] * (2.0f * half_w / (float)w);
         c.dv[k] = -vup[k] * (2.0f * half_h / (float)h);
         c.corner[k] = fwd[k] - right[k] * half_w + vup[k] * half_h;
