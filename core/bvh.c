@@ -190,9 +190,10 @@ static const uint32_t *triangle_at(const rtk_build_geometry *g, size_t prim)
     return (const uint32_t *)((const char *)g->indices + prim * g->index_stride);
 }
 
-rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count, char *msg,
-                            size_t size)
+rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count,
+                            uint64_t *non_finite, uint64_t *degenerate, char *msg, size_t size)
 {
+    *non_finite = *degenerate = 0;
     /* geom_id -> index in geoms, and each geometry's first triangle in one
      * array of "referenced" marks. */
     uint32_t max_id = 0;
@@ -266,7 +267,8 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
                 }
         }
     }
-    /* Every triangle that can be hit must be there. */
+    /* Every triangle that can be hit must be there; the others are the
+     * ones the tree leaves out, counted as a build counts them. */
     for (uint32_t g = 0; g < geom_count; g++)
         for (size_t p = 0; p < geoms[g].prim_count; p++) {
             if (marked[base[g] + p])
@@ -274,7 +276,11 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
             const uint32_t *tri = triangle_at(&geoms[g], p);
             const float *v0 = vertex_at(&geoms[g], tri[0]), *v1 = vertex_at(&geoms[g], tri[1]),
                         *v2 = vertex_at(&geoms[g], tri[2]);
-            if (rtk_triangle_is_finite(v0, v1, v2) && !rtk_triangle_is_degenerate(v0, v1, v2)) {
+            if (!rtk_triangle_is_finite(v0, v1, v2)) {
+                (*non_finite)++;
+            } else if (rtk_triangle_is_degenerate(v0, v1, v2)) {
+                (*degenerate)++;
+            } else {
                 err = bad(msg, size, "triangle %zu of geometry %u can be hit but is not in the tree", p,
                           geoms[g].geom_id);
                 goto done;

@@ -6,7 +6,6 @@
 #include <string.h>
 #include <time.h>
 
-#include "geometry/triangle.h"
 #include "internal.h"
 
 /* Memory rtk allocates for a buffer, reference-counted: a compact scene's
@@ -511,14 +510,17 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot import a tree into layout %s", fn,
                             bk->name, layout->name);
         }
+        uint64_t non_finite = 0, degenerate = 0;
         rtk_error err = rtk_bvh_check(tree, why, sizeof why);
         if (!err)
-            err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, why, sizeof why);
+            err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, why, sizeof why);
         if (err) {
             free(in_geoms);
             return rtk_fail(dev, err, "%s: %s", fn, why);
         }
         rc = io->import_tree(&in, tree, &out);
+        out.prims_skipped = non_finite;
+        out.prims_degenerate = degenerate;
     } else {
         rc = builder->build(&in, &out);
     }
@@ -528,23 +530,6 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
                         out.message[0] ? out.message : "no reason given");
-    if (tree) { /* the scene's own census of what the tree leaves out */
-        for (uint32_t i = 0; i < s->geom_count; i++) {
-            rtk_geometry g = s->geoms[i];
-            if (!g || !g->enabled)
-                continue;
-            for (size_t t = 0; t < g->index.count; t++) {
-                const uint32_t *tri = (const uint32_t *)(g->index.data + t * g->index.stride);
-                const float *v0 = (const float *)(g->vertex.data + tri[0] * g->vertex.stride);
-                const float *v1 = (const float *)(g->vertex.data + tri[1] * g->vertex.stride);
-                const float *v2 = (const float *)(g->vertex.data + tri[2] * g->vertex.stride);
-                if (!rtk_triangle_is_finite(v0, v1, v2))
-                    out.prims_skipped++;
-                else if (rtk_triangle_is_degenerate(v0, v1, v2))
-                    out.prims_degenerate++;
-            }
-        }
-    }
 
     /* A compact layout reads vertices from the geometries' buffers: hold
      * the ones rtk allocated (the application keeps its shared ones). */

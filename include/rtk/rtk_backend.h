@@ -173,7 +173,7 @@ typedef struct rtk_kernel_entry {
 /* Converting a layout to and from the layout-neutral rtk_bvh (rtk.h).
  *
  * export: the core sizes the arrays from the accel's rtk_build_output:
- * node_count * width slots (width: the layout's), leaves + 1 leaf_first
+ * nodes * 8 slots (enough for any node width), leaves + 1 leaf_first
  * entries and 4 * leaves prims (`leaves` counts blocks, so that is enough);
  * the function sets width, root and the three counts and fills the arrays.
  *
