@@ -35,13 +35,29 @@ static void node_box(const rtk_bvh *t, uint64_t i, float lo[3], float hi[3])
     }
 }
 
+/* Each inner node's depth (the root's is 1), in one pass: parents come
+ * before their children (rtk_bvh_check).  NULL when out of memory. */
+static uint8_t *node_depths(const rtk_bvh *t)
+{
+    uint8_t *depth = calloc(t->node_count ? t->node_count : 1, 1);
+    if (!depth)
+        return NULL;
+    depth[0] = 1;
+    for (uint64_t i = 0; i < t->node_count; i++)
+        for (uint32_t c = 0; c < t->width; c++) {
+            const uint32_t ref = t->children[i * t->width + c];
+            if (ref != RTK_BVH_EMPTY && !is_leaf(ref))
+                depth[ref] = (uint8_t)(depth[i] + 1);
+        }
+    return depth;
+}
+
 static void count_leaf(const rtk_bvh *t, uint32_t ref, uint32_t depth, bvh_stats *s, double *depth_sum, double area)
 {
     const uint64_t j = ref & ~RTK_BVH_LEAF_BIT;
     const uint64_t n = t->leaf_first[j + 1] - t->leaf_first[j];
     s->leaf_prims[n > 16 ? 16 : n - 1]++;
     s->leaf_blocks += (n + 3) / 4;
-    s->leaves_at[depth]++;
     *depth_sum += depth;
     if (depth > s->depth_max)
         s->depth_max = depth;
@@ -63,17 +79,15 @@ int bvh_stats_compute(const rtk_bvh *t, bvh_stats *s)
         s->depth_mean = 1.0;
         return 0;
     }
-    uint8_t *depth = calloc(t->node_count, 1);
+    uint8_t *depth = node_depths(t);
     if (!depth)
         return 1;
-    depth[0] = 1;
     node_box(t, 0, s->lower, s->upper);
-    for (uint64_t i = 0; i < t->node_count; i++) { /* parents come first */
+    for (uint64_t i = 0; i < t->node_count; i++) {
         const uint32_t d = depth[i];
         float lo[3], hi[3];
         node_box(t, i, lo, hi);
         s->sah += half_area(lo, hi);
-        s->nodes_at[d]++;
         if (d > s->depth_max)
             s->depth_max = d;
         for (uint32_t c = 0; c < t->width; c++) {
@@ -85,8 +99,6 @@ int bvh_stats_compute(const rtk_bvh *t, bvh_stats *s)
             if (is_leaf(ref))
                 count_leaf(t, ref, d + 1, s, &depth_sum,
                            half_area(t->child_lower + 3 * slot, t->child_upper + 3 * slot));
-            else
-                depth[ref] = (uint8_t)(d + 1);
         }
     }
     free(depth);
@@ -159,7 +171,7 @@ int bvh_picture(const rtk_bvh *t, const bvh_stats *s, int levels, int panel, con
     canvas c = {.w = cols * panel, .h = rows * panel};
     c.acc = calloc((size_t)c.w * (size_t)c.h * 3, sizeof(float));
     unsigned char *rgb = malloc((size_t)c.w * (size_t)c.h * 3);
-    uint8_t *depth = calloc(t->node_count, 1);
+    uint8_t *depth = node_depths(t);
     if (!c.acc || !rgb || !depth) {
         free(c.acc);
         free(rgb);
@@ -182,17 +194,12 @@ int bvh_picture(const rtk_bvh *t, const bvh_stats *s, int levels, int panel, con
     const float off_y = margin + 0.5f * (((float)panel - 2.0f * margin) - ext[ay] * scale);
     static const float inner[3] = {0.10f, 0.25f, 0.60f}, leaf[3] = {0.60f, 0.30f, 0.05f};
 
-    depth[0] = 1;
     for (uint64_t i = 0; i < t->node_count; i++) {
         const int d = depth[i];
         for (uint32_t ch = 0; ch < t->width; ch++) {
             const uint64_t slot = i * t->width + ch;
             const uint32_t ref = t->children[slot];
-            if (ref == RTK_BVH_EMPTY)
-                continue;
-            if (!is_leaf(ref))
-                depth[ref] = (uint8_t)(d + 1);
-            if (d > levels)
+            if (ref == RTK_BVH_EMPTY || d > levels)
                 continue;
             const float *lo = t->child_lower + 3 * slot, *hi = t->child_upper + 3 * slot;
             const int px = ((d - 1) % 4) * panel, py = ((d - 1) / 4) * panel;

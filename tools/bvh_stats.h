@@ -18,7 +18,6 @@ typedef struct bvh_stats {
     double depth_mean;               /* of the leaves */
     uint64_t leaf_prims[BVH_STATS_LEAF_BINS]; /* [n - 1]: leaves of n triangles; [16]: more than 16 */
     uint64_t leaf_blocks;            /* blocks of four triangles the leaves take */
-    uint64_t nodes_at[RTK_BVH_MAX_DEPTH + 1], leaves_at[RTK_BVH_MAX_DEPTH + 1]; /* by level */
     double sah;                      /* the builders' cost model (rtk_scene_info.sah_cost) */
     float lower[3], upper[3];        /* the root's box (all 0 without inner nodes) */
 } bvh_stats;

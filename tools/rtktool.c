@@ -103,6 +103,13 @@ static rtk_scene mesh_scene(rtk_device dev, const rtk_mesh *mesh, unsigned flags
     return scene;
 }
 
+/* The scene flags that give a dump's layout again: index leaves were a
+ * compact scene's. */
+static unsigned dump_scene_flags(const rtkb_file *file)
+{
+    return strstr(file->info.layout, "triangle4i") ? RTK_SCENE_FLAG_COMPACT : 0;
+}
+
 /* Whether a dump was built over this mesh (else says so on stderr). */
 static int dump_fits_mesh(const char *load, const rtkb_file *file, const char *mesh_path, const rtk_mesh *mesh)
 {
@@ -325,8 +332,8 @@ static int cmd_trace(int argc, char **argv)
     }
     if (load && !dump_fits_mesh(load, &dump, mesh_path, &mesh))
         goto done;
-    scene = mesh_scene(dev, &mesh, load && strstr(dump.info.layout, "triangle4i") ? RTK_SCENE_FLAG_COMPACT : 0,
-                       RTK_BUILD_QUALITY_MEDIUM, load ? &dump.tree : NULL);
+    scene = mesh_scene(dev, &mesh, load ? dump_scene_flags(&dump) : 0, RTK_BUILD_QUALITY_MEDIUM,
+                       load ? &dump.tree : NULL);
     if (!scene)
         goto done;
     rtk_scene_info info = {.struct_size = sizeof info};
@@ -766,19 +773,22 @@ static int cmd_build(int argc, char **argv)
         dev = open_device(config);
         if (!dev)
             goto done;
-        if (load && strstr(file.info.layout, "triangle4i"))
-            compact = 1; /* the dump's leaves were index leaves: the same layout again */
-        const unsigned flags = compact ? RTK_SCENE_FLAG_COMPACT : 0;
+        const unsigned flags = load ? dump_scene_flags(&file) : compact ? RTK_SCENE_FLAG_COMPACT : 0;
         scene = mesh_scene(dev, &mesh, flags, quality, load ? &file.tree : NULL);
         if (!scene)
             goto done;
         rtk_scene_info info = {.struct_size = sizeof info};
         rtk_scene_get_info(scene, &info);
-        if (rtk_scene_get_bvh(scene, &tree)) {
+        /* A dump committed is the tree already read (an export gives it back
+         * unchanged, as test_bvh checks); a build's tree is exported. */
+        if (load) {
+            tree = file.tree;
+        } else if (rtk_scene_get_bvh(scene, &tree)) {
             fprintf(stderr, "rtktool: %s\n", rtk_device_get_error_message(dev));
             goto done;
+        } else {
+            owned_tree = 1;
         }
-        owned_tree = 1;
         rep.mesh = mesh_path;
         rep.backend = rtk_device_get_backend_name(dev);
         rep.layout = info.layout;
