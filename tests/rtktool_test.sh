@@ -56,4 +56,48 @@ expect 2 "must end in .rtkb" -- "$tool" build "$data/bunny.ply" --dump "$work/ou
 expect 2 "--quality wants low, medium or high" -- "$tool" build "$data/bunny.ply" --quality best
 expect 2 "usage: rtktool build" -- "$tool" build
 expect 0 "examples:" -- "$tool" build --help
+
+# trace: modes, APIs, cameras, JSON, the progress bar, bad arguments
+for mode in eyelight normals ao diffuse; do
+    expect 0 "render:     $mode, 48x32, 2 spp" -- \
+        "$tool" trace "$data/bunny.ply" --mode $mode --size 48x32 --spp 2 --frames 1 -o "$work/$mode.png"
+    for api in packet4 packet8 packet16; do
+        expect 0 "$api API" -- "$tool" trace "$data/bunny.ply" --mode $mode --api $api --size 48x32 --spp 2 \
+            --frames 1 --isa scalar -o "$work/$mode-$api.png"
+        "$tool" trace "$data/bunny.ply" --mode $mode --size 48x32 --spp 2 --frames 1 --isa scalar \
+            -o "$work/$mode-single.png" >/dev/null || fail "trace $mode"
+        cmp -s "$work/$mode-single.png" "$work/$mode-$api.png" || fail "$mode: $api image differs from single rays"
+    done
+done
+expect 0 "shadow" -- "$tool" trace "$data/bunny.ply" --mode diffuse --bounces 0 --size 32x32 --frames 1 \
+    -o "$work/d.png"
+expect 0 " 0 bounce" -- "$tool" trace "$data/bunny.ply" --mode diffuse --bounces 0 --size 32x32 --frames 1 \
+    -o "$work/d.png"
+cam=$("$tool" trace "$data/bunny.ply" --size 40x30 --frames 1 -o "$work/framed.png" | sed -n 's/^camera: *--camera //p')
+[ -n "$cam" ] || fail "trace printed no camera"
+expect 0 "camera:     --camera $cam" -- "$tool" trace "$data/bunny.ply" --size 40x30 --frames 1 --camera "$cam" \
+    -o "$work/given.png"
+cmp -s "$work/framed.png" "$work/given.png" || fail "the printed camera does not give the same image"
+expect 0 '"mode": "ao"' -- "$tool" trace "$data/bunny.ply" --mode ao --json --size 16x16 --frames 1 -o "$work/j.png"
+expect 0 '"ao": 0' -- "$tool" trace "$data/bunny.ply" --json --size 16x16 --frames 1 -o "$work/j.png"
+expect 2 "--mode wants eyelight, normals, ao or diffuse" -- "$tool" trace "$data/bunny.ply" --mode toon
+expect 2 "--api wants single, packet4" -- "$tool" trace "$data/bunny.ply" --api packet32
+expect 2 "--camera wants EX,EY,EZ/TX,TY,TZ" -- "$tool" trace "$data/bunny.ply" --camera 1,2,3
+expect 2 "eye and target must differ" -- "$tool" trace "$data/bunny.ply" --camera 1,2,3/1,2,3
+expect 2 "--spp wants a whole number 1..65536" -- "$tool" trace "$data/bunny.ply" --spp 0
+expect 2 "--threads wants a whole number" -- "$tool" trace "$data/bunny.ply" --threads x
+expect 2 "--size wants WxH" -- "$tool" trace "$data/bunny.ply" --size 10x10x
+expect 0 "examples:" -- "$tool" trace --help
+# the progress bar: none when stderr is not a terminal, drawn on one (script
+# gives the command a terminal) for a render longer than a second
+slow=(trace "$data/bunny.ply" --isa scalar --threads 1 --mode ao --ao-samples 64 --size 800x600 --frames 1
+      -o "$work/slow.png")
+"$tool" "${slow[@]}" 2>"$work/stderr.txt" >/dev/null || fail "slow trace"
+! grep -q "rtktool trace \[" "$work/stderr.txt" || fail "a progress bar on stderr that is not a terminal"
+if command -v script >/dev/null; then
+    script -qec "$(printf '%q ' "$tool" "${slow[@]}")" /dev/null >"$work/tty.txt" 2>&1 || fail "trace on a terminal"
+    grep -q "rtktool trace \[#" "$work/tty.txt" || fail "no progress bar on a terminal: $(cat "$work/tty.txt")"
+else
+    echo "script(1) missing: progress bar on a terminal not checked"
+fi
 echo "rtktool end to end: ok"

@@ -6,7 +6,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-#include "png_write.h"
+#include "png_io.h"
 
 static int is_leaf(uint32_t ref)
 {

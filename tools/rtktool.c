@@ -16,7 +16,9 @@
 #include "mesh_import.h"
 #include "mesh_tools.h"
 #include "bvh_stats.h"
-#include "png_write.h"
+#include "png_io.h"
+#include "progress.h"
+#include "render.h"
 #include "rtkb.h"
 #include "rtkm.h"
 #include "rtk/rtk.h"
@@ -126,167 +128,149 @@ static int dump_fits_mesh(const char *load, const rtkb_file *file, const char *m
     return 0;
 }
 
-/* ---- trace ---- */
+/* ---- arguments ---- */
 
-typedef struct camera {
-    float eye[3], du[3], dv[3], corner[3]; /* ray dir = corner + x * du + y * dv */
-} camera;
-
-static void normalize(float v[3])
+/* An integer option's value in lo..hi into *out; else a one-line error
+ * naming the command and option, and 0. */
+static int int_arg(const char *cmd, const char *opt, const char *s, long lo, long hi, long *out)
 {
-    float l = sqrtf(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-    if (l > 0.0f)
-        for (int k = 0; k < 3; k++)
-            v[k] /= l;
+    char *end;
+    errno = 0;
+    const long v = strtol(s, &end, 10);
+    if (end == s || *end || errno || v < lo || v > hi) {
+        fprintf(stderr, "rtktool %s: %s wants a whole number %ld..%ld (got '%s')\n", cmd, opt, lo, hi, s);
+        return 0;
+    }
+    *out = v;
+    return 1;
 }
 
-static void cross(const float a[3], const float b[3], float c[3])
+static int quality_arg(const char *cmd, const char *s, rtk_build_quality *q)
 {
-    c[0] = a[1] * b[2] - a[2] * b[1];
-    c[1] = a[2] * b[0] - a[0] * b[2];
-    c[2] = a[0] * b[1] - a[1] * b[0];
-}
-
-/* A camera that frames the bounding box: looking at its centre from the
- * front-right and a little above, with the 40-degree view (vertical) just
- * wide enough for all eight corners of the box, 5% margin: so the mesh,
- * not the background, fills the picture. */
-static camera frame_box(const float lo[3], const float hi[3], int w, int h)
-{
-    camera c;
-    float center[3], extent = 0.0f;
-    for (int k = 0; k < 3; k++) {
-        center[k] = 0.5f * (lo[k] + hi[k]);
-        extent = fmaxf(extent, hi[k] - lo[k]);
-    }
-    if (!(extent > 0.0f))
-        extent = 1.0f;
-    const float fov = 40.0f * 3.14159265f / 180.0f;
-    const float half_h = tanf(0.5f * fov), half_w = half_h * (float)w / (float)h;
-    float view[3] = {0.35f, 0.3f, 1.0f};
-    normalize(view);
-    float fwd[3] = {-view[0], -view[1], -view[2]}, up[3] = {0, 1, 0}, right[3], vup[3];
-    cross(fwd, up, right);
-    normalize(right);
-    cross(right, fwd, vup);
-    /* The distance from the centre at which each corner fits: at depth
-     * dist + z a corner at (x, y) across the view must have |x| <= (dist +
-     * z) * half_w and |y| <= (dist + z) * half_h. */
-    float dist = 0.0f;
-    for (int i = 0; i < 8; i++) {
-        const float p[3] = {(i & 1 ? hi[0] : lo[0]) - center[0], (i & 2 ? hi[1] : lo[1]) - center[1],
-                            (i & 4 ? hi[2] : lo[2]) - center[2]};
-        const float x = p[0] * right[0] + p[1] * right[1] + p[2] * right[2];
-        const float y = p[0] * vup[0] + p[1] * vup[1] + p[2] * vup[2];
-        const float z = p[0] * fwd[0] + p[1] * fwd[1] + p[2] * fwd[2];
-        dist = fmaxf(dist, fabsf(x) / (0.95f * half_w) - z);
-        dist = fmaxf(dist, fabsf(y) / (0.95f * half_h) - z);
-    }
-    if (!(dist > 0.0f))
-        dist = extent;
-    for (int k = 0; k < 3; k++) {
-        c.eye[k] = center[k] + view[k] * dist;
-        c.du[k] = right[k] * (2.0f * half_w / (float)w);
-        c.dv[k] = -vup[k] * (2.0f * half_h / (float)h);
-        c.corner[k] = fwd[k] - right[k] * half_w + vup[k] * half_h;
-    }
-    return c;
-}
-
-typedef struct trace_job {
-    rtk_scene scene;
-    const camera *cam;
-    int w, h;
-    unsigned char *rgb;
-    int row_begin, row_end;
-    uint64_t rays, hits;
-} trace_job;
-
-static void *trace_rows(void *arg)
-{
-    trace_job *j = arg;
-    for (int y = j->row_begin; y < j->row_end; y++) {
-        for (int x = 0; x < j->w; x++) {
-            rtk_rayhit rh;
-            memset(&rh, 0, sizeof rh);
-            float d[3];
-            for (int k = 0; k < 3; k++)
-                d[k] = j->cam->corner[k] + ((float)x + 0.5f) * j->cam->du[k] + ((float)y + 0.5f) * j->cam->dv[k];
-            rh.ray.org_x = j->cam->eye[0];
-            rh.ray.org_y = j->cam->eye[1];
-            rh.ray.org_z = j->cam->eye[2];
-            rh.ray.dir_x = d[0];
-            rh.ray.dir_y = d[1];
-            rh.ray.dir_z = d[2];
-            rh.ray.tnear = 0.0f;
-            rh.ray.tfar = INFINITY;
-            rh.ray.mask = 0xffffffffu;
-            rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
-            rtk_intersect1(j->scene, &rh);
-            j->rays++;
-            unsigned char *px = &j->rgb[3 * ((size_t)y * (size_t)j->w + (size_t)x)];
-            if (rh.hit.geomID == RTK_INVALID_GEOMETRY_ID) {
-                px[0] = 24;
-                px[1] = 26;
-                px[2] = 32;
-                continue;
-            }
-            j->hits++;
-            /* Eye light: brightness by the cosine between normal and view. */
-            float n[3] = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
-            normalize(n);
-            normalize(d);
-            float c = fabsf(n[0] * d[0] + n[1] * d[1] + n[2] * d[2]);
-            float v = 0.1f + 0.9f * c;
-            px[0] = (unsigned char)(255.0f * v * 0.95f);
-            px[1] = (unsigned char)(255.0f * v * 0.85f);
-            px[2] = (unsigned char)(255.0f * v * 0.70f);
+    static const char *const names[] = {"low", "medium", "high"};
+    static const rtk_build_quality values[] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM,
+                                               RTK_BUILD_QUALITY_HIGH};
+    for (int i = 0; i < 3; i++)
+        if (!strcmp(s, names[i])) {
+            *q = values[i];
+            return 1;
         }
-    }
-    return NULL;
+    fprintf(stderr, "rtktool %s: --quality wants low, medium or high (got '%s')\n", cmd, s);
+    return 0;
 }
+
+/* ---- trace ---- */
 
 static void trace_usage(FILE *f)
 {
     fprintf(f,
             "usage: rtktool trace MESH [options]\n"
-            "  Renders MESH (.rtkm .obj .ply .off .stl .om) with eye-light shading from a camera\n"
-            "  that frames it, and prints the backend, build time and rays per second.\n"
-            "  -o FILE        output PNG (default: trace.png)\n"
-            "  --size WxH     image size (default: 1024x768)\n"
-            "  --isa NAME     backend (scalar, sse41, avx, avx2; default: the best)\n"
-            "  --threads N    render threads (default: all cores)\n"
-            "  --frames N     render N times and report the best rate (default: 3)\n"
-            "  --load F.rtkb  trace with the BVH dumped by rtktool build --dump (no build)\n"
-            "  --config STR   extra device config (e.g. verbose=1)\n");
+            "  Renders MESH (.rtkm .obj .ply .off .stl .om) to a PNG from a camera that frames it, and prints\n"
+            "  the backend, the BVH, the rays traced of each kind and the rays per second.\n"
+            "  -o, --output FILE    output PNG (default: trace.png)\n"
+            "  --mode MODE          eyelight (default), normals (the geometric normal as a colour),\n"
+            "                       ao (ambient occlusion), diffuse (path tracer: grey diffuse surfaces\n"
+            "                       under a sky and a sun, next-event shadow rays, Russian roulette)\n"
+            "  --size WxH           image size (default: 1024x768)\n"
+            "  --spp N              samples per pixel, jittered when more than one (default: 1)\n"
+            "  --bounces N          diffuse: surface bounces per path at most (default: 4)\n"
+            "  --ao-samples N       ao: rays per hit (default: 8), a tenth of the mesh's size long\n"
+            "  --camera E/T[/U[/F]] eye EX,EY,EZ, target TX,TY,TZ, up UX,UY,UZ (default 0,1,0) and vertical\n"
+            "                       field of view F in degrees (default 40); trace prints the framing\n"
+            "                       camera in this form\n"
+            "  --api API            single (intersect1/occluded1, default), packet4, packet8, packet16\n"
+            "                       (2x2, 4x2, 4x4 pixels per packet; the paths of a packet stay together)\n"
+            "  --isa NAME           backend (scalar, sse41, avx, avx2; default: the best)\n"
+            "  --threads N          render threads (default: all cores)\n"
+            "  --quality Q          build quality low, medium (default) or high\n"
+            "  --frames N           render N times and report the best rate (default: 3)\n"
+            "  --seed N             random numbers (default: 1); the image does not depend on\n"
+            "                       --threads or --api\n"
+            "  --load F.rtkb        trace with the BVH dumped by rtktool build --dump (no build)\n"
+            "  --json               the report as JSON on stdout\n"
+            "  --config STR         extra device config (e.g. verbose=1)\n"
+            "  A progress bar goes to stderr for renders longer than a second when it is a terminal.\n"
+            "examples:\n"
+            "  rtktool trace data/bunny.ply -o bunny.png\n"
+            "  rtktool trace dragon.ply --mode diffuse --spp 16 --api packet8 -o dragon.png\n"
+            "  rtktool trace bunny.ply --mode ao --camera 0.3,0.2,0.4/-0.02,0.1,0/0,1,0/30\n");
+}
+
+typedef struct trace_progress {
+    progress bar;
+    int frame, frames;
+} trace_progress;
+
+static void trace_progress_cb(void *user, double done)
+{
+    trace_progress *p = user;
+    progress_update(&p->bar, ((double)p->frame + done) / (double)p->frames);
+}
+
+static const char *api_name(int api)
+{
+    return api == 1 ? "single" : api == 4 ? "packet4" : api == 8 ? "packet8" : "packet16";
 }
 
 static int cmd_trace(int argc, char **argv)
 {
-    const char *mesh_path = NULL, *out = "trace.png", *isa = NULL, *extra = "", *load = NULL;
-    int w = 1024, h = 768, frames = 3;
+    const char *mesh_path = NULL, *out = "trace.png", *isa = NULL, *extra = "", *load = NULL, *camera = NULL;
+    int w = 1024, h = 768, json = 0, api = 1;
+    long frames = 3, spp = 1, bounces = 4, ao_samples = 8, seed = 1;
     long threads = sysconf(_SC_NPROCESSORS_ONLN);
+    render_mode mode = RENDER_EYELIGHT;
+    rtk_build_quality quality = RTK_BUILD_QUALITY_MEDIUM;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
         const int more = i + 1 < argc;
+        int ok = 1;
         if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
             trace_usage(stdout);
             return 0;
-        } else if (!strcmp(a, "-o") && more)
+        } else if ((!strcmp(a, "-o") || !strcmp(a, "--output")) && more)
             out = argv[++i];
         else if (!strcmp(a, "--size") && more) {
-            if (sscanf(argv[++i], "%dx%d", &w, &h) != 2 || w < 1 || h < 1 || w > 16384 || h > 16384) {
-                fprintf(stderr, "rtktool trace: --size wants WxH, each 1..16384\n");
+            char tail;
+            if (sscanf(argv[++i], "%dx%d%c", &w, &h, &tail) != 2 || w < 1 || h < 1 || w > 16384 || h > 16384) {
+                fprintf(stderr, "rtktool trace: --size wants WxH, each 1..16384 (got '%s')\n", argv[i]);
                 return 2;
             }
-        } else if (!strcmp(a, "--isa") && more)
+        } else if (!strcmp(a, "--mode") && more) {
+            if (render_mode_parse(argv[++i], &mode)) {
+                fprintf(stderr, "rtktool trace: --mode wants eyelight, normals, ao or diffuse (got '%s')\n",
+                        argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--api") && more) {
+            const char *v = argv[++i];
+            api = !strcmp(v, "single") ? 1 : !strcmp(v, "packet4") ? 4 : !strcmp(v, "packet8") ? 8
+                                          : !strcmp(v, "packet16") ? 16 : 0;
+            if (!api) {
+                fprintf(stderr, "rtktool trace: --api wants single, packet4, packet8 or packet16 (got '%s')\n", v);
+                return 2;
+            }
+        } else if (!strcmp(a, "--spp") && more)
+            ok = int_arg("trace", a, argv[++i], 1, 1 << 16, &spp);
+        else if (!strcmp(a, "--bounces") && more)
+            ok = int_arg("trace", a, argv[++i], 0, 1000, &bounces);
+        else if (!strcmp(a, "--ao-samples") && more)
+            ok = int_arg("trace", a, argv[++i], 1, 1 << 16, &ao_samples);
+        else if (!strcmp(a, "--seed") && more)
+            ok = int_arg("trace", a, argv[++i], 0, 0xffffffffl, &seed);
+        else if (!strcmp(a, "--camera") && more)
+            camera = argv[++i];
+        else if (!strcmp(a, "--isa") && more)
             isa = argv[++i];
         else if (!strcmp(a, "--threads") && more)
-            threads = strtol(argv[++i], NULL, 10);
+            ok = int_arg("trace", a, argv[++i], 1, 1024, &threads);
+        else if (!strcmp(a, "--quality") && more)
+            ok = quality_arg("trace", argv[++i], &quality);
         else if (!strcmp(a, "--frames") && more)
-            frames = atoi(argv[++i]);
+            ok = int_arg("trace", a, argv[++i], 1, 1000, &frames);
         else if (!strcmp(a, "--load") && more)
             load = argv[++i];
+        else if (!strcmp(a, "--json"))
+            json = 1;
         else if (!strcmp(a, "--config") && more)
             extra = argv[++i];
         else if (a[0] != '-' && !mesh_path)
@@ -296,23 +280,28 @@ static int cmd_trace(int argc, char **argv)
             trace_usage(stderr);
             return 2;
         }
+        if (!ok)
+            return 2;
     }
     if (!mesh_path) {
         trace_usage(stderr);
         return 2;
     }
-    if (threads < 1 || threads > 256 || frames < 1) {
-        fprintf(stderr, "rtktool trace: --threads wants 1..256 and --frames at least 1\n");
+    if (threads < 1)
+        threads = 1;
+
+    char config[512], err[1024];
+    snprintf(config, sizeof config, "%s%s%s%s", isa ? "isa=" : "", isa ? isa : "", isa && extra[0] ? "," : "", extra);
+    render_settings rs;
+    render_defaults(&rs, (const float[3]){-1, -1, -1}, (const float[3]){1, 1, 1}, w, h);
+    if (camera && render_camera_parse(&rs.camera, camera, w, h, err, sizeof err)) {
+        fprintf(stderr, "rtktool trace: %s\n", err);
         return 2;
     }
-
-    char config[512];
-    snprintf(config, sizeof config, "%s%s%s%s", isa ? "isa=" : "", isa ? isa : "", isa && extra[0] ? "," : "", extra);
     rtk_device dev = open_device(config);
     if (!dev)
         return 1;
 
-    char err[1024];
     rtk_mesh mesh;
     double t0 = now();
     if (rtk_mesh_load(mesh_path, &mesh, err, sizeof err)) {
@@ -324,6 +313,8 @@ static int cmd_trace(int argc, char **argv)
 
     int rc = 1;
     rtk_scene scene = NULL;
+    float *rgb = NULL;
+    unsigned char *rgb8 = NULL;
     rtkb_file dump;
     memset(&dump, 0, sizeof dump);
     if (load && rtkb_load(load, &dump, err, sizeof err)) {
@@ -332,46 +323,80 @@ static int cmd_trace(int argc, char **argv)
     }
     if (load && !dump_fits_mesh(load, &dump, mesh_path, &mesh))
         goto done;
-    scene = mesh_scene(dev, &mesh, load ? dump_scene_flags(&dump) : 0, RTK_BUILD_QUALITY_MEDIUM,
-                       load ? &dump.tree : NULL);
+    scene = mesh_scene(dev, &mesh, load ? dump_scene_flags(&dump) : 0, quality, load ? &dump.tree : NULL);
     if (!scene)
         goto done;
     rtk_scene_info info = {.struct_size = sizeof info};
     rtk_scene_get_info(scene, &info);
 
-    unsigned char *rgb = calloc((size_t)w * (size_t)h, 3);
-    if (!rgb) {
+    const render_camera cam = rs.camera;
+    render_defaults(&rs, info.bounds_lower, info.bounds_upper, w, h);
+    if (camera)
+        rs.camera = cam;
+    rs.mode = mode;
+    rs.api = api;
+    rs.spp = (int)spp;
+    rs.threads = (int)threads;
+    rs.max_bounces = (int)bounces;
+    rs.ao_samples = (int)ao_samples;
+    rs.seed = (uint32_t)seed;
+    trace_progress prog = {.frames = (int)frames};
+    progress_begin(&prog.bar, "rtktool trace");
+    rs.progress = trace_progress_cb;
+    rs.progress_user = &prog;
+
+    rgb = malloc((size_t)w * (size_t)h * 3 * sizeof *rgb);
+    rgb8 = malloc((size_t)w * (size_t)h * 3);
+    if (!rgb || !rgb8) {
         fprintf(stderr, "rtktool: out of memory for a %dx%d image\n", w, h);
         goto done;
     }
-    camera cam = frame_box(info.bounds_lower, info.bounds_upper, w, h);
-    trace_job jobs[256];
-    pthread_t tid[256];
-    double best = 0.0;
-    uint64_t hits = 0;
-    for (int f = 0; f < frames; f++) {
-        double s = now();
-        for (long t = 0; t < threads; t++) {
-            jobs[t] = (trace_job){.scene = scene, .cam = &cam, .w = w, .h = h, .rgb = rgb,
-                                  .row_begin = (int)(h * t / threads), .row_end = (int)(h * (t + 1) / threads)};
-            pthread_create(&tid[t], NULL, trace_rows, &jobs[t]);
+    const render_tracer tracer = render_tracer_rtk(scene);
+    render_stats st, best = {0};
+    for (prog.frame = 0; prog.frame < frames; prog.frame++) {
+        if (render_image(&tracer, &rs, rgb, &st, err, sizeof err)) {
+            progress_end(&prog.bar);
+            fprintf(stderr, "rtktool trace: %s\n", err);
+            goto done;
         }
-        hits = 0;
-        for (long t = 0; t < threads; t++) {
-            pthread_join(tid[t], NULL);
-            hits += jobs[t].hits;
-        }
-        double rate = (double)w * h / (now() - s);
-        if (rate > best)
-            best = rate;
+        if (!prog.frame || st.seconds < best.seconds)
+            best = st;
     }
-    if (rtk_png_write_rgb(out, rgb, w, h, err, sizeof err)) {
+    progress_end(&prog.bar);
+    render_to_rgb8(&rs, rgb, rgb8);
+    if (rtk_png_write_rgb(out, rgb8, w, h, err, sizeof err)) {
         fprintf(stderr, "rtktool: %s\n", err);
-        free(rgb);
         goto done;
     }
-    free(rgb);
 
+    const uint64_t rays = render_stats_rays(&best);
+    const double mrays = best.seconds > 0 ? (double)rays / best.seconds * 1e-6 : 0.0;
+    const double hit = best.primary ? 100.0 * (double)best.primary_hits / (double)best.primary : 0.0;
+    const unsigned pw = api == 1 ? 1 : info.packet_width[api == 4 ? 0 : api == 8 ? 1 : 2];
+    char packets[96] = "";
+    if (api > 1)
+        snprintf(packets, sizeof packets, " (the backend traces %s)",
+                 pw == (unsigned)api ? "them whole" : pw > 1 ? "them split in narrower packets" : "them ray by ray");
+    char cam_spec[256];
+    const render_camera *c = &rs.camera;
+    snprintf(cam_spec, sizeof cam_spec, "%g,%g,%g/%g,%g,%g/%g,%g,%g/%g", c->eye[0], c->eye[1], c->eye[2],
+             c->target[0], c->target[1], c->target[2], c->up[0], c->up[1], c->up[2], c->fov);
+    if (json) {
+        printf("{\n  \"mesh\": \"%s\",\n  \"triangles\": %zu,\n  \"backend\": \"%s\",\n  \"layout\": \"%s\",\n"
+               "  \"bytes_per_triangle\": %.2f,\n  \"build_seconds\": %.6f,\n  \"built\": %s,\n"
+               "  \"mode\": \"%s\",\n  \"api\": \"%s\",\n  \"packet_width\": %u,\n  \"width\": %d,\n"
+               "  \"height\": %d,\n  \"spp\": %ld,\n  \"threads\": %ld,\n  \"camera\": \"%s\",\n"
+               "  \"rays\": {\"primary\": %llu, \"bounce\": %llu, \"shadow\": %llu, \"ao\": %llu, \"total\": %llu},\n"
+               "  \"primary_hit_percent\": %.3f,\n  \"frames\": %ld,\n  \"seconds\": %.6f,\n  \"mrays_per_s\": %.4f,\n"
+               "  \"image\": \"%s\"\n}\n",
+               mesh_path, mesh.triangle_count, rtk_device_get_backend_name(dev), info.layout,
+               info.bytes_per_triangle, info.build_seconds, load ? "false" : "true", render_mode_name(mode),
+               api_name(api), pw, w, h, spp, threads, cam_spec, (unsigned long long)best.primary,
+               (unsigned long long)best.bounce, (unsigned long long)best.shadow, (unsigned long long)best.ao,
+               (unsigned long long)rays, hit, frames, best.seconds, mrays, out);
+        rc = 0;
+        goto done;
+    }
     printf("mesh:       %s: %zu vertices, %zu triangles (loaded in %.2f s)\n", mesh_path, mesh.vertex_count,
            mesh.triangle_count, t_load);
     printf("backend:    %s\n", rtk_device_get_backend_name(dev));
@@ -386,11 +411,28 @@ static int cmd_trace(int argc, char **argv)
     else
         printf("build:      %.3f s, %.2f Mtris/s (1 thread)\n", info.build_seconds,
                info.build_seconds > 0 ? (double)mesh.triangle_count / info.build_seconds * 1e-6 : 0.0);
-    printf("trace:      %dx%d primary rays, %.1f%% hit, %ld threads, best of %d frames: %.2f Mrays/s\n", w, h,
-           100.0 * (double)hits / ((double)w * h), threads, frames, best * 1e-6);
+    printf("camera:     --camera %s\n", cam_spec);
+    printf("render:     %s, %dx%d, %ld spp", render_mode_name(mode), w, h, spp);
+    if (mode == RENDER_DIFFUSE)
+        printf(", up to %ld bounces (Russian roulette from bounce %d)", bounces, rs.rr_depth);
+    if (mode == RENDER_AO)
+        printf(", %ld rays of length %g per hit", ao_samples, rs.ao_distance);
+    printf(", %s API%s, %ld thread%s\n", api_name(api), packets, threads, threads > 1 ? "s" : "");
+    printf("rays:       %llu primary (%.1f%% hit)", (unsigned long long)best.primary, hit);
+    if (best.bounce || mode == RENDER_DIFFUSE)
+        printf(", %llu bounce", (unsigned long long)best.bounce);
+    if (best.shadow || mode == RENDER_DIFFUSE)
+        printf(", %llu shadow", (unsigned long long)best.shadow);
+    if (best.ao || mode == RENDER_AO)
+        printf(", %llu ao", (unsigned long long)best.ao);
+    printf(": %llu per frame\n", (unsigned long long)rays);
+    printf("trace:      best of %ld frame%s %.3f s: %.2f Mrays/s\n", frames, frames > 1 ? "s:" : ":", best.seconds,
+           mrays);
     printf("image:      %s\n", out);
     rc = 0;
 done:
+    free(rgb);
+    free(rgb8);
     rtk_scene_release(scene);
     rtk_device_release(dev);
     rtk_mesh_free(&mesh);
@@ -676,28 +718,15 @@ static int cmd_build(int argc, char **argv)
             build_usage(stdout);
             return 0;
         } else if (!strcmp(a, "--quality") && more) {
-            const char *q = argv[++i];
-            if (!strcmp(q, "low"))
-                quality = RTK_BUILD_QUALITY_LOW;
-            else if (!strcmp(q, "medium"))
-                quality = RTK_BUILD_QUALITY_MEDIUM;
-            else if (!strcmp(q, "high"))
-                quality = RTK_BUILD_QUALITY_HIGH;
-            else {
-                fprintf(stderr, "rtktool build: --quality wants low, medium or high (got '%s')\n", q);
+            if (!quality_arg("build", argv[++i], &quality))
                 return 2;
-            }
         } else if (!strcmp(a, "--isa") && more)
             isa = argv[++i];
         else if (!strcmp(a, "--compact"))
             compact = 1;
         else if (!strcmp(a, "--threads") && more) {
-            char *end;
-            threads = strtol(argv[++i], &end, 10);
-            if (*end || threads < 1 || threads > 1024) {
-                fprintf(stderr, "rtktool build: --threads wants 1..1024 (got '%s')\n", argv[i]);
+            if (!int_arg("build", a, argv[++i], 1, 1024, &threads))
                 return 2;
-            }
         } else if (!strcmp(a, "--json"))
             json = 1;
         else if (!strcmp(a, "--dump") && more)
@@ -707,12 +736,8 @@ static int cmd_build(int argc, char **argv)
         else if (!strcmp(a, "--png") && more)
             png = argv[++i];
         else if (!strcmp(a, "--verify") && more) {
-            char *end;
-            verify = strtol(argv[++i], &end, 10);
-            if (*end || verify < 0) {
-                fprintf(stderr, "rtktool build: --verify wants a ray count (got '%s')\n", argv[i]);
+            if (!int_arg("build", a, argv[++i], 0, 1L << 40, &verify))
                 return 2;
-            }
         } else if (!strcmp(a, "--config") && more)
             extra = argv[++i];
         else if (a[0] != '-' && !mesh_path)
