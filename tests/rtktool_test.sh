@@ -100,4 +100,32 @@ if command -v script >/dev/null; then
 else
     echo "script(1) missing: progress bar on a terminal not checked"
 fi
+
+# bench: only in an rtktool built with Embree; otherwise it says so
+if "$tool" bench --help >/dev/null 2>&1; then
+    expect 0 "csv: $work/bench/bench.csv" -- "$tool" bench "$data/bunny.ply" --quick --isa scalar,avx2 \
+        --api single,packet8 -o "$work/bench"
+    csv="$work/bench/bench.csv"
+    for want in "trace,rtk avx2,default,primary,packet8,1," "trace,rtk scalar,default,shadow,single,1," \
+                "render,rtk avx2,default,diffuse path tracer,packet8,1," "build,embree default,high,start,,1," \
+                "build,rtk avx2,low,diffuse,single,1," "accuracy,embree isa=avx2,robust,edge,single,1," \
+                "accuracy,rtk scalar,compact,diffuse,single,1," "memory,rtk avx2,bvh8.triangle4,"; do
+        grep -qF "bunny.ply,$want" "$csv" || fail "bench.csv lacks a row '$want'"
+    done
+    ! grep -q "packet16" "$csv" || fail "bench.csv has packet16 rows though --api left them out"
+    grep -qE '^[^,]*bunny.ply,trace,rtk avx2,default,diffuse,single,1,[0-9.]+,Mrays/s,[0-9.]+$' "$csv" ||
+        fail "bench.csv: no rate with its ratio for rtk avx2 diffuse rays"
+    if command -v gnuplot >/dev/null; then
+        for chart in trace build accuracy; do
+            [ -s "$work/bench/bunny-$chart.png" ] || fail "no $chart chart"
+        done
+    fi
+    expect 2 "--api wants a list of single" -- "$tool" bench "$data/bunny.ply" --api packet5
+    expect 2 "--only wants a list of trace" -- "$tool" bench "$data/bunny.ply" --only speed
+    expect 1 "no backend 'avx9'" -- "$tool" bench "$data/bunny.ply" --isa avx9 -o "$work/bench"
+    expect 1 "No such file" -- "$tool" bench "$work/missing.ply" --quick -o "$work/bench"
+    expect 2 "usage: rtktool bench" -- "$tool" bench
+else
+    expect 1 "unavailable: this rtktool was built without Embree 3" -- "$tool" bench "$data/bunny.ply"
+fi
 echo "rtktool end to end: ok"

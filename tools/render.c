@@ -481,37 +481,46 @@ static void render_path1(const ctx *c, path *q, counts *n)
 #define LOAD_LANE_(P, k, r)                                                                                            \
     do {                                                                                                               \
         (P).org_x[k] = (r)->org_x, (P).org_y[k] = (r)->org_y, (P).org_z[k] = (r)->org_z, (P).tnear[k] = (r)->tnear;     \
-        (P).dir_x[k] = (r)->dir_x, (P).dir_y[k] = (r)->dir_y, (P).dir_z[k] = (r)->dir_z, (P).time[k] = 0.0f;           \
-        (P).tfar[k] = (r)->tfar, (P).mask[k] = (r)->mask, (P).id[k] = 0, (P).flags[k] = 0;                             \
+        (P).dir_x[k] = (r)->dir_x, (P).dir_y[k] = (r)->dir_y, (P).dir_z[k] = (r)->dir_z, (P).time[k] = (r)->time;      \
+        (P).tfar[k] = (r)->tfar, (P).mask[k] = (r)->mask, (P).id[k] = (r)->id, (P).flags[k] = (r)->flags;              \
     } while (0)
 
-/* Traces rays[k] for the lanes with valid[k] set: closest hits into hits[k],
- * or, when hits is NULL, any hits into occluded[k]. */
 #define PACKET_CALL_(N)                                                                                                \
-    if (hits) {                                                                                                        \
+    if (!occluded) {                                                                                                   \
         rtk_rayhit##N P;                                                                                               \
         for (int k = 0; k < N; k++) {                                                                                  \
-            LOAD_LANE_(P.ray, k, &rays[k]);                                                                            \
-            P.hit.geomID[k] = P.hit.instID[k] = RTK_INVALID_GEOMETRY_ID;                                               \
+            const rtk_hit *h_ = &rh[k].hit;                                                                            \
+            LOAD_LANE_(P.ray, k, &rh[k].ray);                                                                          \
+            P.hit.Ng_x[k] = h_->Ng_x, P.hit.Ng_y[k] = h_->Ng_y, P.hit.Ng_z[k] = h_->Ng_z, P.hit.u[k] = h_->u;          \
+            P.hit.v[k] = h_->v, P.hit.primID[k] = h_->primID, P.hit.geomID[k] = h_->geomID;                            \
+            P.hit.instID[k] = h_->instID;                                                                              \
         }                                                                                                              \
         t->intersect##N(t->scene, valid, &P);                                                                          \
         for (int k = 0; k < N; k++)                                                                                    \
-            hits[k] = (hit_info){P.hit.geomID[k] != RTK_INVALID_GEOMETRY_ID,                                           \
-                                 P.ray.tfar[k],                                                                        \
-                                 {P.hit.Ng_x[k], P.hit.Ng_y[k], P.hit.Ng_z[k]}};                                       \
+            if (valid[k]) {                                                                                            \
+                rh[k].ray.tfar = P.ray.tfar[k];                                                                        \
+                rh[k].hit = (rtk_hit){P.hit.Ng_x[k], P.hit.Ng_y[k], P.hit.Ng_z[k], P.hit.u[k],                         \
+                                      P.hit.v[k],    P.hit.primID[k], P.hit.geomID[k], P.hit.instID[k]};               \
+            }                                                                                                          \
     } else {                                                                                                           \
         rtk_ray##N P;                                                                                                  \
         for (int k = 0; k < N; k++)                                                                                    \
-            LOAD_LANE_(P, k, &rays[k]);                                                                                \
+            LOAD_LANE_(P, k, &rh[k].ray);                                                                              \
         t->occluded##N(t->scene, valid, &P);                                                                           \
         for (int k = 0; k < N; k++)                                                                                    \
-            occluded[k] = P.tfar[k] == -INFINITY;                                                                      \
+            rh[k].ray.tfar = valid[k] ? P.tfar[k] : rh[k].ray.tfar;                                                    \
     }
 
-static void trace_packet(const render_tracer *t, int n, const int *valid, const rtk_ray *rays, hit_info *hits,
-                         int *occluded)
+void render_trace(const render_tracer *t, int n, const int *valid, rtk_rayhit *rh, int occluded)
 {
-    if (n == 4) {
+    if (n == 1) {
+        if (!valid[0])
+            return;
+        if (occluded)
+            t->occluded1(t->scene, &rh->ray);
+        else
+            t->intersect1(t->scene, rh);
+    } else if (n == 4) {
         PACKET_CALL_(4)
     } else if (n == 8) {
         PACKET_CALL_(8)
@@ -525,42 +534,43 @@ enum { MAXN = 16 };
 static void render_packet(const ctx *c, path *q, int n, counts *cnt)
 {
     const render_tracer *t = c->tracer;
-    rtk_ray rays[MAXN];
-    hit_info hits[MAXN];
-    int valid[MAXN], occluded[MAXN];
+    _Alignas(16) rtk_rayhit rh[MAXN];
+    _Alignas(64) int valid[MAXN]; /* Embree wants the mask aligned like the packet */
     for (;;) {
         int any = 0;
         for (int k = 0; k < n; k++) {
             valid[k] = q[k].alive ? -1 : 0;
             any |= q[k].alive;
-            rays[k] = q[k].ray;
+            rh[k] = (rtk_rayhit){.ray = q[k].ray,
+                                 .hit = {.geomID = RTK_INVALID_GEOMETRY_ID, .instID = RTK_INVALID_GEOMETRY_ID}};
         }
         if (!any)
             break;
-        trace_packet(t, n, valid, rays, hits, NULL);
+        render_trace(t, n, valid, rh, 0);
         int side = 0;
         for (int k = 0; k < n; k++) {
             if (!valid[k])
                 continue;
+            const hit_info h = hit_of(&rh[k]);
             if (q[k].depth == 0) {
                 cnt->primary++;
-                cnt->primary_hits += (uint64_t)hits[k].hit;
+                cnt->primary_hits += (uint64_t)h.hit;
             } else
                 cnt->bounce++;
-            path_shade(c, &q[k], &hits[k]);
+            path_shade(c, &q[k], &h);
             side |= q[k].side_pending;
         }
         if (!side)
             continue;
         for (int k = 0; k < n; k++) {
             valid[k] = q[k].side_pending ? -1 : 0;
-            rays[k] = q[k].side;
+            rh[k].ray = q[k].side;
             cnt->shadow += (uint64_t)q[k].side_pending;
         }
-        trace_packet(t, n, valid, rays, NULL, occluded);
+        render_trace(t, n, valid, rh, 1);
         for (int k = 0; k < n; k++)
             if (valid[k])
-                path_side_done(&q[k], occluded[k]);
+                path_side_done(&q[k], rh[k].ray.tfar == -INFINITY);
     }
     int any_ao = 0;
     for (int k = 0; k < n; k++) {
@@ -571,12 +581,12 @@ static void render_packet(const ctx *c, path *q, int n, counts *cnt)
         for (int k = 0; k < n; k++)
             if (valid[k]) {
                 ao_ray(c, &q[k]);
-                rays[k] = q[k].side;
+                rh[k].ray = q[k].side;
                 cnt->ao++;
             }
-        trace_packet(t, n, valid, rays, NULL, occluded);
+        render_trace(t, n, valid, rh, 1);
         for (int k = 0; k < n; k++)
-            q[k].ao_open += valid[k] && !occluded[k];
+            q[k].ao_open += valid[k] && rh[k].ray.tfar != -INFINITY;
     }
     for (int k = 0; k < n; k++)
         path_finish(c, &q[k]);

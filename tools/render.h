@@ -66,6 +66,14 @@ typedef struct render_tracer {
     void (*occluded16)(void *scene, const int *valid, rtk_ray16 *ray);
 } render_tracer;
 
+/* n = 1, 4, 8 or 16 rays through the tracer's call of that width, for the
+ * lanes with valid[k] != 0: closest hits (rh[k] in, tfar and hit out, as
+ * rtk_intersect1 writes them) or, when occluded, any hits (rh[k].ray.tfar
+ * becomes -inf).  valid must be aligned to 4 * n bytes, as Embree requires
+ * of its masks.  Packets are loaded from and stored to rh here, as an
+ * application would, so this costs both ray tracers the same. */
+void render_trace(const render_tracer *t, int n, const int *valid, rtk_rayhit *rh, int occluded);
+
 /* The table for an rtk scene. */
 render_tracer render_tracer_rtk(rtk_scene scene);
 

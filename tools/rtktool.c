@@ -1,7 +1,8 @@
 /*
  * rtktool: how people meet rtk.  `info` shows the CPU and the backends;
- * `convert` turns a mesh into rtk's own .rtkm file; `trace` renders a mesh
- * and measures build and trace speed.
+ * `convert` turns a mesh into rtk's own .rtkm file; `build` shows, dumps and
+ * reloads BVHs; `trace` renders a mesh and measures; `bench` measures rtk
+ * beside Embree 3.
  */
 #include <errno.h>
 #include <math.h>
@@ -13,6 +14,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "bench.h"
 #include "mesh_import.h"
 #include "mesh_tools.h"
 #include "bvh_stats.h"
@@ -895,6 +897,8 @@ static void usage(FILE *f)
                "  build MESH [opts]    build a BVH and show its statistics; dump and inspect trees\n"
                "                       (rtktool build --help)\n"
                "  trace MESH [opts]    render MESH to a PNG and measure (rtktool trace --help)\n"
+               "  bench MESH... [opts] rtk beside Embree 3: trace, render, build and accuracy, with a\n"
+               "                       table, a CSV and charts (rtktool bench --help)\n"
                "  help                 this text\n");
 }
 
@@ -912,6 +916,15 @@ int main(int argc, char **argv)
         return cmd_build(argc - 2, argv + 2);
     if (!strcmp(argv[1], "trace"))
         return cmd_trace(argc - 2, argv + 2);
+    if (!strcmp(argv[1], "bench")) {
+#ifdef RTK_HAVE_EMBREE
+        return cmd_bench(argc - 2, argv + 2);
+#else
+        fprintf(stderr, "rtktool bench: unavailable: this rtktool was built without Embree 3 (install "
+                        "libembree-dev and build again)\n");
+        return 1;
+#endif
+    }
     if (!strcmp(argv[1], "help") || !strcmp(argv[1], "--help") || !strcmp(argv[1], "-h")) {
         usage(stdout);
         return 0;

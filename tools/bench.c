@@ -1,0 +1,1276 @@
+/*
+ * rtktool bench: rtk beside Embree 3 on the same meshes and the same rays,
+ * in one process run.  Compiled into rtktool only when Embree's development
+ * package is present (RTK_HAVE_EMBREE).
+ *
+ * For each mesh:
+ *   trace     primary rays (a camera framing the mesh tightly, so most hit),
+ *             one cosine-weighted diffuse bounce and one shadow ray per
+ *             primary hit; single rays and packets of 4, 8, 16; 1 and 2
+ *             threads; Embree at isa=avx2 and at its default, every rtk
+ *             backend.  Ratios are to Embree isa=avx2 on the same rays.
+ *   render    the paper's Table 2/3: rays per second of the complete
+ *             diffuse path tracer of rtktool trace (shading and sampling
+ *             included), the same renderer code driving each library.
+ *   build     the paper's Table 4: start time, from the first scene call
+ *             to a committed scene (API calls, allocation, build), at
+ *             every build quality, with what the tree then costs to trace.
+ *   accuracy  rays aimed at points on edges shared by two triangles, from
+ *             the side both face: in exact arithmetic each hits one of the
+ *             two (or something nearer), so a miss, or a hit beyond the
+ *             edge, is a ray that leaked through the mesh.  Per
+ *             intersector and mode, beside its speed.
+ * Output: tables on stdout, DIR/bench.csv, and charts DIR/MESH-SECTION.png
+ * drawn by gnuplot (the scripts are kept beside them).
+ */
+#include "bench.h"
+
+#include <embree3/rtcore.h>
+#include <errno.h>
+#include <math.h>
+#include <pthread.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "mesh_import.h"
+#include "progress.h"
+#include "render.h"
+#include "rtk/rtk.h"
+
+/* rtk's rays and hits have Embree's layout, so the renderer's tables can
+ * hand them over as they are. */
+_Static_assert(sizeof(rtk_rayhit) == sizeof(struct RTCRayHit), "RTCRayHit layout");
+_Static_assert(offsetof(rtk_rayhit, hit) == offsetof(struct RTCRayHit, hit), "RTCRayHit layout");
+_Static_assert(offsetof(rtk_ray, tfar) == offsetof(struct RTCRay, tfar), "RTCRay layout");
+_Static_assert(offsetof(rtk_ray, flags) == offsetof(struct RTCRay, flags), "RTCRay layout");
+_Static_assert(offsetof(rtk_hit, geomID) == offsetof(struct RTCHit, geomID), "RTCHit layout");
+_Static_assert(sizeof(rtk_rayhit4) == sizeof(struct RTCRayHit4), "RTCRayHit4 layout");
+_Static_assert(sizeof(rtk_rayhit8) == sizeof(struct RTCRayHit8), "RTCRayHit8 layout");
+_Static_assert(sizeof(rtk_rayhit16) == sizeof(struct RTCRayHit16), "RTCRayHit16 layout");
+_Static_assert(offsetof(rtk_rayhit16, hit) == offsetof(struct RTCRayHit16, hit), "RTCRayHit16 layout");
+_Static_assert(sizeof(rtk_ray8) == sizeof(struct RTCRay8), "RTCRay8 layout");
+
+static double now(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
+}
+
+/* ---- Embree as a render_tracer ---- */
+
+typedef struct embree_target {
+    RTCScene scene;
+    enum RTCIntersectContextFlags flags; /* coherent for camera-ray packets */
+} embree_target;
+
+static void e_i1(void *s, rtk_rayhit *rh)
+{
+    const embree_target *e = s;
+    struct RTCIntersectContext c;
+    rtcInitIntersectContext(&c);
+    c.flags = e->flags;
+    rtcIntersect1(e->scene, &c, (struct RTCRayHit *)rh);
+}
+static void e_o1(void *s, rtk_ray *r)
+{
+    const embree_target *e = s;
+    struct RTCIntersectContext c;
+    rtcInitIntersectContext(&c);
+    c.flags = e->flags;
+    rtcOccluded1(e->scene, &c, (struct RTCRay *)r);
+}
+#define EMBREE_PACKET_(N)                                                                                              \
+    static void e_i##N(void *s, const int *valid, rtk_rayhit##N *rh)                                                   \
+    {                                                                                                                  \
+        const embree_target *e = s;                                                                                    \
+        struct RTCIntersectContext c;                                                                                  \
+        rtcInitIntersectContext(&c);                                                                                   \
+        c.flags = e->flags;                                                                                            \
+        rtcIntersect##N(valid, e->scene, &c, (struct RTCRayHit##N *)rh);                                               \
+    }                                                                                                                  \
+    static void e_o##N(void *s, const int *valid, rtk_ray##N *r)                                                       \
+    {                                                                                                                  \
+        const embree_target *e = s;                                                                                    \
+        struct RTCIntersectContext c;                                                                                  \
+        rtcInitIntersectContext(&c);                                                                                   \
+        c.flags = e->flags;                                                                                            \
+        rtcOccluded##N(valid, e->scene, &c, (struct RTCRay##N *)r);                                                    \
+    }
+EMBREE_PACKET_(4)
+EMBREE_PACKET_(8)
+EMBREE_PACKET_(16)
+
+static render_tracer embree_tracer(embree_target *e)
+{
+    return (render_tracer){e, e_i1, e_o1, e_i4, e_o4, e_i8, e_o8, e_i16, e_o16};
+}
+
+/* ---- the libraries under test ---- */
+
+enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST };
+static const char *const mode_names[] = {"default", "compact", "robust"};
+
+typedef struct lib {
+    char name[40]; /* "embree isa=avx2", "embree default", "rtk avx2" */
+    int embree;
+    RTCDevice edev;
+    rtk_device rdev;
+    double device_seconds; /* creating the device */
+} lib;
+
+typedef struct scene {
+    lib *lib;
+    RTCScene escene;
+    rtk_scene rscene;
+    embree_target target[2]; /* incoherent, coherent */
+    double seconds;          /* start time: first scene call to committed scene */
+    double bytes_per_tri;
+    char layout[48];
+} scene;
+
+static long long embree_bytes; /* Embree's memory monitor: allocations minus frees */
+static bool embree_monitor(void *user, ssize_t bytes, bool post)
+{
+    (void)user;
+    (void)post;
+    __atomic_add_fetch(&embree_bytes, (long long)bytes, __ATOMIC_RELAXED);
+    return true;
+}
+
+static int lib_open(lib *l, const char *name, int embree, const char *config, int threads, char *err,
+                    size_t err_size)
+{
+    memset(l, 0, sizeof *l);
+    snprintf(l->name, sizeof l->name, "%s", name);
+    l->embree = embree;
+    char cfg[128];
+    const double t0 = now();
+    if (embree) {
+        snprintf(cfg, sizeof cfg, "threads=%d%s%s", threads, config[0] ? "," : "", config);
+        l->edev = rtcNewDevice(cfg);
+        if (!l->edev) {
+            snprintf(err, err_size, "embree: no device for '%s'", cfg);
+            return 1;
+        }
+        rtcSetDeviceMemoryMonitorFunction(l->edev, embree_monitor, NULL);
+    } else {
+        snprintf(cfg, sizeof cfg, "%s,threads=%d", config, threads);
+        if (rtk_device_new(cfg, &l->rdev)) {
+            snprintf(err, err_size, "rtk %s: %s", config, rtk_device_get_error_message(NULL));
+            return 1;
+        }
+    }
+    l->device_seconds = now() - t0;
+    return 0;
+}
+
+static void lib_close(lib *l)
+{
+    if (l->edev)
+        rtcReleaseDevice(l->edev);
+    rtk_device_release(l->rdev);
+    memset(l, 0, sizeof *l);
+}
+
+/* A scene over the mesh, timed from the first call to the commit's end. */
+static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded, int mode, int quality, char *err,
+                       size_t err_size)
+{
+    memset(sc, 0, sizeof *sc);
+    sc->lib = l;
+    if (l->embree) {
+        static const enum RTCBuildQuality q[3] = {RTC_BUILD_QUALITY_LOW, RTC_BUILD_QUALITY_MEDIUM,
+                                                  RTC_BUILD_QUALITY_HIGH};
+        const long long bytes0 = embree_bytes;
+        const double t0 = now();
+        RTCScene s = rtcNewScene(l->edev);
+        rtcSetSceneFlags(s, mode == MODE_COMPACT ? RTC_SCENE_FLAG_COMPACT
+                            : mode == MODE_ROBUST ? RTC_SCENE_FLAG_ROBUST
+                                                  : RTC_SCENE_FLAG_NONE);
+        rtcSetSceneBuildQuality(s, q[quality]);
+        RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_TRIANGLE);
+        rtcSetGeometryBuildQuality(g, q[quality]);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded, 0, 12, m->vertex_count);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12,
+                                   m->triangle_count);
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(s, g);
+        rtcReleaseGeometry(g);
+        rtcCommitScene(s);
+        sc->seconds = now() - t0;
+        if (rtcGetDeviceError(l->edev) != RTC_ERROR_NONE) {
+            rtcReleaseScene(s);
+            snprintf(err, err_size, "embree: the scene did not commit");
+            return 1;
+        }
+        sc->escene = s;
+        sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
+        snprintf(sc->layout, sizeof sc->layout, "embree %s", mode_names[mode]);
+        for (int c = 0; c < 2; c++)
+            sc->target[c] = (embree_target){s, c ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT
+                                                 : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT};
+        return 0;
+    }
+    static const rtk_build_quality q[3] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM, RTK_BUILD_QUALITY_HIGH};
+    const double t0 = now();
+    rtk_scene s = NULL;
+    rtk_geometry g = NULL;
+    if (rtk_scene_new(l->rdev, &s) ||
+        rtk_scene_set_flags(s, mode == MODE_COMPACT ? RTK_SCENE_FLAG_COMPACT
+                               : mode == MODE_ROBUST ? RTK_SCENE_FLAG_ROBUST
+                                                     : RTK_SCENE_FLAG_NONE) ||
+        rtk_scene_set_build_quality(s, q[quality]) || rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
+        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
+        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
+        rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL) || rtk_scene_commit(s)) {
+        snprintf(err, err_size, "rtk: %s", rtk_device_get_error_message(l->rdev));
+        rtk_geometry_release(g);
+        rtk_scene_release(s);
+        return 1;
+    }
+    rtk_geometry_release(g);
+    sc->seconds = now() - t0;
+    sc->rscene = s;
+    rtk_scene_info info = {.struct_size = sizeof info};
+    rtk_scene_get_info(s, &info);
+    sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
+    snprintf(sc->layout, sizeof sc->layout, "%s", info.layout);
+    return 0;
+}
+
+static void scene_release(scene *sc)
+{
+    if (sc->escene)
+        rtcReleaseScene(sc->escene);
+    rtk_scene_release(sc->rscene);
+    memset(sc, 0, sizeof *sc);
+}
+
+static render_tracer scene_tracer(scene *sc, int coherent)
+{
+    return sc->lib->embree ? embree_tracer(&sc->target[coherent]) : render_tracer_rtk(sc->rscene);
+}
+
+/* ---- ray sets ---- */
+
+enum { SET_PRIMARY, SET_DIFFUSE, SET_SHADOW, NSETS };
+static const char *const set_names[NSETS] = {"primary", "diffuse", "shadow"};
+static const int apis[4] = {1, 4, 8, 16};
+static const char *const api_names[4] = {"single", "packet4", "packet8", "packet16"};
+
+typedef struct rayset {
+    rtk_ray *rays;
+    size_t n; /* a multiple of 16 */
+} rayset;
+
+static uint64_t xs_state = 0x9e3779b97f4a7c15ull;
+static float rnd(void)
+{
+    xs_state ^= xs_state << 13;
+    xs_state ^= xs_state >> 7;
+    xs_state ^= xs_state << 17;
+    return (float)(xs_state >> 40) * 0x1p-24f;
+}
+
+/* Camera rays in 4x4 pixel blocks, ordered so that every 4 consecutive
+ * rays are a 2x2 block, every 8 a 4x2 and every 16 a 4x4: packets of any
+ * width are compact.  The camera looks at the bounding box's centre from
+ * the front-right-above, framing the box's middle so that most rays hit. */
+static void make_primary(const rtk_mesh *m, int w, int h, rayset *set)
+{
+    float lo[3], hi[3], c[3];
+    const float diag = rtk_mesh_bounds(m, lo, hi);
+    for (int k = 0; k < 3; k++)
+        c[k] = 0.5f * (lo[k] + hi[k]);
+    set->n = (size_t)w * (size_t)h;
+    set->rays = calloc(set->n, sizeof(rtk_ray));
+    const float eye[3] = {c[0] + 0.35f * diag, c[1] + 0.3f * diag, c[2] + 1.0f * diag};
+    size_t i = 0;
+    for (int by = 0; by < h; by += 4)
+        for (int bx = 0; bx < w; bx += 4)
+            for (int k = 0; k < 16; k++) {
+                const int x = bx + (k & 1) + ((k >> 2) & 1) * 2, y = by + ((k >> 1) & 1) + (k >> 3) * 2;
+                const float t[3] = {c[0] + diag * 0.5f * ((x + 0.5f) / w - 0.5f),
+                                    c[1] - diag * 0.5f * (float)h / (float)w * ((y + 0.5f) / h - 0.5f), c[2]};
+                set->rays[i++] = (rtk_ray){.org_x = eye[0], .org_y = eye[1], .org_z = eye[2],
+                                           .dir_x = t[0] - eye[0], .dir_y = t[1] - eye[1], .dir_z = t[2] - eye[2],
+                                           .tfar = INFINITY, .mask = ~0u};
+            }
+}
+
+/* From each primary hit (found by `sc`, so every library gets the same
+ * rays): a cosine-weighted bounce about the normal facing the camera, and
+ * a shadow ray to a point light above and behind the camera.  Each set is
+ * cut to a multiple of 16 rays. */
+static void make_secondary(const rtk_mesh *m, scene *sc, const rayset *primary, rayset *diffuse, rayset *shadow)
+{
+    float lo[3], hi[3];
+    const float diag = rtk_mesh_bounds(m, lo, hi);
+    const float light[3] = {0.5f * (lo[0] + hi[0]) + 0.2f * diag, hi[1] + 1.0f * diag, hi[2] + 0.8f * diag};
+    diffuse->rays = calloc(primary->n, sizeof(rtk_ray));
+    shadow->rays = calloc(primary->n, sizeof(rtk_ray));
+    diffuse->n = shadow->n = 0;
+    const render_tracer t = scene_tracer(sc, 0);
+    for (size_t i = 0; i < primary->n; i++) {
+        const rtk_ray *q = &primary->rays[i];
+        _Alignas(16) rtk_rayhit rh = {.ray = *q, .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+        t.intersect1(t.scene, &rh);
+        if (rh.hit.geomID == RTK_INVALID_GEOMETRY_ID)
+            continue;
+        float n[3] = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
+        float len = sqrtf(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+        if (!(len > 0))
+            continue;
+        if (n[0] * q->dir_x + n[1] * q->dir_y + n[2] * q->dir_z > 0)
+            len = -len;
+        for (int k = 0; k < 3; k++)
+            n[k] /= len;
+        const float eps = 1e-4f * diag;
+        float p[3] = {q->org_x + rh.ray.tfar * q->dir_x, q->org_y + rh.ray.tfar * q->dir_y,
+                      q->org_z + rh.ray.tfar * q->dir_z};
+        for (int k = 0; k < 3; k++)
+            p[k] += eps * n[k];
+        float a[3] = {fabsf(n[0]) > 0.9f ? 0.0f : 1.0f, fabsf(n[0]) > 0.9f ? 1.0f : 0.0f, 0.0f}, b[3], u[3];
+        u[0] = a[1] * n[2] - a[2] * n[1], u[1] = a[2] * n[0] - a[0] * n[2], u[2] = a[0] * n[1] - a[1] * n[0];
+        const float ul = sqrtf(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
+        for (int k = 0; k < 3; k++)
+            u[k] /= ul;
+        b[0] = n[1] * u[2] - n[2] * u[1], b[1] = n[2] * u[0] - n[0] * u[2], b[2] = n[0] * u[1] - n[1] * u[0];
+        const float r = sqrtf(rnd()), phi = 6.2831853f * rnd(), x = r * cosf(phi), y = r * sinf(phi),
+                    z = sqrtf(fmaxf(0.0f, 1.0f - x * x - y * y));
+        diffuse->rays[diffuse->n++] =
+            (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = x * u[0] + y * b[0] + z * n[0],
+                      .dir_y = x * u[1] + y * b[1] + z * n[1], .dir_z = x * u[2] + y * b[2] + z * n[2],
+                      .tfar = INFINITY, .mask = ~0u};
+        shadow->rays[shadow->n++] =
+            (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = light[0] - p[0],
+                      .dir_y = light[1] - p[1], .dir_z = light[2] - p[2], .tfar = 1.0f, .mask = ~0u};
+    }
+    diffuse->n &= ~(size_t)15;
+    shadow->n &= ~(size_t)15;
+}
+
+/* ---- tracing a set on 1..n threads ---- */
+
+typedef struct job {
+    render_tracer t;
+    const rayset *set;
+    int api, occluded;
+    unsigned char *hits;
+    size_t begin, end;
+} job;
+
+static void *run_job(void *arg)
+{
+    const job *j = arg;
+    const int n = j->api;
+    static _Alignas(64) const int all[16] = {-1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1};
+    _Alignas(16) rtk_rayhit rh[16];
+    for (size_t i = j->begin; i < j->end; i += (size_t)n) {
+        for (int k = 0; k < n; k++)
+            rh[k] = (rtk_rayhit){.ray = j->set->rays[i + (size_t)k],
+                                 .hit = {.geomID = RTK_INVALID_GEOMETRY_ID, .instID = RTK_INVALID_GEOMETRY_ID}};
+        render_trace(&j->t, n, all, rh, j->occluded);
+        for (int k = 0; k < n; k++)
+            j->hits[i + (size_t)k] = j->occluded ? rh[k].ray.tfar == -INFINITY
+                                                 : rh[k].hit.geomID != RTK_INVALID_GEOMETRY_ID;
+    }
+    return NULL;
+}
+
+/* Mrays/s, best of `repeat` passes; hits[i]: ray i hit. */
+static double trace_set(const render_tracer *t, const rayset *set, int api, int occluded, int threads, int repeat,
+                        unsigned char *hits)
+{
+    double best = 1e30;
+    for (int r = 0; r < repeat; r++) {
+        job jobs[16];
+        pthread_t tid[16];
+        const size_t share = (set->n / 16 + (size_t)threads - 1) / (size_t)threads * 16;
+        const double t0 = now();
+        int started = 1;
+        for (int k = 0; k < threads; k++) {
+            const size_t b = (size_t)k * share, e = b + share;
+            jobs[k] = (job){*t, set, api, occluded, hits, b < set->n ? b : set->n, e < set->n ? e : set->n};
+        }
+        for (; started < threads; started++)
+            if (pthread_create(&tid[started], NULL, run_job, &jobs[started]))
+                break;
+        run_job(&jobs[0]);
+        for (int k = 1; k < started; k++)
+            pthread_join(tid[k], NULL);
+        for (int k = started; k < threads; k++)
+            run_job(&jobs[k]);
+        const double el = now() - t0;
+        best = el < best ? el : best;
+    }
+    return (double)set->n / best * 1e-6;
+}
+
+/* ---- edge rays (accuracy) ---- */
+
+typedef struct edge {
+    uint32_t a, b; /* vertex indices, a < b */
+    uint32_t tri;
+} edge;
+
+static int edge_cmp(const void *x, const void *y)
+{
+    const edge *p = x, *q = y;
+    if (p->a != q->a)
+        return p->a < q->a ? -1 : 1;
+    if (p->b != q->b)
+        return p->b < q->b ? -1 : 1;
+    return p->tri < q->tri ? -1 : p->tri > q->tri;
+}
+
+static void tri_normal(const rtk_mesh *m, uint32_t t, double n[3])
+{
+    const float *v0 = &m->vertices[3 * m->indices[3 * t]], *v1 = &m->vertices[3 * m->indices[3 * t + 1]],
+                *v2 = &m->vertices[3 * m->indices[3 * t + 2]];
+    const double e1[3] = {v1[0] - (double)v0[0], v1[1] - (double)v0[1], v1[2] - (double)v0[2]};
+    const double e2[3] = {v2[0] - (double)v0[0], v2[1] - (double)v0[1], v2[2] - (double)v0[2]};
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    const double l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    for (int k = 0; k < 3; k++)
+        n[k] = l > 0 ? n[k] / l : 0.0;
+}
+
+/* Whether triangle t runs along its edge a -> b (else b -> a). */
+static int runs_forward(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
+{
+    for (int k = 0; k < 3; k++)
+        if (m->indices[3 * t + k] == a && m->indices[3 * t + (k + 1) % 3] == b)
+            return 1;
+    return 0;
+}
+
+/* Up to `want` rays, each aimed at a random point of an edge shared by
+ * exactly two triangles of non-zero area, from a distance of a fifth of
+ * the mesh's size, in a direction that meets both triangles' planes from
+ * their front (cosine at least 0.3 with each normal, taken consistently
+ * across the edge).  target_t[i]: the distance along ray i to its point. */
+static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set, float **target_t)
+{
+    const size_t nt = m->triangle_count;
+    set->rays = NULL;
+    set->n = 0;
+    *target_t = NULL;
+    edge *e = malloc(3 * nt * sizeof *e + 1);
+    if (!e)
+        return 0;
+    for (size_t t = 0; t < nt; t++)
+        for (int k = 0; k < 3; k++) {
+            const uint32_t a = m->indices[3 * t + (size_t)k], b = m->indices[3 * t + (size_t)(k + 1) % 3];
+            e[3 * t + (size_t)k] = (edge){a < b ? a : b, a < b ? b : a, (uint32_t)t};
+        }
+    qsort(e, 3 * nt, sizeof *e, edge_cmp);
+    size_t pairs = 0;
+    for (size_t i = 0; i + 1 < 3 * nt; i++) {
+        const int starts = i == 0 || e[i - 1].a != e[i].a || e[i - 1].b != e[i].b;
+        const int two = e[i + 1].a == e[i].a && e[i + 1].b == e[i].b &&
+                        (i + 2 >= 3 * nt || e[i + 2].a != e[i].a || e[i + 2].b != e[i].b);
+        if (starts && two && e[i].a != e[i].b)
+            e[pairs++] = e[i], e[pairs++] = e[i + 1];
+    }
+    float lo[3], hi[3];
+    const float diag = rtk_mesh_bounds(m, lo, hi);
+    set->rays = calloc(want, sizeof(rtk_ray));
+    *target_t = calloc(want, sizeof(float));
+    set->n = 0;
+    for (size_t tries = 0; pairs >= 2 && set->n < want && tries < 20 * want; tries++) {
+        const size_t p = (size_t)(rnd() * (float)(pairs / 2)) % (pairs / 2) * 2;
+        const uint32_t a = e[p].a, b = e[p].b, t1 = e[p].tri, t2 = e[p + 1].tri;
+        double n1[3], n2[3];
+        tri_normal(m, t1, n1);
+        tri_normal(m, t2, n2);
+        /* consistently oriented neighbours run along the edge in opposite
+         * directions; otherwise turn the second normal round */
+        const double s2 = runs_forward(m, t1, a, b) != runs_forward(m, t2, a, b) ? 1.0 : -1.0;
+        double d[3], dl = 0;
+        for (int k = 0; k < 3; k++) {
+            n2[k] *= s2;
+            d[k] = -(n1[k] + n2[k]) + 0.8 * (2.0 * rnd() - 1.0);
+            dl += d[k] * d[k];
+        }
+        dl = sqrt(dl);
+        if (!(dl > 0))
+            continue;
+        double c1 = 0, c2 = 0;
+        for (int k = 0; k < 3; k++) {
+            d[k] /= dl;
+            c1 += d[k] * n1[k];
+            c2 += d[k] * n2[k];
+        }
+        if (!(c1 <= -0.3 && c2 <= -0.3))
+            continue;
+        const float u = rnd();
+        const float *va = &m->vertices[3 * a], *vb = &m->vertices[3 * b];
+        float target[3], org[3], dir[3];
+        for (int k = 0; k < 3; k++) {
+            target[k] = va[k] + u * (vb[k] - va[k]);
+            org[k] = target[k] - (float)d[k] * 0.2f * diag;
+            dir[k] = target[k] - org[k];
+        }
+        set->rays[set->n] = (rtk_ray){.org_x = org[0], .org_y = org[1], .org_z = org[2], .dir_x = dir[0],
+                                      .dir_y = dir[1], .dir_z = dir[2], .tfar = INFINITY, .mask = ~0u};
+        (*target_t)[set->n++] = 1.0f;
+    }
+    free(e);
+    set->n &= ~(size_t)15;
+    return set->n;
+}
+
+/* Rays that leaked: missed, or hit beyond their edge point (t > 1 + 1e-4). */
+static size_t count_leaks(const render_tracer *t, const rayset *set, const float *target_t)
+{
+    size_t leaks = 0;
+    for (size_t i = 0; i < set->n; i++) {
+        _Alignas(16) rtk_rayhit rh = {.ray = set->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+        t->intersect1(t->scene, &rh);
+        leaks += rh.hit.geomID == RTK_INVALID_GEOMETRY_ID || rh.ray.tfar > target_t[i] * (1.0f + 1e-4f);
+    }
+    return leaks;
+}
+
+/* ---- output ---- */
+
+typedef struct out {
+    FILE *csv;
+    const char *mesh;
+} out;
+
+static void csv_row(const out *o, const char *section, const char *library, const char *variant, const char *set,
+                    const char *api, int threads, double value, const char *unit, double ratio)
+{
+    fprintf(o->csv, "%s,%s,%s,%s,%s,%s,%d,%.6g,%s,", o->mesh, section, library, variant, set, api, threads, value,
+            unit);
+    if (ratio > 0)
+        fprintf(o->csv, "%.4f", ratio);
+    fprintf(o->csv, "\n");
+}
+
+static const char *base_name(const char *path)
+{
+    const char *s = strrchr(path, '/');
+    return s ? s + 1 : path;
+}
+
+/* The mesh's name without directory and extension, for file names. */
+static void mesh_stem(const char *path, char *stem, size_t size)
+{
+    snprintf(stem, size, "%s", base_name(path));
+    char *dot = strrchr(stem, '.');
+    if (dot && dot != stem)
+        *dot = 0;
+}
+
+static int have_gnuplot(void)
+{
+    return system("command -v gnuplot >/dev/null 2>&1") == 0;
+}
+
+/* Runs gnuplot on DIR/NAME.gp (written by the caller); 1 on success. */
+static int run_gnuplot(const char *dir, const char *name)
+{
+    char cmd[1200];
+    snprintf(cmd, sizeof cmd, "cd '%s' && gnuplot '%s.gp' 2>'%s.gp.log'", dir, name, name);
+    return system(cmd) == 0;
+}
+
+/* ---- settings ---- */
+
+typedef struct bench_opts {
+    const char *outdir;
+    int w, h, repeat, builds, edge_rays;
+    int threads[4], nthreads;
+    char isa[4][16];
+    int nisa;
+    int api_on[4];
+    int do_trace, do_render, do_build, do_accuracy;
+    int render_w, render_h, render_spp;
+} bench_opts;
+
+static int parse_list(const char *s, char items[][16], int max)
+{
+    int n = 0;
+    for (const char *p = s; *p && n < max;) {
+        const char *end = strchr(p, ',');
+        const size_t len = end ? (size_t)(end - p) : strlen(p);
+        if (!len || len >= 16)
+            return -1;
+        memcpy(items[n], p, len);
+        items[n++][len] = 0;
+        p += len + (end != NULL);
+    }
+    return n;
+}
+
+static void bench_usage(FILE *f)
+{
+    fprintf(f,
+            "usage: rtktool bench MESH... [options]\n"
+            "  rtk beside Embree 3 (at isa=avx2 and at its default) on the same meshes and rays, in one run:\n"
+            "  trace (primary, diffuse and shadow rays; single rays and packets; 1 and 2 threads), render\n"
+            "  (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2 and 3), build (start\n"
+            "  time at every quality, as in its Table 4, against the time to trace the tree) and accuracy\n"
+            "  (rays aimed at shared edges that leak through, beside speed). Ratios are to Embree isa=avx2.\n"
+            "  -o, --output DIR  bench.csv, the charts (PNG, drawn by gnuplot when installed) and their\n"
+            "                    gnuplot scripts (default: bench-out)\n"
+            "  --threads LIST    thread counts (default: 1,2)\n"
+            "  --isa LIST        rtk backends (default: every usable one)\n"
+            "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
+            "  --only LIST       trace,render,build,accuracy (default: all)\n"
+            "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
+            "  --repeat N        best of N passes per measurement (default: 3)\n"
+            "  --builds N        best of N builds per start time (default: 3)\n"
+            "  --edge-rays N     rays aimed at edges per mesh (default: 200000)\n"
+            "  --render WxHxS    path tracer image and samples per pixel (default: 512x384x1)\n"
+            "  --quick           a smoke run: 256x192 rays, 1 pass, 1 build, 1 thread, 20000 edge rays,\n"
+            "                    128x96x1 render\n"
+            "examples:\n"
+            "  rtktool bench ../shared/meshes/dragon.ply ../shared/meshes/sanmiguel_building.ply -o bench-out\n"
+            "  rtktool bench dragon.ply --only trace --isa avx2 --api single,packet8 --threads 1\n");
+}
+
+/* ---- the sections ---- */
+
+enum { MAXLIBS = 8 };
+
+typedef struct ctx {
+    const bench_opts *o;
+    const rtk_mesh *m;
+    const float *padded;
+    lib libs[MAXLIBS];
+    int nlibs;
+    out csv;
+    char stem[128];
+} ctx;
+
+static double ratio(double v, double ref)
+{
+    return ref > 0 ? v / ref : 0.0;
+}
+
+static void print_row_label(const char *label)
+{
+    printf("  %-20s", label);
+}
+
+static void print_cell(double v, double ref, int is_ref)
+{
+    if (is_ref)
+        printf(" %8.2f        ", v);
+    else
+        printf(" %8.2f (%4.2fx)", v, ratio(v, ref));
+}
+
+static void print_header(const ctx *c)
+{
+    print_row_label("");
+    for (int l = 0; l < c->nlibs; l++)
+        printf(" %-16s", c->libs[l].name);
+    printf("\n");
+}
+
+static int section_trace(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    rayset sets[NSETS];
+    make_primary(c->m, o->w, o->h, &sets[SET_PRIMARY]);
+    scene ref;
+    if (scene_build(&ref, &c->libs[0], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
+        return 1;
+    make_secondary(c->m, &ref, &sets[SET_PRIMARY], &sets[SET_DIFFUSE], &sets[SET_SHADOW]);
+    scene_release(&ref);
+    printf("\ntrace: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow; best of %d passes; Mrays/s (ratio to "
+           "%s)\n",
+           sets[0].n, 100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, o->repeat,
+           c->libs[0].name);
+    printf("  packets of primary rays are 2x2, 4x2, 4x4 pixel blocks, given Embree's coherent flag; packets of\n"
+           "  diffuse and shadow rays are those of neighbouring pixels, traced without it\n");
+    unsigned char *hits = malloc(sets[0].n), *ref_hits[NSETS];
+    double rate[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* lib, threads index, set, api */
+    size_t disagree[MAXLIBS] = {0};
+    for (int s = 0; s < NSETS; s++)
+        ref_hits[s] = calloc(sets[s].n ? sets[s].n : 1, 1);
+    char plot_data[512];
+    snprintf(plot_data, sizeof plot_data, "%s/%s-trace.dat", o->outdir, c->stem);
+    FILE *dat = fopen(plot_data, "w");
+    progress bar;
+    progress_begin(&bar, "rtktool bench: trace");
+    const int work = c->nlibs * o->nthreads * NSETS * 4;
+    int done = 0;
+    for (int l = 0; l < c->nlibs; l++) {
+        scene sc;
+        if (scene_build(&sc, &c->libs[l], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
+            return 1;
+        for (int ti = 0; ti < o->nthreads; ti++)
+            for (int s = 0; s < NSETS; s++)
+                for (int a = 0; a < 4; a++, done++) {
+                    if (!o->api_on[a] || !sets[s].n)
+                        continue;
+                    const render_tracer t = scene_tracer(&sc, s == SET_PRIMARY && a > 0);
+                    unsigned char *h = l == 0 && ti == 0 && a == 0 ? ref_hits[s] : hits;
+                    rate[l][ti][s][a] = trace_set(&t, &sets[s], apis[a], s == SET_SHADOW, o->threads[ti], o->repeat, h);
+                    if (h == hits)
+                        for (size_t i = 0; i < sets[s].n; i++)
+                            disagree[l] += hits[i] != ref_hits[s][i];
+                    progress_update(&bar, (double)done / work);
+                }
+        scene_release(&sc);
+    }
+    progress_end(&bar);
+    for (int ti = 0; ti < o->nthreads; ti++) {
+        printf("  %d thread%s\n", o->threads[ti], o->threads[ti] > 1 ? "s" : "");
+        print_header(c);
+        for (int s = 0; s < NSETS; s++)
+            for (int a = 0; a < 4; a++) {
+                if (!o->api_on[a])
+                    continue;
+                char label[48];
+                snprintf(label, sizeof label, "%s %s", set_names[s], api_names[a]);
+                print_row_label(label);
+                for (int l = 0; l < c->nlibs; l++) {
+                    const double v = rate[l][ti][s][a], r = rate[0][ti][s][a];
+                    print_cell(v, r, l == 0);
+                    csv_row(&c->csv, "trace", c->libs[l].name, "default", set_names[s], api_names[a],
+                            o->threads[ti], v, "Mrays/s", l ? ratio(v, r) : 1.0);
+                }
+                printf("\n");
+                if (dat && ti == 0) {
+                    fprintf(dat, "\"%s\"", label);
+                    for (int l = 0; l < c->nlibs; l++)
+                        fprintf(dat, " %.4f", rate[l][ti][s][a]);
+                    fprintf(dat, "\n");
+                }
+            }
+    }
+    printf("  hit/miss differs from %s on:", c->libs[0].name);
+    for (int l = 1; l < c->nlibs; l++)
+        printf(" %s %zu%s", c->libs[l].name, disagree[l], l + 1 < c->nlibs ? "," : "");
+    printf(" rays (over every pass compared)\n");
+    if (dat) {
+        fclose(dat);
+        char path[600];
+        snprintf(path, sizeof path, "%s/%s-trace.gp", o->outdir, c->stem);
+        FILE *gp = fopen(path, "w");
+        if (gp) {
+            fprintf(gp,
+                    "set terminal pngcairo size 1200,520 font 'sans,10'\nset output '%s-trace.png'\n"
+                    "set title '%s: trace rate, %d thread%s (higher is better)'\nset ylabel 'Mrays/s'\n"
+                    "set style data histogram\nset style histogram clustered gap 1\nset style fill solid 0.85 border -1\n"
+                    "set boxwidth 0.9\nset xtics rotate by -30 scale 0\nset key top right\nset grid ytics\n"
+                    "set yrange [0:*]\nplot ",
+                    c->stem, base_name(c->csv.mesh), o->threads[0], o->threads[0] > 1 ? "s" : "");
+            for (int l = 0; l < c->nlibs; l++)
+                fprintf(gp, "%s'%s-trace.dat' using %d:xtic(1) title '%s'", l ? ", " : "", c->stem, l + 2,
+                        c->libs[l].name);
+            fprintf(gp, "\n");
+            fclose(gp);
+        }
+    }
+    for (int s = 0; s < NSETS; s++) {
+        free(sets[s].rays);
+        free(ref_hits[s]);
+    }
+    free(hits);
+    return 0;
+}
+
+/* A render of the diffuse path tracer per library, API and thread count. */
+static int section_render(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    render_settings rs;
+    float lo[3], hi[3];
+    rtk_mesh_bounds(c->m, lo, hi);
+    render_defaults(&rs, lo, hi, o->render_w, o->render_h);
+    {
+        /* the trace sets' tight framing (make_primary), so most paths hit */
+        const float diag = rtk_mesh_bounds(c->m, lo, hi);
+        const float ctr[3] = {0.5f * (lo[0] + hi[0]), 0.5f * (lo[1] + hi[1]), 0.5f * (lo[2] + hi[2])};
+        const float eye[3] = {ctr[0] + 0.35f * diag, ctr[1] + 0.3f * diag, ctr[2] + 1.0f * diag};
+        const float dist = sqrtf(0.35f * 0.35f + 0.3f * 0.3f + 1.0f) * diag;
+        const float fov = 2.0f * atanf(0.25f * diag * (float)o->render_h / (float)o->render_w / dist) * 57.29578f;
+        render_camera_look(&rs.camera, eye, ctr, (const float[3]){0, 1, 0}, fov, o->render_w, o->render_h, err,
+                           err_size);
+    }
+    rs.mode = RENDER_DIFFUSE;
+    rs.spp = o->render_spp;
+    float *rgb = malloc((size_t)o->render_w * (size_t)o->render_h * 3 * sizeof *rgb);
+    if (!rgb) {
+        snprintf(err, err_size, "out of memory");
+        return 1;
+    }
+    printf("\nrender (Tables 2/3 of the Embree paper): rtktool trace's diffuse path tracer, %dx%d, %d spp, up to %d "
+           "bounces, shading and sampling included; Mrays/s of all rays traced, best of %d (ratio to %s)\n",
+           o->render_w, o->render_h, rs.spp, rs.max_bounces, o->repeat, c->libs[0].name);
+    double best[MAXLIBS][4][4] = {{{0}}}; /* lib, threads index, api */
+    render_stats first = {0};
+    for (int l = 0; l < c->nlibs; l++) {
+        scene sc;
+        if (scene_build(&sc, &c->libs[l], c->m, c->padded, MODE_DEFAULT, 1, err, err_size)) {
+            free(rgb);
+            return 1;
+        }
+        const render_tracer t = scene_tracer(&sc, 0);
+        for (int ti = 0; ti < o->nthreads; ti++)
+            for (int a = 0; a < 4; a++) {
+                if (!o->api_on[a])
+                    continue;
+                rs.api = apis[a];
+                rs.threads = o->threads[ti];
+                render_stats st;
+                for (int r = 0; r < o->repeat; r++) {
+                    if (render_image(&t, &rs, rgb, &st, err, err_size)) {
+                        scene_release(&sc);
+                        free(rgb);
+                        return 1;
+                    }
+                    const double v = (double)render_stats_rays(&st) / st.seconds * 1e-6;
+                    best[l][ti][a] = v > best[l][ti][a] ? v : best[l][ti][a];
+                }
+                if (!first.primary)
+                    first = st;
+            }
+        scene_release(&sc);
+    }
+    print_header(c);
+    for (int ti = 0; ti < o->nthreads; ti++)
+        for (int a = 0; a < 4; a++) {
+            if (!o->api_on[a])
+                continue;
+            char label[48];
+            snprintf(label, sizeof label, "%s, %d thread%s", api_names[a], o->threads[ti], o->threads[ti] > 1 ? "s" : "");
+            print_row_label(label);
+            for (int l = 0; l < c->nlibs; l++) {
+                const double v = best[l][ti][a], r = best[0][ti][a];
+                print_cell(v, r, l == 0);
+                csv_row(&c->csv, "render", c->libs[l].name, "default", "diffuse path tracer", api_names[a],
+                        o->threads[ti], v, "Mrays/s", ratio(v, r));
+            }
+            printf("\n");
+        }
+    printf("  rays per image: %llu primary (%.1f%% hit), %llu bounce, %llu shadow\n",
+           (unsigned long long)first.primary, first.primary ? 100.0 * (double)first.primary_hits / first.primary : 0.0,
+           (unsigned long long)first.bounce, (unsigned long long)first.shadow);
+    free(rgb);
+    return 0;
+}
+
+static int section_build(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    static const char *const qn[3] = {"low", "medium", "high"};
+    printf("\nbuild (Table 4 of the Embree paper): start time from the first scene call to a committed scene (API "
+           "calls, allocation, build), best of %d, at each quality; then the diffuse rays of the trace section "
+           "through that tree, single rays, 1 thread\n",
+           o->builds);
+    printf("  %-20s %-8s %7s %9s %8s %9s %7s  %s\n", "library", "quality", "threads", "start ms", "ratio", "Mtris/s",
+           "B/tri", "diffuse Mrays/s");
+    rayset prim, diff, shadow;
+    make_primary(c->m, o->w, o->h, &prim);
+    scene ref;
+    if (scene_build(&ref, &c->libs[0], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
+        return 1;
+    make_secondary(c->m, &ref, &prim, &diff, &shadow);
+    scene_release(&ref);
+    unsigned char *hits = malloc(diff.n + 1);
+    char path[600];
+    snprintf(path, sizeof path, "%s/%s-build.dat", o->outdir, c->stem);
+    FILE *dat = fopen(path, "w");
+    double ref_start[3][4] = {{0}};
+    progress bar;
+    progress_begin(&bar, "rtktool bench: build");
+    for (int l = 0; l < c->nlibs; l++) {
+        for (int q = 0; q < 3; q++) {
+            for (int ti = 0; ti < o->nthreads; ti++) {
+                lib bl;
+                char cfg[32] = "";
+                if (!c->libs[l].embree)
+                    snprintf(cfg, sizeof cfg, "isa=%s", rtk_device_get_backend_name(c->libs[l].rdev));
+                else if (strstr(c->libs[l].name, "avx2"))
+                    snprintf(cfg, sizeof cfg, "isa=avx2");
+                if (lib_open(&bl, c->libs[l].name, c->libs[l].embree, cfg, o->threads[ti], err, err_size))
+                    return 1;
+                double best = 1e30, bytes = 0, trace_rate = 0;
+                for (int b = 0; b < o->builds; b++) {
+                    scene sc;
+                    if (scene_build(&sc, &bl, c->m, c->padded, MODE_DEFAULT, q, err, err_size)) {
+                        lib_close(&bl);
+                        return 1;
+                    }
+                    best = sc.seconds < best ? sc.seconds : best;
+                    bytes = sc.bytes_per_tri;
+                    if (b == o->builds - 1 && ti == 0) {
+                        const render_tracer t = scene_tracer(&sc, 0);
+                        trace_rate = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits);
+                    }
+                    scene_release(&sc);
+                }
+                lib_close(&bl);
+                if (l == 0)
+                    ref_start[q][ti] = best;
+                printf("  %-20s %-8s %7d %9.1f %7.2fx %9.2f %7.1f", c->libs[l].name, qn[q], o->threads[ti],
+                       best * 1e3, ratio(ref_start[q][ti], best), (double)c->m->triangle_count / best * 1e-6, bytes);
+                if (ti == 0)
+                    printf("  %.2f", trace_rate);
+                printf("\n");
+                csv_row(&c->csv, "build", c->libs[l].name, qn[q], "start", "", o->threads[ti], best * 1e3, "ms",
+                        ratio(ref_start[q][ti], best));
+                if (ti == 0) {
+                    csv_row(&c->csv, "build", c->libs[l].name, qn[q], "diffuse", "single", 1, trace_rate, "Mrays/s",
+                            0);
+                    if (dat)
+                        fprintf(dat, "%.3f %.4f %s%s", best * 1e3,
+                                trace_rate > 0 ? (double)diff.n / trace_rate * 1e-3 : 0.0, qn[q],
+                                q == 2 ? "\n\n\n" : "\n");
+                }
+                progress_update(&bar, (double)(l * 3 + q + 1) / (c->nlibs * 3));
+            }
+        }
+    }
+    progress_end(&bar);
+    printf("  rtk builds on one thread whatever the device's threads= (its builders are single-threaded so far)\n");
+    if (dat) {
+        fclose(dat);
+        snprintf(path, sizeof path, "%s/%s-build.gp", o->outdir, c->stem);
+        FILE *gp = fopen(path, "w");
+        if (gp) {
+            fprintf(gp,
+                    "set terminal pngcairo size 900,600 font 'sans,10'\nset output '%s-build.png'\n"
+                    "set title '%s: build (start) time against the time to trace %zu diffuse rays, 1 thread'\n"
+                    "set xlabel 'start time, ms (lower is better)'\nset ylabel 'trace time, ms (lower is better)'\n"
+                    "set grid\nset key outside right\nset offsets graph 0.05, graph 0.1, graph 0.1, graph 0.1\n"
+                    "set xrange [0:*]\nset yrange [0:*]\nplot ",
+                    c->stem, base_name(c->csv.mesh), diff.n);
+            for (int l = 0; l < c->nlibs; l++)
+                fprintf(gp, "%s'%s-build.dat' index %d using 1:2 with linespoints pt 7 ps 1.2 lw 1.5 title '%s', "
+                        "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' notitle",
+                        l ? ", " : "", c->stem, l, c->libs[l].name, l);
+            fprintf(gp, "\n");
+            fclose(gp);
+        }
+    }
+    free(prim.rays);
+    free(diff.rays);
+    free(shadow.rays);
+    free(hits);
+    return 0;
+}
+
+static int section_accuracy(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    rayset edges;
+    float *target_t = NULL;
+    make_edge_rays(c->m, (size_t)o->edge_rays, &edges, &target_t);
+    rayset prim, diff, shadow;
+    make_primary(c->m, o->w, o->h, &prim);
+    scene ref;
+    if (scene_build(&ref, &c->libs[0], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
+        return 1;
+    make_secondary(c->m, &ref, &prim, &diff, &shadow);
+    scene_release(&ref);
+    printf("\naccuracy: %zu rays aimed at points of edges shared by two triangles, from the side both face; a ray "
+           "that misses or hits beyond its edge point leaked through the mesh; beside the diffuse rays' rate "
+           "(single rays, 1 thread)\n",
+           edges.n);
+    printf("  %-20s %-8s %10s %12s %16s %8s\n", "library", "mode", "leaks", "per million", "diffuse Mrays/s", "B/tri");
+    char path[600];
+    snprintf(path, sizeof path, "%s/%s-accuracy.dat", o->outdir, c->stem);
+    FILE *dat = fopen(path, "w");
+    unsigned char *hits = malloc(diff.n + 1);
+    for (int l = 0; l < c->nlibs; l++) {
+        for (int mode = 0; mode < 3; mode++) {
+            if (!c->libs[l].embree && mode == MODE_ROBUST)
+                continue; /* rtk has one intersector so far: ROBUST changes nothing */
+            scene sc;
+            if (scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size))
+                return 1;
+            const render_tracer t = scene_tracer(&sc, 0);
+            const size_t leaks = count_leaks(&t, &edges, target_t);
+            const double rate = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits), bytes = sc.bytes_per_tri;
+            scene_release(&sc);
+            const double ppm = edges.n ? 1e6 * (double)leaks / (double)edges.n : 0.0;
+            printf("  %-20s %-8s %10zu %12.1f %16.2f %8.1f\n", c->libs[l].name, mode_names[mode], leaks, ppm, rate,
+                   bytes);
+            csv_row(&c->csv, "accuracy", c->libs[l].name, mode_names[mode], "edge", "single", 1, ppm,
+                    "leaks per million", 0);
+            csv_row(&c->csv, "accuracy", c->libs[l].name, mode_names[mode], "diffuse", "single", 1, rate, "Mrays/s",
+                    0);
+            if (dat)
+                fprintf(dat, "%.3f %.4f %s\n", ppm, rate, mode_names[mode]);
+        }
+        if (dat)
+            fprintf(dat, "\n\n"); /* one gnuplot index per library */
+    }
+    if (dat) {
+        fclose(dat);
+        snprintf(path, sizeof path, "%s/%s-accuracy.gp", o->outdir, c->stem);
+        FILE *gp = fopen(path, "w");
+        if (gp) {
+            fprintf(gp,
+                    "set terminal pngcairo size 900,600 font 'sans,10'\nset output '%s-accuracy.png'\n"
+                    "set title '%s: speed against accuracy per intersector and mode'\n"
+                    "set xlabel 'rays leaking through shared edges, per million (lower is better)'\n"
+                    "set ylabel 'diffuse rays, Mrays/s, 1 thread (higher is better)'\n"
+                    "set grid\nset key outside right\nset xrange [0:*]\nset yrange [0:*]\n"
+                    "set offsets graph 0.05, graph 0.1, graph 0.1, graph 0\nplot ",
+                    c->stem, base_name(c->csv.mesh));
+            for (int l = 0; l < c->nlibs; l++)
+                fprintf(gp, "%s'%s-accuracy.dat' index %d using 1:2 with points pt %d ps 1.5 title '%s', "
+                        "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' notitle",
+                        l ? ", " : "", c->stem, l, 5 + 2 * (l % 3), c->libs[l].name, l);
+            fprintf(gp, "\n");
+            fclose(gp);
+        }
+    }
+    free(edges.rays);
+    free(target_t);
+    free(prim.rays);
+    free(diff.rays);
+    free(shadow.rays);
+    free(hits);
+    return 0;
+}
+
+int cmd_bench(int argc, char **argv)
+{
+    bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
+                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .do_trace = 1, .do_render = 1,
+                    .do_build = 1, .do_accuracy = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
+    const char *meshes[64];
+    int nmeshes = 0;
+    for (int i = 0; i < argc; i++) {
+        const char *a = argv[i];
+        const int more = i + 1 < argc;
+        char items[8][16];
+        int n;
+        if (!strcmp(a, "-h") || !strcmp(a, "--help")) {
+            bench_usage(stdout);
+            return 0;
+        } else if ((!strcmp(a, "-o") || !strcmp(a, "--output")) && more)
+            o.outdir = argv[++i];
+        else if (!strcmp(a, "--threads") && more) {
+            n = parse_list(argv[++i], items, 4);
+            o.nthreads = n > 0 ? n : 0;
+            for (int k = 0; k < o.nthreads; k++) {
+                o.threads[k] = atoi(items[k]);
+                if (o.threads[k] < 1 || o.threads[k] > 16)
+                    o.nthreads = 0;
+            }
+            if (!o.nthreads) {
+                fprintf(stderr, "rtktool bench: --threads wants a list of 1..16 (got '%s')\n", argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--isa") && more) {
+            o.nisa = parse_list(argv[++i], o.isa, 4);
+            if (o.nisa < 1) {
+                fprintf(stderr, "rtktool bench: --isa wants a list of backends (got '%s')\n", argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--api") && more) {
+            n = parse_list(argv[++i], items, 8);
+            memset(o.api_on, 0, sizeof o.api_on);
+            for (int k = 0; k < n; k++) {
+                int found = 0;
+                for (int j = 0; j < 4; j++)
+                    if (!strcmp(items[k], api_names[j]))
+                        o.api_on[j] = found = 1;
+                if (!found)
+                    n = -1;
+            }
+            if (n < 1) {
+                fprintf(stderr, "rtktool bench: --api wants a list of single, packet4, packet8, packet16 (got '%s')\n",
+                        argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--only") && more) {
+            n = parse_list(argv[++i], items, 8);
+            o.do_trace = o.do_render = o.do_build = o.do_accuracy = 0;
+            for (int k = 0; k < n; k++) {
+                int *flag = !strcmp(items[k], "trace")      ? &o.do_trace
+                            : !strcmp(items[k], "render")   ? &o.do_render
+                            : !strcmp(items[k], "build")    ? &o.do_build
+                            : !strcmp(items[k], "accuracy") ? &o.do_accuracy
+                                                            : NULL;
+                if (!flag)
+                    n = -1;
+                else
+                    *flag = 1;
+            }
+            if (n < 1) {
+                fprintf(stderr, "rtktool bench: --only wants a list of trace, render, build, accuracy (got '%s')\n",
+                        argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--size") && more) {
+            char tail;
+            if (sscanf(argv[++i], "%dx%d%c", &o.w, &o.h, &tail) != 2 || o.w < 4 || o.h < 4 || o.w > 8192 ||
+                o.h > 8192 || o.w % 4 || o.h % 4) {
+                fprintf(stderr, "rtktool bench: --size wants WxH, multiples of 4 up to 8192 (got '%s')\n", argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--render") && more) {
+            char tail;
+            if (sscanf(argv[++i], "%dx%dx%d%c", &o.render_w, &o.render_h, &o.render_spp, &tail) != 3 ||
+                o.render_w < 1 || o.render_h < 1 || o.render_spp < 1 || o.render_w > 8192 || o.render_h > 8192 ||
+                o.render_spp > 4096) {
+                fprintf(stderr, "rtktool bench: --render wants WxHxSPP (got '%s')\n", argv[i]);
+                return 2;
+            }
+        } else if ((!strcmp(a, "--repeat") || !strcmp(a, "--builds") || !strcmp(a, "--edge-rays")) && more) {
+            char *end;
+            errno = 0;
+            const long v = strtol(argv[++i], &end, 10);
+            const long hi = !strcmp(a, "--edge-rays") ? 100000000 : 1000;
+            if (end == argv[i] || *end || errno || v < (!strcmp(a, "--edge-rays") ? 0 : 1) || v > hi) {
+                fprintf(stderr, "rtktool bench: %s wants a whole number up to %ld (got '%s')\n", a, hi, argv[i]);
+                return 2;
+            }
+            *(!strcmp(a, "--repeat") ? &o.repeat : !strcmp(a, "--builds") ? &o.builds : &o.edge_rays) = (int)v;
+        } else if (!strcmp(a, "--quick")) {
+            o.w = 256, o.h = 192, o.repeat = 1, o.builds = 1, o.nthreads = 1, o.threads[0] = 1;
+            o.edge_rays = 20000, o.render_w = 128, o.render_h = 96;
+        } else if (a[0] != '-' && nmeshes < 64)
+            meshes[nmeshes++] = a;
+        else {
+            fprintf(stderr, "rtktool bench: unknown or incomplete argument '%s'\n", a);
+            bench_usage(stderr);
+            return 2;
+        }
+    }
+    if (!nmeshes) {
+        bench_usage(stderr);
+        return 2;
+    }
+    if (mkdir(o.outdir, 0777) && errno != EEXIST) {
+        fprintf(stderr, "rtktool bench: %s: %s\n", o.outdir, strerror(errno));
+        return 1;
+    }
+    char path[600], err[1024];
+    snprintf(path, sizeof path, "%s/bench.csv", o.outdir);
+    FILE *csv = fopen(path, "w");
+    if (!csv) {
+        fprintf(stderr, "rtktool bench: %s: %s\n", path, strerror(errno));
+        return 1;
+    }
+    fprintf(csv, "mesh,section,library,variant,set,api,threads,value,unit,ratio_to_embree_avx2\n");
+
+    ctx c = {.o = &o};
+    int maxthreads = 1;
+    for (int t = 0; t < o.nthreads; t++)
+        maxthreads = o.threads[t] > maxthreads ? o.threads[t] : maxthreads;
+    int rc = 1;
+    if (lib_open(&c.libs[c.nlibs++], "embree isa=avx2", 1, "isa=avx2", maxthreads, err, sizeof err) ||
+        lib_open(&c.libs[c.nlibs++], "embree default", 1, "", maxthreads, err, sizeof err)) {
+        fprintf(stderr, "rtktool bench: %s\n", err);
+        c.nlibs--;
+        goto done;
+    }
+    static const char *const all_isas[] = {"scalar", "sse41", "avx", "avx2"};
+    for (int b = 0; b < 4; b++) {
+        int wanted = o.nisa == 0;
+        for (int k = 0; k < o.nisa; k++)
+            wanted |= !strcmp(o.isa[k], all_isas[b]);
+        if (!wanted)
+            continue;
+        char name[40], cfg[32];
+        snprintf(name, sizeof name, "rtk %s", all_isas[b]);
+        snprintf(cfg, sizeof cfg, "isa=%s", all_isas[b]);
+        if (lib_open(&c.libs[c.nlibs], name, 0, cfg, maxthreads, err, sizeof err))
+            printf("%s: unavailable (%s)\n", name, err);
+        else
+            c.nlibs++;
+    }
+    for (int k = 0; k < o.nisa; k++) {
+        int known = 0;
+        for (int b = 0; b < 4; b++)
+            known |= !strcmp(o.isa[k], all_isas[b]);
+        if (!known) {
+            fprintf(stderr, "rtktool bench: --isa: no backend '%s' (scalar, sse41, avx, avx2)\n", o.isa[k]);
+            goto done;
+        }
+    }
+    char feat[512];
+    rtk_cpu_features_string(rtk_cpu_features(), feat, sizeof feat);
+    printf("rtk %s beside Embree %d.%d.%d; CPU features: %s; %ld cores online\n", rtk_version_string(),
+           RTC_VERSION_MAJOR, RTC_VERSION_MINOR, RTC_VERSION_PATCH, feat, sysconf(_SC_NPROCESSORS_ONLN));
+    printf("device creation:");
+    for (int l = 0; l < c.nlibs; l++)
+        printf(" %s %.1f ms%s", c.libs[l].name, c.libs[l].device_seconds * 1e3, l + 1 < c.nlibs ? "," : "\n");
+    const int gnuplot = have_gnuplot();
+    for (int mi = 0; mi < nmeshes; mi++) {
+        rtk_mesh m;
+        if (rtk_mesh_load(meshes[mi], &m, err, sizeof err)) {
+            fprintf(stderr, "rtktool: %s\n", err);
+            goto done;
+        }
+        /* Embree reads 16 bytes at the last vertex: a padded copy */
+        float *padded = calloc(m.vertex_count * 3 + 4, sizeof(float));
+        if (!padded) {
+            rtk_mesh_free(&m);
+            fprintf(stderr, "rtktool bench: out of memory\n");
+            goto done;
+        }
+        memcpy(padded, m.vertices, m.vertex_count * 3 * sizeof(float));
+        c.m = &m;
+        c.padded = padded;
+        c.csv = (out){csv, meshes[mi]};
+        mesh_stem(meshes[mi], c.stem, sizeof c.stem);
+        printf("\n== %s: %zu triangles, %zu vertices\n", meshes[mi], m.triangle_count, m.vertex_count);
+        printf("memory (BVH and leaves per input triangle; Embree's from its memory monitor):");
+        for (int l = 0; l < c.nlibs; l++) {
+            scene sc;
+            if (scene_build(&sc, &c.libs[l], &m, padded, MODE_DEFAULT, 1, err, sizeof err)) {
+                fprintf(stderr, "rtktool bench: %s\n", err);
+                free(padded);
+                rtk_mesh_free(&m);
+                goto done;
+            }
+            printf(" %s %.1f B%s", c.libs[l].name, sc.bytes_per_tri, l + 1 < c.nlibs ? "," : "\n");
+            csv_row(&c.csv, "memory", c.libs[l].name, sc.layout, "", "", 1, sc.bytes_per_tri, "bytes per triangle", 0);
+            scene_release(&sc);
+        }
+        int bad = (o.do_trace && section_trace(&c, err, sizeof err)) ||
+                  (o.do_render && section_render(&c, err, sizeof err)) ||
+                  (o.do_build && section_build(&c, err, sizeof err)) ||
+                  (o.do_accuracy && section_accuracy(&c, err, sizeof err));
+        free(padded);
+        rtk_mesh_free(&m);
+        if (bad) {
+            fprintf(stderr, "rtktool bench: %s\n", err);
+            goto done;
+        }
+        static const char *const charts[] = {"trace", "build", "accuracy"};
+        const int on[] = {o.do_trace, o.do_build, o.do_accuracy};
+        for (int k = 0; k < 3; k++) {
+            if (!on[k])
+                continue;
+            char name[200];
+            snprintf(name, sizeof name, "%s-%s", c.stem, charts[k]);
+            if (gnuplot && run_gnuplot(o.outdir, name))
+                printf("chart: %s/%s.png\n", o.outdir, name);
+            else
+                printf("chart: %s/%s.gp not drawn (%s)\n", o.outdir, name,
+                       gnuplot ? "gnuplot failed, see the .gp.log beside it" : "gnuplot is not installed");
+        }
+    }
+    printf("\ncsv: %s/bench.csv\n", o.outdir);
+    rc = 0;
+done:
+    fclose(csv);
+    for (int l = 0; l < c.nlibs; l++)
+        lib_close(&c.libs[l]);
+    return rc;
+}
