@@ -653,7 +653,30 @@ typedef struct ctx {
     int nlibs;
     out csv;
     char stem[128];
+    rayset sets[NSETS]; /* the mesh's ray sets, shared by the sections */
 } ctx;
+
+/* The ray sets of a mesh: camera rays, then the secondary rays from the
+ * hits Embree isa=avx2 (the first library) finds. */
+static int make_sets(ctx *c, char *err, size_t err_size)
+{
+    rayset *sets = c->sets;
+    make_primary(c->m, c->o->w, c->o->h, &sets[SET_PRIMARY]);
+    scene ref;
+    if (scene_build(&ref, &c->libs[0], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
+        return 1;
+    make_secondary(c->m, &ref, &sets[SET_PRIMARY], &sets[SET_DIFFUSE], &sets[SET_SHADOW]);
+    scene_release(&ref);
+    return 0;
+}
+
+static void free_sets(ctx *c)
+{
+    for (int s = 0; s < NSETS; s++) {
+        free(c->sets[s].rays);
+        c->sets[s] = (rayset){NULL, 0};
+    }
+}
 
 static double ratio(double v, double ref)
 {
@@ -684,13 +707,7 @@ static void print_header(const ctx *c)
 static int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
-    rayset sets[NSETS];
-    make_primary(c->m, o->w, o->h, &sets[SET_PRIMARY]);
-    scene ref;
-    if (scene_build(&ref, &c->libs[0], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
-        return 1;
-    make_secondary(c->m, &ref, &sets[SET_PRIMARY], &sets[SET_DIFFUSE], &sets[SET_SHADOW]);
-    scene_release(&ref);
+    const rayset *sets = c->sets;
     printf("\ntrace: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow; best of %d passes; Mrays/s (ratio to "
            "%s)\n",
            sets[0].n, 100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, o->repeat,
@@ -778,10 +795,8 @@ static int section_trace(ctx *c, char *err, size_t err_size)
             fclose(gp);
         }
     }
-    for (int s = 0; s < NSETS; s++) {
-        free(sets[s].rays);
+    for (int s = 0; s < NSETS; s++)
         free(ref_hits[s]);
-    }
     free(hits);
     return 0;
 }
@@ -877,13 +892,7 @@ static int section_build(ctx *c, char *err, size_t err_size)
            o->builds);
     printf("  %-20s %-8s %7s %9s %8s %9s %7s  %s\n", "library", "quality", "threads", "start ms", "ratio", "Mtris/s",
            "B/tri", "diffuse Mrays/s");
-    rayset prim, diff, shadow;
-    make_primary(c->m, o->w, o->h, &prim);
-    scene ref;
-    if (scene_build(&ref, &c->libs[0], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
-        return 1;
-    make_secondary(c->m, &ref, &prim, &diff, &shadow);
-    scene_release(&ref);
+    const rayset diff = c->sets[SET_DIFFUSE];
     unsigned char *hits = malloc(diff.n + 1);
     char path[600];
     snprintf(path, sizeof path, "%s/%s-build.dat", o->outdir, c->stem);
@@ -954,16 +963,13 @@ static int section_build(ctx *c, char *err, size_t err_size)
                     "set xrange [0:*]\nset yrange [0:*]\nplot ",
                     c->stem, base_name(c->csv.mesh), diff.n);
             for (int l = 0; l < c->nlibs; l++)
-                fprintf(gp, "%s'%s-build.dat' index %d using 1:2 with linespoints pt 7 ps 1.2 lw 1.5 title '%s', "
-                        "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' notitle",
-                        l ? ", " : "", c->stem, l, c->libs[l].name, l);
+                fprintf(gp, "%s'%s-build.dat' index %d using 1:2 with linespoints pt 7 ps 1.2 lw 1.5 lc %d title '%s', "
+                        "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' tc lt -1 notitle",
+                        l ? ", " : "", c->stem, l, l + 1, c->libs[l].name, l);
             fprintf(gp, "\n");
             fclose(gp);
         }
     }
-    free(prim.rays);
-    free(diff.rays);
-    free(shadow.rays);
     free(hits);
     return 0;
 }
@@ -974,13 +980,7 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
     rayset edges;
     float *target_t = NULL;
     make_edge_rays(c->m, (size_t)o->edge_rays, &edges, &target_t);
-    rayset prim, diff, shadow;
-    make_primary(c->m, o->w, o->h, &prim);
-    scene ref;
-    if (scene_build(&ref, &c->libs[0], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
-        return 1;
-    make_secondary(c->m, &ref, &prim, &diff, &shadow);
-    scene_release(&ref);
+    const rayset diff = c->sets[SET_DIFFUSE];
     printf("\naccuracy: %zu rays aimed at points of edges shared by two triangles, from the side both face; a ray "
            "that misses or hits beyond its edge point leaked through the mesh; beside the diffuse rays' rate "
            "(single rays, 1 thread)\n",
@@ -1028,18 +1028,15 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
                     "set offsets graph 0.05, graph 0.1, graph 0.1, graph 0\nplot ",
                     c->stem, base_name(c->csv.mesh));
             for (int l = 0; l < c->nlibs; l++)
-                fprintf(gp, "%s'%s-accuracy.dat' index %d using 1:2 with points pt %d ps 1.5 title '%s', "
-                        "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' notitle",
-                        l ? ", " : "", c->stem, l, 5 + 2 * (l % 3), c->libs[l].name, l);
+                fprintf(gp, "%s'%s-accuracy.dat' index %d using 1:2 with points pt %d ps 1.5 lc %d title '%s', "
+                        "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' tc lt -1 notitle",
+                        l ? ", " : "", c->stem, l, 5 + 2 * (l % 3), l + 1, c->libs[l].name, l);
             fprintf(gp, "\n");
             fclose(gp);
         }
     }
     free(edges.rays);
     free(target_t);
-    free(prim.rays);
-    free(diff.rays);
-    free(shadow.rays);
     free(hits);
     return 0;
 }
@@ -1242,10 +1239,12 @@ int cmd_bench(int argc, char **argv)
             csv_row(&c.csv, "memory", c.libs[l].name, sc.layout, "", "", 1, sc.bytes_per_tri, "bytes per triangle", 0);
             scene_release(&sc);
         }
-        int bad = (o.do_trace && section_trace(&c, err, sizeof err)) ||
+        int bad = ((o.do_trace || o.do_build || o.do_accuracy) && make_sets(&c, err, sizeof err)) ||
+                  (o.do_trace && section_trace(&c, err, sizeof err)) ||
                   (o.do_render && section_render(&c, err, sizeof err)) ||
                   (o.do_build && section_build(&c, err, sizeof err)) ||
                   (o.do_accuracy && section_accuracy(&c, err, sizeof err));
+        free_sets(&c);
         free(padded);
         rtk_mesh_free(&m);
         if (bad) {
