@@ -13,6 +13,11 @@ expect() { # expect WANT_EXIT NEEDLE -- command...
     [ "$rc" = "$want" ] || fail "'$*' exited $rc, expected $want: $out"
     grep -qF -- "$needle" <<<"$out" || fail "'$*' output lacks '$needle': $out"
 }
+expect 0 "active backend:" -- "$tool" info
+expect 0 "examples:" -- "$tool" info --help
+expect 2 "unknown argument '--bogus'" -- "$tool" info --bogus
+expect 1 "RTK_ERROR_INVALID_CONFIG" -- "$tool" info --config isa=avx9,bogus=1
+expect 0 "examples:" -- "$tool" convert --help
 expect 0 "wrote:    $work/bunny.rtkm: 35947 vertices, 69451 triangles" -- \
     "$tool" convert "$data/bunny.ply" "$work/bunny.rtkm"
 expect 0 "merged:" -- "$tool" convert "$data/bunny.ply" "$work/clean.rtkm" --merge-vertices --drop-degenerate

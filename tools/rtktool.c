@@ -63,14 +63,29 @@ static rtk_device open_device(const char *config)
     return dev;
 }
 
+static void info_usage(FILE *f)
+{
+    fprintf(f, "usage: rtktool info [--config STR]\n"
+               "  Prints rtk's version, the CPU features it detected, every backend file it found with\n"
+               "  its status (active, usable, rejected, and why), and the backend a device would use.\n"
+               "  --config STR   device config, e.g. isa=sse41 or backend_path=DIR (see README)\n"
+               "examples:\n"
+               "  rtktool info\n"
+               "  RTK_BACKEND_PATH=/opt/rtk/lib/rtk rtktool info --config max_isa=avx\n");
+}
+
 static int cmd_info(int argc, char **argv)
 {
     const char *config = "";
     for (int i = 0; i < argc; i++) {
-        if (!strcmp(argv[i], "--config") && i + 1 < argc)
+        if (!strcmp(argv[i], "-h") || !strcmp(argv[i], "--help")) {
+            info_usage(stdout);
+            return 0;
+        } else if (!strcmp(argv[i], "--config") && i + 1 < argc)
             config = argv[++i];
         else {
             fprintf(stderr, "rtktool info: unknown argument '%s'\n", argv[i]);
+            info_usage(stderr);
             return 2;
         }
     }
@@ -450,7 +465,10 @@ static void convert_usage(FILE *f)
                "  which every rtktool command reads without parsing (tools/rtkm.h).\n"
                "  --merge-vertices   merge vertices at the same position (reports how many)\n"
                "  --drop-degenerate  drop the triangles rtk never hits: zero area, or a NaN or\n"
-               "                     infinite vertex (without it they are counted and kept)\n");
+               "                     infinite vertex (without it they are counted and kept)\n"
+               "examples:\n"
+               "  rtktool convert bunny.ply bunny.rtkm\n"
+               "  rtktool convert scan.stl scan.rtkm --merge-vertices --drop-degenerate\n");
 }
 
 static int ends_with(const char *s, const char *suffix)
