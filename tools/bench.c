@@ -117,7 +117,8 @@ enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST };
 static const char *const mode_names[] = {"default", "compact", "robust"};
 
 typedef struct lib {
-    char name[40]; /* "embree isa=avx2", "embree default", "rtk avx2" */
+    char name[40];   /* "embree isa=avx2", "embree default", "rtk avx2" */
+    char config[32]; /* what lib_open was given besides threads: "isa=avx2", "" */
     int embree;
     RTCDevice edev;
     rtk_device rdev;
@@ -148,6 +149,7 @@ static int lib_open(lib *l, const char *name, int embree, const char *config, in
 {
     memset(l, 0, sizeof *l);
     snprintf(l->name, sizeof l->name, "%s", name);
+    snprintf(l->config, sizeof l->config, "%s", config);
     l->embree = embree;
     char cfg[128];
     const double t0 = now();
@@ -262,7 +264,6 @@ static render_tracer scene_tracer(scene *sc, int coherent)
 enum { SET_PRIMARY, SET_DIFFUSE, SET_SHADOW, NSETS };
 static const char *const set_names[NSETS] = {"primary", "diffuse", "shadow"};
 static const int apis[4] = {1, 4, 8, 16};
-static const char *const api_names[4] = {"single", "packet4", "packet8", "packet16"};
 
 typedef struct rayset {
     rtk_ray *rays;
@@ -336,18 +337,11 @@ static void make_secondary(const rtk_mesh *m, scene *sc, const rayset *primary, 
                       q->org_z + rh.ray.tfar * q->dir_z};
         for (int k = 0; k < 3; k++)
             p[k] += eps * n[k];
-        float a[3] = {fabsf(n[0]) > 0.9f ? 0.0f : 1.0f, fabsf(n[0]) > 0.9f ? 1.0f : 0.0f, 0.0f}, b[3], u[3];
-        u[0] = a[1] * n[2] - a[2] * n[1], u[1] = a[2] * n[0] - a[0] * n[2], u[2] = a[0] * n[1] - a[1] * n[0];
-        const float ul = sqrtf(u[0] * u[0] + u[1] * u[1] + u[2] * u[2]);
-        for (int k = 0; k < 3; k++)
-            u[k] /= ul;
-        b[0] = n[1] * u[2] - n[2] * u[1], b[1] = n[2] * u[0] - n[0] * u[2], b[2] = n[0] * u[1] - n[1] * u[0];
-        const float r = sqrtf(rnd()), phi = 6.2831853f * rnd(), x = r * cosf(phi), y = r * sinf(phi),
-                    z = sqrtf(fmaxf(0.0f, 1.0f - x * x - y * y));
-        diffuse->rays[diffuse->n++] =
-            (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = x * u[0] + y * b[0] + z * n[0],
-                      .dir_y = x * u[1] + y * b[1] + z * n[1], .dir_z = x * u[2] + y * b[2] + z * n[2],
-                      .tfar = INFINITY, .mask = ~0u};
+        const float u1 = rnd();
+        float d[3];
+        render_cosine_dir(n, u1, rnd(), d);
+        diffuse->rays[diffuse->n++] = (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = d[0],
+                                                .dir_y = d[1], .dir_z = d[2], .tfar = INFINITY, .mask = ~0u};
         shadow->rays[shadow->n++] =
             (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = light[0] - p[0],
                       .dir_y = light[1] - p[1], .dir_z = light[2] - p[2], .tfar = 1.0f, .mask = ~0u};
@@ -457,13 +451,13 @@ static int runs_forward(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
  * exactly two triangles of non-zero area, from a distance of a fifth of
  * the mesh's size, in a direction that meets both triangles' planes from
  * their front (cosine at least 0.3 with each normal, taken consistently
- * across the edge).  target_t[i]: the distance along ray i to its point. */
-static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set, float **target_t)
+ * across the edge).  Each ray's direction is its point minus its origin:
+ * the point is at t = 1. */
+static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set)
 {
     const size_t nt = m->triangle_count;
     set->rays = NULL;
     set->n = 0;
-    *target_t = NULL;
     edge *e = malloc(3 * nt * sizeof *e + 1);
     if (!e)
         return 0;
@@ -484,7 +478,6 @@ static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set, float 
     float lo[3], hi[3];
     const float diag = rtk_mesh_bounds(m, lo, hi);
     set->rays = calloc(want, sizeof(rtk_ray));
-    *target_t = calloc(want, sizeof(float));
     set->n = 0;
     for (size_t tries = 0; pairs >= 2 && set->n < want && tries < 20 * want; tries++) {
         const size_t p = (size_t)(rnd() * (float)(pairs / 2)) % (pairs / 2) * 2;
@@ -522,7 +515,7 @@ static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set, float 
         }
         set->rays[set->n] = (rtk_ray){.org_x = org[0], .org_y = org[1], .org_z = org[2], .dir_x = dir[0],
                                       .dir_y = dir[1], .dir_z = dir[2], .tfar = INFINITY, .mask = ~0u};
-        (*target_t)[set->n++] = 1.0f;
+        set->n++;
     }
     free(e);
     set->n &= ~(size_t)15;
@@ -530,13 +523,13 @@ static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set, float 
 }
 
 /* Rays that leaked: missed, or hit beyond their edge point (t > 1 + 1e-4). */
-static size_t count_leaks(const render_tracer *t, const rayset *set, const float *target_t)
+static size_t count_leaks(const render_tracer *t, const rayset *set)
 {
     size_t leaks = 0;
     for (size_t i = 0; i < set->n; i++) {
         _Alignas(16) rtk_rayhit rh = {.ray = set->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
         t->intersect1(t->scene, &rh);
-        leaks += rh.hit.geomID == RTK_INVALID_GEOMETRY_ID || rh.ray.tfar > target_t[i] * (1.0f + 1e-4f);
+        leaks += rh.hit.geomID == RTK_INVALID_GEOMETRY_ID || rh.ray.tfar > 1.0f + 1e-4f;
     }
     return leaks;
 }
@@ -754,12 +747,12 @@ static int section_trace(ctx *c, char *err, size_t err_size)
                 if (!o->api_on[a])
                     continue;
                 char label[48];
-                snprintf(label, sizeof label, "%s %s", set_names[s], api_names[a]);
+                snprintf(label, sizeof label, "%s %s", set_names[s], render_api_name(apis[a]));
                 print_row_label(label);
                 for (int l = 0; l < c->nlibs; l++) {
                     const double v = rate[l][ti][s][a], r = rate[0][ti][s][a];
                     print_cell(v, r, l == 0);
-                    csv_row(&c->csv, "trace", c->libs[l].name, "default", set_names[s], api_names[a],
+                    csv_row(&c->csv, "trace", c->libs[l].name, "default", set_names[s], render_api_name(apis[a]),
                             o->threads[ti], v, "Mrays/s", l ? ratio(v, r) : 1.0);
                 }
                 printf("\n");
@@ -865,12 +858,12 @@ static int section_render(ctx *c, char *err, size_t err_size)
             if (!o->api_on[a])
                 continue;
             char label[48];
-            snprintf(label, sizeof label, "%s, %d thread%s", api_names[a], o->threads[ti], o->threads[ti] > 1 ? "s" : "");
+            snprintf(label, sizeof label, "%s, %d thread%s", render_api_name(apis[a]), o->threads[ti], o->threads[ti] > 1 ? "s" : "");
             print_row_label(label);
             for (int l = 0; l < c->nlibs; l++) {
                 const double v = best[l][ti][a], r = best[0][ti][a];
                 print_cell(v, r, l == 0);
-                csv_row(&c->csv, "render", c->libs[l].name, "default", "diffuse path tracer", api_names[a],
+                csv_row(&c->csv, "render", c->libs[l].name, "default", "diffuse path tracer", render_api_name(apis[a]),
                         o->threads[ti], v, "Mrays/s", ratio(v, r));
             }
             printf("\n");
@@ -904,12 +897,8 @@ static int section_build(ctx *c, char *err, size_t err_size)
         for (int q = 0; q < 3; q++) {
             for (int ti = 0; ti < o->nthreads; ti++) {
                 lib bl;
-                char cfg[32] = "";
-                if (!c->libs[l].embree)
-                    snprintf(cfg, sizeof cfg, "isa=%s", rtk_device_get_backend_name(c->libs[l].rdev));
-                else if (strstr(c->libs[l].name, "avx2"))
-                    snprintf(cfg, sizeof cfg, "isa=avx2");
-                if (lib_open(&bl, c->libs[l].name, c->libs[l].embree, cfg, o->threads[ti], err, err_size))
+                if (lib_open(&bl, c->libs[l].name, c->libs[l].embree, c->libs[l].config, o->threads[ti], err,
+                             err_size))
                     return 1;
                 double best = 1e30, bytes = 0, trace_rate = 0;
                 for (int b = 0; b < o->builds; b++) {
@@ -978,8 +967,7 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     rayset edges;
-    float *target_t = NULL;
-    make_edge_rays(c->m, (size_t)o->edge_rays, &edges, &target_t);
+    make_edge_rays(c->m, (size_t)o->edge_rays, &edges);
     const rayset diff = c->sets[SET_DIFFUSE];
     printf("\naccuracy: %zu rays aimed at points of edges shared by two triangles, from the side both face; a ray "
            "that misses or hits beyond its edge point leaked through the mesh; beside the diffuse rays' rate "
@@ -998,7 +986,7 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
             if (scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size))
                 return 1;
             const render_tracer t = scene_tracer(&sc, 0);
-            const size_t leaks = count_leaks(&t, &edges, target_t);
+            const size_t leaks = count_leaks(&t, &edges);
             const double rate = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits), bytes = sc.bytes_per_tri;
             scene_release(&sc);
             const double ppm = edges.n ? 1e6 * (double)leaks / (double)edges.n : 0.0;
@@ -1036,7 +1024,6 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
         }
     }
     free(edges.rays);
-    free(target_t);
     free(hits);
     return 0;
 }
@@ -1082,7 +1069,7 @@ int cmd_bench(int argc, char **argv)
             for (int k = 0; k < n; k++) {
                 int found = 0;
                 for (int j = 0; j < 4; j++)
-                    if (!strcmp(items[k], api_names[j]))
+                    if (render_api_parse(items[k]) == apis[j])
                         o.api_on[j] = found = 1;
                 if (!found)
                     n = -1;

@@ -27,6 +27,25 @@ int render_mode_parse(const char *name, render_mode *mode)
     return 1;
 }
 
+static const char *const api_names[] = {"single", "packet4", "packet8", "packet16"};
+static const int api_widths[] = {1, 4, 8, 16};
+
+const char *render_api_name(int api)
+{
+    for (int i = 0; i < 4; i++)
+        if (api == api_widths[i])
+            return api_names[i];
+    return NULL;
+}
+
+int render_api_parse(const char *name)
+{
+    for (int i = 0; i < 4; i++)
+        if (!strcmp(name, api_names[i]))
+            return api_widths[i];
+    return 0;
+}
+
 static float dot3(const float a[3], const float b[3])
 {
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
@@ -310,19 +329,23 @@ static void path_start(const ctx *c, path *q, int x, int y, int sample)
     q->alive = 1;
 }
 
-/* A direction around n, cosine-weighted: a uniform point on the unit disk
- * lifted onto the hemisphere (its density is cos / pi). */
-static void cosine_dir(rng *g, const float n[3], float out[3])
+void render_cosine_dir(const float n[3], float u1, float u2, float out[3])
 {
     float a[3] = {0, 0, 0}, t[3], b[3];
     a[fabsf(n[0]) > 0.9f ? 1 : 0] = 1.0f;
     cross3(a, n, t);
     normalize3(t);
     cross3(n, t, b);
-    const float r = sqrtf(rng_float(g)), phi = 6.2831853f * rng_float(g);
+    const float r = sqrtf(u1), phi = 6.2831853f * u2;
     const float x = r * cosf(phi), y = r * sinf(phi), z = sqrtf(fmaxf(0.0f, 1.0f - x * x - y * y));
     for (int k = 0; k < 3; k++)
         out[k] = x * t[k] + y * b[k] + z * n[k];
+}
+
+static void cosine_dir(rng *g, const float n[3], float out[3])
+{
+    const float u1 = rng_float(g);
+    render_cosine_dir(n, u1, rng_float(g), out);
 }
 
 static void sky(const ctx *c, const float dir[3], float out[3])
@@ -711,7 +734,7 @@ int render_image(const render_tracer *t, const render_settings *s, float *rgb, r
     }
     struct timespec t0;
     clock_gettime(CLOCK_MONOTONIC, &t0);
-    int started = 1, rc = 0;
+    int started = 1;
     for (int i = 0; i < s->threads; i++) {
         w[i].sh = &sh;
         w[i].last = t0;
@@ -735,7 +758,7 @@ int render_image(const render_tracer *t, const render_settings *s, float *rgb, r
     }
     free(w);
     free(tid);
-    return rc;
+    return 0;
 }
 
 static unsigned char to8(float v, int srgb)

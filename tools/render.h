@@ -31,6 +31,17 @@ typedef enum render_mode {
 const char *render_mode_name(render_mode mode);
 int render_mode_parse(const char *name, render_mode *mode);
 
+/* The ray-tracing calls a render uses: 1 (intersect1/occluded1) or the
+ * packet width 4, 8, 16.  "single", "packet4", "packet8", "packet16";
+ * render_api_parse gives 0 for anything else. */
+const char *render_api_name(int api);
+int render_api_parse(const char *name);
+
+/* A direction about the unit normal n, cosine-weighted (density cos / pi),
+ * from two uniform numbers in [0, 1): a point of the unit disk (radius
+ * sqrt(u1), angle 2 pi u2) lifted onto the hemisphere. */
+void render_cosine_dir(const float n[3], float u1, float u2, float out[3]);
+
 /* Pinhole camera: the ray through pixel position (x, y) (in pixels, from the
  * top-left corner) leaves eye in the direction corner + x * du + y * dv. */
 typedef struct render_camera {

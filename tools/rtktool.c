@@ -176,6 +176,21 @@ static int quality_arg(const char *cmd, const char *s, rtk_build_quality *q)
     return 0;
 }
 
+/* A JSON string member, escaped, on a line of its own. */
+static void json_string(const char *key, const char *v, int last)
+{
+    printf("  \"%s\": \"", key);
+    for (const char *p = v; *p; p++) {
+        if (*p == '"' || *p == '\\')
+            printf("\\%c", *p);
+        else if ((unsigned char)*p < 0x20)
+            printf("\\u%04x", *p);
+        else
+            putchar(*p);
+    }
+    printf("\"%s\n", last ? "" : ",");
+}
+
 /* ---- trace ---- */
 
 static void trace_usage(FILE *f)
@@ -224,11 +239,6 @@ static void trace_progress_cb(void *user, double done)
     progress_update(&p->bar, ((double)p->frame + done) / (double)p->frames);
 }
 
-static const char *api_name(int api)
-{
-    return api == 1 ? "single" : api == 4 ? "packet4" : api == 8 ? "packet8" : "packet16";
-}
-
 static int cmd_trace(int argc, char **argv)
 {
     const char *mesh_path = NULL, *out = "trace.png", *isa = NULL, *extra = "", *load = NULL, *camera = NULL;
@@ -260,8 +270,7 @@ static int cmd_trace(int argc, char **argv)
             }
         } else if (!strcmp(a, "--api") && more) {
             const char *v = argv[++i];
-            api = !strcmp(v, "single") ? 1 : !strcmp(v, "packet4") ? 4 : !strcmp(v, "packet8") ? 8
-                                          : !strcmp(v, "packet16") ? 16 : 0;
+            api = render_api_parse(v);
             if (!api) {
                 fprintf(stderr, "rtktool trace: --api wants single, packet4, packet8 or packet16 (got '%s')\n", v);
                 return 2;
@@ -309,9 +318,8 @@ static int cmd_trace(int argc, char **argv)
 
     char config[512], err[1024];
     snprintf(config, sizeof config, "%s%s%s%s", isa ? "isa=" : "", isa ? isa : "", isa && extra[0] ? "," : "", extra);
-    render_settings rs;
-    render_defaults(&rs, (const float[3]){-1, -1, -1}, (const float[3]){1, 1, 1}, w, h);
-    if (camera && render_camera_parse(&rs.camera, camera, w, h, err, sizeof err)) {
+    render_camera given;
+    if (camera && render_camera_parse(&given, camera, w, h, err, sizeof err)) {
         fprintf(stderr, "rtktool trace: %s\n", err);
         return 2;
     }
@@ -346,10 +354,10 @@ static int cmd_trace(int argc, char **argv)
     rtk_scene_info info = {.struct_size = sizeof info};
     rtk_scene_get_info(scene, &info);
 
-    const render_camera cam = rs.camera;
+    render_settings rs;
     render_defaults(&rs, info.bounds_lower, info.bounds_upper, w, h);
     if (camera)
-        rs.camera = cam;
+        rs.camera = given;
     rs.mode = mode;
     rs.api = api;
     rs.spp = (int)spp;
@@ -399,18 +407,24 @@ static int cmd_trace(int argc, char **argv)
     snprintf(cam_spec, sizeof cam_spec, "%g,%g,%g/%g,%g,%g/%g,%g,%g/%g", c->eye[0], c->eye[1], c->eye[2],
              c->target[0], c->target[1], c->target[2], c->up[0], c->up[1], c->up[2], c->fov);
     if (json) {
-        printf("{\n  \"mesh\": \"%s\",\n  \"triangles\": %zu,\n  \"backend\": \"%s\",\n  \"layout\": \"%s\",\n"
-               "  \"bytes_per_triangle\": %.2f,\n  \"build_seconds\": %.6f,\n  \"built\": %s,\n"
-               "  \"mode\": \"%s\",\n  \"api\": \"%s\",\n  \"packet_width\": %u,\n  \"width\": %d,\n"
-               "  \"height\": %d,\n  \"spp\": %ld,\n  \"threads\": %ld,\n  \"camera\": \"%s\",\n"
-               "  \"rays\": {\"primary\": %llu, \"bounce\": %llu, \"shadow\": %llu, \"ao\": %llu, \"total\": %llu},\n"
-               "  \"primary_hit_percent\": %.3f,\n  \"frames\": %ld,\n  \"seconds\": %.6f,\n  \"mrays_per_s\": %.4f,\n"
-               "  \"image\": \"%s\"\n}\n",
-               mesh_path, mesh.triangle_count, rtk_device_get_backend_name(dev), info.layout,
-               info.bytes_per_triangle, info.build_seconds, load ? "false" : "true", render_mode_name(mode),
-               api_name(api), pw, w, h, spp, threads, cam_spec, (unsigned long long)best.primary,
-               (unsigned long long)best.bounce, (unsigned long long)best.shadow, (unsigned long long)best.ao,
-               (unsigned long long)rays, hit, frames, best.seconds, mrays, out);
+        printf("{\n");
+        json_string("mesh", mesh_path, 0);
+        printf("  \"triangles\": %zu,\n", mesh.triangle_count);
+        json_string("backend", rtk_device_get_backend_name(dev), 0);
+        json_string("layout", info.layout, 0);
+        printf("  \"bytes_per_triangle\": %.2f,\n  \"build_seconds\": %.6f,\n  \"built\": %s,\n",
+               info.bytes_per_triangle, info.build_seconds, load ? "false" : "true");
+        json_string("mode", render_mode_name(mode), 0);
+        json_string("api", render_api_name(api), 0);
+        printf("  \"packet_width\": %u,\n  \"width\": %d,\n  \"height\": %d,\n  \"spp\": %ld,\n  \"threads\": %ld,\n",
+               pw, w, h, spp, threads);
+        json_string("camera", cam_spec, 0);
+        printf("  \"rays\": {\"primary\": %llu, \"bounce\": %llu, \"shadow\": %llu, \"ao\": %llu, \"total\": %llu},\n"
+               "  \"primary_hit_percent\": %.3f,\n  \"frames\": %ld,\n  \"seconds\": %.6f,\n  \"mrays_per_s\": %.4f,\n",
+               (unsigned long long)best.primary, (unsigned long long)best.bounce, (unsigned long long)best.shadow,
+               (unsigned long long)best.ao, (unsigned long long)rays, hit, frames, best.seconds, mrays);
+        json_string("image", out, 1);
+        printf("}\n");
         rc = 0;
         goto done;
     }
@@ -434,7 +448,7 @@ static int cmd_trace(int argc, char **argv)
         printf(", up to %ld bounces (Russian roulette from bounce %d)", bounces, rs.rr_depth);
     if (mode == RENDER_AO)
         printf(", %ld rays of length %g per hit", ao_samples, rs.ao_distance);
-    printf(", %s API%s, %ld thread%s\n", api_name(api), packets, threads, threads > 1 ? "s" : "");
+    printf(", %s API%s, %ld thread%s\n", render_api_name(api), packets, threads, threads > 1 ? "s" : "");
     printf("rays:       %llu primary (%.1f%% hit)", (unsigned long long)best.primary, hit);
     if (best.bounce || mode == RENDER_DIFFUSE)
         printf(", %llu bounce", (unsigned long long)best.bounce);
@@ -637,20 +651,6 @@ static void print_report(const build_report *r)
     if (r->build_seconds >= 0.0)
         printf("build:     %.3f s, %.2f Mtris/s (1 thread)\n", r->build_seconds,
                r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0);
-}
-
-static void json_string(const char *key, const char *v, int last)
-{
-    printf("  \"%s\": \"", key);
-    for (const char *p = v; *p; p++) {
-        if (*p == '"' || *p == '\\')
-            printf("\\%c", *p);
-        else if ((unsigned char)*p < 0x20)
-            printf("\\u%04x", *p);
-        else
-            putchar(*p);
-    }
-    printf("\"%s\n", last ? "" : ",");
 }
 
 static void print_json(const build_report *r)
