@@ -11,9 +11,10 @@
  * direction (so -0.0 behaves as a negative direction, consistently with its
  * reciprocal), visited nearest
  * first by the closest-hit query and skipped when their entry distance is
- * already beyond the closest hit; the any-hit query takes them in node order
- * without sorting (any hit ends it; Embree's does the same, and on dragon.ply
- * shadow rays it measured about 8% faster than nearest first).  Direction
+ * already beyond the closest hit; the any-hit query takes them without
+ * sorting (any hit ends it; on dragon.ply shadow rays that measured about 8%
+ * faster than nearest first), last slot first, as Embree's does (see
+ * next_leaf).  Direction
  * components smaller than 1e-18 in magnitude are replaced by +-1e-18 before
  * taking the reciprocal (as Embree does), so no 0 * inf NaN can appear in a
  * slab test.  The far slab distance is scaled by 1 + 2*gamma(4) (Ize 2013), which makes the box test conservative against the rounding of
@@ -395,9 +396,18 @@ static inline __attribute__((always_inline)) int next_leaf(const rtk_accel *acce
         }
         if (mask && anyhit) {
             /* any hit ends the ray wherever it is: no sorting (tfar never
-             * shrinks, so nothing pushed is ever out of range) */
-            cur = child[__builtin_ctz(mask)];
-            for (mask &= mask - 1; mask; mask &= mask - 1)
+             * shrinks, so nothing pushed is ever out of range).  The last
+             * child hit goes first, then the others from the second last
+             * down, Embree's order: the builders put the upper half of each
+             * split after the lower, and first-slot-first took twice the
+             * instructions and ten times the L1 misses of Embree per ray on
+             * San Miguel's shadow rays (callgrind, 20,000 rays along
+             * (0.3, 0.8, 0.5) from points on the surface: 1266 against 594;
+             * last first: 751), and 1.15 times them on the dragon's (now
+             * 1.01 times). */
+            const int last = 31 - __builtin_clz(mask);
+            cur = child[last];
+            for (mask ^= 1u << last; mask; mask &= mask - 1)
                 stack[sp++] = (stack_entry){child[__builtin_ctz(mask)], 0.0f};
             continue;
         }
