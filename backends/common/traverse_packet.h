@@ -408,7 +408,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 fr_tfar = vn_set1(PK_(reduce_max)(tfar));
             continue;
         }
-        /* descend together, nearest child first (by any ray), the others pushed */
+        /* descend together, the others pushed: for the closest hit the
+         * nearest child first (by any ray); for any hit the last child hit
+         * first, as occluded1 does (San Miguel's shadow packets of 8:
+         * 0.60x -> 0.72x of Embree's, rtktool bench, 1 thread) */
         while (!(cur & RTK_BVH4_LEAF_BIT)) {
             const node_t *n = &BVHN_NODES(accel)[cur];
             uint32_t next = RTK_BVH4_EMPTY;
@@ -428,7 +431,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 if (next == RTK_BVH4_EMPTY) {
                     next = n->child[i];
                     next_dist = dist;
-                } else if (VKB(mask)(VK(lt)(dist, next_dist))) {
+                } else if (!closest || VKB(mask)(VK(lt)(dist, next_dist))) {
                     stack[sp++] = (PK_(pstack_entry)){.dist = next_dist, .ref = next};
                     next = n->child[i];
                     next_dist = dist;
