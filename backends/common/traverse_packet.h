@@ -246,7 +246,7 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
     for (int k = 0; k < 3; k++) {
         p->org[k] = VK(load)(org[k]);
         p->dir[k] = VK(load)(dir[k]);
-        /* as safe_rcp: components below 1e-18 in magnitude become +-1e-18 */
+        /* as in ray_pre_init: components below 1e-18 in magnitude become +-1e-18 */
         const vk d = VK(select)(VK(lt)(VK(abs)(p->dir[k]), tiny), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
         const vk rinv = VK(div)(one, d), rinv_far = VK(mul)(rinv, scale);
         const vkb neg = VK(lt)(rinv, zero);
