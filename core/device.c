@@ -123,8 +123,10 @@ rtk_error rtk_device_new(const char *config, rtk_device *out)
     }
     d->backend = d->backends.entries[d->backends.active].desc;
     rtk_log(d, 1, "active backend: %s", d->backends.entries[d->backends.active].name);
-    if (d->config.threads != 1)
-        rtk_log(d, 1, "threads=%u accepted; builds are single-threaded in this version", d->config.threads);
+    pthread_mutex_init(&d->pool_lock, NULL);
+    d->thread_count = d->config.threads ? d->config.threads : rtk_cpu_count();
+    rtk_log(d, 1, "builds on %u thread%s%s", d->thread_count, d->thread_count == 1 ? "" : "s",
+            d->config.threads ? "" : " (threads=0: one per CPU)");
     *out = d;
     return RTK_OK;
 }
@@ -139,10 +141,67 @@ void rtk_device_release(rtk_device device)
 {
     if (!device || atomic_fetch_sub(&device->refs, 1) != 1)
         return;
+    rtk_pool_free(device->pool);
+    pthread_mutex_destroy(&device->pool_lock);
     rtk_backends_unload(&device->backends);
     rtk_config_free(&device->config);
     pthread_mutex_destroy(&device->lock);
     free(device);
+}
+
+const rtk_task_system *rtk_device_tasks(rtk_device d, rtk_task_system *copy)
+{
+    const rtk_task_system *ts = NULL;
+    char msg[256] = "";
+    pthread_mutex_lock(&d->pool_lock);
+    if (!d->user_tasks && !d->pool && d->thread_count > 1) {
+        d->pool = rtk_pool_new(d->thread_count, msg, sizeof msg);
+        if (d->pool)
+            d->tasks = rtk_pool_tasks(d->pool);
+        else
+            d->thread_count = 1; /* said once, below; builds run on the caller's thread */
+    }
+    if (d->user_tasks || d->pool) {
+        *copy = d->tasks;
+        ts = copy;
+    }
+    pthread_mutex_unlock(&d->pool_lock);
+    if (msg[0])
+        rtk_log(d, 1, "builds run on the calling thread only: %s", msg);
+    return ts;
+}
+
+rtk_error rtk_device_set_task_system(rtk_device device, const rtk_task_system *tasks)
+{
+    if (!device)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_set_task_system: device is NULL");
+    if (tasks && (tasks->struct_size < offsetof(rtk_task_system, parallel_for) + sizeof tasks->parallel_for ||
+                  !tasks->parallel_for || tasks->threads == 0))
+        return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_device_set_task_system: struct_size not set, parallel_for NULL or threads 0");
+    pthread_mutex_lock(&device->pool_lock);
+    if (tasks) {
+        device->tasks = *tasks;
+        device->tasks.struct_size = sizeof device->tasks;
+        device->user_tasks = 1;
+    } else {
+        device->user_tasks = 0;
+        device->tasks = device->pool ? rtk_pool_tasks(device->pool) : (rtk_task_system){0};
+    }
+    pthread_mutex_unlock(&device->pool_lock);
+    return RTK_OK;
+}
+
+uint32_t rtk_device_get_thread_count(rtk_device device)
+{
+    if (!device) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_get_thread_count: device is NULL");
+        return 0;
+    }
+    pthread_mutex_lock(&device->pool_lock);
+    uint32_t n = device->user_tasks ? device->tasks.threads : device->thread_count;
+    pthread_mutex_unlock(&device->pool_lock);
+    return n;
 }
 
 rtk_error rtk_device_get_error(rtk_device device)

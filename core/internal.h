@@ -59,6 +59,17 @@ RTK_INTERNAL rtk_error rtk_backends_load(rtk_backend_registry *reg, const rtk_co
                                          char *msg, size_t msg_size);
 RTK_INTERNAL void rtk_backends_unload(rtk_backend_registry *reg);
 
+/* ---- pool.c: the device's worker threads ---- */
+typedef struct rtk_pool rtk_pool;
+/* The CPUs this process may run on (at least 1). */
+RTK_INTERNAL unsigned rtk_cpu_count(void);
+/* A pool running tasks on `threads` threads: the caller's and threads - 1
+ * workers.  NULL with the reason in msg. */
+RTK_INTERNAL rtk_pool *rtk_pool_new(unsigned threads, char *msg, size_t msg_size);
+/* Joins the workers; no parallel_for may be running. */
+RTK_INTERNAL void rtk_pool_free(rtk_pool *pool);
+RTK_INTERNAL rtk_task_system rtk_pool_tasks(rtk_pool *pool);
+
 /* ---- device ---- */
 struct rtk_device_s {
     atomic_int refs;
@@ -72,7 +83,18 @@ struct rtk_device_s {
     char message[1024];   /* of the most recent error */
     rtk_error_callback callback;
     void *callback_user;
+
+    pthread_mutex_t pool_lock; /* guards pool, tasks, user_tasks and thread_count */
+    unsigned thread_count;     /* threads= resolved (0: the CPU count) */
+    rtk_pool *pool;            /* created by the first build that uses more than one thread */
+    rtk_task_system tasks;     /* the application's (user_tasks), else the pool's once it exists */
+    int user_tasks;
 };
+
+/* The task system a build on this device runs on: the application's, or
+ * the device's pool (started now if it is not yet), or NULL for the
+ * calling thread only (threads=1, or the pool could not start: logged). */
+RTK_INTERNAL const rtk_task_system *rtk_device_tasks(rtk_device device, rtk_task_system *copy);
 
 /* Records an error on the device (NULL: on this thread), calls the callback,
  * and returns code, so callers can write `return rtk_fail(dev, code, ...)`. */

@@ -490,13 +490,16 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
                 flag_names(not_honoured, names, sizeof names));
     }
 
+    rtk_task_system task_copy;
+    const rtk_task_system *tasks = tree ? NULL : rtk_device_tasks(dev, &task_copy);
     rtk_build_input in = {
         .struct_size = sizeof in,
         .geometry_count = (uint32_t)n,
         .geometries = in_geoms,
         .quality = (uint32_t)s->quality,
         .layout = layout->id,
-        .threads = 1,
+        .threads = tasks ? tasks->threads : 1,
+        .tasks = tasks,
     };
     rtk_build_output out = {.struct_size = sizeof out};
     double t0 = now_seconds();
@@ -571,10 +574,10 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         rtk_log(dev, 1, "scene: %llu zero-area triangles left out (never hit)",
                 (unsigned long long)out.prims_degenerate);
     rtk_log(dev, 2, "scene: %s/%s on %s: %llu triangles, %llu nodes, %llu leaves, depth %u, %.1f bytes/triangle, "
-            "SAH %.2f, %.3f s",
+            "SAH %.2f, %.3f s on %u thread%s",
             s->builder, layout->name, bk->name, (unsigned long long)out.prims, (unsigned long long)out.nodes,
             (unsigned long long)out.leaves, out.depth, out.prims ? (double)out.bytes / (double)out.prims : 0.0,
-            out.sah_cost, s->build_seconds);
+            out.sah_cost, s->build_seconds, out.threads ? out.threads : 1, out.threads > 1 ? "s" : "");
     return RTK_OK;
 }
 
@@ -650,9 +653,11 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     info->sah_cost = o->sah_cost;
     memcpy(info->bounds_lower, o->lower, sizeof o->lower);
     memcpy(info->bounds_upper, o->upper, sizeof o->upper);
-    if (keep >= sizeof *info)
+    if (keep >= offsetof(rtk_scene_info, packet_width) + sizeof info->packet_width)
         for (int w = 0; w < 3; w++)
             info->packet_width[w] = s->packet[0][w].width;
+    if (keep >= offsetof(rtk_scene_info, build_threads) + sizeof info->build_threads)
+        info->build_threads = o->threads ? o->threads : 1;
     return RTK_OK;
 }
 

@@ -63,21 +63,6 @@ static void assert_same_hits(rtk_scene a, rtk_scene b, const float lo[3], const 
     }
 }
 
-static void assert_same_tree(const rtk_bvh *a, const rtk_bvh *b)
-{
-    assert_int_equal(a->width, b->width);
-    assert_int_equal(a->root, b->root);
-    assert_int_equal(a->node_count, b->node_count);
-    assert_int_equal(a->leaf_count, b->leaf_count);
-    assert_int_equal(a->prim_count, b->prim_count);
-    const size_t slots = (size_t)a->node_count * a->width;
-    assert_memory_equal(a->children, b->children, slots * sizeof *a->children);
-    assert_memory_equal(a->child_lower, b->child_lower, slots * 3 * sizeof(float));
-    assert_memory_equal(a->child_upper, b->child_upper, slots * 3 * sizeof(float));
-    assert_memory_equal(a->leaf_first, b->leaf_first, (a->leaf_count + 1) * sizeof *a->leaf_first);
-    assert_memory_equal(a->prims, b->prims, a->prim_count * sizeof *a->prims);
-}
-
 static void assert_same_info(rtk_scene a, rtk_scene b)
 {
     rtk_scene_info x = {.struct_size = sizeof x}, y = {.struct_size = sizeof y};
@@ -127,7 +112,7 @@ static void round_trip(rtk_device dev, const float *v, size_t nv, const uint32_t
     assert_same_info(a, b);
     rtk_bvh u = {.struct_size = sizeof u};
     assert_int_equal(rtk_scene_get_bvh(b, &u), RTK_OK);
-    assert_same_tree(&t, &u);
+    test_assert_same_tree(&t, &u);
     rtk_scene_info info = {.struct_size = sizeof info};
     rtk_scene_get_info(a, &info);
     assert_same_hits(a, b, info.bounds_lower, info.bounds_upper, rays, 7);

@@ -188,3 +188,18 @@ size_t test_mesh_files(char *files[], size_t max, const char *only)
     qsort(files, n, sizeof files[0], cmp_names);
     return n;
 }
+
+void test_assert_same_tree(const rtk_bvh *a, const rtk_bvh *b)
+{
+    assert_int_equal(a->width, b->width);
+    assert_int_equal(a->root, b->root);
+    assert_int_equal(a->node_count, b->node_count);
+    assert_int_equal(a->leaf_count, b->leaf_count);
+    assert_int_equal(a->prim_count, b->prim_count);
+    const size_t slots = (size_t)a->node_count * a->width;
+    assert_memory_equal(a->children, b->children, slots * sizeof *a->children);
+    assert_memory_equal(a->child_lower, b->child_lower, slots * 3 * sizeof(float));
+    assert_memory_equal(a->child_upper, b->child_upper, slots * 3 * sizeof(float));
+    assert_memory_equal(a->leaf_first, b->leaf_first, (a->leaf_count + 1) * sizeof *a->leaf_first);
+    assert_memory_equal(a->prims, b->prims, a->prim_count * sizeof *a->prims);
+}

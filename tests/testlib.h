@@ -27,6 +27,9 @@ rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint
 rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt,
                                  unsigned flags);
 
+/* Two exported trees are the same, array for array (fails the test otherwise). */
+void test_assert_same_tree(const rtk_bvh *a, const rtk_bvh *b);
+
 /* The reference's view of a mesh: v0, e1, e2 per triangle, computed the way
  * the builders compute them, and whether the builders keep it. */
 typedef struct ref_mesh {

@@ -938,7 +938,6 @@ static int section_build(ctx *c, char *err, size_t err_size)
         }
     }
     progress_end(&bar);
-    printf("  rtk builds on one thread whatever the device's threads= (its builders are single-threaded so far)\n");
     if (dat) {
         fclose(dat);
         snprintf(path, sizeof path, "%s/%s-build.gp", o->outdir, c->stem);

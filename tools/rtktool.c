@@ -440,8 +440,9 @@ static int cmd_trace(int argc, char **argv)
     if (load)
         printf("build:      none: the tree of %s, checked and committed in %.3f s\n", load, info.build_seconds);
     else
-        printf("build:      %.3f s, %.2f Mtris/s (1 thread)\n", info.build_seconds,
-               info.build_seconds > 0 ? (double)mesh.triangle_count / info.build_seconds * 1e-6 : 0.0);
+        printf("build:      %.3f s, %.2f Mtris/s (%u thread%s)\n", info.build_seconds,
+               info.build_seconds > 0 ? (double)mesh.triangle_count / info.build_seconds * 1e-6 : 0.0,
+               info.build_threads, info.build_threads == 1 ? "" : "s");
     printf("camera:     --camera %s\n", cam_spec);
     printf("render:     %s, %dx%d, %ld spp", render_mode_name(mode), w, h, spp);
     if (mode == RENDER_DIFFUSE)
@@ -610,6 +611,7 @@ typedef struct build_report {
     uint64_t mesh_triangles;
     uint64_t bytes;       /* 0: not known (a dump read alone records the original's) */
     double build_seconds; /* < 0: not built here */
+    unsigned build_threads;
     double sah_reported;
     bvh_stats st;
 } build_report;
@@ -649,8 +651,9 @@ static void print_report(const build_report *r)
         printf("memory:    %.2f MiB, %.1f bytes/triangle\n", (double)r->bytes / 1048576.0,
                s->prims ? (double)r->bytes / (double)s->prims : 0.0);
     if (r->build_seconds >= 0.0)
-        printf("build:     %.3f s, %.2f Mtris/s (1 thread)\n", r->build_seconds,
-               r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0);
+        printf("build:     %.3f s, %.2f Mtris/s (%u thread%s)\n", r->build_seconds,
+               r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0, r->build_threads,
+               r->build_threads == 1 ? "" : "s");
 }
 
 static void print_json(const build_report *r)
@@ -684,7 +687,8 @@ static void print_json(const build_report *r)
     else
         printf("  \"bytes\": null,\n  \"bytes_per_triangle\": null,\n");
     if (r->build_seconds >= 0.0)
-        printf("  \"build_seconds\": %.6f,\n  \"build_mtris_per_second\": %.4f\n}\n", r->build_seconds,
+        printf("  \"build_seconds\": %.6f,\n  \"build_threads\": %u,\n  \"build_mtris_per_second\": %.4f\n}\n",
+               r->build_seconds, r->build_threads,
                r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0);
     else
         printf("  \"build_seconds\": null,\n  \"build_mtris_per_second\": null\n}\n");
@@ -842,6 +846,7 @@ static int cmd_build(int argc, char **argv)
         rep.mesh_triangles = mesh.triangle_count;
         rep.bytes = info.bytes;
         rep.build_seconds = load ? -1.0 : info.build_seconds;
+        rep.build_threads = info.build_threads;
         rep.sah_reported = info.sah_cost;
         if (load && verify > 0) { /* the dump against a fresh build */
             fresh = mesh_scene(dev, &mesh, flags, (rtk_build_quality)file.info.quality, NULL);

@@ -122,7 +122,7 @@ typedef struct rtk_geometry_s *rtk_geometry;
  * config: NULL or "" for defaults, else comma-separated key=value pairs:
  *   isa=NAME        use exactly this backend (scalar, sse41, avx, avx2)
  *   max_isa=NAME    use the best backend not above this level
- *   threads=N       worker threads for builds (0 = all cores)
+ *   threads=N       threads for builds (0 = all cores; see rtk_task_system)
  *   verbose=N       0 silent; 1 one line per backend file and per decision
  *                   on stderr; 2 also scene build statistics
  *   backend_path=D  search only these ':'-separated directories for backends
@@ -145,6 +145,37 @@ RTK_API const char *rtk_device_get_error_message(rtk_device device);
 
 typedef void (*rtk_error_callback)(void *user, rtk_error code, const char *message);
 RTK_API rtk_error rtk_device_set_error_callback(rtk_device device, rtk_error_callback cb, void *user);
+
+/* ---- threads ----------------------------------------------------------------
+ * Builds run on the device's own pool of worker threads (pthreads), sized by
+ * threads= (0: one per CPU the process may run on), created at the first
+ * build that can use them and joined by rtk_device_release.  Scenes may be
+ * committed from several application threads at once; their builds share
+ * the pool.  A build's result (the BVH, byte for byte, and so every hit)
+ * does not depend on the thread count or on how the work is scheduled.
+ *
+ * An application with a task system of its own can hand it to rtk instead,
+ * so the two do not compete for the cores.  rtk then runs all its parallel
+ * work through parallel_for and starts no threads. */
+typedef void (*rtk_task_fn)(void *data, uint32_t index);
+typedef struct rtk_task_system {
+    uint32_t struct_size; /* sizeof(rtk_task_system) */
+    uint32_t threads;     /* threads the system runs tasks on (>= 1): rtk sizes its work by it */
+    void *user;           /* passed back to parallel_for */
+    /* Calls fn(data, i) once for every i in [0, count), on any threads and
+     * in any order (the caller's thread included), and returns when all
+     * calls have returned.  rtk never calls it from inside fn, may call it
+     * from several threads at once (one per scene being committed), and
+     * never with count 0. */
+    void (*parallel_for)(void *user, uint32_t count, rtk_task_fn fn, void *data);
+} rtk_task_system;
+
+/* Builds on this device run through *tasks (copied) from now on; NULL goes
+ * back to rtk's own threads.  Not while a scene of the device is being
+ * committed. */
+RTK_API rtk_error rtk_device_set_task_system(rtk_device device, const rtk_task_system *tasks);
+/* The number of threads builds on this device may use. */
+RTK_API uint32_t rtk_device_get_thread_count(rtk_device device);
 
 /* Name of the backend this device runs on ("avx2", ...). */
 RTK_API const char *rtk_device_get_backend_name(rtk_device device);
@@ -234,6 +265,9 @@ typedef struct rtk_scene_info {
      * N when the backend traces the packet whole, less when it splits it,
      * 1 when it traces ray by ray. */
     uint32_t packet_width[3];
+    /* Added after rtk 0.1.0: the threads the last build could run on
+     * (rtk_device_get_thread_count when the builder is parallel, else 1). */
+    uint32_t build_threads;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 

@@ -93,8 +93,13 @@ typedef struct rtk_build_input {
     const rtk_build_geometry *geometries;
     uint32_t quality; /* rtk_build_quality */
     uint32_t layout;  /* the layout id to produce */
-    uint32_t threads; /* worker threads the builder may use (>= 1) */
+    uint32_t threads; /* threads the builder may use (>= 1): tasks->threads, or 1 */
     uint32_t reserved;
+    /* Added after rtk 0.1.0 (still interface version 1: read only when
+     * struct_size covers it).  Where the builder runs its parallel work;
+     * NULL or absent: everything on the calling thread.  The builder's
+     * output must not depend on it. */
+    const rtk_task_system *tasks;
 } rtk_build_input;
 
 typedef struct rtk_build_output {
@@ -109,6 +114,10 @@ typedef struct rtk_build_output {
     double sah_cost;
     float lower[3], upper[3];
     char message[160]; /* why a build failed */
+    /* Added after rtk 0.1.0 (written only when struct_size covers it): the
+     * threads the build ran its parallel work on (in->threads, or 1 for a
+     * builder that ignores in->tasks). */
+    uint32_t threads;
 } rtk_build_output;
 
 RTK_BACKEND_FN(int, rtk_build, (const rtk_build_input *in, rtk_build_output *out));

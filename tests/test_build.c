@@ -1,0 +1,462 @@
+/*
+ * Parallel builds: the same tree, byte for byte, on any number of threads
+ * and through an application's task system; hits that match brute force;
+ * the device's pool shared by scenes committed from several threads at once
+ * (also run under ThreadSanitizer); worker threads that end with the device.
+ */
+#include <dirent.h>
+#include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "mesh_import.h"
+#include "testlib.h"
+
+/* ---- a procedural mesh large enough for every stage of the builder ----
+ * A bumpy sphere of about 2 * RES^2 triangles, with a zero-area triangle
+ * every 97th and a NaN vertex in every 1009th (both left out at build, so
+ * the references of many chunks are moved down), and its triangles in a
+ * scrambled order (far from the spatial order of a scan). */
+#define RES 300
+typedef struct mesh {
+    float *v;
+    uint32_t *idx;
+    size_t nv, nt;
+} mesh;
+static mesh sphere, bunny_mesh;
+
+static void make_sphere(mesh *m)
+{
+    const size_t nv = (size_t)(RES + 1) * (RES + 1) + 1, nt = (size_t)2 * RES * RES;
+    m->v = malloc(nv * 3 * sizeof *m->v);
+    m->idx = malloc(nt * 3 * sizeof *m->idx);
+    assert_non_null(m->v);
+    assert_non_null(m->idx);
+    for (int j = 0; j <= RES; j++)
+        for (int i = 0; i <= RES; i++) {
+            const float th = 3.14159265f * (float)j / RES, ph = 6.2831853f * (float)i / RES;
+            const float r = 1.0f + 0.05f * sinf(9.0f * th) * cosf(7.0f * ph);
+            float *p = m->v + 3 * ((size_t)j * (RES + 1) + i);
+            p[0] = r * sinf(th) * cosf(ph);
+            p[1] = r * sinf(th) * sinf(ph);
+            p[2] = r * cosf(th);
+        }
+    const size_t nan_vertex = nv - 1;
+    m->v[3 * nan_vertex] = NAN;
+    m->v[3 * nan_vertex + 1] = m->v[3 * nan_vertex + 2] = 0.0f;
+    size_t t = 0;
+    for (int j = 0; j < RES; j++)
+        for (int i = 0; i < RES; i++) {
+            const uint32_t a = (uint32_t)(j * (RES + 1) + i), b = a + 1, c = a + RES + 1, d = c + 1;
+            uint32_t *q = m->idx + 3 * t;
+            q[0] = a, q[1] = b, q[2] = c, q[3] = b, q[4] = d, q[5] = c;
+            t += 2;
+        }
+    rng r = {12345};
+    for (size_t k = nt - 1; k > 0; k--) { /* Fisher-Yates over whole triangles */
+        const size_t s = rng_u32(&r) % (k + 1);
+        for (int c = 0; c < 3; c++) {
+            const uint32_t x = m->idx[3 * k + c];
+            m->idx[3 * k + c] = m->idx[3 * s + c];
+            m->idx[3 * s + c] = x;
+        }
+    }
+    for (size_t k = 0; k < nt; k += 97)
+        m->idx[3 * k + 2] = m->idx[3 * k + 1];
+    for (size_t k = 5; k < nt; k += 1009)
+        m->idx[3 * k] = (uint32_t)nan_vertex;
+    m->nv = nv;
+    m->nt = nt;
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    make_sphere(&sphere);
+    char *files[1];
+    if (test_mesh_files(files, 1, "bunny.ply") != 1)
+        return -1;
+    char err[512];
+    rtk_mesh b;
+    int rc = rtk_mesh_load(files[0], &b, err, sizeof err);
+    free(files[0]);
+    if (rc)
+        return -1;
+    bunny_mesh = (mesh){b.vertices, b.indices, b.vertex_count, b.triangle_count};
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    free(sphere.v);
+    free(sphere.idx);
+    free(bunny_mesh.v);
+    free(bunny_mesh.idx);
+    return 0;
+}
+
+/* ---- helpers ---- */
+
+static rtk_device device(const char *isa, int threads)
+{
+    char config[64];
+    snprintf(config, sizeof config, "isa=%s,threads=%d", isa, threads);
+    rtk_device dev = NULL;
+    if (rtk_device_new(config, &dev) != RTK_OK)
+        fail_msg("device %s: %s", config, rtk_device_get_error_message(NULL));
+    return dev;
+}
+
+static rtk_bvh tree_of(rtk_scene s)
+{
+    rtk_bvh t = {.struct_size = sizeof t};
+    assert_int_equal(rtk_scene_get_bvh(s, &t), RTK_OK);
+    return t;
+}
+
+/* The scene's tree and statistics equal the reference's to the bit. */
+static void assert_same_build(rtk_scene s, const rtk_bvh *want, const rtk_scene_info *want_info)
+{
+    rtk_bvh t = tree_of(s);
+    test_assert_same_tree(&t, want);
+    rtk_bvh_free(&t);
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+    assert_int_equal(info.nodes, want_info->nodes);
+    assert_int_equal(info.leaves, want_info->leaves);
+    assert_int_equal(info.depth, want_info->depth);
+    assert_int_equal(info.triangles, want_info->triangles);
+    assert_int_equal(info.triangles_skipped, want_info->triangles_skipped);
+    assert_int_equal(info.triangles_degenerate, want_info->triangles_degenerate);
+    assert_true(info.sah_cost == want_info->sah_cost);
+}
+
+/* ---- the same tree on any number of threads ---- */
+
+static void same_tree_any_threads(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const mesh *meshes[2] = {&sphere, &bunny_mesh};
+    static const unsigned flags[2] = {RTK_SCENE_FLAG_NONE, RTK_SCENE_FLAG_COMPACT};
+    for (size_t b = 0; b < nb; b++)
+        for (int m = 0; m < 2; m++)
+            for (int f = 0; f < 2; f++) {
+                const mesh *x = meshes[m];
+                rtk_device one = device(names[b], 1);
+                rtk_scene ref = test_scene_flags(one, x->v, x->nv, x->idx, x->nt, flags[f]);
+                rtk_bvh want = tree_of(ref);
+                rtk_scene_info want_info = {.struct_size = sizeof want_info};
+                assert_int_equal(rtk_scene_get_info(ref, &want_info), RTK_OK);
+                assert_int_equal(want_info.build_threads, 1);
+                if (m == 0) {
+                    /* every 97th, less the few of those with a NaN vertex, and the poles' */
+                    assert_true(want_info.triangles_degenerate > (x->nt + 96) / 97 - 3);
+                    assert_true(want_info.triangles_skipped >= x->nt / 1009);
+                }
+                static const int threads[] = {2, 3, 4, 7};
+                for (size_t k = 0; k < sizeof threads / sizeof *threads; k++) {
+                    rtk_device dev = device(names[b], threads[k]);
+                    assert_int_equal(rtk_device_get_thread_count(dev), (uint32_t)threads[k]);
+                    rtk_scene s = test_scene_flags(dev, x->v, x->nv, x->idx, x->nt, flags[f]);
+                    assert_same_build(s, &want, &want_info);
+                    rtk_scene_info info = {.struct_size = sizeof info};
+                    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                    assert_int_equal(info.build_threads, (uint32_t)threads[k]);
+                    rtk_scene_release(s);
+                    rtk_device_release(dev);
+                }
+                rtk_bvh_free(&want);
+                rtk_scene_release(ref);
+                rtk_device_release(one);
+            }
+}
+
+/* ---- hits: a 4-thread build against brute force ---- */
+
+static void hits_match_brute_force(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    ref_mesh ref = ref_prepare(sphere.v, sphere.idx, sphere.nt);
+    rtk_device dev = device(names[nb - 1], 4);
+    rtk_scene s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
+    rng r = {99};
+    int hits = 0;
+    for (int i = 0; i < 4000; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            o[k] = 4.0f * rng_float(&r) - 2.0f;
+            d[k] = 0.4f * rng_float(&r) - 0.2f - o[k]; /* towards the middle */
+        }
+        const rtk_ray ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+        rtk_rayhit rh = {.ray = ray};
+        rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+        rtk_tri_hit want;
+        uint32_t prim;
+        const int hit = ref_closest(&ref, &ray, &want, &prim);
+        hits += hit;
+        assert_int_equal(rh.hit.geomID != RTK_INVALID_GEOMETRY_ID, hit);
+        if (hit) {
+            assert_true(rh.ray.tfar == want.t);
+            if (rh.hit.primID != prim) { /* a tie in t: the other triangle must give the same t */
+                rtk_tri_hit other;
+                assert_true(ref_one(&ref, rh.hit.primID, &ray, &other) && other.t == want.t);
+            }
+        }
+    }
+    assert_true(hits > 3000);
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+    ref_free(&ref);
+}
+
+/* ---- an application's task system ---- */
+
+/* A task system of the test's own: `threads` pthreads per call, taking the
+ * indices from the top down (another order than rtk's pool). */
+typedef struct app_tasks {
+    atomic_uint calls, indices;
+    unsigned threads;
+} app_tasks;
+
+typedef struct app_job {
+    app_tasks *sys;
+    uint32_t count;
+    atomic_int next;
+    rtk_task_fn fn;
+    void *data;
+} app_job;
+
+static void *app_worker(void *arg)
+{
+    app_job *j = arg;
+    for (int i; (i = atomic_fetch_sub(&j->next, 1)) >= 0;) {
+        j->fn(j->data, (uint32_t)i);
+        atomic_fetch_add(&j->sys->indices, 1);
+    }
+    return NULL;
+}
+
+static void app_parallel_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
+{
+    app_tasks *sys = user;
+    atomic_fetch_add(&sys->calls, 1);
+    assert_true(count > 0);
+    app_job j = {.sys = sys, .count = count, .fn = fn, .data = data};
+    atomic_init(&j.next, (int)count - 1);
+    pthread_t t[8];
+    for (unsigned k = 0; k < sys->threads; k++)
+        assert_int_equal(pthread_create(&t[k], NULL, app_worker, &j), 0);
+    for (unsigned k = 0; k < sys->threads; k++)
+        pthread_join(t[k], NULL);
+}
+
+static void application_task_system(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    rtk_device one = device(names[nb - 1], 1);
+    rtk_scene ref = test_scene(one, sphere.v, sphere.nv, sphere.idx, sphere.nt);
+    rtk_bvh want = tree_of(ref);
+    rtk_scene_info want_info = {.struct_size = sizeof want_info};
+    assert_int_equal(rtk_scene_get_info(ref, &want_info), RTK_OK);
+
+    rtk_device dev = device(names[nb - 1], 2);
+    app_tasks sys = {.threads = 3};
+    rtk_task_system ts = {.struct_size = sizeof ts, .threads = 3, .user = &sys, .parallel_for = app_parallel_for};
+    assert_int_equal(rtk_device_set_task_system(dev, &ts), RTK_OK);
+    assert_int_equal(rtk_device_get_thread_count(dev), 3);
+    rtk_scene s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
+    assert_same_build(s, &want, &want_info);
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+    assert_int_equal(info.build_threads, 3);
+    assert_true(atomic_load(&sys.calls) > 0);
+    assert_true(atomic_load(&sys.indices) > atomic_load(&sys.calls));
+    rtk_scene_release(s);
+
+    /* back to rtk's own threads */
+    const unsigned calls = atomic_load(&sys.calls);
+    assert_int_equal(rtk_device_set_task_system(dev, NULL), RTK_OK);
+    assert_int_equal(rtk_device_get_thread_count(dev), 2);
+    s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
+    assert_same_build(s, &want, &want_info);
+    assert_int_equal(atomic_load(&sys.calls), calls);
+    rtk_scene_release(s);
+
+    /* what is refused */
+    rtk_task_system bad = ts;
+    bad.parallel_for = NULL;
+    assert_int_equal(rtk_device_set_task_system(dev, &bad), RTK_ERROR_INVALID_ARGUMENT);
+    bad = ts;
+    bad.threads = 0;
+    assert_int_equal(rtk_device_set_task_system(dev, &bad), RTK_ERROR_INVALID_ARGUMENT);
+    bad = ts;
+    bad.struct_size = 4;
+    assert_int_equal(rtk_device_set_task_system(dev, &bad), RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_device_set_task_system(NULL, &ts), RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_device_get_thread_count(dev), 2);
+
+    rtk_device_release(dev);
+    rtk_bvh_free(&want);
+    rtk_scene_release(ref);
+    rtk_device_release(one);
+}
+
+/* ---- scenes committed from several application threads at once ---- */
+
+/* cmocka's asserts may only fail on the test's own thread: these threads
+ * count what went wrong instead, and the test checks the count. */
+typedef struct committer {
+    rtk_device dev; /* shared, or one per thread */
+    const mesh *m;
+    const rtk_bvh *want;
+    const rtk_scene_info *want_info;
+    int rounds;
+    int wrong;
+} committer;
+
+static int commit_once(const committer *c)
+{
+    rtk_scene s = NULL;
+    rtk_geometry g = NULL;
+    if (rtk_scene_new(c->dev, &s) || rtk_geometry_new(c->dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
+        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, c->m->v, 0, 12, c->m->nv) ||
+        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, c->m->idx, 0, 12, c->m->nt) ||
+        rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL) || rtk_scene_commit(s)) {
+        rtk_geometry_release(g);
+        rtk_scene_release(s);
+        return 1;
+    }
+    rtk_geometry_release(g);
+    rtk_bvh t = {.struct_size = sizeof t};
+    rtk_scene_info info = {.struct_size = sizeof info};
+    int wrong = rtk_scene_get_bvh(s, &t) || rtk_scene_get_info(s, &info);
+    const rtk_bvh *w = c->want;
+    const size_t slots = (size_t)w->node_count * w->width;
+    wrong = wrong || t.root != w->root || t.node_count != w->node_count || t.leaf_count != w->leaf_count ||
+            t.prim_count != w->prim_count || memcmp(t.children, w->children, slots * sizeof *w->children) ||
+            memcmp(t.child_lower, w->child_lower, slots * 3 * sizeof(float)) ||
+            memcmp(t.child_upper, w->child_upper, slots * 3 * sizeof(float)) ||
+            memcmp(t.leaf_first, w->leaf_first, (w->leaf_count + 1) * sizeof *w->leaf_first) ||
+            memcmp(t.prims, w->prims, w->prim_count * sizeof *w->prims) || info.sah_cost != c->want_info->sah_cost;
+    rtk_bvh_free(&t);
+    rtk_scene_release(s);
+    return wrong;
+}
+
+static void *commit_loop(void *arg)
+{
+    committer *c = arg;
+    for (int r = 0; r < c->rounds; r++)
+        c->wrong += commit_once(c);
+    return NULL;
+}
+
+static void concurrent_commits(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const char *isa = names[nb - 1];
+    const mesh *meshes[2] = {&sphere, &bunny_mesh};
+    rtk_bvh want[2];
+    rtk_scene_info want_info[2];
+    rtk_device one = device(isa, 1);
+    for (int m = 0; m < 2; m++) {
+        rtk_scene s = test_scene(one, meshes[m]->v, meshes[m]->nv, meshes[m]->idx, meshes[m]->nt);
+        want[m] = tree_of(s);
+        want_info[m] = (rtk_scene_info){.struct_size = sizeof want_info[m]};
+        assert_int_equal(rtk_scene_get_info(s, &want_info[m]), RTK_OK);
+        rtk_scene_release(s);
+    }
+    rtk_device_release(one);
+
+    /* four threads, one device (one pool), two meshes; then a device each */
+    for (int shared = 1; shared >= 0; shared--) {
+        rtk_device dev = shared ? device(isa, 3) : NULL;
+        committer c[4];
+        pthread_t t[4];
+        for (int k = 0; k < 4; k++) {
+            c[k] = (committer){.dev = shared ? dev : device(isa, 2), .m = meshes[k & 1], .want = &want[k & 1],
+                               .want_info = &want_info[k & 1], .rounds = 2};
+            assert_int_equal(pthread_create(&t[k], NULL, commit_loop, &c[k]), 0);
+        }
+        for (int k = 0; k < 4; k++) {
+            pthread_join(t[k], NULL);
+            assert_int_equal(c[k].wrong, 0);
+            if (!shared)
+                rtk_device_release(c[k].dev);
+        }
+        rtk_device_release(dev);
+    }
+    rtk_bvh_free(&want[0]);
+    rtk_bvh_free(&want[1]);
+}
+
+/* ---- worker threads end with the device ---- */
+
+static int thread_count_now(void)
+{
+    DIR *d = opendir("/proc/self/task");
+    if (!d)
+        return -1;
+    int n = 0;
+    for (struct dirent *e; (e = readdir(d));)
+        n += e->d_name[0] != '.';
+    closedir(d);
+    return n;
+}
+
+static void workers_end_with_device(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const int before = thread_count_now();
+    if (before < 0)
+        skip();
+    rtk_device dev = device(names[nb - 1], 4);
+    assert_int_equal(thread_count_now(), before); /* lazily: none before a build */
+    rtk_scene s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
+    assert_int_equal(thread_count_now(), before + 3);
+    rtk_scene_release(s);
+    s = test_scene(dev, bunny_mesh.v, bunny_mesh.nv, bunny_mesh.idx, bunny_mesh.nt);
+    assert_int_equal(thread_count_now(), before + 3); /* the same pool again */
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+    assert_int_equal(thread_count_now(), before);
+
+    /* threads=1 starts none */
+    dev = device(names[nb - 1], 1);
+    s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
+    assert_int_equal(thread_count_now(), before);
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+}
+
+int main(int argc, char **argv)
+{
+    /* "quick": the concurrency tests only (the ThreadSanitizer run) */
+    const int quick = argc > 1 && !strcmp(argv[1], "quick");
+    const struct CMUnitTest all[] = {
+        cmocka_unit_test(same_tree_any_threads),   cmocka_unit_test(hits_match_brute_force),
+        cmocka_unit_test(application_task_system), cmocka_unit_test(concurrent_commits),
+        cmocka_unit_test(workers_end_with_device),
+    };
+    const struct CMUnitTest threads_only[] = {
+        cmocka_unit_test(application_task_system),
+        cmocka_unit_test(concurrent_commits),
+        cmocka_unit_test(workers_end_with_device),
+    };
+    return quick ? cmocka_run_group_tests(threads_only, setup, teardown) : cmocka_run_group_tests(all, setup, teardown);
+}
