@@ -278,10 +278,19 @@ static int make_binmap(const range *r, int nb, binmap *map)
 
 /* Adds references [begin, end) to the bins (cleared by the caller).  Two
  * references per step: both bin indices first, so the two sets of bin
- * updates can overlap. */
+ * updates can overlap.  Neighbouring references of a mesh mostly fall in
+ * the same bins, and each bin update is a load, min/max and store that the
+ * next update of that bin must wait for; over many references the odd ones
+ * go to a second set of bins, merged at the end, which halves that chain. */
+#define RTK_BIN_TWO_SETS 256u
 static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const binmap *map, bins *b, int nb)
 {
-    (void)nb;
+    bins odd_bins;
+    bins *odd = b;
+    if (end - begin >= RTK_BIN_TWO_SETS) {
+        odd = &odd_bins;
+        bins_clear(odd, nb);
+    }
     uint32_t i = begin;
     for (; i + 1 < end; i += 2) {
         vfloat4 lo0 = vf4_load(refs[i].lo), hi0 = vf4_load(refs[i].hi);
@@ -289,12 +298,14 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
         vint4 k0 = bin_of(map, centroid(lo0, hi0));
         vint4 k1 = bin_of(map, centroid(lo1, hi1));
         bin_add(b->box, b->counts, k0, lo0, hi0);
-        bin_add(b->box, b->counts, k1, lo1, hi1);
+        bin_add(odd->box, odd->counts, k1, lo1, hi1);
     }
     if (i < end) {
         vfloat4 lo0 = vf4_load(refs[i].lo), hi0 = vf4_load(refs[i].hi);
         bin_add(b->box, b->counts, bin_of(map, centroid(lo0, hi0)), lo0, hi0);
     }
+    if (odd != b)
+        bins_merge(b, odd, nb);
 }
 
 /* The best split of n references from their bins: the three axes at once in
@@ -495,10 +506,16 @@ static void psplit_bin(void *data, uint32_t k)
     bin_refs(p->refs, chunk_begin(p, k), chunk_begin(p, k + 1), &p->map, &p->bins[k], p->nb);
 }
 
+/* The bounds are gathered on the stack: chunks' entries in *p share cache
+ * lines, and updating them there for every reference made two threads
+ * slower than one (2 threads: 26 ms against 20 for this pass on dragon). */
 static void psplit_partition(void *data, uint32_t k)
 {
     psplit *p = data;
-    p->mid[k] = partition(p->refs, chunk_begin(p, k), chunk_begin(p, k + 1), &p->s, &p->left[k], &p->right[k]);
+    range left, right;
+    p->mid[k] = partition(p->refs, chunk_begin(p, k), chunk_begin(p, k + 1), &p->s, &left, &right);
+    p->left[k] = left;
+    p->right[k] = right;
 }
 
 /* Pair `at` of the misplaced ones: interval and offset in it. */
