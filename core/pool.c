@@ -114,11 +114,7 @@ static void pool_parallel_for(void *user, uint32_t count, rtk_task_fn fn, void *
     run_indices(&job);
 
     pthread_mutex_lock(&p->lock);
-    for (pool_job **at = &p->jobs; *at; at = &(*at)->link)
-        if (*at == &job) {
-            *at = job.link;
-            break;
-        }
+    unlink_exhausted(p); /* every index of job has been handed out */
     while (job.users)
         pthread_cond_wait(&p->finished, &p->lock);
     pthread_mutex_unlock(&p->lock);

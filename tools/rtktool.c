@@ -239,6 +239,19 @@ static void trace_progress_cb(void *user, double done)
     progress_update(&p->bar, ((double)p->frame + done) / (double)p->frames);
 }
 
+/* Triangles per second of a build, in millions (0 for a build too quick to time). */
+static double build_mtris(uint64_t triangles, double seconds)
+{
+    return seconds > 0 ? (double)triangles / seconds * 1e-6 : 0.0;
+}
+
+/* The "build:" line of trace and build: time, rate and threads. */
+static void print_build_line(const char *label, double seconds, uint64_t triangles, unsigned threads)
+{
+    printf("%s%.3f s, %.2f Mtris/s (%u thread%s)\n", label, seconds, build_mtris(triangles, seconds), threads,
+           threads == 1 ? "" : "s");
+}
+
 static int cmd_trace(int argc, char **argv)
 {
     const char *mesh_path = NULL, *out = "trace.png", *isa = NULL, *extra = "", *load = NULL, *camera = NULL;
@@ -440,9 +453,7 @@ static int cmd_trace(int argc, char **argv)
     if (load)
         printf("build:      none: the tree of %s, checked and committed in %.3f s\n", load, info.build_seconds);
     else
-        printf("build:      %.3f s, %.2f Mtris/s (%u thread%s)\n", info.build_seconds,
-               info.build_seconds > 0 ? (double)mesh.triangle_count / info.build_seconds * 1e-6 : 0.0,
-               info.build_threads, info.build_threads == 1 ? "" : "s");
+        print_build_line("build:      ", info.build_seconds, mesh.triangle_count, info.build_threads);
     printf("camera:     --camera %s\n", cam_spec);
     printf("render:     %s, %dx%d, %ld spp", render_mode_name(mode), w, h, spp);
     if (mode == RENDER_DIFFUSE)
@@ -651,9 +662,7 @@ static void print_report(const build_report *r)
         printf("memory:    %.2f MiB, %.1f bytes/triangle\n", (double)r->bytes / 1048576.0,
                s->prims ? (double)r->bytes / (double)s->prims : 0.0);
     if (r->build_seconds >= 0.0)
-        printf("build:     %.3f s, %.2f Mtris/s (%u thread%s)\n", r->build_seconds,
-               r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0, r->build_threads,
-               r->build_threads == 1 ? "" : "s");
+        print_build_line("build:     ", r->build_seconds, r->mesh_triangles, r->build_threads);
 }
 
 static void print_json(const build_report *r)
@@ -689,7 +698,7 @@ static void print_json(const build_report *r)
     if (r->build_seconds >= 0.0)
         printf("  \"build_seconds\": %.6f,\n  \"build_threads\": %u,\n  \"build_mtris_per_second\": %.4f\n}\n",
                r->build_seconds, r->build_threads,
-               r->build_seconds > 0 ? (double)r->mesh_triangles / r->build_seconds * 1e-6 : 0.0);
+               build_mtris(r->mesh_triangles, r->build_seconds));
     else
         printf("  \"build_seconds\": null,\n  \"build_mtris_per_second\": null\n}\n");
 }
