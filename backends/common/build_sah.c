@@ -26,19 +26,14 @@
  * Past depth RTK_SAH_MEDIAN_DEPTH the builder falls back to median splits,
  * so no tree is deeper than RTK_BVH4_MAX_DEPTH whatever the input.
  */
-#define _DEFAULT_SOURCE /* MAP_ANONYMOUS, MAP_NORESERVE */
-#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/mman.h>
 
-#include "backend_common.h"
+#include "build_common.h"
 #include "kernels.h"
-#include "bvh4_triangle4.h"
 #include "geometry/triangle.h"
-#include "simd/simd.h"
 
 #define RTK_SAH_BINS 32
 #define RTK_SAH_MEDIAN_DEPTH 30
@@ -51,47 +46,11 @@
 /* Triangles per task when the references are made. */
 #define RTK_REF_CHUNK 16384u
 
-/* A box as two vectors; lane 3 carries nothing meaningful. */
-typedef struct box4 {
-    vfloat4 lo, hi;
-} box4;
-
-/* A triangle reference: its box; lo[3] holds the geometry's index in the
- * build input and hi[3] the primitive index, as raw bits. */
-typedef struct primref {
-    _Alignas(16) float lo[4];
-    float hi[4];
-} primref;
-
 typedef struct range {
     uint32_t begin, end;
     box4 geom; /* bounds of the triangles */
     box4 cent; /* bounds of the centroids */
 } range;
-
-/* What every task of one build shares (read-only once the tasks run). */
-typedef struct build {
-    const rtk_build_input *in;
-    const rtk_task_system *tasks; /* NULL: everything on this thread */
-    primref *refs;
-    int width;        /* 4 or 8 children per node */
-    size_t node_size; /* sizeof(rtk_bvh4_node) or sizeof(rtk_bvh8_node) */
-    size_t leaf_size; /* sizeof(rtk_triangle4) or sizeof(rtk_triangle4i) */
-    int indexed;      /* triangle4i leaves */
-    void *nodes;      /* the final arrays (stage 3) */
-    void *leaves;
-} build;
-
-/* Runs fn(data, i) for i in [0, count) on the build's threads. */
-static void run_parallel(const build *bd, uint32_t count, rtk_task_fn fn, void *data)
-{
-    if (bd->tasks && count > 1) {
-        bd->tasks->parallel_for(bd->tasks->user, count, fn, data);
-        return;
-    }
-    for (uint32_t i = 0; i < count; i++)
-        fn(data, i);
-}
 
 /* References inside a part's own node array: an inner node of the same part
  * (its index there), or one of the part's external children (EXT | k): for
@@ -118,40 +77,6 @@ typedef struct part {
     uint64_t node_base, block_base; /* where stage 3 puts it */
 } part;
 
-static inline box4 box_empty(void)
-{
-    return (box4){vf4_set1(FLT_MAX), vf4_set1(-FLT_MAX)};
-}
-
-static inline void box_grow(box4 *b, vfloat4 lo, vfloat4 hi)
-{
-    b->lo = vf4_min(b->lo, lo);
-    b->hi = vf4_max(b->hi, hi);
-}
-
-static inline float box_half_area(const box4 *b)
-{
-    _Alignas(16) float d[4];
-    vf4_store(d, vf4_sub(b->hi, b->lo));
-    if (!(d[0] >= 0.0f))
-        return 0.0f; /* empty */
-    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0];
-}
-
-static inline float box_lo(const box4 *b, int axis)
-{
-    _Alignas(16) float v[4];
-    vf4_store(v, b->lo);
-    return v[axis];
-}
-
-static inline float box_hi(const box4 *b, int axis)
-{
-    _Alignas(16) float v[4];
-    vf4_store(v, b->hi);
-    return v[axis];
-}
-
 /* Centroid as lo/2 + hi/2, which cannot overflow for finite boxes.  Lane 3
  * (the ids, often denormal as floats) is cleared first: arithmetic on
  * denormals costs a microcode assist per instruction on x86. */
@@ -160,16 +85,6 @@ static inline vfloat4 centroid(vfloat4 lo, vfloat4 hi)
     const vbool4 xyz = vb4_from_bits(7);
     const vfloat4 half = vf4_set1(0.5f);
     return vf4_madd(vf4_keep(xyz, lo), half, vf4_mul(vf4_keep(xyz, hi), half));
-}
-
-static inline uint32_t ref_geom(const primref *r)
-{
-    return rtk_float_bits(r->lo[3]);
-}
-
-static inline uint32_t ref_prim(const primref *r)
-{
-    return rtk_float_bits(r->hi[3]);
 }
 
 /* Leaf blocks of four for counts in lanes 0..2, as floats. */
@@ -663,23 +578,6 @@ static void part_free(part *p)
     p->leaves = NULL;
 }
 
-/* The six coordinate arrays and the references of node `index` of an array
- * of nodes of the build's width. */
-typedef struct node_view {
-    float *lx, *ly, *lz, *ux, *uy, *uz;
-    uint32_t *child;
-} node_view;
-
-static node_view view_node(const build *bd, void *nodes, uint64_t index)
-{
-    if (bd->width == 8) {
-        rtk_bvh8_node *n = (rtk_bvh8_node *)nodes + index;
-        return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child};
-    }
-    rtk_bvh4_node *n = (rtk_bvh4_node *)nodes + index;
-    return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child};
-}
-
 /* Writes node `index` of part p with the boxes of its nc children; empty
  * slots get inverted boxes and RTK_BVH4_EMPTY.  The references are set by
  * set_child. */
@@ -830,55 +728,15 @@ static uint32_t top_node(top *t, const range *r, uint32_t depth)
 
 /* ---- stage 3: the final arrays ---- */
 
-static const float *vertex_at(const rtk_build_geometry *g, uint32_t index)
-{
-    return (const float *)((const char *)g->vertices + (size_t)index * g->vertex_stride);
-}
-
-static const uint32_t *triangle_at(const rtk_build_geometry *g, size_t prim)
-{
-    return (const uint32_t *)((const char *)g->indices + prim * g->index_stride);
-}
-
-/* One leaf block: the (up to) four references from `first` below `end`. */
+/* The leaf block of the (up to) four references from `first` below `end`. */
 static void write_block(const build *bd, uint32_t first, uint32_t end, uint64_t index)
 {
-    const rtk_build_input *in = bd->in;
-    if (bd->indexed) {
-        rtk_triangle4i *t = (rtk_triangle4i *)bd->leaves + index;
-        for (uint32_t lane = 0; lane < 4; lane++) {
-            if (first + lane >= end) {
-                t->v0[lane] = t->v1[lane] = t->v2[lane] = t->v0[0];
-                t->geom[lane] = t->geom[0];
-                t->prim[lane] = RTK_BVH4_EMPTY;
-                continue;
-            }
-            const primref *p = &bd->refs[first + lane];
-            const uint32_t *tri = triangle_at(&in->geometries[ref_geom(p)], ref_prim(p));
-            t->v0[lane] = tri[0];
-            t->v1[lane] = tri[1];
-            t->v2[lane] = tri[2];
-            t->geom[lane] = ref_geom(p);
-            t->prim[lane] = ref_prim(p);
-        }
-        return;
+    uint32_t geom[4], prim[4], count = 0;
+    for (uint32_t k = first; k < end && count < 4; k++, count++) {
+        geom[count] = ref_geom(&bd->refs[k]);
+        prim[count] = ref_prim(&bd->refs[k]);
     }
-    rtk_triangle4 *t = (rtk_triangle4 *)bd->leaves + index;
-    const float nan = NAN;
-    for (uint32_t lane = 0; lane < 4; lane++) {
-        if (first + lane >= end) {
-            t->v0x[lane] = t->v0y[lane] = t->v0z[lane] = nan;
-            t->e1x[lane] = t->e1y[lane] = t->e1z[lane] = 0.0f;
-            t->e2x[lane] = t->e2y[lane] = t->e2z[lane] = 0.0f;
-            t->geom[lane] = t->prim[lane] = RTK_BVH4_EMPTY;
-            continue;
-        }
-        const primref *p = &bd->refs[first + lane];
-        const rtk_build_geometry *g = &in->geometries[ref_geom(p)];
-        const uint32_t *tri = triangle_at(g, ref_prim(p));
-        rtk_triangle4_set_lane(t, (int)lane, vertex_at(g, tri[0]), vertex_at(g, tri[1]), vertex_at(g, tri[2]),
-                               g->geom_id, ref_prim(p));
-    }
+    build_write_block(bd, index, geom, prim, count, NULL);
 }
 
 /* Copies part p's nodes to the final array at p->node_base, turning its
@@ -920,157 +778,6 @@ static void place_subtree(void *data, uint32_t i)
         block += blocks;
     }
     place_nodes(p, p->leaves ? &p->leaves[0].begin : NULL, sizeof *p->leaves / sizeof(uint32_t));
-}
-
-/* The SAH cost of the final tree, summed in node order, so a tree and its
- * export imported again get the same figure to the bit: the root's box
- * (an inner node or a leaf of some blocks), then every slot's box, once for
- * an inner node and once per block for a leaf. */
-static double tree_sah(const build *bd, uint64_t node_count, uint32_t root, const box4 *bounds)
-{
-    if (root == RTK_BVH4_EMPTY)
-        return 0.0;
-    double sah = (double)box_half_area(bounds) * (root & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(root) : 1);
-    for (uint64_t i = 0; i < node_count; i++) {
-        node_view v = view_node(bd, bd->nodes, i);
-        for (int c = 0; c < bd->width; c++) {
-            const uint32_t ref = v.child[c];
-            if (ref == RTK_BVH4_EMPTY)
-                continue;
-            box4 b = {vf4_set(v.lx[c], v.ly[c], v.lz[c], 0.0f), vf4_set(v.ux[c], v.uy[c], v.uz[c], 0.0f)};
-            sah += (double)box_half_area(&b) * (ref & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(ref) : 1);
-        }
-    }
-    return sah;
-}
-
-/* ---- memory ---- */
-
-/* The node and leaf arrays are anonymous mappings of the exact size, so
- * freeing them returns the memory at once. */
-static size_t page_round(size_t size)
-{
-    return (size + 4095) & ~(size_t)4095;
-}
-
-static void *reserve(size_t size)
-{
-    void *p = mmap(NULL, page_round(size), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
-    return p == MAP_FAILED ? NULL : p;
-}
-
-/* A reservation for what traversal reads (nodes, leaves): large ones start
- * on a 2 MiB boundary and ask for transparent huge pages, as Embree's
- * allocator does.  Incoherent rays touch nodes and leaves all over tens of
- * megabytes; with 4 KiB pages nearly every such access also misses the TLB.
- * The advice is only a hint (the kernel may not have huge pages); the memory
- * is the same either way. */
-#define HUGE_PAGE ((size_t)2 << 20)
-static void *reserve_traversed(size_t size)
-{
-    size = page_round(size);
-    if (size < HUGE_PAGE)
-        return reserve(size);
-    char *p = reserve(size + HUGE_PAGE);
-    if (!p)
-        return NULL;
-    const size_t head = (HUGE_PAGE - (uintptr_t)p % HUGE_PAGE) % HUGE_PAGE;
-    if (head)
-        munmap(p, head);
-    munmap(p + head + size, HUGE_PAGE - head);
-#ifdef MADV_HUGEPAGE
-    madvise(p + head, size, MADV_HUGEPAGE);
-#endif
-    return p + head;
-}
-
-static void unreserve(void *p, size_t size)
-{
-    if (p)
-        munmap(p, page_round(size));
-}
-
-static void set_message(rtk_build_output *out, const char *text)
-{
-    snprintf(out->message, sizeof out->message, "%s", text);
-}
-
-/* The node and leaf geometry of in->layout; 0, or an error with out->message. */
-static int layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *out)
-{
-    *bd = (build){.in = in, .leaf_size = sizeof(rtk_triangle4), .width = 4, .node_size = sizeof(rtk_bvh4_node)};
-    if (in->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
-        bd->width = 8;
-        bd->node_size = sizeof(rtk_bvh8_node);
-    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4I) {
-        bd->leaf_size = sizeof(rtk_triangle4i);
-        bd->indexed = 1;
-    } else if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4) {
-        set_message(out, "this backend makes bvh4.triangle4, bvh8.triangle4 and bvh4.triangle4i only");
-        return RTK_ERROR_INVALID_ARGUMENT;
-    }
-    if (in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks && in->tasks &&
-        in->tasks->threads > 1)
-        bd->tasks = in->tasks;
-    return RTK_OK;
-}
-
-/* An accel with node and leaf arrays for exactly `nodes` and `blocks` (in
- * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
- * NULL when out of memory. */
-static struct rtk_accel *accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
-{
-    const rtk_build_input *in = bd->in;
-    struct rtk_accel *accel = calloc(1, sizeof *accel);
-    if (!accel)
-        return NULL;
-    accel->layout = in->layout;
-    accel->nodes_mapped = page_round((nodes ? nodes : 1) * bd->node_size);
-    accel->tris_mapped = page_round((blocks ? blocks : 1) * bd->leaf_size);
-    bd->nodes = reserve_traversed(accel->nodes_mapped);
-    bd->leaves = reserve_traversed(accel->tris_mapped);
-    if (bd->indexed)
-        accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
-    if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms)) {
-        unreserve(bd->nodes, accel->nodes_mapped);
-        unreserve(bd->leaves, accel->tris_mapped);
-        free(accel->geoms);
-        free(accel);
-        return NULL;
-    }
-    for (uint32_t gi = 0; bd->indexed && gi < in->geometry_count; gi++) {
-        const rtk_build_geometry *g = &in->geometries[gi];
-        accel->geoms[gi] = (rtk_leaf_geometry){.vertices = g->vertices, .stride = g->vertex_stride,
-                                               .geom_id = g->geom_id};
-    }
-    accel->nodes = bd->nodes;
-    accel->tris = bd->indexed ? NULL : bd->leaves;
-    accel->trisi = bd->indexed ? bd->leaves : NULL;
-    accel->node_count = nodes;
-    accel->leaf_count = blocks;
-    return accel;
-}
-
-/* Describes the finished accel in out; `bounds` holds the scene's box. */
-static void accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root, uint64_t prims, uint32_t depth,
-                         const box4 *bounds, rtk_build_output *out)
-{
-    accel->root = root;
-    const size_t geom_bytes = accel->geoms ? (bd->in->geometry_count ? bd->in->geometry_count : 1) * sizeof *accel->geoms : 0;
-    out->accel = accel;
-    out->prims = prims;
-    out->nodes = accel->node_count;
-    out->leaves = accel->leaf_count;
-    out->bytes = accel->node_count * bd->node_size + accel->leaf_count * bd->leaf_size + geom_bytes;
-    out->depth = prims ? depth : 0;
-    const float root_area = box_half_area(bounds);
-    out->sah_cost = root_area > 0.0f ? tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
-    for (int k = 0; k < 3; k++) {
-        out->lower[k] = prims ? box_lo(bounds, k) : 0.0f;
-        out->upper[k] = prims ? box_hi(bounds, k) : 0.0f;
-    }
-    if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
-        out->threads = bd->tasks ? bd->tasks->threads : 1;
 }
 
 /* ---- the references ---- */
@@ -1183,16 +890,16 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     for (uint32_t g = 0; g < in->geometry_count; g++)
         total += in->geometries[g].prim_count;
     if (total >= RTK_LEAF_INDEX_LIMIT) {
-        set_message(out, "too many triangles for one BVH (limit 2^29 - 1)");
+        build_set_message(out, "too many triangles for one BVH (limit 2^29 - 1)");
         return RTK_ERROR_INVALID_ARGUMENT;
     }
 
     build bd;
-    int rc = layout_setup(&bd, in, out);
+    int rc = build_layout_setup(&bd, in, out);
     if (rc)
         return rc;
     const size_t ref_bytes = (total ? total : 1) * sizeof *bd.refs;
-    bd.refs = reserve(ref_bytes);
+    bd.refs = build_reserve(ref_bytes);
     refgen g = {.bd = &bd, .total = total, .chunks = (uint32_t)((total + RTK_REF_CHUNK - 1) / RTK_REF_CHUNK)};
     const size_t nc = g.chunks ? g.chunks : 1;
     uint64_t *geom_first = malloc(((size_t)in->geometry_count + 1) * sizeof *geom_first);
@@ -1204,7 +911,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     top t = {.nodes = {.bd = &bd}, .scratch = malloc(RTK_CHUNKS_MAX * sizeof *t.scratch)};
     if (!bd.refs || !geom_first || !g.kept || !g.skipped || !g.degenerate || !g.bounds || !t.scratch) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
-        set_message(out, "out of memory for the build's primitive references");
+        build_set_message(out, "out of memory for the build's primitive references");
         goto done;
     }
     geom_first[0] = 0;
@@ -1239,7 +946,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     if (!order || t.nodes.oom) {
         free(order);
         rc = RTK_ERROR_OUT_OF_MEMORY;
-        set_message(out, "out of memory for the BVH");
+        build_set_message(out, "out of memory for the BVH");
         goto done;
     }
     for (uint32_t i = 0; i < t.subtree_count; i++) /* largest first, then by index */
@@ -1261,11 +968,11 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
         depth = p->depth > depth ? p->depth : depth;
         oom |= p->oom;
     }
-    struct rtk_accel *accel = oom ? NULL : accel_alloc(&bd, nodes, blocks);
+    struct rtk_accel *accel = oom ? NULL : build_accel_alloc(&bd, nodes, blocks);
     if (!accel) {
         free(order);
         rc = RTK_ERROR_OUT_OF_MEMORY;
-        set_message(out, "out of memory for the BVH");
+        build_set_message(out, "out of memory for the BVH");
         goto done;
     }
     run_parallel(&bd, t.subtree_count, place_subtree_ordered, &o);
@@ -1274,7 +981,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     if (!roots) {
         RTK_SYM(rtk_bvh4_release)(accel);
         rc = RTK_ERROR_OUT_OF_MEMORY;
-        set_message(out, "out of memory for the BVH");
+        build_set_message(out, "out of memory for the BVH");
         goto done;
     }
     for (uint32_t i = 0; i < t.subtree_count; i++)
@@ -1284,7 +991,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
                               : root_local & EXT            ? roots[root_local & ~EXT]
                                                             : root_local;
     free(roots);
-    accel_finish(&bd, accel, root_ref, n, depth, &root.geom, out);
+    build_accel_finish(&bd, accel, root_ref, n, depth, &root.geom, out);
     out->prims_skipped = skipped;
     out->prims_degenerate = degenerate;
     rc = RTK_OK;
@@ -1295,7 +1002,7 @@ done:
     free(g.skipped);
     free(g.degenerate);
     free(g.bounds);
-    unreserve(bd.refs, ref_bytes);
+    build_unreserve(bd.refs, ref_bytes);
     return rc;
 }
 
@@ -1328,7 +1035,7 @@ static box4 slot_box(const rtk_bvh *t, uint64_t slot)
 int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_build_output *out)
 {
     build bd;
-    int rc = layout_setup(&bd, in, out);
+    int rc = build_layout_setup(&bd, in, out);
     if (rc)
         return rc;
     bd.tasks = NULL;
@@ -1348,7 +1055,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
         blocks += (n + 3) / 4;
     }
     if (blocks >= RTK_LEAF_INDEX_LIMIT || t->node_count >= RTK_BVH4_LEAF_BIT || t->leaf_count >= EXT) {
-        set_message(out, "too many leaf blocks or nodes for the layout");
+        build_set_message(out, "too many leaf blocks or nodes for the layout");
         return RTK_ERROR_INVALID_ARGUMENT;
     }
 
@@ -1359,17 +1066,17 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
         max_id = in->geometries[gi].geom_id > max_id ? in->geometries[gi].geom_id : max_id;
     uint32_t *index_of = malloc(((size_t)max_id + 1) * sizeof *index_of);
     const size_t ref_bytes = (t->prim_count ? t->prim_count : 1) * sizeof *bd.refs;
-    bd.refs = reserve(ref_bytes);
+    bd.refs = build_reserve(ref_bytes);
     part p = {.bd = &bd, .node_count = (uint32_t)t->node_count, .leaf_count = (uint32_t)t->leaf_count};
     p.nodes = malloc((t->node_count ? t->node_count : 1) * bd.node_size);
     p.leaves = malloc((t->leaf_count ? t->leaf_count : 1) * sizeof *p.leaves);
     struct rtk_accel *accel =
-        index_of && bd.refs && p.nodes && p.leaves ? accel_alloc(&bd, t->node_count, blocks) : NULL;
+        index_of && bd.refs && p.nodes && p.leaves ? build_accel_alloc(&bd, t->node_count, blocks) : NULL;
     if (!accel) {
         free(index_of);
         part_free(&p);
-        unreserve(bd.refs, ref_bytes);
-        set_message(out, "out of memory for the BVH");
+        build_unreserve(bd.refs, ref_bytes);
+        build_set_message(out, "out of memory for the BVH");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
     for (uint32_t gi = 0; gi < in->geometry_count; gi++)
@@ -1427,17 +1134,8 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
                                                        : t->root;
     const uint32_t depth = t->root == RTK_BVH_EMPTY ? 0 : tree_depth(t, t->root, 1);
     part_free(&p);
-    unreserve(bd.refs, ref_bytes);
-    accel_finish(&bd, accel, root, t->prim_count, depth, &bounds, out);
+    build_unreserve(bd.refs, ref_bytes);
+    build_accel_finish(&bd, accel, root, t->prim_count, depth, &bounds, out);
     return RTK_OK;
 }
 
-void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
-{
-    if (!accel)
-        return;
-    unreserve(accel->nodes, accel->nodes_mapped);
-    unreserve(accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped);
-    free(accel->geoms);
-    free(accel);
-}

@@ -1,0 +1,220 @@
+/* The builders' shared parts (build_common.h). */
+#define _DEFAULT_SOURCE /* MAP_ANONYMOUS, MAP_NORESERVE */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/mman.h>
+
+#include "build_common.h"
+#include "kernels.h"
+
+/* The SAH cost of the final tree, summed in node order, so a tree and its
+ * export imported again get the same figure to the bit: the root's box
+ * (an inner node or a leaf of some blocks), then every slot's box, once for
+ * an inner node and once per block for a leaf. */
+static double tree_sah(const build *bd, uint64_t node_count, uint32_t root, const box4 *bounds)
+{
+    if (root == RTK_BVH4_EMPTY)
+        return 0.0;
+    double sah = (double)box_half_area(bounds) * (root & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(root) : 1);
+    for (uint64_t i = 0; i < node_count; i++) {
+        node_view v = view_node(bd, bd->nodes, i);
+        for (int c = 0; c < bd->width; c++) {
+            const uint32_t ref = v.child[c];
+            if (ref == RTK_BVH4_EMPTY)
+                continue;
+            box4 b = {vf4_set(v.lx[c], v.ly[c], v.lz[c], 0.0f), vf4_set(v.ux[c], v.uy[c], v.uz[c], 0.0f)};
+            sah += (double)box_half_area(&b) * (ref & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(ref) : 1);
+        }
+    }
+    return sah;
+}
+
+/* ---- memory ---- */
+
+/* The node and leaf arrays are anonymous mappings of the exact size, so
+ * freeing them returns the memory at once. */
+static size_t page_round(size_t size)
+{
+    return (size + 4095) & ~(size_t)4095;
+}
+
+void *build_reserve(size_t size)
+{
+    void *p = mmap(NULL, page_round(size), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
+    return p == MAP_FAILED ? NULL : p;
+}
+
+/* A reservation for what traversal reads (nodes, leaves): large ones start
+ * on a 2 MiB boundary and ask for transparent huge pages, as Embree's
+ * allocator does.  Incoherent rays touch nodes and leaves all over tens of
+ * megabytes; with 4 KiB pages nearly every such access also misses the TLB.
+ * The advice is only a hint (the kernel may not have huge pages); the memory
+ * is the same either way. */
+#define HUGE_PAGE ((size_t)2 << 20)
+static void *reserve_traversed(size_t size)
+{
+    size = page_round(size);
+    if (size < HUGE_PAGE)
+        return build_reserve(size);
+    char *p = build_reserve(size + HUGE_PAGE);
+    if (!p)
+        return NULL;
+    const size_t head = (HUGE_PAGE - (uintptr_t)p % HUGE_PAGE) % HUGE_PAGE;
+    if (head)
+        munmap(p, head);
+    munmap(p + head + size, HUGE_PAGE - head);
+#ifdef MADV_HUGEPAGE
+    madvise(p + head, size, MADV_HUGEPAGE);
+#endif
+    return p + head;
+}
+
+void build_unreserve(void *p, size_t size)
+{
+    if (p)
+        munmap(p, page_round(size));
+}
+
+void build_set_message(rtk_build_output *out, const char *text)
+{
+    snprintf(out->message, sizeof out->message, "%s", text);
+}
+
+int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *out)
+{
+    *bd = (build){.in = in, .leaf_size = sizeof(rtk_triangle4), .width = 4, .node_size = sizeof(rtk_bvh4_node)};
+    if (in->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
+        bd->width = 8;
+        bd->node_size = sizeof(rtk_bvh8_node);
+    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4I) {
+        bd->leaf_size = sizeof(rtk_triangle4i);
+        bd->indexed = 1;
+    } else if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4) {
+        build_set_message(out, "this backend makes bvh4.triangle4, bvh8.triangle4 and bvh4.triangle4i only");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+    if (in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks && in->tasks &&
+        in->tasks->threads > 1)
+        bd->tasks = in->tasks;
+    return RTK_OK;
+}
+
+struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
+{
+    const rtk_build_input *in = bd->in;
+    struct rtk_accel *accel = calloc(1, sizeof *accel);
+    if (!accel)
+        return NULL;
+    accel->layout = in->layout;
+    accel->nodes_mapped = page_round((nodes ? nodes : 1) * bd->node_size);
+    accel->tris_mapped = page_round((blocks ? blocks : 1) * bd->leaf_size);
+    bd->nodes = reserve_traversed(accel->nodes_mapped);
+    bd->leaves = reserve_traversed(accel->tris_mapped);
+    if (bd->indexed)
+        accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
+    if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms)) {
+        build_unreserve(bd->nodes, accel->nodes_mapped);
+        build_unreserve(bd->leaves, accel->tris_mapped);
+        free(accel->geoms);
+        free(accel);
+        return NULL;
+    }
+    for (uint32_t gi = 0; bd->indexed && gi < in->geometry_count; gi++) {
+        const rtk_build_geometry *g = &in->geometries[gi];
+        accel->geoms[gi] = (rtk_leaf_geometry){.vertices = g->vertices, .stride = g->vertex_stride,
+                                               .geom_id = g->geom_id};
+    }
+    accel->nodes = bd->nodes;
+    accel->tris = bd->indexed ? NULL : bd->leaves;
+    accel->trisi = bd->indexed ? bd->leaves : NULL;
+    accel->node_count = nodes;
+    accel->leaf_count = blocks;
+    return accel;
+}
+
+void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root, uint64_t prims, uint32_t depth,
+                         const box4 *bounds, rtk_build_output *out)
+{
+    accel->root = root;
+    const size_t geom_bytes = accel->geoms ? (bd->in->geometry_count ? bd->in->geometry_count : 1) * sizeof *accel->geoms : 0;
+    out->accel = accel;
+    out->prims = prims;
+    out->nodes = accel->node_count;
+    out->leaves = accel->leaf_count;
+    out->bytes = accel->node_count * bd->node_size + accel->leaf_count * bd->leaf_size + geom_bytes;
+    out->depth = prims ? depth : 0;
+    const float root_area = box_half_area(bounds);
+    out->sah_cost = root_area > 0.0f ? tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
+    for (int k = 0; k < 3; k++) {
+        out->lower[k] = prims ? box_lo(bounds, k) : 0.0f;
+        out->upper[k] = prims ? box_hi(bounds, k) : 0.0f;
+    }
+    if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
+        out->threads = bd->tasks ? bd->tasks->threads : 1;
+}
+
+void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim, uint32_t count,
+                       box4 *bounds)
+{
+    const rtk_build_input *in = bd->in;
+    box4 b = box_empty();
+    if (bd->indexed) {
+        rtk_triangle4i *t = (rtk_triangle4i *)bd->leaves + index;
+        for (uint32_t lane = 0; lane < 4; lane++) {
+            if (lane >= count) {
+                t->v0[lane] = t->v1[lane] = t->v2[lane] = t->v0[0];
+                t->geom[lane] = t->geom[0];
+                t->prim[lane] = RTK_BVH4_EMPTY;
+                continue;
+            }
+            const rtk_build_geometry *g = &in->geometries[geom[lane]];
+            const uint32_t *tri = triangle_at(g, prim[lane]);
+            t->v0[lane] = tri[0];
+            t->v1[lane] = tri[1];
+            t->v2[lane] = tri[2];
+            t->geom[lane] = geom[lane];
+            t->prim[lane] = prim[lane];
+            if (bounds)
+                for (int v = 0; v < 3; v++) {
+                    const float *q = vertex_at(g, tri[v]);
+                    const vfloat4 x = vf4_set(q[0], q[1], q[2], 0.0f);
+                    box_grow(&b, x, x);
+                }
+        }
+    } else {
+        rtk_triangle4 *t = (rtk_triangle4 *)bd->leaves + index;
+        const float nan = NAN;
+        for (uint32_t lane = 0; lane < 4; lane++) {
+            if (lane >= count) {
+                t->v0x[lane] = t->v0y[lane] = t->v0z[lane] = nan;
+                t->e1x[lane] = t->e1y[lane] = t->e1z[lane] = 0.0f;
+                t->e2x[lane] = t->e2y[lane] = t->e2z[lane] = 0.0f;
+                t->geom[lane] = t->prim[lane] = RTK_BVH4_EMPTY;
+                continue;
+            }
+            const rtk_build_geometry *g = &in->geometries[geom[lane]];
+            const uint32_t *tri = triangle_at(g, prim[lane]);
+            const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
+            rtk_triangle4_set_lane(t, (int)lane, v0, v1, v2, g->geom_id, prim[lane]);
+            if (bounds) {
+                const vfloat4 p0 = vf4_set(v0[0], v0[1], v0[2], 0.0f), p1 = vf4_set(v1[0], v1[1], v1[2], 0.0f);
+                const vfloat4 p2 = vf4_set(v2[0], v2[1], v2[2], 0.0f);
+                box_grow(&b, vf4_min(vf4_min(p0, p1), p2), vf4_max(vf4_max(p0, p1), p2));
+            }
+        }
+    }
+    if (bounds)
+        box_grow(bounds, b.lo, b.hi);
+}
+
+void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
+{
+    if (!accel)
+        return;
+    build_unreserve(accel->nodes, accel->nodes_mapped);
+    build_unreserve(accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped);
+    free(accel->geoms);
+    free(accel);
+}

@@ -1,0 +1,157 @@
+/*
+ * What the BVH builders of backends/common share (build_sah.c, build_morton.c):
+ * the layouts' node and leaf geometry, the final node and leaf arrays, the
+ * leaf block writer and the description of a finished accel.  Compiled per
+ * backend like the rest of backends/common; the functions carry the
+ * backend's suffix through the macros below.
+ */
+#ifndef RTK_BUILD_COMMON_H
+#define RTK_BUILD_COMMON_H
+
+#include <float.h>
+#include <stddef.h>
+#include <stdint.h>
+
+#include "backend_common.h"
+#include "bvh4_triangle4.h"
+#include "geometry/triangle.h"
+#include "rtk/rtk_backend.h"
+#include "simd/simd.h"
+
+/* A box as two vectors; lane 3 carries nothing meaningful. */
+typedef struct box4 {
+    vfloat4 lo, hi;
+} box4;
+
+/* A triangle reference: its box; lo[3] holds the geometry's index in the
+ * build input and hi[3] the primitive index, as raw bits. */
+typedef struct primref {
+    _Alignas(16) float lo[4];
+    float hi[4];
+} primref;
+
+/* What every task of one build shares (read-only once the tasks run). */
+typedef struct build {
+    const rtk_build_input *in;
+    const rtk_task_system *tasks; /* NULL: everything on this thread */
+    primref *refs;
+    int width;        /* 4 or 8 children per node */
+    size_t node_size; /* sizeof(rtk_bvh4_node) or sizeof(rtk_bvh8_node) */
+    size_t leaf_size; /* sizeof(rtk_triangle4) or sizeof(rtk_triangle4i) */
+    int indexed;      /* triangle4i leaves */
+    void *nodes;      /* the final arrays (stage 3) */
+    void *leaves;
+} build;
+
+/* Runs fn(data, i) for i in [0, count) on the build's threads. */
+static inline void run_parallel(const build *bd, uint32_t count, rtk_task_fn fn, void *data)
+{
+    if (bd->tasks && count > 1) {
+        bd->tasks->parallel_for(bd->tasks->user, count, fn, data);
+        return;
+    }
+    for (uint32_t i = 0; i < count; i++)
+        fn(data, i);
+}
+
+static inline box4 box_empty(void)
+{
+    return (box4){vf4_set1(FLT_MAX), vf4_set1(-FLT_MAX)};
+}
+
+static inline void box_grow(box4 *b, vfloat4 lo, vfloat4 hi)
+{
+    b->lo = vf4_min(b->lo, lo);
+    b->hi = vf4_max(b->hi, hi);
+}
+
+static inline float box_half_area(const box4 *b)
+{
+    _Alignas(16) float d[4];
+    vf4_store(d, vf4_sub(b->hi, b->lo));
+    if (!(d[0] >= 0.0f))
+        return 0.0f; /* empty */
+    return d[0] * d[1] + d[1] * d[2] + d[2] * d[0];
+}
+
+static inline float box_lo(const box4 *b, int axis)
+{
+    _Alignas(16) float v[4];
+    vf4_store(v, b->lo);
+    return v[axis];
+}
+
+static inline float box_hi(const box4 *b, int axis)
+{
+    _Alignas(16) float v[4];
+    vf4_store(v, b->hi);
+    return v[axis];
+}
+
+static inline uint32_t ref_geom(const primref *r)
+{
+    return rtk_float_bits(r->lo[3]);
+}
+
+static inline uint32_t ref_prim(const primref *r)
+{
+    return rtk_float_bits(r->hi[3]);
+}
+
+/* The six coordinate arrays and the references of node `index` of an array
+ * of nodes of the build's width. */
+typedef struct node_view {
+    float *lx, *ly, *lz, *ux, *uy, *uz;
+    uint32_t *child;
+} node_view;
+
+static inline node_view view_node(const build *bd, void *nodes, uint64_t index)
+{
+    if (bd->width == 8) {
+        rtk_bvh8_node *n = (rtk_bvh8_node *)nodes + index;
+        return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child};
+    }
+    rtk_bvh4_node *n = (rtk_bvh4_node *)nodes + index;
+    return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child};
+}
+
+static inline const float *vertex_at(const rtk_build_geometry *g, uint32_t index)
+{
+    return (const float *)((const char *)g->vertices + (size_t)index * g->vertex_stride);
+}
+
+static inline const uint32_t *triangle_at(const rtk_build_geometry *g, size_t prim)
+{
+    return (const uint32_t *)((const char *)g->indices + prim * g->index_stride);
+}
+
+#define build_reserve RTK_SYM(rtk_build_reserve)
+#define build_unreserve RTK_SYM(rtk_build_unreserve)
+#define build_set_message RTK_SYM(rtk_build_set_message)
+#define build_layout_setup RTK_SYM(rtk_build_layout_setup)
+#define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
+#define build_accel_finish RTK_SYM(rtk_build_accel_finish)
+#define build_write_block RTK_SYM(rtk_build_write_block)
+
+/* Scratch memory: an anonymous mapping, returned to the system when freed. */
+RTK_HIDDEN void *build_reserve(size_t size);
+RTK_HIDDEN void build_unreserve(void *p, size_t size);
+RTK_HIDDEN void build_set_message(rtk_build_output *out, const char *text);
+/* The node and leaf geometry of in->layout, and the task system if the
+ * input has one with more than one thread; 0, or an error with out->message. */
+RTK_HIDDEN int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *out);
+/* An accel with node and leaf arrays for exactly `nodes` and `blocks` (in
+ * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
+ * NULL when out of memory. */
+RTK_HIDDEN struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks);
+/* Describes the finished accel in out; `bounds` holds the scene's box. */
+RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root, uint64_t prims,
+                                   uint32_t depth, const box4 *bounds, rtk_build_output *out);
+/* Leaf block `index` of bd->leaves: `count` (1..4) triangles, geom[k] the
+ * index of triangle k's geometry in the build input and prim[k] its
+ * primitive index.  If `bounds` is not NULL, the triangles' box is added
+ * to it. */
+RTK_HIDDEN void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
+                                  uint32_t count, box4 *bounds);
+
+#endif
