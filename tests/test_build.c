@@ -118,6 +118,21 @@ static rtk_bvh tree_of(rtk_scene s)
     return t;
 }
 
+/* A committed scene of mesh x with the given flags and build quality. */
+static rtk_scene scene_q(rtk_device dev, const mesh *x, unsigned flags, rtk_build_quality quality)
+{
+    rtk_scene s = test_scene_uncommitted(dev, x->v, x->nv, x->idx, x->nt, flags);
+    assert_int_equal(rtk_scene_set_build_quality(s, quality), RTK_OK);
+    if (rtk_scene_commit(s) != RTK_OK)
+        fail_msg("commit: %s", rtk_device_get_error_message(dev));
+    return s;
+}
+
+/* The builders: low quality is the Morton builder, medium the binned SAH one. */
+static const rtk_build_quality qualities[] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM};
+static const char *const builder_names[] = {"morton", "sah-binned"};
+#define QUALITIES (sizeof qualities / sizeof *qualities)
+
 /* The scene's tree and statistics equal the reference's to the bit. */
 static void assert_same_build(rtk_scene s, const rtk_bvh *want, const rtk_scene_info *want_info)
 {
@@ -145,39 +160,64 @@ static void same_tree_any_threads(void **state)
     const mesh *meshes[2] = {&sphere, &bunny_mesh};
     static const unsigned flags[2] = {RTK_SCENE_FLAG_NONE, RTK_SCENE_FLAG_COMPACT};
     for (size_t b = 0; b < nb; b++)
-        for (int m = 0; m < 2; m++)
-            for (int f = 0; f < 2; f++) {
-                const mesh *x = meshes[m];
-                rtk_device one = device(names[b], 1);
-                rtk_scene ref = test_scene_flags(one, x->v, x->nv, x->idx, x->nt, flags[f]);
-                rtk_bvh want = tree_of(ref);
-                rtk_scene_info want_info = {.struct_size = sizeof want_info};
-                assert_int_equal(rtk_scene_get_info(ref, &want_info), RTK_OK);
-                assert_int_equal(want_info.build_threads, 1);
-                if (m == 0) {
-                    /* every 97th, less the few of those with a NaN vertex, and the poles' */
-                    assert_true(want_info.triangles_degenerate > (x->nt + 96) / 97 - 3);
-                    assert_true(want_info.triangles_skipped >= x->nt / 1009);
+        for (size_t q = 0; q < QUALITIES; q++)
+            for (int m = 0; m < 2; m++)
+                for (int f = 0; f < 2; f++) {
+                    const mesh *x = meshes[m];
+                    rtk_device one = device(names[b], 1);
+                    rtk_scene ref = scene_q(one, x, flags[f], qualities[q]);
+                    rtk_bvh want = tree_of(ref);
+                    rtk_scene_info want_info = {.struct_size = sizeof want_info};
+                    assert_int_equal(rtk_scene_get_info(ref, &want_info), RTK_OK);
+                    assert_int_equal(want_info.build_threads, 1);
+                    assert_string_equal(want_info.builder, builder_names[q]);
+                    if (m == 0) {
+                        /* every 97th, less the few of those with a NaN vertex, and the poles' */
+                        assert_true(want_info.triangles_degenerate > (x->nt + 96) / 97 - 3);
+                        assert_true(want_info.triangles_skipped >= x->nt / 1009);
+                    }
+                    static const int threads[] = {2, 3, 4, 7};
+                    for (size_t k = 0; k < sizeof threads / sizeof *threads; k++) {
+                        rtk_device dev = device(names[b], threads[k]);
+                        assert_int_equal(rtk_device_get_thread_count(dev), (uint32_t)threads[k]);
+                        rtk_scene s = scene_q(dev, x, flags[f], qualities[q]);
+                        assert_same_build(s, &want, &want_info);
+                        rtk_scene_info info = {.struct_size = sizeof info};
+                        assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                        assert_int_equal(info.build_threads, (uint32_t)threads[k]);
+                        rtk_scene_release(s);
+                        rtk_device_release(dev);
+                    }
+                    rtk_bvh_free(&want);
+                    rtk_scene_release(ref);
+                    rtk_device_release(one);
                 }
-                static const int threads[] = {2, 3, 4, 7};
-                for (size_t k = 0; k < sizeof threads / sizeof *threads; k++) {
-                    rtk_device dev = device(names[b], threads[k]);
-                    assert_int_equal(rtk_device_get_thread_count(dev), (uint32_t)threads[k]);
-                    rtk_scene s = test_scene_flags(dev, x->v, x->nv, x->idx, x->nt, flags[f]);
-                    assert_same_build(s, &want, &want_info);
-                    rtk_scene_info info = {.struct_size = sizeof info};
-                    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
-                    assert_int_equal(info.build_threads, (uint32_t)threads[k]);
-                    rtk_scene_release(s);
-                    rtk_device_release(dev);
-                }
-                rtk_bvh_free(&want);
-                rtk_scene_release(ref);
-                rtk_device_release(one);
-            }
 }
 
-/* ---- hits: a 4-thread build against brute force ---- */
+/* intersect1 and occluded1 of one ray against brute force over ref (the
+ * scene's triangles): the same hit or miss, the same t, and the same
+ * triangle unless another gives the same t; returns 1 on a hit. */
+static int ray_vs_reference(rtk_scene s, const ref_mesh *ref, rtk_ray ray)
+{
+    rtk_rayhit rh = {.ray = ray};
+    rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
+    assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+    rtk_ray shadow = ray;
+    assert_int_equal(rtk_occluded1(s, &shadow), RTK_OK);
+    rtk_tri_hit want;
+    uint32_t prim;
+    const int hit = ref->count ? ref_closest(ref, &ray, &want, &prim) : 0;
+    assert_int_equal(rh.hit.geomID != RTK_INVALID_GEOMETRY_ID, hit);
+    assert_int_equal(shadow.tfar == -INFINITY, hit);
+    if (hit) {
+        assert_true(rh.ray.tfar == want.t);
+        rtk_tri_hit other; /* a tie in t: the other triangle must give the same t */
+        assert_true(rh.hit.primID == prim || (ref_one(ref, rh.hit.primID, &ray, &other) && other.t == want.t));
+    }
+    return hit;
+}
+
+/* ---- hits: 4-thread builds of every builder and backend against brute force ---- */
 
 static void hits_match_brute_force(void **state)
 {
@@ -185,37 +225,116 @@ static void hits_match_brute_force(void **state)
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     ref_mesh ref = ref_prepare(sphere.v, sphere.idx, sphere.nt);
-    rtk_device dev = device(names[nb - 1], 4);
-    rtk_scene s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
-    rng r = {99};
-    int hits = 0;
-    for (int i = 0; i < 4000; i++) {
-        float o[3], d[3];
-        for (int k = 0; k < 3; k++) {
-            o[k] = 4.0f * rng_float(&r) - 2.0f;
-            d[k] = 0.4f * rng_float(&r) - 0.2f - o[k]; /* towards the middle */
-        }
-        const rtk_ray ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
-        rtk_rayhit rh = {.ray = ray};
-        rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
-        assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
-        rtk_tri_hit want;
-        uint32_t prim;
-        const int hit = ref_closest(&ref, &ray, &want, &prim);
-        hits += hit;
-        assert_int_equal(rh.hit.geomID != RTK_INVALID_GEOMETRY_ID, hit);
-        if (hit) {
-            assert_true(rh.ray.tfar == want.t);
-            if (rh.hit.primID != prim) { /* a tie in t: the other triangle must give the same t */
-                rtk_tri_hit other;
-                assert_true(ref_one(&ref, rh.hit.primID, &ray, &other) && other.t == want.t);
+    for (size_t b = 0; b < nb; b++)
+        for (size_t q = 0; q < QUALITIES; q++)
+            for (int f = 0; f < 2; f++) {
+                rtk_device dev = device(names[b], 4);
+                rtk_scene s = scene_q(dev, &sphere, f ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, qualities[q]);
+                rng r = {99};
+                int hits = 0;
+                for (int i = 0; i < 500; i++) {
+                    float o[3], d[3];
+                    for (int k = 0; k < 3; k++) {
+                        o[k] = 4.0f * rng_float(&r) - 2.0f;
+                        d[k] = 0.4f * rng_float(&r) - 0.2f - o[k]; /* towards the middle */
+                    }
+                    hits += ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
+                }
+                assert_true(hits > 375);
+                rtk_scene_release(s);
+                rtk_device_release(dev);
             }
-        }
-    }
-    assert_true(hits > 3000);
-    rtk_scene_release(s);
-    rtk_device_release(dev);
     ref_free(&ref);
+}
+
+/* ---- the Morton builder where codes say little ---- */
+
+/* A scene of the given triangles (flat arrays) at low quality, checked
+ * against brute force with rays from above at random points of [lo, hi]
+ * in x and y; returns the hits. */
+static int morton_vs_reference(rtk_device dev, unsigned flags, const float *v, size_t nv, const uint32_t *idx,
+                               size_t nt, const float lo[2], const float hi[2], uint64_t *kept)
+{
+    mesh x = {(float *)v, (uint32_t *)idx, nv, nt};
+    rtk_scene s = scene_q(dev, &x, flags, RTK_BUILD_QUALITY_LOW);
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+    assert_string_equal(info.builder, "morton");
+    assert_true(info.depth <= 64);
+    *kept = info.triangles;
+    ref_mesh ref = ref_prepare(v, idx, nt);
+    rng r = {7};
+    int hits = 0;
+    for (int i = 0; i < 300; i++) {
+        const float px = lo[0] + (hi[0] - lo[0]) * rng_float(&r), py = lo[1] + (hi[1] - lo[1]) * rng_float(&r);
+        hits += ray_vs_reference(s, &ref,
+                                 test_ray(px, py, 5.0f, 0.01f * rng_float(&r), 0.01f * rng_float(&r), -1.0f, 0.0f,
+                                          INFINITY));
+    }
+    ref_free(&ref);
+    rtk_scene_release(s);
+    return hits;
+}
+
+static void morton_edge_cases(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    enum { STACK = 5000, GRID = 64 };
+    /* one triangle, then STACK copies of it: every code equal, so the
+     * builder splits in the middle all the way down */
+    static const float tri_v[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    uint32_t *stack_idx = malloc(3 * STACK * sizeof *stack_idx);
+    for (size_t i = 0; i < 3 * STACK; i++)
+        stack_idx[i] = (uint32_t)(i % 3);
+    /* a GRID x GRID patch of unit squares at the origin and two triangles
+     * near +-FLT_MAX in x: the centroids' extent overflows a float, and
+     * every triangle of the patch falls in the same cell */
+    const size_t gv = (GRID + 1) * (GRID + 1), gt = 2 * GRID * GRID + 2;
+    float *grid_v = malloc((gv + 6) * 3 * sizeof *grid_v);
+    uint32_t *grid_idx = malloc(gt * 3 * sizeof *grid_idx);
+    for (int y = 0; y <= GRID; y++)
+        for (int x = 0; x <= GRID; x++) {
+            float *p = grid_v + 3 * ((size_t)y * (GRID + 1) + x);
+            p[0] = (float)x / GRID, p[1] = (float)y / GRID, p[2] = 0.01f * (float)((x * 7 + y * 3) % 5);
+        }
+    static const float far_v[18] = {-3e38f, 0, 0, -3e38f, 1, 0, -3e38f, 0, 1, 3e38f, 0, 0, 3e38f, 1, 0, 3e38f, 0, 1};
+    memcpy(grid_v + 3 * gv, far_v, sizeof far_v);
+    size_t t = 0;
+    for (int y = 0; y < GRID; y++)
+        for (int x = 0; x < GRID; x++) {
+            const uint32_t a = (uint32_t)(y * (GRID + 1) + x), b = a + 1, c = a + GRID + 1, d = c + 1;
+            uint32_t *q = grid_idx + 3 * t;
+            q[0] = a, q[1] = b, q[2] = c, q[3] = b, q[4] = d, q[5] = c;
+            t += 2;
+        }
+    for (uint32_t k = 0; k < 6; k++)
+        grid_idx[3 * t + k] = (uint32_t)gv + k;
+    /* zero-area triangles only: nothing to build */
+    static const float line_v[9] = {0, 0, 0, 1, 1, 1, 2, 2, 2};
+    static const uint32_t line_idx[6] = {0, 1, 2, 2, 1, 0};
+    const float unit_lo[2] = {-0.5f, -0.5f}, unit_hi[2] = {1.5f, 1.5f};
+    for (size_t b = 0; b < nb; b++)
+        for (int f = 0; f < 2; f++) {
+            const unsigned flags = f ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE;
+            rtk_device dev = device(names[b], 2);
+            uint64_t kept;
+            assert_int_equal(morton_vs_reference(dev, flags, tri_v, 3, stack_idx, 0, unit_lo, unit_hi, &kept), 0);
+            assert_int_equal(kept, 0);
+            assert_true(morton_vs_reference(dev, flags, tri_v, 3, stack_idx, 1, unit_lo, unit_hi, &kept) > 30);
+            assert_int_equal(kept, 1);
+            assert_true(morton_vs_reference(dev, flags, tri_v, 3, stack_idx, STACK, unit_lo, unit_hi, &kept) > 30);
+            assert_int_equal(kept, STACK);
+            assert_true(morton_vs_reference(dev, flags, grid_v, gv + 6, grid_idx, gt, unit_lo, unit_hi, &kept) > 40);
+            assert_int_equal(kept, gt);
+            assert_int_equal(morton_vs_reference(dev, flags, line_v, 3, line_idx, 2, unit_lo, unit_hi, &kept), 0);
+            assert_int_equal(kept, 0);
+            rtk_device_release(dev);
+        }
+    free(stack_idx);
+    free(grid_v);
+    free(grid_idx);
 }
 
 /* ---- an application's task system ---- */
@@ -450,6 +569,7 @@ int main(int argc, char **argv)
     const int quick = argc > 1 && !strcmp(argv[1], "quick");
     const struct CMUnitTest all[] = {
         cmocka_unit_test(same_tree_any_threads),   cmocka_unit_test(hits_match_brute_force),
+        cmocka_unit_test(morton_edge_cases),
         cmocka_unit_test(application_task_system), cmocka_unit_test(concurrent_commits),
         cmocka_unit_test(workers_end_with_device),
     };

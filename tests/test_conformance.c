@@ -2,7 +2,8 @@
  * The conformance suite: every backend of this build, one device each in
  * this process, traces the same rays through intersect1, occluded1 and the
  * packet calls of every width (4, 8, 16), with the backend's default layout
- * and with the compact one (RTK_SCENE_FLAG_COMPACT), on every mesh of the shared test
+ * and with the compact one (RTK_SCENE_FLAG_COMPACT), and through the Morton
+ * builder's tree (low quality; single rays, 4 and 8), on every mesh of the shared test
  * set and on procedural scenes made to be hard (shared edges and vertices hit
  * dead on, needles and fans, overlapping soup).  The scalar backend's
  * intersect1 / occluded1 answers are the baseline.
@@ -532,13 +533,18 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
 
     int failures = 0;
     size_t ties = 0, hits = 0, occl = 0;
-    /* every backend with its default layout, then every backend compact */
-    for (size_t bc = 0; bc < 2 * nb; bc++) {
+    /* every backend with its default layout, then every backend compact,
+     * then every backend's Morton tree (low quality, default layout) */
+    for (size_t bc = 0; bc < 3 * nb; bc++) {
         const size_t b = bc % nb;
-        const int compact = bc >= nb;
+        const int compact = bc >= nb && bc < 2 * nb, morton = bc >= 2 * nb;
         rtk_device dev = test_device(names[b]);
-        rtk_scene scene = test_scene_flags(dev, s->v, s->nv, s->idx, s->nt,
-                                           compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
+        rtk_scene scene = test_scene_uncommitted(dev, s->v, s->nv, s->idx, s->nt,
+                                                 compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
+        assert_int_equal(rtk_scene_set_build_quality(scene, morton ? RTK_BUILD_QUALITY_LOW : RTK_BUILD_QUALITY_MEDIUM),
+                         RTK_OK);
+        if (rtk_scene_commit(scene) != RTK_OK)
+            fail_msg("commit: %s", rtk_device_get_error_message(dev));
         if (bc == 0) { /* the baseline: scalar, default layout, single rays */
             assert_string_equal(names[0], "scalar");
             trace1(scene, rays, n, 0, base[0]);
@@ -551,11 +557,13 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
                     print_ray("intersect1 and occluded1 differ on", s, i, &rays[i]);
             }
         }
+        /* a Morton tree differs from the SAH tree in shape only: single
+         * rays and the 4- and 8-wide packet kernels (16 is two 8s) */
         static const unsigned widths[4] = {1, 4, 8, 16};
-        for (int wi = (bc == 0); wi < 4; wi++)
+        for (int wi = (bc == 0); wi < (morton ? 3 : 4); wi++)
             for (int occluded = 0; occluded < 2; occluded++) {
                 char what[64];
-                snprintf(what, sizeof what, "[%s%s] %s%u", names[b], compact ? " compact" : "",
+                snprintf(what, sizeof what, "[%s%s] %s%u", names[b], compact ? " compact" : morton ? " morton" : "",
                          occluded ? "occluded" : "intersect", widths[wi]);
                 if (widths[wi] == 1)
                     trace1(scene, rays, n, occluded, got);
@@ -566,8 +574,8 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }
-    print_message("%s: %zu triangles, %zu rays x %zu backends x 2 layouts x 8 calls: %zu hits, %zu occluded, %zu ties "
-                  "adjudicated, %d failures\n",
+    print_message("%s: %zu triangles, %zu rays x %zu backends x (2 layouts x 8 calls + Morton x 6 calls): %zu hits, "
+                  "%zu occluded, %zu ties adjudicated, %d failures\n",
                   s->name, s->nt, n, nb, hits, occl, ties, failures);
 #ifdef RTK_HAVE_EMBREE
     failures += versus_embree(s, rays, n, base[0], base[1]);

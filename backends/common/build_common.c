@@ -53,7 +53,7 @@ void *build_reserve(size_t size)
  * The advice is only a hint (the kernel may not have huge pages); the memory
  * is the same either way. */
 #define HUGE_PAGE ((size_t)2 << 20)
-static void *reserve_traversed(size_t size)
+void *build_reserve_huge(size_t size)
 {
     size = page_round(size);
     if (size < HUGE_PAGE)
@@ -101,6 +101,40 @@ int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *o
     return RTK_OK;
 }
 
+int build_begin(build *bd, const rtk_build_input *in, rtk_build_output *out, uint64_t *total)
+{
+    *total = 0;
+    for (uint32_t g = 0; g < in->geometry_count; g++)
+        *total += in->geometries[g].prim_count;
+    if (*total >= RTK_LEAF_INDEX_LIMIT) {
+        build_set_message(out, "too many triangles for one BVH (limit 2^29 - 1)");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+    return build_layout_setup(bd, in, out);
+}
+
+uint64_t *build_geom_first(const rtk_build_input *in)
+{
+    uint64_t *first = malloc(((size_t)in->geometry_count + 1) * sizeof *first);
+    if (!first)
+        return NULL;
+    first[0] = 0;
+    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
+        first[gi + 1] = first[gi] + in->geometries[gi].prim_count;
+    return first;
+}
+
+static int cmp_u64(const void *a, const void *b)
+{
+    const uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return x < y ? -1 : x > y;
+}
+
+void build_sort_u64(uint64_t *x, uint32_t count)
+{
+    qsort(x, count, sizeof *x, cmp_u64);
+}
+
 struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
 {
     const rtk_build_input *in = bd->in;
@@ -110,8 +144,8 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
     accel->layout = in->layout;
     accel->nodes_mapped = page_round((nodes ? nodes : 1) * bd->node_size);
     accel->tris_mapped = page_round((blocks ? blocks : 1) * bd->leaf_size);
-    bd->nodes = reserve_traversed(accel->nodes_mapped);
-    bd->leaves = reserve_traversed(accel->tris_mapped);
+    bd->nodes = build_reserve_huge(accel->nodes_mapped);
+    bd->leaves = build_reserve_huge(accel->tris_mapped);
     if (bd->indexed)
         accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
     if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms)) {

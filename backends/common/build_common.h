@@ -9,8 +9,11 @@
 #define RTK_BUILD_COMMON_H
 
 #include <float.h>
+#include <math.h>
+#include <string.h>
 #include <stddef.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 #include "backend_common.h"
 #include "bvh4_triangle4.h"
@@ -126,20 +129,77 @@ static inline const uint32_t *triangle_at(const rtk_build_geometry *g, size_t pr
 }
 
 #define build_reserve RTK_SYM(rtk_build_reserve)
+#define build_reserve_huge RTK_SYM(rtk_build_reserve_huge)
 #define build_unreserve RTK_SYM(rtk_build_unreserve)
 #define build_set_message RTK_SYM(rtk_build_set_message)
 #define build_layout_setup RTK_SYM(rtk_build_layout_setup)
+#define build_begin RTK_SYM(rtk_build_begin)
+#define build_geom_first RTK_SYM(rtk_build_geom_first)
+#define build_sort_u64 RTK_SYM(rtk_build_sort_u64)
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
 
+/* Makes *array (of *cap elements of `size` bytes) hold at least `need`,
+ * doubling; 0 when out of memory (the array is then unchanged). */
+static inline int build_grow(void **array, uint32_t *cap, uint32_t need, size_t size)
+{
+    if (need <= *cap)
+        return 1;
+    uint32_t c = *cap ? *cap : 16;
+    while (c < need)
+        c *= 2;
+    void *p = realloc(*array, (size_t)c * size);
+    if (!p)
+        return 0;
+    *array = p;
+    *cap = c;
+    return 1;
+}
+
+/* Writes node `index` of the array `nodes` with nc children: box[i] and
+ * ref[i] (ref NULL: every slot RTK_BVH4_EMPTY, for the caller to set).
+ * Empty slots get inverted boxes and RTK_BVH4_EMPTY. */
+static inline void build_store_node(const build *bd, void *nodes, uint64_t index, const box4 *box,
+                                    const uint32_t *ref, int nc)
+{
+    memset((char *)nodes + index * bd->node_size, 0, bd->node_size);
+    node_view v = view_node(bd, nodes, index);
+    for (int i = 0; i < bd->width; i++) {
+        _Alignas(16) float lo[4] = {INFINITY, INFINITY, INFINITY, 0};
+        _Alignas(16) float hi[4] = {-INFINITY, -INFINITY, -INFINITY, 0};
+        if (i < nc) {
+            vf4_store(lo, box[i].lo);
+            vf4_store(hi, box[i].hi);
+        }
+        v.lx[i] = lo[0];
+        v.ly[i] = lo[1];
+        v.lz[i] = lo[2];
+        v.ux[i] = hi[0];
+        v.uy[i] = hi[1];
+        v.uz[i] = hi[2];
+        v.child[i] = ref && i < nc ? ref[i] : RTK_BVH4_EMPTY;
+    }
+}
+
 /* Scratch memory: an anonymous mapping, returned to the system when freed. */
 RTK_HIDDEN void *build_reserve(size_t size);
+/* The same, on transparent huge pages where the kernel has them (large
+ * arrays: one fault per 2 MiB, and fewer TLB misses). */
+RTK_HIDDEN void *build_reserve_huge(size_t size);
 RTK_HIDDEN void build_unreserve(void *p, size_t size);
 RTK_HIDDEN void build_set_message(rtk_build_output *out, const char *text);
 /* The node and leaf geometry of in->layout, and the task system if the
  * input has one with more than one thread; 0, or an error with out->message. */
 RTK_HIDDEN int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *out);
+/* What every build does first: the triangle count (*total) checked
+ * against the layouts' limit, then build_layout_setup. */
+RTK_HIDDEN int build_begin(build *bd, const rtk_build_input *in, rtk_build_output *out, uint64_t *total);
+/* The global index of each geometry's first triangle (malloc'd; [count] is
+ * the total); NULL when out of memory. */
+RTK_HIDDEN uint64_t *build_geom_first(const rtk_build_input *in);
+/* Sorts count numbers ascending (the subtree orders: (UINT32_MAX - size) << 32 | index). */
+RTK_HIDDEN void build_sort_u64(uint64_t *x, uint32_t count);
 /* An accel with node and leaf arrays for exactly `nodes` and `blocks` (in
  * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
  * NULL when out of memory. */

@@ -534,25 +534,10 @@ static void split_parallel(const build *bd, bins *scratch, const range *r, range
 
 /* ---- a part's own arrays ---- */
 
-static int grow(void **array, uint32_t *cap, uint32_t need, size_t size)
-{
-    if (need <= *cap)
-        return 1;
-    uint32_t c = *cap ? *cap : 16;
-    while (c < need)
-        c *= 2;
-    void *p = realloc(*array, (size_t)c * size);
-    if (!p)
-        return 0;
-    *array = p;
-    *cap = c;
-    return 1;
-}
-
 /* A new node of part p; UINT32_MAX (and p->oom) when out of memory. */
 static uint32_t part_node(part *p)
 {
-    if (p->oom || !grow((void **)&p->nodes, &p->node_cap, p->node_count + 1, p->bd->node_size)) {
+    if (p->oom || !build_grow((void **)&p->nodes, &p->node_cap, p->node_count + 1, p->bd->node_size)) {
         p->oom = 1;
         return UINT32_MAX;
     }
@@ -561,7 +546,7 @@ static uint32_t part_node(part *p)
 
 static uint32_t part_leaf(part *p, uint32_t begin, uint32_t end)
 {
-    if (p->oom || !grow((void **)&p->leaves, &p->leaf_cap, p->leaf_count + 1, sizeof *p->leaves)) {
+    if (p->oom || !build_grow((void **)&p->leaves, &p->leaf_cap, p->leaf_count + 1, sizeof *p->leaves)) {
         p->oom = 1;
         return EXT;
     }
@@ -585,24 +570,10 @@ static void write_node(part *p, uint32_t index, const range *child, int nc)
 {
     if (index == UINT32_MAX)
         return;
-    const build *bd = p->bd;
-    memset(p->nodes + (size_t)index * bd->node_size, 0, bd->node_size);
-    node_view v = view_node(bd, p->nodes, index);
-    for (int i = 0; i < bd->width; i++) {
-        _Alignas(16) float lo[4] = {INFINITY, INFINITY, INFINITY, 0};
-        _Alignas(16) float hi[4] = {-INFINITY, -INFINITY, -INFINITY, 0};
-        if (i < nc) {
-            vf4_store(lo, child[i].geom.lo);
-            vf4_store(hi, child[i].geom.hi);
-        }
-        v.lx[i] = lo[0];
-        v.ly[i] = lo[1];
-        v.lz[i] = lo[2];
-        v.ux[i] = hi[0];
-        v.uy[i] = hi[1];
-        v.uz[i] = hi[2];
-        v.child[i] = RTK_BVH4_EMPTY;
-    }
+    box4 box[8];
+    for (int i = 0; i < nc; i++)
+        box[i] = child[i].geom;
+    build_store_node(p->bd, p->nodes, index, box, NULL, nc);
 }
 
 static void set_child(part *p, uint32_t index, int i, uint32_t ref)
@@ -685,8 +656,8 @@ static void build_subtree(void *data, uint32_t i)
     part *p = (part *)data + i;
     const uint32_t n = p->r.end - p->r.begin;
     /* about one node per 12 references and one leaf per 3 */
-    grow((void **)&p->nodes, &p->node_cap, n / 12 + 1, p->bd->node_size);
-    grow((void **)&p->leaves, &p->leaf_cap, n / 3 + 1, sizeof *p->leaves);
+    build_grow((void **)&p->nodes, &p->node_cap, n / 12 + 1, p->bd->node_size);
+    build_grow((void **)&p->leaves, &p->leaf_cap, n / 3 + 1, sizeof *p->leaves);
     p->root = build_node(p, &p->r, p->depth0);
 }
 
@@ -701,7 +672,7 @@ typedef struct top {
 
 static uint32_t add_subtree(top *t, const range *r, uint32_t depth)
 {
-    if (t->nodes.oom || !grow((void **)&t->subtrees, &t->subtree_cap, t->subtree_count + 1, sizeof *t->subtrees)) {
+    if (t->nodes.oom || !build_grow((void **)&t->subtrees, &t->subtree_cap, t->subtree_count + 1, sizeof *t->subtrees)) {
         t->nodes.oom = 1;
         return EXT;
     }
@@ -869,12 +840,6 @@ static void place_subtree_ordered(void *data, uint32_t i)
     place_subtree(o->parts, (uint32_t)o->order[i]);
 }
 
-static int cmp_u64(const void *a, const void *b)
-{
-    const uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
-    return x < y ? -1 : x > y;
-}
-
 static void free_parts(top *t)
 {
     part_free(&t->nodes);
@@ -886,23 +851,16 @@ static void free_parts(top *t)
 
 int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
 {
-    uint64_t total = 0;
-    for (uint32_t g = 0; g < in->geometry_count; g++)
-        total += in->geometries[g].prim_count;
-    if (total >= RTK_LEAF_INDEX_LIMIT) {
-        build_set_message(out, "too many triangles for one BVH (limit 2^29 - 1)");
-        return RTK_ERROR_INVALID_ARGUMENT;
-    }
-
+    uint64_t total;
     build bd;
-    int rc = build_layout_setup(&bd, in, out);
+    int rc = build_begin(&bd, in, out, &total);
     if (rc)
         return rc;
     const size_t ref_bytes = (total ? total : 1) * sizeof *bd.refs;
     bd.refs = build_reserve(ref_bytes);
     refgen g = {.bd = &bd, .total = total, .chunks = (uint32_t)((total + RTK_REF_CHUNK - 1) / RTK_REF_CHUNK)};
     const size_t nc = g.chunks ? g.chunks : 1;
-    uint64_t *geom_first = malloc(((size_t)in->geometry_count + 1) * sizeof *geom_first);
+    uint64_t *geom_first = build_geom_first(in);
     g.geom_first = geom_first;
     g.kept = malloc(nc * sizeof *g.kept);
     g.skipped = malloc(nc * sizeof *g.skipped);
@@ -914,9 +872,6 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
         build_set_message(out, "out of memory for the build's primitive references");
         goto done;
     }
-    geom_first[0] = 0;
-    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
-        geom_first[gi + 1] = geom_first[gi] + in->geometries[gi].prim_count;
 
     /* The references, in input order: each chunk's kept ones are moved
      * down behind the previous chunk's. */
@@ -951,7 +906,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
     }
     for (uint32_t i = 0; i < t.subtree_count; i++) /* largest first, then by index */
         order[i] = (uint64_t)(UINT32_MAX - (t.subtrees[i].r.end - t.subtrees[i].r.begin)) << 32 | i;
-    qsort(order, t.subtree_count, sizeof *order, cmp_u64);
+    build_sort_u64(order, t.subtree_count);
     ordered o = {t.subtrees, order};
     run_parallel(&bd, t.subtree_count, build_subtree_ordered, &o);
 

@@ -217,6 +217,10 @@ typedef enum rtk_scene_flags {
 } rtk_scene_flags;
 #define RTK_SCENE_FLAGS_ALL (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_DYNAMIC)
 
+/* Picks the builder (named in rtk_scene_info.builder): low is the Morton
+ * builder, the fastest build for a tree somewhat slower to trace (for
+ * geometry that changes every frame); medium (the default) and high the
+ * binned SAH builder. */
 typedef enum rtk_build_quality {
     RTK_BUILD_QUALITY_LOW = 0,
     RTK_BUILD_QUALITY_MEDIUM = 1,
@@ -249,7 +253,7 @@ typedef struct rtk_scene_info {
     unsigned flags;              /* as requested */
     unsigned flags_not_honoured; /* requested but not implemented in this version */
     rtk_build_quality quality;
-    const char *builder;         /* e.g. "sah-binned" */
+    const char *builder;         /* "sah-binned" or "morton" */
     const char *layout;          /* e.g. "bvh8.triangle4", "bvh4.triangle4i" (compact) */
     uint64_t triangles;          /* in the BVH */
     uint64_t triangles_skipped;  /* left out: a NaN or infinite vertex */
