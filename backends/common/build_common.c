@@ -130,9 +130,29 @@ static int cmp_u64(const void *a, const void *b)
     return x < y ? -1 : x > y;
 }
 
-void build_sort_u64(uint64_t *x, uint32_t count)
+void build_largest_first(uint64_t *order, uint32_t count)
 {
-    qsort(x, count, sizeof *x, cmp_u64);
+    for (uint32_t i = 0; i < count; i++)
+        order[i] = (uint64_t)(UINT32_MAX - (uint32_t)order[i]) << 32 | i;
+    qsort(order, count, sizeof *order, cmp_u64);
+}
+
+typedef struct ordered {
+    const uint64_t *order;
+    rtk_task_fn fn;
+    void *data;
+} ordered;
+
+static void run_one_ordered(void *data, uint32_t i)
+{
+    const ordered *o = data;
+    o->fn(o->data, (uint32_t)o->order[i]);
+}
+
+void build_run_ordered(const build *bd, const uint64_t *order, uint32_t count, rtk_task_fn fn, void *data)
+{
+    ordered o = {order, fn, data};
+    run_parallel(bd, count, run_one_ordered, &o);
 }
 
 struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)

@@ -135,7 +135,8 @@ static inline const uint32_t *triangle_at(const rtk_build_geometry *g, size_t pr
 #define build_layout_setup RTK_SYM(rtk_build_layout_setup)
 #define build_begin RTK_SYM(rtk_build_begin)
 #define build_geom_first RTK_SYM(rtk_build_geom_first)
-#define build_sort_u64 RTK_SYM(rtk_build_sort_u64)
+#define build_largest_first RTK_SYM(rtk_build_largest_first)
+#define build_run_ordered RTK_SYM(rtk_build_run_ordered)
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
@@ -198,8 +199,14 @@ RTK_HIDDEN int build_begin(build *bd, const rtk_build_input *in, rtk_build_outpu
 /* The global index of each geometry's first triangle (malloc'd; [count] is
  * the total); NULL when out of memory. */
 RTK_HIDDEN uint64_t *build_geom_first(const rtk_build_input *in);
-/* Sorts count numbers ascending (the subtree orders: (UINT32_MAX - size) << 32 | index). */
-RTK_HIDDEN void build_sort_u64(uint64_t *x, uint32_t count);
+/* Subtree tasks are run largest first, for the balance (the order the
+ * threads take them in changes nothing in the result).  On entry order[i]
+ * holds task i's size; on return the low 32 bits of order[0, count) list
+ * the tasks largest first, equal sizes by index. */
+RTK_HIDDEN void build_largest_first(uint64_t *order, uint32_t count);
+/* Runs fn(data, k) for every task k, in build_largest_first's order, on the
+ * build's threads. */
+RTK_HIDDEN void build_run_ordered(const build *bd, const uint64_t *order, uint32_t count, rtk_task_fn fn, void *data);
 /* An accel with node and leaf arrays for exactly `nodes` and `blocks` (in
  * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
  * NULL when out of memory. */

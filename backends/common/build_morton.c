@@ -72,15 +72,14 @@ typedef struct morton {
     uint32_t bucket[RTK_RADIX_SIZE + 1];     /* where each top digit's items start */
 } morton;
 
-static inline vfloat4 centroid3(const float *v0, const float *v1, const float *v2, box4 *tri)
+/* The centre of a triangle's box, as lo/2 + hi/2 (no overflow for finite boxes). */
+static inline vfloat4 centroid3(const float *v0, const float *v1, const float *v2)
 {
     const vfloat4 p0 = vf4_set(v0[0], v0[1], v0[2], 0.0f), p1 = vf4_set(v1[0], v1[1], v1[2], 0.0f);
     const vfloat4 p2 = vf4_set(v2[0], v2[1], v2[2], 0.0f);
-    tri->lo = vf4_min(vf4_min(p0, p1), p2);
-    tri->hi = vf4_max(vf4_max(p0, p1), p2);
-    /* lo/2 + hi/2 cannot overflow for finite boxes */
+    const vfloat4 lo = vf4_min(vf4_min(p0, p1), p2), hi = vf4_max(vf4_max(p0, p1), p2);
     const vfloat4 half = vf4_set1(0.5f);
-    return vf4_madd(tri->lo, half, vf4_mul(tri->hi, half));
+    return vf4_madd(lo, half, vf4_mul(hi, half));
 }
 
 /* The geometry holding global triangle i: the last one starting at or before it. */
@@ -97,6 +96,14 @@ static uint32_t geometry_of(const morton *m, uint64_t i)
         }
     }
     return gi;
+}
+
+/* Item i's triangle: its geometry's index in the input (*gi) and primitive index. */
+static inline uint32_t item_prim(const morton *m, uint32_t i, uint32_t *gi)
+{
+    const uint64_t x = m->items[i] & UINT32_MAX;
+    *gi = geometry_of(m, x);
+    return (uint32_t)(x - m->geom_first[*gi]);
 }
 
 /* ---- 1. codes ---- */
@@ -131,8 +138,7 @@ static void scan_chunk(void *data, uint32_t k)
             degenerate++;
             continue;
         }
-        box4 b;
-        const vfloat4 c = centroid3(v0, v1, v2, &b);
+        const vfloat4 c = centroid3(v0, v1, v2);
         box_grow(&cent, c, c);
         vf4_store(out + 4 * (size_t)n++, c);
         out[4 * (size_t)n - 1] = rtk_bits_float((uint32_t)i);
@@ -384,15 +390,14 @@ static void count_node(walk *w, uint32_t b, uint32_t e, uint32_t depth)
 static void prefetch_items(const morton *m, uint32_t b, uint32_t e)
 {
     const rtk_build_geometry *geoms = m->bd.in->geometries;
+    uint32_t gi;
     for (uint32_t i = b + PREFETCH_FAR; i < e + PREFETCH_FAR && i < m->n; i++) {
-        const uint64_t x = m->items[i] & UINT32_MAX;
-        const uint32_t gi = geometry_of(m, x);
-        __builtin_prefetch(triangle_at(&geoms[gi], (size_t)(x - m->geom_first[gi])));
+        const uint32_t prim = item_prim(m, i, &gi);
+        __builtin_prefetch(triangle_at(&geoms[gi], prim));
     }
     for (uint32_t i = b + PREFETCH_NEAR; i < e + PREFETCH_NEAR && i < m->n; i++) {
-        const uint64_t x = m->items[i] & UINT32_MAX;
-        const uint32_t gi = geometry_of(m, x);
-        const uint32_t *tri = triangle_at(&geoms[gi], (size_t)(x - m->geom_first[gi]));
+        const uint32_t prim = item_prim(m, i, &gi);
+        const uint32_t *tri = triangle_at(&geoms[gi], prim);
         for (int v = 0; v < 3; v++)
             __builtin_prefetch(vertex_at(&geoms[gi], tri[v]));
     }
@@ -407,11 +412,8 @@ static uint32_t write_node(walk *w, uint32_t b, uint32_t e, box4 *bounds)
     if (e - b <= 4) {
         prefetch_items(m, b, e);
         uint32_t geom[4], prim[4];
-        for (uint32_t k = 0; k < e - b; k++) {
-            const uint64_t i = m->items[b + k] & UINT32_MAX;
-            geom[k] = geometry_of(m, i);
-            prim[k] = (uint32_t)(i - m->geom_first[geom[k]]);
-        }
+        for (uint32_t k = 0; k < e - b; k++)
+            prim[k] = item_prim(m, b + k, &geom[k]);
         const uint64_t block = w->blocks++;
         build_write_block(bd, block, geom, prim, e - b, bounds);
         return rtk_leaf_ref((uint32_t)block, 1);
@@ -508,7 +510,9 @@ static void write_subtree(void *data, uint32_t i)
     s->shape = NULL;
 }
 
-/* Top node `index` (node `index` of the final array), bottom-up; adds its box to *bounds. */
+/* Writes top node `ref` (node `ref` of the final array) bottom-up, or
+ * finds subtree SUBTREE | k's root; returns the final reference and adds
+ * its box to *bounds. */
 static uint32_t write_top(const top *t, uint32_t ref, box4 *bounds)
 {
     if (ref & SUBTREE) {
@@ -527,20 +531,6 @@ static uint32_t write_top(const top *t, uint32_t ref, box4 *bounds)
     }
     build_store_node(bd, bd->nodes, ref, box, child, n->nc);
     return ref;
-}
-
-/* Subtrees in a given order (largest first, for the balance): the order the
- * threads take them in, which changes nothing in the result. */
-typedef struct ordered {
-    top *t;
-    const uint64_t *order; /* the low 32 bits index subtrees */
-    rtk_task_fn fn;
-} ordered;
-
-static void run_ordered(void *data, uint32_t i)
-{
-    const ordered *o = data;
-    o->fn(o->t, (uint32_t)o->order[i]);
 }
 
 int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
@@ -621,11 +611,10 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
         build_set_message(out, "out of memory for the BVH");
         goto done;
     }
-    for (uint32_t i = 0; i < t.subtree_count; i++) /* largest first, then by index */
-        order[i] = (uint64_t)(UINT32_MAX - (t.subtrees[i].end - t.subtrees[i].begin)) << 32 | i;
-    build_sort_u64(order, t.subtree_count);
-    ordered o = {&t, order, count_subtree};
-    run_parallel(&m.bd, t.subtree_count, run_ordered, &o);
+    for (uint32_t i = 0; i < t.subtree_count; i++)
+        order[i] = t.subtrees[i].end - t.subtrees[i].begin;
+    build_largest_first(order, t.subtree_count);
+    build_run_ordered(&m.bd, order, t.subtree_count, count_subtree, &t);
 
     /* Places: the top nodes, then the subtrees in the order they were found. */
     uint64_t nodes = t.node_count, blocks = 0;
@@ -649,8 +638,7 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
         build_set_message(out, "out of memory for the BVH");
         goto done;
     }
-    o.fn = write_subtree;
-    run_parallel(&m.bd, t.subtree_count, run_ordered, &o);
+    build_run_ordered(&m.bd, order, t.subtree_count, write_subtree, &t);
     box4 bounds = box_empty();
     const uint32_t root = root_local == RTK_BVH4_EMPTY ? RTK_BVH4_EMPTY : write_top(&t, root_local, &bounds);
     build_accel_finish(&m.bd, accel, root, n, depth, &bounds, out);

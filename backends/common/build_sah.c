@@ -821,25 +821,6 @@ static void make_refs(void *data, uint32_t k)
 
 /* ---- the builder ---- */
 
-/* Subtrees in a given order (largest first): the order the threads take
- * them in, which changes nothing in the result. */
-typedef struct ordered {
-    part *parts;
-    const uint64_t *order; /* the low 32 bits index parts */
-} ordered;
-
-static void build_subtree_ordered(void *data, uint32_t i)
-{
-    const ordered *o = data;
-    build_subtree(o->parts, (uint32_t)o->order[i]);
-}
-
-static void place_subtree_ordered(void *data, uint32_t i)
-{
-    const ordered *o = data;
-    place_subtree(o->parts, (uint32_t)o->order[i]);
-}
-
 static void free_parts(top *t)
 {
     part_free(&t->nodes);
@@ -904,11 +885,10 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
         build_set_message(out, "out of memory for the BVH");
         goto done;
     }
-    for (uint32_t i = 0; i < t.subtree_count; i++) /* largest first, then by index */
-        order[i] = (uint64_t)(UINT32_MAX - (t.subtrees[i].r.end - t.subtrees[i].r.begin)) << 32 | i;
-    build_sort_u64(order, t.subtree_count);
-    ordered o = {t.subtrees, order};
-    run_parallel(&bd, t.subtree_count, build_subtree_ordered, &o);
+    for (uint32_t i = 0; i < t.subtree_count; i++)
+        order[i] = t.subtrees[i].r.end - t.subtrees[i].r.begin;
+    build_largest_first(order, t.subtree_count);
+    build_run_ordered(&bd, order, t.subtree_count, build_subtree, t.subtrees);
 
     /* Places: the top nodes, then the subtrees in the order stage 1 found them. */
     uint64_t nodes = t.nodes.node_count, blocks = 0;
@@ -930,7 +910,7 @@ int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
         build_set_message(out, "out of memory for the BVH");
         goto done;
     }
-    run_parallel(&bd, t.subtree_count, place_subtree_ordered, &o);
+    build_run_ordered(&bd, order, t.subtree_count, place_subtree, t.subtrees);
     free(order);
     uint32_t *roots = malloc((t.subtree_count ? t.subtree_count : 1) * sizeof *roots);
     if (!roots) {
