@@ -9,8 +9,10 @@
  * the unnormalised barycentrics U, V and distance T are compared against |det|
  * so a miss costs no division.  A hit needs U >= 0, V >= 0, U + V <= |det|
  * and tnear*|det| <= T <= tfar*|det|; det == 0 (ray parallel to the plane, or
- * a degenerate triangle) never hits; any NaN makes every comparison false, so
- * NaN input never hits.  Both faces are hit (no culling).
+ * a degenerate triangle) never hits, and neither does |det| < FLT_MIN (a
+ * triangle and ray so small, near 1e-13 and below, that 1/|det| would
+ * overflow and t come out NaN or infinite); any NaN makes every comparison
+ * false, so NaN input never hits.  Both faces are hit (no culling).
  *
  * Guarantees: none at shared edges and vertices (a ray exactly through an edge
  * may hit both triangles or neither).  The watertight variant is a later
@@ -19,6 +21,7 @@
 #ifndef RTK_GEOMETRY_TRIANGLE_H
 #define RTK_GEOMETRY_TRIANGLE_H
 
+#include <float.h>
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
@@ -80,7 +83,7 @@ static inline int rtk_triangle_intersect(const float o[3], const float d[3], flo
     /* s = o - v0 */
     const float sx = o[0] - v0[0], sy = o[1] - v0[1], sz = o[2] - v0[2];
     const float U = rtk_xor_sign(sx * px + sy * py + sz * pz, det);
-    if (!(U >= 0.0f && det != 0.0f))
+    if (!(U >= 0.0f && absdet >= FLT_MIN))
         return 0;
     /* q = cross(s, e1) */
     const float qx = sy * e1[2] - sz * e1[1];

@@ -329,7 +329,7 @@ static inline unsigned triangle4_intersect(const rtk_triangle4 *t, const ray_pre
     const vfloat4 zero = vf4_set1(0.0f);
     vbool4 ok = vb4_and(vf4_ge(U, zero), vf4_ge(V, zero));
     ok = vb4_and(ok, vf4_le(vf4_add(U, V), absdet));
-    ok = vb4_and(ok, vf4_gt(absdet, zero));
+    ok = vb4_and(ok, vf4_ge(absdet, vf4_set1(FLT_MIN))); /* 1 / absdet finite (geometry/triangle.h) */
     ok = vb4_and(ok, vf4_ge(T, vf4_mul(tnear, absdet)));
     ok = vb4_and(ok, vf4_le(T, vf4_mul(tfar, absdet)));
     h->U = U;

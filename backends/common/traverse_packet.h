@@ -324,7 +324,7 @@ static inline vkb PK_(triangle_intersect)(const rtk_triangle4 *t, int j, const P
     const vk zero = VK(set1)(0.0f);
     vkb ok = VKB(and)(VK(ge)(U, zero), VK(ge)(V, zero));
     ok = VKB(and)(ok, VK(le)(VK(add)(U, V), absdet));
-    ok = VKB(and)(ok, VK(gt)(absdet, zero));
+    ok = VKB(and)(ok, VK(ge)(absdet, VK(set1)(FLT_MIN))); /* 1 / absdet finite (geometry/triangle.h) */
     ok = VKB(and)(ok, VK(ge)(T, VK(mul)(p->tnear, absdet)));
     ok = VKB(and)(ok, VK(le)(T, VK(mul)(tfar, absdet)));
     *U_out = U;
