@@ -3,8 +3,9 @@
  * before rtk trusts it, the check that a tree fits a scene's triangles, and
  * the memory of exported trees.  A tree that passes both checks cannot make
  * a backend read out of bounds, overflow its traversal stack or miss a hit:
- * every reference is in range, the tree is a tree of bounded depth, and
- * every box contains everything below it.
+ * every reference is in range, the tree is a tree of bounded depth, every
+ * box contains everything below it, and every triangle is covered by the
+ * boxes of the leaves that hold it.
  */
 #include <math.h>
 #include <stdarg.h>
@@ -190,6 +191,153 @@ static const uint32_t *triangle_at(const rtk_build_geometry *g, size_t prim)
     return (const uint32_t *)((const char *)g->indices + prim * g->index_stride);
 }
 
+/* ---- a triangle against the boxes of its leaves ----
+ * Spatial splits put a triangle in several leaves, each under a box that
+ * holds only part of it.  Traversal finds a hit at point x of the triangle
+ * when some leaf holding it lies under boxes that contain x, so the tree
+ * is right when the leaves' boxes (the slot above a leaf is the smallest
+ * box on its path) together cover the triangle.  That is checked by
+ * subtracting the boxes one after the other from the triangle, in double
+ * precision, as convex pieces: each subtraction leaves at most six pieces
+ * of a piece (the parts beyond each face).  A piece thinner than a
+ * relative 2^-40 of the coordinates counts as nothing: rounding makes
+ * those where boxes only touch. */
+
+typedef struct piece {
+    int n;
+    double (*v)[3];
+} piece;
+
+typedef struct cover {
+    piece *pieces, *next;
+    size_t count, next_count, cap;
+    int max_vertices;
+    double (*store)[3];      /* cap * max_vertices vertices for pieces, the same for next */
+    double (*next_store)[3];
+    double tol;
+} cover;
+
+/* The part of polygon in[n] with x[a] <= c (below) or x[a] >= c, into out;
+ * its vertex count (at most n + 1). */
+static int clip_poly(const double (*in)[3], int n, int a, double c, int below, double (*out)[3])
+{
+    int m = 0;
+    for (int i = 0; i < n; i++) {
+        const double *p = in[i], *q = in[i + 1 == n ? 0 : i + 1];
+        const double dp = below ? c - p[a] : p[a] - c, dq = below ? c - q[a] : q[a] - c; /* >= 0: kept */
+        if (dp >= 0.0)
+            memcpy(out[m++], p, sizeof out[0]);
+        if ((dp >= 0.0) != (dq >= 0.0)) {
+            const double t = dp / (dp - dq);
+            for (int k = 0; k < 3; k++)
+                out[m][k] = p[k] + t * (q[k] - p[k]);
+            out[m++][a] = c;
+        }
+    }
+    return m;
+}
+
+/* Adds polygon v[n] to the next list when it is more than a sliver beyond
+ * the plane x[a] = c; 0 when the list is full. */
+static int keep_piece(cover *cv, const double (*v)[3], int n, int a, double c)
+{
+    if (n < 3)
+        return 1;
+    double depth = 0.0;
+    for (int i = 0; i < n; i++)
+        depth = fmax(depth, fabs(v[i][a] - c));
+    if (depth <= cv->tol)
+        return 1;
+    if (cv->next_count == cv->cap)
+        return 0;
+    piece *p = &cv->next[cv->next_count];
+    p->v = cv->next_store + cv->next_count * (size_t)cv->max_vertices;
+    p->n = n;
+    memcpy(p->v, v, (size_t)n * sizeof v[0]);
+    cv->next_count++;
+    return 1;
+}
+
+/* Whether the boxes (lo/hi: 3 floats each, `count` of them) cover the
+ * triangle v; -1 when it needs more pieces than the check holds. */
+static int triangle_covered(const float *const v[3], const float *const *lo, const float *const *hi, size_t count)
+{
+    if (count > 64)
+        return -1;
+    cover cv = {.cap = 4096, .max_vertices = 3 + 6 * (int)count};
+    double scale = 0.0;
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++)
+            scale = fmax(scale, fabs((double)v[i][k]));
+    cv.tol = scale * 0x1p-40;
+    piece *const pieces_mem = malloc(2 * cv.cap * sizeof *cv.pieces);
+    double(*const store_mem)[3] = malloc(2 * cv.cap * (size_t)cv.max_vertices * sizeof *cv.store);
+    double(*a_buf)[3] = malloc(2 * (size_t)cv.max_vertices * sizeof *a_buf);
+    cv.pieces = pieces_mem;
+    cv.store = store_mem;
+    int result = -1;
+    if (!cv.pieces || !cv.store || !a_buf)
+        goto done;
+    cv.next = cv.pieces + cv.cap;
+    cv.next_store = cv.store + cv.cap * (size_t)cv.max_vertices;
+    double(*b_buf)[3] = a_buf + cv.max_vertices;
+    cv.pieces[0] = (piece){3, cv.store};
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++)
+            cv.store[i][k] = v[i][k];
+    cv.count = 1;
+    for (size_t b = 0; b < count && cv.count; b++) {
+        cv.next_count = 0;
+        for (size_t i = 0; i < cv.count; i++) {
+            /* what of piece i lies outside box b, face by face */
+            int n = cv.pieces[i].n;
+            double(*cur)[3] = a_buf, (*tmp)[3] = b_buf;
+            memcpy(cur, cv.pieces[i].v, (size_t)n * sizeof cur[0]);
+            for (int a = 0; a < 3 && n >= 3; a++)
+                for (int side = 0; side < 2 && n >= 3; side++) {
+                    const double c = side ? hi[b][a] : lo[b][a];
+                    /* beyond the face: x[a] <= lo or x[a] >= hi */
+                    const int m = clip_poly((const double(*)[3])cur, n, a, c, !side, tmp);
+                    if (!keep_piece(&cv, (const double(*)[3])tmp, m, a, c))
+                        goto done;
+                    n = clip_poly((const double(*)[3])cur, n, a, c, side, tmp);
+                    double(*swap)[3] = cur;
+                    cur = tmp;
+                    tmp = swap;
+                }
+        }
+        /* the pieces left become the current ones */
+        piece *pp = cv.pieces;
+        cv.pieces = cv.next;
+        cv.next = pp;
+        double(*ps)[3] = cv.store;
+        cv.store = cv.next_store;
+        cv.next_store = ps;
+        cv.count = cv.next_count;
+    }
+    result = cv.count == 0;
+done:
+    free(pieces_mem);
+    free(store_mem);
+    free(a_buf);
+    return result;
+}
+
+/* A reference to a triangle whose leaf's box holds only part of it. */
+typedef struct part_ref {
+    size_t triangle; /* global index */
+    uint64_t slot;   /* the slot above the leaf */
+    uint32_t geom, prim;
+} part_ref;
+
+static int part_ref_order(const void *a, const void *b)
+{
+    const part_ref *x = a, *y = b;
+    if (x->triangle != y->triangle)
+        return x->triangle < y->triangle ? -1 : 1;
+    return x->slot < y->slot ? -1 : x->slot > y->slot;
+}
+
 rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count,
                             uint64_t *non_finite, uint64_t *degenerate, char *msg, size_t size)
 {
@@ -207,6 +355,8 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
     uint8_t *marked = calloc(total ? total : 1, 1);
     /* the slot above each leaf, for its box (UINT64_MAX: the root leaf) */
     uint64_t *slot_of = malloc((t->leaf_count ? t->leaf_count : 1) * sizeof *slot_of);
+    part_ref *parts = NULL;
+    size_t part_count = 0, part_cap = 0;
     rtk_error err = RTK_OK;
     if (!index_of || !base || !marked || !slot_of) {
         err = RTK_ERROR_OUT_OF_MEMORY;
@@ -240,12 +390,6 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
                           p.geom_id, p.prim_id, geoms[g].prim_count);
                 goto done;
             }
-            if (marked[base[g] + p.prim_id]) {
-                err = bad(msg, size, "leaf %llu: triangle %u of geometry %u is in the tree twice",
-                          (unsigned long long)j, p.prim_id, p.geom_id);
-                goto done;
-            }
-            marked[base[g] + p.prim_id] = 1;
             const uint32_t *tri = triangle_at(&geoms[g], p.prim_id);
             const float *v[3] = {vertex_at(&geoms[g], tri[0]), vertex_at(&geoms[g], tri[1]),
                                  vertex_at(&geoms[g], tri[2])};
@@ -256,15 +400,62 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
                           (unsigned long long)j, p.prim_id, p.geom_id);
                 goto done;
             }
-            if (slot_of[j] == UINT64_MAX)
+            /* Inside the leaf's box, or else part of it is: the parts are
+             * checked below. */
+            const size_t at = base[g] + p.prim_id;
+            int inside = 1;
+            if (slot_of[j] != UINT64_MAX) {
+                const float *lo = t->child_lower + 3 * slot_of[j], *hi = t->child_upper + 3 * slot_of[j];
+                for (int m = 0; m < 3; m++)
+                    inside &= box_contains(lo, hi, v[m], v[m]);
+            }
+            if (inside) {
+                marked[at] = 2;
                 continue;
-            const float *lo = t->child_lower + 3 * slot_of[j], *hi = t->child_upper + 3 * slot_of[j];
-            for (int m = 0; m < 3; m++)
-                if (!box_contains(lo, hi, v[m], v[m])) {
-                    err = bad(msg, size, "leaf %llu: triangle %u of geometry %u is not inside the leaf's box",
-                              (unsigned long long)j, p.prim_id, p.geom_id);
+            }
+            if (!marked[at])
+                marked[at] = 1;
+            if (part_count == part_cap) {
+                size_t cap = part_cap ? 2 * part_cap : 256;
+                part_ref *grown = realloc(parts, cap * sizeof *parts);
+                if (!grown) {
+                    err = RTK_ERROR_OUT_OF_MEMORY;
+                    if (msg && size)
+                        snprintf(msg, size, "out of memory checking the tree against the scene");
                     goto done;
                 }
+                parts = grown;
+                part_cap = cap;
+            }
+            parts[part_count++] = (part_ref){.triangle = at, .slot = slot_of[j], .geom = g, .prim = p.prim_id};
+        }
+    }
+    /* Triangles held only in parts: together the parts' boxes must cover them. */
+    if (part_count)
+        qsort(parts, part_count, sizeof *parts, part_ref_order);
+    for (size_t i = 0, e; i < part_count; i = e) {
+        for (e = i + 1; e < part_count && parts[e].triangle == parts[i].triangle;)
+            e++;
+        if (marked[parts[i].triangle] == 2)
+            continue;
+        const float *lo[64], *hi[64];
+        const size_t n = e - i;
+        for (size_t k = 0; k < n && k < 64; k++) {
+            lo[k] = t->child_lower + 3 * parts[i + k].slot;
+            hi[k] = t->child_upper + 3 * parts[i + k].slot;
+        }
+        const rtk_build_geometry *geo = &geoms[parts[i].geom];
+        const uint32_t *tri = triangle_at(geo, parts[i].prim);
+        const float *v[3] = {vertex_at(geo, tri[0]), vertex_at(geo, tri[1]), vertex_at(geo, tri[2])};
+        const int covered = triangle_covered(v, lo, hi, n);
+        if (covered != 1) {
+            err = bad(msg, size,
+                      covered == 0 ? "triangle %u of geometry %u: the boxes of the %zu leaves that hold it do not "
+                                     "cover it"
+                                   : "triangle %u of geometry %u: the %zu leaves that hold it, each with a part of it, "
+                                     "are too many to check (at most 64)",
+                      parts[i].prim, geo->geom_id, n);
+            goto done;
         }
     }
     /* Every triangle that can be hit must be there; the others are the
@@ -291,6 +482,7 @@ done:
     free(base);
     free(marked);
     free(slot_of);
+    free(parts);
     return err;
 }
 

@@ -522,6 +522,12 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             return rtk_fail(dev, err, "%s: %s", fn, why);
         }
         rc = io->import_tree(&in, tree, &out);
+        /* the tree may hold a triangle more than once (spatial splits) */
+        uint64_t total = 0;
+        for (size_t g = 0; g < n; g++)
+            total += in_geoms[g].prim_count;
+        out.refs = tree->prim_count;
+        out.prims = total - non_finite - degenerate;
         out.prims_skipped = non_finite;
         out.prims_degenerate = degenerate;
     } else {
@@ -658,6 +664,8 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
             info->packet_width[w] = s->packet[0][w].width;
     if (keep >= offsetof(rtk_scene_info, build_threads) + sizeof info->build_threads)
         info->build_threads = o->threads ? o->threads : 1;
+    if (keep >= offsetof(rtk_scene_info, references) + sizeof info->references)
+        info->references = o->refs ? o->refs : o->prims;
     return RTK_OK;
 }
 

@@ -325,7 +325,7 @@ static void test_flags_reported(void **state)
     /* Robust is not implemented in this version, and said so. */
     assert_int_equal(info.flags_not_honoured, RTK_SCENE_FLAG_ROBUST);
     assert_int_equal(info.quality, RTK_BUILD_QUALITY_HIGH);
-    assert_string_equal(info.builder, "sah-binned");
+    assert_string_equal(info.builder, "sah-spatial");
     assert_string_equal(info.layout, "bvh4.triangle4i");
     /* Default: 8-wide nodes where the backend has 8-wide vectors, 4-wide
      * elsewhere, and vertex-copy leaves. */

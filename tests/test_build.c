@@ -26,7 +26,7 @@ typedef struct mesh {
     uint32_t *idx;
     size_t nv, nt;
 } mesh;
-static mesh sphere, bunny_mesh;
+static mesh sphere, bunny_mesh, sticks;
 
 static void make_sphere(mesh *m)
 {
@@ -76,6 +76,11 @@ static int setup(void **state)
 {
     (void)state;
     make_sphere(&sphere);
+    /* enough for spatial splits in stage 1 (ranges of 2 * 4096 and more) */
+    rng r = {2024};
+    test_sticks_mesh(&r, 40000, 1.0f, 0.0f, &sticks.v, &sticks.idx);
+    sticks.nv = 3 * 40000;
+    sticks.nt = 40000;
     char *files[1];
     if (test_mesh_files(files, 1, "bunny.ply") != 1)
         return -1;
@@ -96,6 +101,8 @@ static int teardown(void **state)
     free(sphere.idx);
     free(bunny_mesh.v);
     free(bunny_mesh.idx);
+    free(sticks.v);
+    free(sticks.idx);
     return 0;
 }
 
@@ -128,9 +135,10 @@ static rtk_scene scene_q(rtk_device dev, const mesh *x, unsigned flags, rtk_buil
     return s;
 }
 
-/* The builders: low quality is the Morton builder, medium the binned SAH one. */
-static const rtk_build_quality qualities[] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM};
-static const char *const builder_names[] = {"morton", "sah-binned"};
+/* The builders: low quality is the Morton builder, medium the binned SAH
+ * one, high the binned SAH one with spatial splits. */
+static const rtk_build_quality qualities[] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM, RTK_BUILD_QUALITY_HIGH};
+static const char *const builder_names[] = {"morton", "sah-binned", "sah-spatial"};
 #define QUALITIES (sizeof qualities / sizeof *qualities)
 
 /* The scene's tree and statistics equal the reference's to the bit. */
@@ -145,6 +153,7 @@ static void assert_same_build(rtk_scene s, const rtk_bvh *want, const rtk_scene_
     assert_int_equal(info.leaves, want_info->leaves);
     assert_int_equal(info.depth, want_info->depth);
     assert_int_equal(info.triangles, want_info->triangles);
+    assert_int_equal(info.references, want_info->references);
     assert_int_equal(info.triangles_skipped, want_info->triangles_skipped);
     assert_int_equal(info.triangles_degenerate, want_info->triangles_degenerate);
     assert_true(info.sah_cost == want_info->sah_cost);
@@ -157,11 +166,11 @@ static void same_tree_any_threads(void **state)
     (void)state;
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
-    const mesh *meshes[2] = {&sphere, &bunny_mesh};
+    const mesh *meshes[3] = {&sphere, &bunny_mesh, &sticks};
     static const unsigned flags[2] = {RTK_SCENE_FLAG_NONE, RTK_SCENE_FLAG_COMPACT};
     for (size_t b = 0; b < nb; b++)
         for (size_t q = 0; q < QUALITIES; q++)
-            for (int m = 0; m < 2; m++)
+            for (int m = 0; m < 3; m++)
                 for (int f = 0; f < 2; f++) {
                     const mesh *x = meshes[m];
                     rtk_device one = device(names[b], 1);
@@ -171,6 +180,11 @@ static void same_tree_any_threads(void **state)
                     assert_int_equal(rtk_scene_get_info(ref, &want_info), RTK_OK);
                     assert_int_equal(want_info.build_threads, 1);
                     assert_string_equal(want_info.builder, builder_names[q]);
+                    if (qualities[q] == RTK_BUILD_QUALITY_HIGH && m == 2) /* spatial splits happened */
+                        assert_true(want_info.references > want_info.triangles + want_info.triangles / 20);
+                    else if (qualities[q] != RTK_BUILD_QUALITY_HIGH)
+                        assert_int_equal(want_info.references, want_info.triangles);
+                    assert_true(want_info.references <= want_info.triangles + want_info.triangles / 5);
                     if (m == 0) {
                         /* every 97th, less the few of those with a NaN vertex, and the poles' */
                         assert_true(want_info.triangles_degenerate > (x->nt + 96) / 97 - 3);
@@ -245,6 +259,82 @@ static void hits_match_brute_force(void **state)
                 rtk_device_release(dev);
             }
     ref_free(&ref);
+}
+
+/* ---- spatial splits against brute force ---- */
+
+/* Long thin triangles crossing each other and large ones lying in likely
+ * split planes, at high quality: the clipped references must still find
+ * every hit.  Also far from the origin (coordinates near 1e6, ulp 1/16)
+ * and at scales of 1e12 and 1e-9; at 1e-15, with directions as small, the
+ * determinant of every ray-triangle test is denormal and nothing is hit
+ * (t would be NaN: geometry/triangle.h). */
+static void spatial_splits_vs_brute_force(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    static const struct {
+        float scale, offset, dir_scale;
+        int must_split, min_hits;
+    } cases[] = {{1.0f, 0.0f, 1.0f, 1, 400},     {1000.0f, 1e6f, 1000.0f, 1, 400}, {1e12f, 0.0f, 1e12f, 0, 400},
+                 {1e-9f, 1e-9f, 1e-9f, 0, 400},   {1e-15f, 1e-15f, 1e-15f, 0, 0}};
+    for (size_t c = 0; c < sizeof cases / sizeof *cases; c++) {
+        rng r = {77 + c};
+        float *v;
+        uint32_t *idx;
+        const size_t nt = 3000;
+        test_sticks_mesh(&r, nt, cases[c].scale, cases[c].offset, &v, &idx);
+        mesh x = {v, idx, 3 * nt, nt};
+        ref_mesh ref = ref_prepare(v, idx, nt);
+        for (size_t b = 0; b < nb; b++)
+            for (int f = 0; f < 2; f++) {
+                rtk_device dev = device(names[b], 2);
+                rtk_scene s = scene_q(dev, &x, f ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE,
+                                      RTK_BUILD_QUALITY_HIGH);
+                rtk_scene_info info = {.struct_size = sizeof info};
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                assert_string_equal(info.builder, "sah-spatial");
+                if (cases[c].must_split)
+                    assert_true(info.references > info.triangles + info.triangles / 100);
+                assert_true(info.references <= info.triangles + info.triangles / 5);
+                rng rr = {5};
+                int hits = 0;
+                for (int i = 0; i < 600; i++) {
+                    float o[3], d[3];
+                    for (int k = 0; k < 3; k++) {
+                        o[k] = 3.0f * rng_float(&rr) - 1.0f;
+                        d[k] = rng_float(&rr) - o[k]; /* towards the cube */
+                    }
+                    if (i % 3)
+                        for (int k = 0; k < 3; k++)
+                            o[k] = (o[k] + 1.0f) / 3.0f; /* over the cube */
+                    if (i % 3 == 1) { /* straight down onto the plane z = 1/2 */
+                        d[0] = d[1] = (i % 2) ? 0.0f : -0.0f;
+                        d[2] = -1.0f;
+                        o[2] = 2.0f;
+                    } else if (i % 3 == 2) { /* along x, through the plane x = 1/2 */
+                        d[1] = d[2] = 0.0f;
+                        d[0] = 1.0f;
+                        o[0] = -1.0f;
+                    }
+                    for (int k = 0; k < 3; k++) {
+                        o[k] = cases[c].offset + cases[c].scale * o[k];
+                        d[k] *= cases[c].dir_scale;
+                    }
+                    hits += ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
+                }
+                if (cases[c].min_hits)
+                    assert_true(hits >= cases[c].min_hits);
+                else
+                    assert_int_equal(hits, 0);
+                rtk_scene_release(s);
+                rtk_device_release(dev);
+            }
+        ref_free(&ref);
+        free(v);
+        free(idx);
+    }
 }
 
 /* ---- the Morton builder where codes say little ---- */
@@ -569,7 +659,7 @@ int main(int argc, char **argv)
     const int quick = argc > 1 && !strcmp(argv[1], "quick");
     const struct CMUnitTest all[] = {
         cmocka_unit_test(same_tree_any_threads),   cmocka_unit_test(hits_match_brute_force),
-        cmocka_unit_test(morton_edge_cases),
+        cmocka_unit_test(morton_edge_cases),       cmocka_unit_test(spatial_splits_vs_brute_force),
         cmocka_unit_test(application_task_system), cmocka_unit_test(concurrent_commits),
         cmocka_unit_test(workers_end_with_device),
     };

@@ -349,7 +349,7 @@ enum damage {
     D_LEAF_RANGE,
     D_PRIM_GEOM,
     D_PRIM_RANGE,
-    D_PRIM_TWICE,
+    D_PRIM_MISSING,
     D_PRIM_UNHITTABLE,
     D_NODE_NO_CHILDREN,
     D_COUNT
@@ -358,8 +358,8 @@ enum damage {
 static const char *const damage_text[D_COUNT] = {
     "width 5", "struct_size", "root 1", "does not exist", "does not come after its parent", "is referenced twice",
     "does not exist", "is referenced twice", "not finite or not ordered", "not finite or not ordered",
-    "does not contain slot", "not inside the leaf's box", "empty or its range runs backwards", "not attached",
-    "has no triangle", "in the tree twice", "can never be hit", "has no children",
+    "does not contain slot", "do not cover it", "empty or its range runs backwards", "not attached",
+    "has no triangle", "can be hit but is not in the tree", "can never be hit", "has no children",
 };
 
 static void apply_damage(rtk_bvh *t, enum damage d)
@@ -404,7 +404,7 @@ static void apply_damage(rtk_bvh *t, enum damage d)
     case D_LEAF_RANGE: t->leaf_first[1] = t->leaf_first[2]; break;
     case D_PRIM_GEOM: t->prims[0].geom_id = 7; break;
     case D_PRIM_RANGE: t->prims[0].prim_id = 1000; break;
-    case D_PRIM_TWICE: t->prims[1] = t->prims[0]; break;
+    case D_PRIM_MISSING: t->prims[1] = t->prims[0]; break; /* twice is allowed, missing is not */
     case D_PRIM_UNHITTABLE: {
         for (uint64_t k = 0; k < t->prim_count; k++)
             if (t->prims[k].prim_id == 5)
@@ -419,6 +419,73 @@ static void apply_damage(rtk_bvh *t, enum damage d)
     }
     case D_COUNT: break;
     }
+}
+
+/* High quality: spatial splits put a triangle in several leaves, each under
+ * a box that holds only its part.  Such trees round-trip, and the check
+ * finds a part whose box no longer covers it. */
+static void test_round_trip_spatial(void **state)
+{
+    (void)state;
+    rng r = {31};
+    float *v;
+    uint32_t *idx;
+    const size_t nt = 3000;
+    test_sticks_mesh(&r, nt, 1.0f, 0.0f, &v, &idx);
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t i = 0; i < nb; i++)
+        for (int f = 0; f < 2; f++) {
+            const unsigned flags = f ? RTK_SCENE_FLAG_COMPACT : 0;
+            rtk_device dev = test_device(names[i]);
+            rtk_scene a = test_scene_uncommitted(dev, v, 3 * nt, idx, nt, flags);
+            assert_int_equal(rtk_scene_set_build_quality(a, RTK_BUILD_QUALITY_HIGH), RTK_OK);
+            assert_int_equal(rtk_scene_commit(a), RTK_OK);
+            rtk_scene_info info = {.struct_size = sizeof info};
+            assert_int_equal(rtk_scene_get_info(a, &info), RTK_OK);
+            assert_true(info.references > info.triangles);
+            rtk_bvh t = {.struct_size = sizeof t};
+            assert_int_equal(rtk_scene_get_bvh(a, &t), RTK_OK);
+            assert_int_equal(t.prim_count, info.references);
+            rtk_scene b = NULL;
+            if (commit_tree(dev, v, 3 * nt, idx, nt, flags, &t, &b) != RTK_OK)
+                fail_msg("commit_bvh: %s", rtk_device_get_error_message(dev));
+            assert_same_info(a, b);
+            rtk_scene_info binfo = {.struct_size = sizeof binfo};
+            assert_int_equal(rtk_scene_get_info(b, &binfo), RTK_OK);
+            assert_int_equal(binfo.references, info.references);
+            const float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 1};
+            assert_same_hits(a, b, lo, hi, 5000, 3);
+            /* a leaf box of a triangle held in parts, shrunk to its lower
+             * corner (still inside its parent's box): not covered */
+            int64_t slot = -1;
+            for (uint64_t k = 0; k < t.node_count * t.width && slot < 0; k++) {
+                const uint32_t ref = t.children[k];
+                if (ref == RTK_BVH_EMPTY || !(ref & RTK_BVH_LEAF_BIT))
+                    continue;
+                const uint32_t leaf = ref & ~RTK_BVH_LEAF_BIT;
+                for (uint64_t p = t.leaf_first[leaf]; p < t.leaf_first[leaf + 1] && slot < 0; p++) {
+                    const float *tv = v + 9 * t.prims[p].prim_id;
+                    for (int m = 0; m < 3 && slot < 0; m++)
+                        for (int a2 = 0; a2 < 3; a2++)
+                            if (tv[3 * m + a2] < t.child_lower[3 * k + a2] || tv[3 * m + a2] > t.child_upper[3 * k + a2])
+                                slot = (int64_t)k;
+                }
+            }
+            assert_true(slot >= 0);
+            rtk_bvh c = copy_tree(&t);
+            for (int a2 = 0; a2 < 3; a2++)
+                c.child_upper[3 * slot + a2] = c.child_lower[3 * slot + a2];
+            assert_int_equal(rtk_scene_commit_bvh(b, &c), RTK_ERROR_INVALID_ARGUMENT);
+            assert_non_null(strstr(rtk_device_get_error_message(dev), "do not cover it"));
+            free_copy(&c);
+            rtk_bvh_free(&t);
+            rtk_scene_release(a);
+            rtk_scene_release(b);
+            rtk_device_release(dev);
+        }
+    free(v);
+    free(idx);
 }
 
 static void test_refusals(void **state)
@@ -577,6 +644,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_round_trip_bunny, load_bunny, free_bunny),
         cmocka_unit_test(test_round_trip_sizes),
         cmocka_unit_test(test_round_trip_geometries),
+        cmocka_unit_test(test_round_trip_spatial),
         cmocka_unit_test(test_leaf_too_big),
         cmocka_unit_test(test_refusals),
         cmocka_unit_test(test_fuzz),

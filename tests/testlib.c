@@ -137,6 +137,35 @@ float rng_float(rng *r)
     return (float)(rng_u32(r) >> 8) * 0x1p-24f;
 }
 
+void test_sticks_mesh(rng *r, size_t nt, float scale, float offset, float **v, uint32_t **idx)
+{
+    *v = malloc((nt ? nt : 1) * 9 * sizeof(float));
+    *idx = malloc((nt ? nt : 1) * 3 * sizeof(uint32_t));
+    assert_non_null(*v);
+    assert_non_null(*idx);
+    static const float big[4][9] = {
+        {0, 0, 0.5f, 1, 0, 0.5f, 0, 1, 0.5f},       /* in the plane z = 1/2 */
+        {1, 1, 0.5f, 0, 1, 0.5f, 1, 0, 0.5f},
+        {0.5f, 0, 0, 0.5f, 1, 0, 0.5f, 0, 1},       /* in the plane x = 1/2 */
+        {0.25f, 0.25f, 0.25f, 0.75f, 0.25f, 0.75f, 0.25f, 0.75f, 0.75f}, /* diagonal */
+    };
+    for (size_t t = 0; t < nt; t++) {
+        float *p = *v + 9 * t;
+        if (t < 4) {
+            memcpy(p, big[t], sizeof big[t]);
+        } else {
+            for (int k = 0; k < 6; k++)
+                p[k] = rng_float(r);
+            for (int k = 0; k < 3; k++)
+                p[6 + k] = p[k] + 0.01f * (rng_float(r) - 0.5f);
+        }
+        for (int k = 0; k < 9; k++)
+            p[k] = offset + scale * p[k];
+        for (int k = 0; k < 3; k++)
+            (*idx)[3 * t + k] = (uint32_t)(3 * t + k);
+    }
+}
+
 void test_packet_put(void *packet, unsigned width, unsigned lane, const rtk_rayhit *rh, int occluded)
 {
     const size_t fields = occluded ? 12 : 20;

@@ -66,4 +66,11 @@ typedef struct rng {
 uint32_t rng_u32(rng *r);
 float rng_float(rng *r); /* [0, 1) */
 
+/* nt separate triangles in the cube offset + scale * [0, 1]^3 where spatial
+ * splits pay: long thin sticks between random points (two ends far apart,
+ * the third near the first), after four large ones, two of them in the
+ * planes z = 1/2 and x = 1/2 (where split planes fall) and one diagonal.
+ * malloc'd arrays of 3 * nt vertices and nt triangles. */
+void test_sticks_mesh(rng *r, size_t nt, float scale, float offset, float **v, uint32_t **idx);
+
 #endif

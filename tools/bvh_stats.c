@@ -64,13 +64,32 @@ static void count_leaf(const rtk_bvh *t, uint32_t ref, uint32_t depth, bvh_stats
     s->sah += area * (double)((n + 3) / 4);
 }
 
+static int prim_order(const void *a, const void *b)
+{
+    const rtk_bvh_prim *x = a, *y = b;
+    if (x->geom_id != y->geom_id)
+        return x->geom_id < y->geom_id ? -1 : 1;
+    return x->prim_id < y->prim_id ? -1 : x->prim_id > y->prim_id;
+}
+
 int bvh_stats_compute(const rtk_bvh *t, bvh_stats *s)
 {
     memset(s, 0, sizeof *s);
     s->width = t->width;
     s->nodes = t->node_count;
     s->leaves = t->leaf_count;
-    s->prims = t->prim_count;
+    s->refs = s->prims = t->prim_count;
+    if (t->prim_count) { /* distinct triangles: spatial splits put one in several leaves */
+        rtk_bvh_prim *p = malloc(t->prim_count * sizeof *p);
+        if (!p)
+            return 1;
+        memcpy(p, t->prims, t->prim_count * sizeof *p);
+        qsort(p, t->prim_count, sizeof *p, prim_order);
+        s->prims = 1;
+        for (uint64_t k = 1; k < t->prim_count; k++)
+            s->prims += p[k].geom_id != p[k - 1].geom_id || p[k].prim_id != p[k - 1].prim_id;
+        free(p);
+    }
     if (t->root == RTK_BVH_EMPTY)
         return 0;
     double depth_sum = 0.0;

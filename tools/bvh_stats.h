@@ -12,7 +12,9 @@
 
 typedef struct bvh_stats {
     uint32_t width; /* child slots per node */
-    uint64_t nodes, leaves, prims;
+    uint64_t nodes, leaves;
+    uint64_t prims; /* distinct triangles */
+    uint64_t refs;  /* triangle references in the leaves (more than prims after spatial splits) */
     uint64_t slots_used;             /* child slots holding a node or leaf */
     uint32_t depth_max;              /* levels, the leaves' included (as rtk_scene_info.depth) */
     double depth_mean;               /* of the leaves */

@@ -642,7 +642,11 @@ static void print_report(const build_report *r)
            (unsigned long long)s->nodes, (unsigned long long)s->leaves, (unsigned long long)s->leaf_blocks,
            s->nodes ? (double)s->slots_used / (double)s->nodes : 0.0);
     printf("depth:     max %u, mean %.2f (levels, the leaves' included)\n", s->depth_max, s->depth_mean);
-    printf("triangles: %llu in leaves; per leaf:\n", (unsigned long long)s->prims);
+    if (s->refs != s->prims)
+        printf("triangles: %llu in leaves as %llu references (spatial splits); references per leaf:\n",
+               (unsigned long long)s->prims, (unsigned long long)s->refs);
+    else
+        printf("triangles: %llu in leaves; per leaf:\n", (unsigned long long)s->prims);
     uint64_t most = 1;
     for (int b = 0; b < BVH_STATS_LEAF_BINS; b++)
         most = s->leaf_prims[b] > most ? s->leaf_prims[b] : most;
@@ -677,9 +681,10 @@ static void print_json(const build_report *r)
     json_string("layout", r->layout, 0);
     json_string("builder", r->builder, 0);
     json_string("quality", quality_name(r->quality), 0);
-    printf("  \"mesh_triangles\": %llu,\n  \"triangles\": %llu,\n  \"nodes\": %llu,\n  \"leaves\": %llu,\n"
+    printf("  \"mesh_triangles\": %llu,\n  \"triangles\": %llu,\n  \"references\": %llu,\n  \"nodes\": %llu,\n  \"leaves\": %llu,\n"
            "  \"leaf_blocks\": %llu,\n  \"width\": %u,\n  \"children_per_node\": %.4f,\n  \"depth_max\": %u,\n  \"depth_mean\": %.4f,\n",
-           (unsigned long long)r->mesh_triangles, (unsigned long long)s->prims, (unsigned long long)s->nodes,
+           (unsigned long long)r->mesh_triangles, (unsigned long long)s->prims, (unsigned long long)s->refs,
+           (unsigned long long)s->nodes,
            (unsigned long long)s->leaves, (unsigned long long)s->leaf_blocks, s->width,
            s->nodes ? (double)s->slots_used / (double)s->nodes : 0.0, s->depth_max, s->depth_mean);
     printf("  \"triangles_per_leaf\": {");

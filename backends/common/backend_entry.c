@@ -38,7 +38,8 @@
 #define BUILD_SAH RTK_SYM(rtk_build_sah)
 #endif
 
-#define SAH_QUALITIES ((1u << RTK_BUILD_QUALITY_MEDIUM) | (1u << RTK_BUILD_QUALITY_HIGH))
+#define SAH_QUALITIES (1u << RTK_BUILD_QUALITY_MEDIUM)
+#define SPATIAL_QUALITIES (1u << RTK_BUILD_QUALITY_HIGH)
 #define MORTON_QUALITIES (1u << RTK_BUILD_QUALITY_LOW)
 
 /* The core takes the first builder that serves a scene's quality, and that
@@ -46,19 +47,22 @@
  * Measured on dragon (bench_vs_embree, 1 thread, avx2): primary rays 4.25 ->
  * 5.37 Mrays/s against bvh4, random and shadow rays within 2%, memory 66.6 ->
  * 70.2 bytes/triangle (Embree's default is about 70).  Low quality is the
- * Morton builder, medium and high the binned SAH builder (spatial splits
- * for high are a later addition); rtk_scene_info names the builder used. */
+ * Morton builder, medium the binned SAH builder and high the same with
+ * spatial splits; rtk_scene_info names the builder used. */
 static const rtk_builder_entry builders[] = {
 #ifdef RTK_SIMD_HAS_8
     {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4, .build = RTK_SYM(rtk_build_morton)},
     {.name = "sah-binned", .qualities = SAH_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4, .build = BUILD_SAH},
+    {.name = "sah-spatial", .qualities = SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4, .build = RTK_SYM(rtk_build_sah_spatial)},
 #endif
     {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4, .build = RTK_SYM(rtk_build_morton)},
     {.name = "sah-binned", .qualities = SAH_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4, .build = BUILD_SAH},
+    {.name = "sah-spatial", .qualities = SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4, .build = RTK_SYM(rtk_build_sah_spatial)},
     /* compact scenes: 4-wide nodes (half the bytes of 8-wide ones per
      * child slot filled) and index leaves, on every backend */
     {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .build = RTK_SYM(rtk_build_morton)},
     {.name = "sah-binned", .qualities = SAH_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .build = BUILD_SAH},
+    {.name = "sah-spatial", .qualities = SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .build = RTK_SYM(rtk_build_sah_spatial)},
     {0},
 };
 

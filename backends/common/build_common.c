@@ -207,6 +207,8 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
     }
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
         out->threads = bd->tasks ? bd->tasks->threads : 1;
+    if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
+        out->refs = prims;
 }
 
 void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim, uint32_t count,

@@ -42,6 +42,11 @@ typedef struct build {
     size_t node_size; /* sizeof(rtk_bvh4_node) or sizeof(rtk_bvh8_node) */
     size_t leaf_size; /* sizeof(rtk_triangle4) or sizeof(rtk_triangle4i) */
     int indexed;      /* triangle4i leaves */
+    /* SAH builder, high quality: spatial splits are tried where the halves
+     * of the best object split overlap by more than spatial_overlap (a
+     * half-area); 0 = none. */
+    int spatial;
+    float spatial_overlap;
     void *nodes;      /* the final arrays (stage 3) */
     void *leaves;
 } build;

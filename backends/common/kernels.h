@@ -5,6 +5,7 @@
 #include "rtk/rtk_backend.h"
 
 RTK_HIDDEN int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out);
+RTK_HIDDEN int RTK_SYM(rtk_build_sah_spatial)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel);
 RTK_HIDDEN int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *tree);

@@ -272,6 +272,11 @@ typedef struct rtk_scene_info {
     /* Added after rtk 0.1.0: the threads the last build could run on
      * (rtk_device_get_thread_count when the builder is parallel, else 1). */
     uint32_t build_threads;
+    /* Added after rtk 0.1.0: triangle references in the leaves.  Equal to
+     * triangles, except after spatial splits (high quality), which put a
+     * triangle that crosses a split plane in a leaf on each side, each
+     * with the box of its own part: at most 1.2 times triangles. */
+    uint64_t references;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -325,9 +330,11 @@ RTK_API rtk_error rtk_bvh_check(const rtk_bvh *bvh, char *msg, size_t msg_size);
 /* Commits the scene (as rtk_scene_commit does: the same geometry checks and
  * the same layout choice) with `bvh` as its tree instead of building one.
  * Besides rtk_bvh_check, the tree must fit the scene: each triangle it
- * references belongs to an attached, enabled geometry, can be hit (finite,
- * non-zero area) and lies inside the boxes above it; every such triangle
- * is referenced exactly once; the width matches the layout's nodes and no
+ * references belongs to an attached, enabled geometry and can be hit
+ * (finite, non-zero area); every such triangle is referenced, and lies
+ * inside the boxes above its leaf, or (spatial splits) is referenced from
+ * several leaves whose boxes together cover it; the width matches the
+ * layout's nodes and no
  * leaf holds more triangles than the layout allows (16).  Anything else is
  * RTK_ERROR_INVALID_ARGUMENT naming the problem, and the scene keeps its
  * previous state.  rtk_scene_info.builder is then "tree". */

@@ -118,6 +118,10 @@ typedef struct rtk_build_output {
      * threads the build ran its parallel work on (in->threads, or 1 for a
      * builder that ignores in->tasks). */
     uint32_t threads;
+    /* Added after rtk 0.1.0 (the same way): triangle references in the
+     * leaves, more than prims where spatial splits put a triangle in
+     * several leaves; 0 from an older backend means prims. */
+    uint64_t refs;
 } rtk_build_output;
 
 RTK_BACKEND_FN(int, rtk_build, (const rtk_build_input *in, rtk_build_output *out));
