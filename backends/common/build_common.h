@@ -133,6 +133,44 @@ static inline const uint32_t *triangle_at(const rtk_build_geometry *g, size_t pr
     return (const uint32_t *)((const char *)g->indices + prim * g->index_stride);
 }
 
+/* The geometry of global triangle i: the last g (of count) with
+ * geom_first[g] <= i (geom_first as build_geom_first makes it). */
+static inline uint32_t build_geometry_of(const uint64_t *geom_first, uint32_t count, uint64_t i)
+{
+    uint32_t g = 0, lo = 0, hi = count;
+    while (lo < hi) {
+        const uint32_t mid = lo + (hi - lo) / 2;
+        if (geom_first[mid] <= i) {
+            g = mid;
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    return g;
+}
+
+/* Whether triangle prim of g can be hit, with its vertices in v.  The
+ * others are left out of every build and counted as every build counts
+ * them: a non-finite vertex in *skipped, else no area in *degenerate. */
+static inline int build_hittable(const rtk_build_geometry *g, size_t prim, const float *v[3], uint64_t *skipped,
+                                 uint64_t *degenerate)
+{
+    const uint32_t *tri = triangle_at(g, prim);
+    v[0] = vertex_at(g, tri[0]);
+    v[1] = vertex_at(g, tri[1]);
+    v[2] = vertex_at(g, tri[2]);
+    if (!rtk_triangle_is_finite(v[0], v[1], v[2])) {
+        (*skipped)++;
+        return 0;
+    }
+    if (rtk_triangle_is_degenerate(v[0], v[1], v[2])) {
+        (*degenerate)++;
+        return 0;
+    }
+    return 1;
+}
+
 #define build_reserve RTK_SYM(rtk_build_reserve)
 #define build_reserve_huge RTK_SYM(rtk_build_reserve_huge)
 #define build_unreserve RTK_SYM(rtk_build_unreserve)

@@ -85,17 +85,7 @@ static inline vfloat4 centroid3(const float *v0, const float *v1, const float *v
 /* The geometry holding global triangle i: the last one starting at or before it. */
 static uint32_t geometry_of(const morton *m, uint64_t i)
 {
-    uint32_t gi = 0, lo = 0, hi = m->bd.in->geometry_count;
-    while (lo < hi) {
-        const uint32_t mid = lo + (hi - lo) / 2;
-        if (m->geom_first[mid] <= i) {
-            gi = mid;
-            lo = mid + 1;
-        } else {
-            hi = mid;
-        }
-    }
-    return gi;
+    return build_geometry_of(m->geom_first, m->bd.in->geometry_count, i);
 }
 
 /* Item i's triangle: its geometry's index in the input (*gi) and primitive index. */
@@ -127,18 +117,10 @@ static void scan_chunk(void *data, uint32_t k)
     for (uint64_t i = begin; i < end; i++) {
         while (i >= m->geom_first[gi + 1])
             gi++;
-        const rtk_build_geometry *g = &in->geometries[gi];
-        const uint32_t *tri = triangle_at(g, (size_t)(i - m->geom_first[gi]));
-        const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
-        if (!rtk_triangle_is_finite(v0, v1, v2)) {
-            skipped++;
+        const float *v[3];
+        if (!build_hittable(&in->geometries[gi], (size_t)(i - m->geom_first[gi]), v, &skipped, &degenerate))
             continue;
-        }
-        if (rtk_triangle_is_degenerate(v0, v1, v2)) {
-            degenerate++;
-            continue;
-        }
-        const vfloat4 c = centroid3(v0, v1, v2);
+        const vfloat4 c = centroid3(v[0], v[1], v[2]);
         box_grow(&cent, c, c);
         vf4_store(out + 4 * (size_t)n++, c);
         out[4 * (size_t)n - 1] = rtk_bits_float((uint32_t)i);
