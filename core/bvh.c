@@ -203,19 +203,54 @@ static const uint32_t *triangle_at(const rtk_build_geometry *g, size_t prim)
  * relative 2^-40 of the coordinates counts as nothing: rounding makes
  * those where boxes only touch. */
 
+/* Convex polygons, their vertices in one growing array. */
 typedef struct piece {
+    size_t at; /* first vertex in pieces.v */
     int n;
-    double (*v)[3];
 } piece;
 
-typedef struct cover {
-    piece *pieces, *next;
-    size_t count, next_count, cap;
-    int max_vertices;
-    double (*store)[3];      /* cap * max_vertices vertices for pieces, the same for next */
-    double (*next_store)[3];
-    double tol;
-} cover;
+typedef struct pieces {
+    piece *list;
+    size_t count, cap;
+    double (*v)[3];
+    size_t used, vcap;
+} pieces;
+
+/* More pieces than this and the check gives up (rtk_bvh_check_fit says so). */
+#define RTK_COVER_PIECES_MAX 65536u
+
+static void pieces_free(pieces *ps)
+{
+    free(ps->list);
+    free(ps->v);
+}
+
+/* Appends polygon v[n]; 0 when out of memory. */
+static int pieces_add(pieces *ps, const double (*v)[3], int n)
+{
+    if (ps->count == ps->cap) {
+        const size_t cap = ps->cap ? 2 * ps->cap : 16;
+        piece *l = realloc(ps->list, cap * sizeof *l);
+        if (!l)
+            return 0;
+        ps->list = l;
+        ps->cap = cap;
+    }
+    if (ps->used + (size_t)n > ps->vcap) {
+        size_t cap = ps->vcap ? 2 * ps->vcap : 64;
+        while (cap < ps->used + (size_t)n)
+            cap *= 2;
+        double(*w)[3] = realloc(ps->v, cap * sizeof *w);
+        if (!w)
+            return 0;
+        ps->v = w;
+        ps->vcap = cap;
+    }
+    memcpy(ps->v + ps->used, v, (size_t)n * sizeof v[0]);
+    ps->list[ps->count++] = (piece){ps->used, n};
+    ps->used += (size_t)n;
+    return 1;
+}
 
 /* The part of polygon in[n] with x[a] <= c (below) or x[a] >= c, into out;
  * its vertex count (at most n + 1). */
@@ -237,90 +272,13 @@ static int clip_poly(const double (*in)[3], int n, int a, double c, int below, d
     return m;
 }
 
-/* Adds polygon v[n] to the next list when it is more than a sliver beyond
- * the plane x[a] = c; 0 when the list is full. */
-static int keep_piece(cover *cv, const double (*v)[3], int n, int a, double c)
+/* Whether polygon v[n], beyond the plane x[a] = c, is more than a sliver. */
+static int thick(const double (*v)[3], int n, int a, double c, double tol)
 {
-    if (n < 3)
-        return 1;
     double depth = 0.0;
     for (int i = 0; i < n; i++)
         depth = fmax(depth, fabs(v[i][a] - c));
-    if (depth <= cv->tol)
-        return 1;
-    if (cv->next_count == cv->cap)
-        return 0;
-    piece *p = &cv->next[cv->next_count];
-    p->v = cv->next_store + cv->next_count * (size_t)cv->max_vertices;
-    p->n = n;
-    memcpy(p->v, v, (size_t)n * sizeof v[0]);
-    cv->next_count++;
-    return 1;
-}
-
-/* Whether the boxes (lo/hi: 3 floats each, `count` of them) cover the
- * triangle v; -1 when it needs more pieces than the check holds. */
-static int triangle_covered(const float *const v[3], const float *const *lo, const float *const *hi, size_t count)
-{
-    if (count > 64)
-        return -1;
-    cover cv = {.cap = 4096, .max_vertices = 3 + 6 * (int)count};
-    double scale = 0.0;
-    for (int i = 0; i < 3; i++)
-        for (int k = 0; k < 3; k++)
-            scale = fmax(scale, fabs((double)v[i][k]));
-    cv.tol = scale * 0x1p-40;
-    piece *const pieces_mem = malloc(2 * cv.cap * sizeof *cv.pieces);
-    double(*const store_mem)[3] = malloc(2 * cv.cap * (size_t)cv.max_vertices * sizeof *cv.store);
-    double(*a_buf)[3] = malloc(2 * (size_t)cv.max_vertices * sizeof *a_buf);
-    cv.pieces = pieces_mem;
-    cv.store = store_mem;
-    int result = -1;
-    if (!cv.pieces || !cv.store || !a_buf)
-        goto done;
-    cv.next = cv.pieces + cv.cap;
-    cv.next_store = cv.store + cv.cap * (size_t)cv.max_vertices;
-    double(*b_buf)[3] = a_buf + cv.max_vertices;
-    cv.pieces[0] = (piece){3, cv.store};
-    for (int i = 0; i < 3; i++)
-        for (int k = 0; k < 3; k++)
-            cv.store[i][k] = v[i][k];
-    cv.count = 1;
-    for (size_t b = 0; b < count && cv.count; b++) {
-        cv.next_count = 0;
-        for (size_t i = 0; i < cv.count; i++) {
-            /* what of piece i lies outside box b, face by face */
-            int n = cv.pieces[i].n;
-            double(*cur)[3] = a_buf, (*tmp)[3] = b_buf;
-            memcpy(cur, cv.pieces[i].v, (size_t)n * sizeof cur[0]);
-            for (int a = 0; a < 3 && n >= 3; a++)
-                for (int side = 0; side < 2 && n >= 3; side++) {
-                    const double c = side ? hi[b][a] : lo[b][a];
-                    /* beyond the face: x[a] <= lo or x[a] >= hi */
-                    const int m = clip_poly((const double(*)[3])cur, n, a, c, !side, tmp);
-                    if (!keep_piece(&cv, (const double(*)[3])tmp, m, a, c))
-                        goto done;
-                    n = clip_poly((const double(*)[3])cur, n, a, c, side, tmp);
-                    double(*swap)[3] = cur;
-                    cur = tmp;
-                    tmp = swap;
-                }
-        }
-        /* the pieces left become the current ones */
-        piece *pp = cv.pieces;
-        cv.pieces = cv.next;
-        cv.next = pp;
-        double(*ps)[3] = cv.store;
-        cv.store = cv.next_store;
-        cv.next_store = ps;
-        cv.count = cv.next_count;
-    }
-    result = cv.count == 0;
-done:
-    free(pieces_mem);
-    free(store_mem);
-    free(a_buf);
-    return result;
+    return n >= 3 && depth > tol;
 }
 
 /* A reference to a triangle whose leaf's box holds only part of it. */
@@ -336,6 +294,73 @@ static int part_ref_order(const void *a, const void *b)
     if (x->triangle != y->triangle)
         return x->triangle < y->triangle ? -1 : 1;
     return x->slot < y->slot ? -1 : x->slot > y->slot;
+}
+
+/* Whether the boxes of the slots above parts[0, n) (one triangle's, with
+ * vertices v) cover the triangle: 1, 0, -1 when it takes more than
+ * RTK_COVER_PIECES_MAX pieces, -2 when out of memory. */
+static int triangle_covered(const float *const v[3], const rtk_bvh *t, const part_ref *parts, size_t n)
+{
+    double scale = 0.0, tri[3][3];
+    for (int i = 0; i < 3; i++)
+        for (int k = 0; k < 3; k++) {
+            tri[i][k] = v[i][k];
+            scale = fmax(scale, fabs(tri[i][k]));
+        }
+    const double tol = scale * 0x1p-40;
+    pieces cur = {0}, next = {0};
+    double(*a_buf)[3] = NULL, (*b_buf)[3] = NULL;
+    int buf_cap = 0, result = -2;
+    if (!pieces_add(&cur, (const double(*)[3])tri, 3))
+        goto done;
+    for (size_t b = 0; b < n && cur.count; b++) {
+        const float *lo = t->child_lower + 3 * parts[b].slot, *hi = t->child_upper + 3 * parts[b].slot;
+        next.count = next.used = 0;
+        for (size_t i = 0; i < cur.count; i++) {
+            /* what of piece i lies outside box b, face by face; each clip
+             * adds at most one vertex */
+            int m = cur.list[i].n;
+            if (m + 7 > buf_cap) {
+                buf_cap = 2 * (m + 7);
+                double(*x)[3] = realloc(a_buf, (size_t)buf_cap * sizeof *x);
+                if (x)
+                    a_buf = x;
+                double(*y)[3] = x ? realloc(b_buf, (size_t)buf_cap * sizeof *y) : NULL;
+                if (!y)
+                    goto done;
+                b_buf = y;
+            }
+            double(*in)[3] = a_buf, (*out)[3] = b_buf;
+            memcpy(in, cur.v + cur.list[i].at, (size_t)m * sizeof in[0]);
+            for (int axis = 0; axis < 3 && m >= 3; axis++)
+                for (int side = 0; side < 2 && m >= 3; side++) {
+                    const double c = side ? hi[axis] : lo[axis];
+                    /* beyond the face: x[axis] <= lo or x[axis] >= hi */
+                    const int k = clip_poly((const double(*)[3])in, m, axis, c, !side, out);
+                    if (thick((const double(*)[3])out, k, axis, c, tol) &&
+                        !pieces_add(&next, (const double(*)[3])out, k))
+                        goto done;
+                    m = clip_poly((const double(*)[3])in, m, axis, c, side, out);
+                    double(*swap)[3] = in;
+                    in = out;
+                    out = swap;
+                }
+        }
+        const pieces p = cur;
+        cur = next;
+        next = p;
+        if (cur.count > RTK_COVER_PIECES_MAX) {
+            result = -1;
+            goto done;
+        }
+    }
+    result = cur.count == 0;
+done:
+    pieces_free(&cur);
+    pieces_free(&next);
+    free(a_buf);
+    free(b_buf);
+    return result;
 }
 
 rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count,
@@ -438,22 +463,23 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
             e++;
         if (marked[parts[i].triangle] == 2)
             continue;
-        const float *lo[64], *hi[64];
         const size_t n = e - i;
-        for (size_t k = 0; k < n && k < 64; k++) {
-            lo[k] = t->child_lower + 3 * parts[i + k].slot;
-            hi[k] = t->child_upper + 3 * parts[i + k].slot;
-        }
         const rtk_build_geometry *geo = &geoms[parts[i].geom];
         const uint32_t *tri = triangle_at(geo, parts[i].prim);
         const float *v[3] = {vertex_at(geo, tri[0]), vertex_at(geo, tri[1]), vertex_at(geo, tri[2])};
-        const int covered = triangle_covered(v, lo, hi, n);
+        const int covered = triangle_covered(v, t, parts + i, n);
+        if (covered == -2) {
+            err = RTK_ERROR_OUT_OF_MEMORY;
+            if (msg && size)
+                snprintf(msg, size, "out of memory checking the tree against the scene");
+            goto done;
+        }
         if (covered != 1) {
             err = bad(msg, size,
                       covered == 0 ? "triangle %u of geometry %u: the boxes of the %zu leaves that hold it do not "
                                      "cover it"
-                                   : "triangle %u of geometry %u: the %zu leaves that hold it, each with a part of it, "
-                                     "are too many to check (at most 64)",
+                                   : "triangle %u of geometry %u: the boxes of the %zu leaves that hold it cut it "
+                                     "into too many pieces to check",
                       parts[i].prim, geo->geom_id, n);
             goto done;
         }

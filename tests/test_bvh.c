@@ -488,6 +488,79 @@ static void test_round_trip_spatial(void **state)
     free(idx);
 }
 
+/* A tree of 4-wide nodes over leaves [first, end), leaf j under the slab
+ * x in [j, j + 1) / count of box lo..hi; nodes are numbered before their
+ * children.  Returns the reference. */
+static uint32_t slab_tree(rtk_bvh *t, uint32_t first, uint32_t end, uint32_t count, const float lo[3],
+                          const float hi[3])
+{
+    if (end - first == 1)
+        return RTK_BVH_LEAF_BIT | first;
+    const uint32_t node = (uint32_t)t->node_count++;
+    for (uint32_t c = 0; c < 4; c++) {
+        const uint32_t a = first + (end - first) * c / 4, b = first + (end - first) * (c + 1) / 4;
+        const uint64_t slot = (uint64_t)node * 4 + c;
+        t->children[slot] = RTK_BVH_EMPTY;
+        if (a == b)
+            continue;
+        t->children[slot] = slab_tree(t, a, b, count, lo, hi);
+        for (int k = 0; k < 3; k++) {
+            t->child_lower[3 * slot + k] = lo[k];
+            t->child_upper[3 * slot + k] = hi[k];
+        }
+        t->child_lower[3 * slot] = lo[0] + (hi[0] - lo[0]) * (float)a / (float)count;
+        t->child_upper[3 * slot] = lo[0] + (hi[0] - lo[0]) * (float)b / (float)count;
+    }
+    return node;
+}
+
+/* One triangle held in 200 leaves, each under a slab of it: the coverage
+ * check has no limit of its own on the parts (San Miguel's high-quality
+ * tree puts one triangle in 30 leaves), and still finds a missing slab. */
+static void test_many_parts(void **state)
+{
+    (void)state;
+    enum { SLABS = 200 };
+    static const float v[9] = {0, 0, 0, 1, 0.2f, 0.1f, 0.3f, 1, 0.6f};
+    static const uint32_t idx[3] = {0, 1, 2};
+    const float lo[3] = {0, 0, 0}, hi[3] = {1, 1, 0.6f};
+    rtk_bvh t = {.struct_size = sizeof t, .width = 4}; /* SLABS nodes are more than enough */
+    t.children = malloc(SLABS * 4 * sizeof *t.children);
+    t.child_lower = malloc(SLABS * 4 * 3 * sizeof(float));
+    t.child_upper = malloc(SLABS * 4 * 3 * sizeof(float));
+    t.leaf_first = malloc((SLABS + 1) * sizeof *t.leaf_first);
+    t.prims = malloc(SLABS * sizeof *t.prims);
+    assert_true(t.children && t.child_lower && t.child_upper && t.leaf_first && t.prims);
+    t.root = slab_tree(&t, 0, SLABS, SLABS, lo, hi);
+    t.leaf_count = t.prim_count = SLABS;
+    for (uint32_t j = 0; j <= SLABS; j++)
+        t.leaf_first[j] = j;
+    for (uint32_t j = 0; j < SLABS; j++)
+        t.prims[j] = (rtk_bvh_prim){0, 0};
+    char msg[256] = "";
+    if (rtk_bvh_check(&t, msg, sizeof msg) != RTK_OK)
+        fail_msg("the slab tree fails the check: %s", msg);
+    rtk_device dev = best_device();
+    rtk_scene a = test_scene_flags(dev, v, 3, idx, 1, RTK_SCENE_FLAG_COMPACT), b = NULL;
+    if (commit_tree(dev, v, 3, idx, 1, RTK_SCENE_FLAG_COMPACT, &t, &b) != RTK_OK)
+        fail_msg("commit_bvh: %s", rtk_device_get_error_message(dev));
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(b, &info), RTK_OK);
+    assert_int_equal(info.triangles, 1);
+    assert_int_equal(info.references, SLABS);
+    assert_same_hits(a, b, lo, hi, 2000, 5);
+    /* slab 117 narrowed to half its width: the triangle is not covered */
+    for (uint64_t s = 0; s < t.node_count * 4; s++)
+        if (t.children[s] == (RTK_BVH_LEAF_BIT | 117))
+            t.child_upper[3 * s] = 0.5f * (t.child_lower[3 * s] + t.child_upper[3 * s]);
+    assert_int_equal(rtk_scene_commit_bvh(b, &t), RTK_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "do not cover it"));
+    free_copy(&t);
+    rtk_scene_release(a);
+    rtk_scene_release(b);
+    rtk_device_release(dev);
+}
+
 static void test_refusals(void **state)
 {
     (void)state;
@@ -645,6 +718,7 @@ int main(void)
         cmocka_unit_test(test_round_trip_sizes),
         cmocka_unit_test(test_round_trip_geometries),
         cmocka_unit_test(test_round_trip_spatial),
+        cmocka_unit_test(test_many_parts),
         cmocka_unit_test(test_leaf_too_big),
         cmocka_unit_test(test_refusals),
         cmocka_unit_test(test_fuzz),
