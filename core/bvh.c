@@ -364,9 +364,9 @@ done:
 }
 
 rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count,
-                            uint64_t *non_finite, uint64_t *degenerate, char *msg, size_t size)
+                            uint64_t *non_finite, uint64_t *degenerate, uint64_t *in_tree, char *msg, size_t size)
 {
-    *non_finite = *degenerate = 0;
+    *non_finite = *degenerate = *in_tree = 0;
     /* geom_id -> index in geoms, and each geometry's first triangle in one
      * array of "referenced" marks. */
     uint32_t max_id = 0;
@@ -418,7 +418,14 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
             const uint32_t *tri = triangle_at(&geoms[g], p.prim_id);
             const float *v[3] = {vertex_at(&geoms[g], tri[0]), vertex_at(&geoms[g], tri[1]),
                                  vertex_at(&geoms[g], tri[2])};
-            if (!rtk_triangle_is_finite(v[0], v[1], v[2]) || rtk_triangle_is_degenerate(v[0], v[1], v[2])) {
+            const size_t at = base[g] + p.prim_id;
+            const int finite = rtk_triangle_is_finite(v[0], v[1], v[2]);
+            if (finite && rtk_triangle_is_degenerate(v[0], v[1], v[2]) &&
+                (geoms[g].flags & RTK_BUILD_GEOMETRY_DEFORMS)) {
+                marked[at] = 2; /* kept for a refit, never hit: no box needs to hold it */
+                continue;
+            }
+            if (!finite || rtk_triangle_is_degenerate(v[0], v[1], v[2])) {
                 err = bad(msg, size,
                           "leaf %llu: triangle %u of geometry %u can never be hit (zero area or a non-finite "
                           "vertex), so it cannot be in a tree",
@@ -427,7 +434,6 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
             }
             /* Inside the leaf's box, or else part of it is: the parts are
              * checked below. */
-            const size_t at = base[g] + p.prim_id;
             int inside = 1;
             if (slot_of[j] != UINT64_MAX) {
                 const float *lo = t->child_lower + 3 * slot_of[j], *hi = t->child_upper + 3 * slot_of[j];
@@ -484,20 +490,20 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
             goto done;
         }
     }
-    /* Every triangle that can be hit must be there; the others are the
-     * ones the tree leaves out, counted as a build counts them. */
+    /* Every triangle that can be hit must be there; all are counted as a
+     * build counts them. */
     for (uint32_t g = 0; g < geom_count; g++)
         for (size_t p = 0; p < geoms[g].prim_count; p++) {
-            if (marked[base[g] + p])
-                continue;
+            const int marks = marked[base[g] + p] != 0;
+            *in_tree += (uint64_t)marks;
             const uint32_t *tri = triangle_at(&geoms[g], p);
             const float *v0 = vertex_at(&geoms[g], tri[0]), *v1 = vertex_at(&geoms[g], tri[1]),
                         *v2 = vertex_at(&geoms[g], tri[2]);
             if (!rtk_triangle_is_finite(v0, v1, v2)) {
-                (*non_finite)++;
+                (*non_finite)++; /* never marked: refused above */
             } else if (rtk_triangle_is_degenerate(v0, v1, v2)) {
                 (*degenerate)++;
-            } else {
+            } else if (!marks) {
                 err = bad(msg, size, "triangle %zu of geometry %u can be hit but is not in the tree", p,
                           geoms[g].geom_id);
                 goto done;

@@ -208,6 +208,16 @@ static int check_tables(rtk_backend_entry *e, const rtk_backend_desc *d)
                 return 0;
             }
         }
+    if (d->struct_size >= offsetof(rtk_backend_desc, layout_refit) + sizeof d->layout_refit && d->layout_refit)
+        for (const rtk_layout_refit_entry *rf = d->layout_refit; rf->layout; rf++) {
+            int found = 0;
+            for (const rtk_layout_entry *l = d->layouts; l->id; l++)
+                found |= l->id == rf->layout;
+            if (!rf->refit || !found) {
+                reject(e, "refit for layout %u lacks a function or the layout", rf->layout);
+                return 0;
+            }
+        }
     return 1;
 }
 

@@ -23,6 +23,13 @@ static void blob_release(blob *m)
         free(m);
 }
 
+static void unpin_buffers(blob **pinned, uint32_t count)
+{
+    for (uint32_t i = 0; i < count; i++)
+        blob_release(pinned[i]);
+    free(pinned);
+}
+
 typedef struct buffer {
     const char *data; /* first element */
     size_t stride, count;
@@ -34,10 +41,23 @@ struct rtk_geometry_s {
     rtk_device device;
     rtk_geometry_type type;
     buffer vertex, index;
+    /* Changed whenever a buffer is set or updated: unique over all
+     * geometries, so a scene can tell what changed since its last commit. */
+    uint64_t vertex_version, index_version;
+    rtk_build_quality quality;
     int enabled;
     int committed;
     void *user;
 };
+
+/* What a scene's tree was built over, per geometry slot, to tell at the
+ * next commit whether a refit serves. */
+typedef struct built_geom {
+    rtk_geometry g; /* NULL: a free slot or a disabled geometry (never dereferenced) */
+    uint64_t vertex_version, index_version;
+    size_t prim_count, vertex_count;
+    rtk_build_quality quality;
+} built_geom;
 
 struct rtk_scene_s {
     atomic_int refs;
@@ -65,6 +85,12 @@ struct rtk_scene_s {
      * uses are held here until the next commit. */
     blob **pinned;
     uint32_t pinned_count;
+    /* What the tree holds (see built_geom), and the refits since its build. */
+    built_geom *built;
+    uint32_t built_count;
+    unsigned built_flags;
+    rtk_build_quality built_quality;
+    uint32_t refits;
 };
 
 #define CHECK_HANDLE(h, fn)                                                                \
@@ -74,6 +100,13 @@ struct rtk_scene_s {
     } while (0)
 
 /* ---- geometry ---- */
+
+static atomic_uint_fast64_t version_clock;
+
+static uint64_t next_version(void)
+{
+    return (uint64_t)atomic_fetch_add(&version_clock, 1) + 1;
+}
 
 rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geometry *out)
 {
@@ -89,6 +122,7 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     atomic_init(&g->refs, 1);
     g->device = device;
     g->type = type;
+    g->quality = RTK_BUILD_QUALITY_MEDIUM;
     g->enabled = 1;
     rtk_device_retain(device);
     *out = g;
@@ -146,6 +180,7 @@ rtk_error rtk_geometry_set_shared_buffer(rtk_geometry g, rtk_buffer_type type, c
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_geometry_set_shared_buffer: data is not 4-byte aligned");
     buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
+    *(type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex_version : &g->index_version) = next_version();
     buffer_free(b);
     b->data = data;
     b->stride = byte_stride;
@@ -171,6 +206,7 @@ rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size
                         count * byte_stride);
     atomic_init(&mem->refs, 1);
     buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
+    *(type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex_version : &g->index_version) = next_version();
     buffer_free(b);
     b->owned = mem;
     b->data = (const char *)mem->data;
@@ -178,6 +214,32 @@ rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size
     b->count = count;
     g->committed = 0;
     *out = mem->data;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_update_buffer(rtk_geometry g, rtk_buffer_type type)
+{
+    CHECK_HANDLE(g, "rtk_geometry_update_buffer");
+    if (type != RTK_BUFFER_TYPE_VERTEX && type != RTK_BUFFER_TYPE_INDEX)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_update_buffer: unknown buffer type %d",
+                        (int)type);
+    const buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
+    if (!b->stride)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_update_buffer: no %s buffer set",
+                        type == RTK_BUFFER_TYPE_VERTEX ? "vertex" : "index");
+    *(type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex_version : &g->index_version) = next_version();
+    g->committed = 0;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_build_quality(rtk_geometry g, rtk_build_quality q)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_build_quality");
+    if (q != RTK_BUILD_QUALITY_LOW && q != RTK_BUILD_QUALITY_MEDIUM && q != RTK_BUILD_QUALITY_HIGH &&
+        q != RTK_BUILD_QUALITY_REFIT)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_set_build_quality: unknown quality %d",
+                        (int)q);
+    g->quality = q;
     return RTK_OK;
 }
 
@@ -251,11 +313,13 @@ static void scene_drop_accel(rtk_scene s)
 {
     if (s->accel)
         s->layout->release(s->accel);
-    for (uint32_t i = 0; i < s->pinned_count; i++)
-        blob_release(s->pinned[i]);
-    free(s->pinned);
+    unpin_buffers(s->pinned, s->pinned_count);
     s->pinned = NULL;
     s->pinned_count = 0;
+    free(s->built);
+    s->built = NULL;
+    s->built_count = 0;
+    s->refits = 0;
     s->accel = NULL;
     s->intersect1 = NULL;
     s->occluded1 = NULL;
@@ -287,6 +351,9 @@ rtk_error rtk_scene_set_flags(rtk_scene s, unsigned flags)
 rtk_error rtk_scene_set_build_quality(rtk_scene s, rtk_build_quality q)
 {
     CHECK_HANDLE(s, "rtk_scene_set_build_quality");
+    if (q == RTK_BUILD_QUALITY_REFIT)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_scene_set_build_quality: REFIT is a geometry's quality (rtk_geometry_set_build_quality)");
     if (q != RTK_BUILD_QUALITY_LOW && q != RTK_BUILD_QUALITY_MEDIUM && q != RTK_BUILD_QUALITY_HIGH)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_set_build_quality: unknown quality %d", (int)q);
     s->quality = q;
@@ -412,6 +479,143 @@ static const rtk_layout_io_entry *find_layout_io(const rtk_backend_desc *d, uint
     return NULL;
 }
 
+static const rtk_layout_refit_entry *find_layout_refit(const rtk_backend_desc *d, uint32_t layout)
+{
+    if (d->struct_size < offsetof(rtk_backend_desc, layout_refit) + sizeof d->layout_refit || !d->layout_refit)
+        return NULL;
+    for (const rtk_layout_refit_entry *e = d->layout_refit; e->layout; e++)
+        if (e->layout == layout)
+            return e;
+    return NULL;
+}
+
+/* A compact layout reads vertices from the geometries' buffers: the ones
+ * rtk allocated are held (in *pinned, *count) until the next commit.  0
+ * when out of memory. */
+static int pin_buffers(rtk_scene s, const rtk_layout_entry *layout, size_t n, blob ***pinned, uint32_t *count)
+{
+    *pinned = NULL;
+    *count = 0;
+    if (!(layout->scene_flags & RTK_SCENE_FLAG_COMPACT))
+        return 1;
+    *pinned = calloc(n ? n : 1, sizeof **pinned);
+    if (!*pinned)
+        return 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (g && g->enabled && g->vertex.owned) {
+            atomic_fetch_add(&g->vertex.owned->refs, 1);
+            (*pinned)[(*count)++] = g->vertex.owned;
+        }
+    }
+    return 1;
+}
+
+/* Records what the tree now holds.  Out of memory only costs the next
+ * commit its chance of a refit. */
+static void remember_built(rtk_scene s)
+{
+    free(s->built);
+    s->built = calloc(s->geom_count ? s->geom_count : 1, sizeof *s->built);
+    s->built_count = s->built ? s->geom_count : 0;
+    s->built_flags = s->flags;
+    s->built_quality = s->quality;
+    for (uint32_t i = 0; i < s->built_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (g && g->enabled)
+            s->built[i] = (built_geom){g, g->vertex_version, g->index_version, g->index.count, g->vertex.count,
+                                       g->quality};
+    }
+}
+
+/* Whether the next commit may refit (rtk_build_quality): the same
+ * geometries, flags and quality as the tree was built with, and new vertex
+ * positions in REFIT geometries only (at least one). */
+static int refit_serves(rtk_scene s)
+{
+    if (!s->accel || !s->built || s->flags != s->built_flags || s->quality != s->built_quality)
+        return 0;
+    const uint32_t slots = s->geom_count > s->built_count ? s->geom_count : s->built_count;
+    int moved = 0;
+    for (uint32_t i = 0; i < slots; i++) {
+        rtk_geometry g = i < s->geom_count ? s->geoms[i] : NULL;
+        if (g && !g->enabled)
+            g = NULL;
+        const built_geom b = i < s->built_count ? s->built[i] : (built_geom){0};
+        if (g != b.g)
+            return 0;
+        if (!g)
+            continue;
+        if (g->index_version != b.index_version || g->index.count != b.prim_count || g->quality != b.quality)
+            return 0;
+        if (g->vertex_version != b.vertex_version) {
+            if (g->quality != RTK_BUILD_QUALITY_REFIT)
+                return 0;
+            moved = 1;
+        }
+    }
+    return moved;
+}
+
+/* Refits the scene's tree over geoms[0, n).  Returns 0 when a build must
+ * serve instead (no refit in the backend; or the triangles that go in the
+ * tree have changed, and the tree is dropped, so that if the build fails
+ * the scene has none rather than one that no longer fits its vertices),
+ * else 1 with the commit's result in *err. */
+static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, const char *fn, rtk_error *err)
+{
+    rtk_device dev = s->device;
+    const rtk_layout_refit_entry *rf = find_layout_refit(dev->backend, s->layout->id);
+    if (!rf)
+        return 0;
+    blob **pinned;
+    uint32_t pinned_count;
+    if (!pin_buffers(s, s->layout, n, &pinned, &pinned_count)) {
+        *err = rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+        return 1;
+    }
+    rtk_task_system task_copy;
+    const rtk_task_system *tasks = rtk_device_tasks(dev, &task_copy);
+    const rtk_build_input in = {
+        .struct_size = sizeof in,
+        .geometry_count = (uint32_t)n,
+        .geometries = geoms,
+        .quality = (uint32_t)s->quality,
+        .layout = s->layout->id,
+        .threads = tasks ? tasks->threads : 1,
+        .tasks = tasks,
+    };
+    rtk_build_output out = s->stats;
+    out.struct_size = sizeof out;
+    out.message[0] = '\0';
+    const double t0 = now_seconds();
+    const int rc = rf->refit(s->accel, &in, &out);
+    const double t1 = now_seconds();
+    if (rc) {
+        unpin_buffers(pinned, pinned_count);
+        if (rc == RTK_REFIT_NEEDS_BUILD) {
+            /* the tree may be partly rewritten: never traced again */
+            rtk_log(dev, 1, "scene: no refit (%s): building afresh", out.message);
+            scene_drop_accel(s);
+            return 0;
+        }
+        *err = rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+                        "%s: refit failed: %s", fn, out.message[0] ? out.message : "no reason given");
+        return 1;
+    }
+    unpin_buffers(s->pinned, s->pinned_count);
+    s->pinned = pinned;
+    s->pinned_count = pinned_count;
+    s->stats = out;
+    s->build_seconds = t1 - t0;
+    s->refits++;
+    remember_built(s);
+    rtk_log(dev, 2, "scene: refit %u of the %s tree: %llu triangles, SAH %.2f, %.3f s", s->refits, s->builder,
+            (unsigned long long)out.prims, out.sah_cost, s->build_seconds);
+    *err = RTK_OK;
+    return 1;
+}
+
 /* rtk_scene_commit (tree == NULL) and rtk_scene_commit_bvh: fn names the
  * entry point in messages. */
 static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
@@ -419,6 +623,9 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     rtk_device dev = s->device;
     const rtk_backend_desc *bk = dev->backend;
 
+    /* A refit keeps the indices, checked at the last commit: in range still
+     * unless the vertex buffer shrank. */
+    const int refit = !tree && refit_serves(s);
     size_t n = 0;
     for (uint32_t i = 0; i < s->geom_count; i++) {
         rtk_geometry g = s->geoms[i];
@@ -429,7 +636,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
                             "%s: geometry %u is attached but not committed", fn, i);
         if (!g->enabled)
             continue;
-        rtk_error err = check_indices(s, i, g, fn);
+        rtk_error err = refit && g->vertex.count >= s->built[i].vertex_count ? RTK_OK : check_indices(s, i, g, fn);
         if (err)
             return err;
         n++;
@@ -450,7 +657,13 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             .index_stride = g->index.stride,
             .prim_count = g->index.count,
             .geom_id = i,
+            .flags = g->quality == RTK_BUILD_QUALITY_REFIT ? RTK_BUILD_GEOMETRY_DEFORMS : 0,
         };
+    }
+    rtk_error refit_err;
+    if (refit && try_refit(s, in_geoms, n, fn, &refit_err)) {
+        free(in_geoms);
+        return refit_err;
     }
 
     /* The leanest layout that serves: among the builders for this quality
@@ -513,21 +726,18 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot import a tree into layout %s", fn,
                             bk->name, layout->name);
         }
-        uint64_t non_finite = 0, degenerate = 0;
+        uint64_t non_finite = 0, degenerate = 0, in_tree = 0;
         rtk_error err = rtk_bvh_check(tree, why, sizeof why);
         if (!err)
-            err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, why, sizeof why);
+            err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, &in_tree, why, sizeof why);
         if (err) {
             free(in_geoms);
             return rtk_fail(dev, err, "%s: %s", fn, why);
         }
         rc = io->import_tree(&in, tree, &out);
         /* the tree may hold a triangle more than once (spatial splits) */
-        uint64_t total = 0;
-        for (size_t g = 0; g < n; g++)
-            total += in_geoms[g].prim_count;
         out.refs = tree->prim_count;
-        out.prims = total - non_finite - degenerate;
+        out.prims = in_tree;
         out.prims_skipped = non_finite;
         out.prims_degenerate = degenerate;
     } else {
@@ -540,23 +750,12 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
                         out.message[0] ? out.message : "no reason given");
 
-    /* A compact layout reads vertices from the geometries' buffers: hold
-     * the ones rtk allocated (the application keeps its shared ones). */
-    blob **pinned = NULL;
-    uint32_t pinned_count = 0;
-    if (layout->scene_flags & RTK_SCENE_FLAG_COMPACT) {
-        pinned = calloc(n ? n : 1, sizeof *pinned);
-        if (!pinned) {
-            layout->release(out.accel);
-            return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
-        }
-        for (uint32_t i = 0; i < s->geom_count; i++) {
-            rtk_geometry g = s->geoms[i];
-            if (g && g->enabled && g->vertex.owned) {
-                atomic_fetch_add(&g->vertex.owned->refs, 1);
-                pinned[pinned_count++] = g->vertex.owned;
-            }
-        }
+    /* (the application keeps its shared buffers alive itself) */
+    blob **pinned;
+    uint32_t pinned_count;
+    if (!pin_buffers(s, layout, n, &pinned, &pinned_count)) {
+        layout->release(out.accel);
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
 
     scene_drop_accel(s);
@@ -567,6 +766,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     s->builder = tree ? "tree" : builder->name;
     s->stats = out;
     s->build_seconds = t1 - t0;
+    remember_built(s);
     s->intersect1 = find_kernel(bk, layout->id, RTK_QUERY_INTERSECT)->fn.intersect1;
     s->occluded1 = find_kernel(bk, layout->id, RTK_QUERY_OCCLUDED)->fn.occluded1;
     for (int w = 0; w < 3; w++) {
@@ -666,6 +866,8 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
         info->build_threads = o->threads ? o->threads : 1;
     if (keep >= offsetof(rtk_scene_info, references) + sizeof info->references)
         info->references = o->refs ? o->refs : o->prims;
+    if (keep >= offsetof(rtk_scene_info, refits) + sizeof info->refits)
+        info->refits = s->refits;
     return RTK_OK;
 }
 

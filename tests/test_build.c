@@ -81,14 +81,8 @@ static int setup(void **state)
     test_sticks_mesh(&r, 40000, 1.0f, 0.0f, &sticks.v, &sticks.idx);
     sticks.nv = 3 * 40000;
     sticks.nt = 40000;
-    char *files[1];
-    if (test_mesh_files(files, 1, "bunny.ply") != 1)
-        return -1;
-    char err[512];
     rtk_mesh b;
-    int rc = rtk_mesh_load(files[0], &b, err, sizeof err);
-    free(files[0]);
-    if (rc)
+    if (test_load_shared_mesh("bunny.ply", &b))
         return -1;
     bunny_mesh = (mesh){b.vertices, b.indices, b.vertex_count, b.triangle_count};
     return 0;
@@ -107,16 +101,6 @@ static int teardown(void **state)
 }
 
 /* ---- helpers ---- */
-
-static rtk_device device(const char *isa, int threads)
-{
-    char config[64];
-    snprintf(config, sizeof config, "isa=%s,threads=%d", isa, threads);
-    rtk_device dev = NULL;
-    if (rtk_device_new(config, &dev) != RTK_OK)
-        fail_msg("device %s: %s", config, rtk_device_get_error_message(NULL));
-    return dev;
-}
 
 static rtk_bvh tree_of(rtk_scene s)
 {
@@ -173,7 +157,7 @@ static void same_tree_any_threads(void **state)
             for (int m = 0; m < 3; m++)
                 for (int f = 0; f < 2; f++) {
                     const mesh *x = meshes[m];
-                    rtk_device one = device(names[b], 1);
+                    rtk_device one = test_device_threads(names[b], 1);
                     rtk_scene ref = scene_q(one, x, flags[f], qualities[q]);
                     rtk_bvh want = tree_of(ref);
                     rtk_scene_info want_info = {.struct_size = sizeof want_info};
@@ -192,7 +176,7 @@ static void same_tree_any_threads(void **state)
                     }
                     static const int threads[] = {2, 3, 4, 7};
                     for (size_t k = 0; k < sizeof threads / sizeof *threads; k++) {
-                        rtk_device dev = device(names[b], threads[k]);
+                        rtk_device dev = test_device_threads(names[b], threads[k]);
                         assert_int_equal(rtk_device_get_thread_count(dev), (uint32_t)threads[k]);
                         rtk_scene s = scene_q(dev, x, flags[f], qualities[q]);
                         assert_same_build(s, &want, &want_info);
@@ -208,29 +192,6 @@ static void same_tree_any_threads(void **state)
                 }
 }
 
-/* intersect1 and occluded1 of one ray against brute force over ref (the
- * scene's triangles): the same hit or miss, the same t, and the same
- * triangle unless another gives the same t; returns 1 on a hit. */
-static int ray_vs_reference(rtk_scene s, const ref_mesh *ref, rtk_ray ray)
-{
-    rtk_rayhit rh = {.ray = ray};
-    rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
-    assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
-    rtk_ray shadow = ray;
-    assert_int_equal(rtk_occluded1(s, &shadow), RTK_OK);
-    rtk_tri_hit want;
-    uint32_t prim;
-    const int hit = ref->count ? ref_closest(ref, &ray, &want, &prim) : 0;
-    assert_int_equal(rh.hit.geomID != RTK_INVALID_GEOMETRY_ID, hit);
-    assert_int_equal(shadow.tfar == -INFINITY, hit);
-    if (hit) {
-        assert_true(rh.ray.tfar == want.t);
-        rtk_tri_hit other; /* a tie in t: the other triangle must give the same t */
-        assert_true(rh.hit.primID == prim || (ref_one(ref, rh.hit.primID, &ray, &other) && other.t == want.t));
-    }
-    return hit;
-}
-
 /* ---- hits: 4-thread builds of every builder and backend against brute force ---- */
 
 static void hits_match_brute_force(void **state)
@@ -242,7 +203,7 @@ static void hits_match_brute_force(void **state)
     for (size_t b = 0; b < nb; b++)
         for (size_t q = 0; q < QUALITIES; q++)
             for (int f = 0; f < 2; f++) {
-                rtk_device dev = device(names[b], 4);
+                rtk_device dev = test_device_threads(names[b], 4);
                 rtk_scene s = scene_q(dev, &sphere, f ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, qualities[q]);
                 rng r = {99};
                 int hits = 0;
@@ -252,7 +213,7 @@ static void hits_match_brute_force(void **state)
                         o[k] = 4.0f * rng_float(&r) - 2.0f;
                         d[k] = 0.4f * rng_float(&r) - 0.2f - o[k]; /* towards the middle */
                     }
-                    hits += ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
+                    hits += test_ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
                 }
                 assert_true(hits > 375);
                 rtk_scene_release(s);
@@ -289,7 +250,7 @@ static void spatial_splits_vs_brute_force(void **state)
         ref_mesh ref = ref_prepare(v, idx, nt);
         for (size_t b = 0; b < nb; b++)
             for (int f = 0; f < 2; f++) {
-                rtk_device dev = device(names[b], 2);
+                rtk_device dev = test_device_threads(names[b], 2);
                 rtk_scene s = scene_q(dev, &x, f ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE,
                                       RTK_BUILD_QUALITY_HIGH);
                 rtk_scene_info info = {.struct_size = sizeof info};
@@ -322,7 +283,7 @@ static void spatial_splits_vs_brute_force(void **state)
                         o[k] = cases[c].offset + cases[c].scale * o[k];
                         d[k] *= cases[c].dir_scale;
                     }
-                    hits += ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
+                    hits += test_ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
                 }
                 if (cases[c].min_hits)
                     assert_true(hits >= cases[c].min_hits);
@@ -357,7 +318,7 @@ static int morton_vs_reference(rtk_device dev, unsigned flags, const float *v, s
     int hits = 0;
     for (int i = 0; i < 300; i++) {
         const float px = lo[0] + (hi[0] - lo[0]) * rng_float(&r), py = lo[1] + (hi[1] - lo[1]) * rng_float(&r);
-        hits += ray_vs_reference(s, &ref,
+        hits += test_ray_vs_reference(s, &ref,
                                  test_ray(px, py, 5.0f, 0.01f * rng_float(&r), 0.01f * rng_float(&r), -1.0f, 0.0f,
                                           INFINITY));
     }
@@ -408,7 +369,7 @@ static void morton_edge_cases(void **state)
     for (size_t b = 0; b < nb; b++)
         for (int f = 0; f < 2; f++) {
             const unsigned flags = f ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE;
-            rtk_device dev = device(names[b], 2);
+            rtk_device dev = test_device_threads(names[b], 2);
             uint64_t kept;
             assert_int_equal(morton_vs_reference(dev, flags, tri_v, 3, stack_idx, 0, unit_lo, unit_hi, &kept), 0);
             assert_int_equal(kept, 0);
@@ -473,13 +434,13 @@ static void application_task_system(void **state)
     (void)state;
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
-    rtk_device one = device(names[nb - 1], 1);
+    rtk_device one = test_device_threads(names[nb - 1], 1);
     rtk_scene ref = test_scene(one, sphere.v, sphere.nv, sphere.idx, sphere.nt);
     rtk_bvh want = tree_of(ref);
     rtk_scene_info want_info = {.struct_size = sizeof want_info};
     assert_int_equal(rtk_scene_get_info(ref, &want_info), RTK_OK);
 
-    rtk_device dev = device(names[nb - 1], 2);
+    rtk_device dev = test_device_threads(names[nb - 1], 2);
     app_tasks sys = {.threads = 3};
     rtk_task_system ts = {.struct_size = sizeof ts, .threads = 3, .user = &sys, .parallel_for = app_parallel_for};
     assert_int_equal(rtk_device_set_task_system(dev, &ts), RTK_OK);
@@ -580,7 +541,7 @@ static void concurrent_commits(void **state)
     const mesh *meshes[2] = {&sphere, &bunny_mesh};
     rtk_bvh want[2];
     rtk_scene_info want_info[2];
-    rtk_device one = device(isa, 1);
+    rtk_device one = test_device_threads(isa, 1);
     for (int m = 0; m < 2; m++) {
         rtk_scene s = test_scene(one, meshes[m]->v, meshes[m]->nv, meshes[m]->idx, meshes[m]->nt);
         want[m] = tree_of(s);
@@ -592,11 +553,11 @@ static void concurrent_commits(void **state)
 
     /* four threads, one device (one pool), two meshes; then a device each */
     for (int shared = 1; shared >= 0; shared--) {
-        rtk_device dev = shared ? device(isa, 3) : NULL;
+        rtk_device dev = shared ? test_device_threads(isa, 3) : NULL;
         committer c[4];
         pthread_t t[4];
         for (int k = 0; k < 4; k++) {
-            c[k] = (committer){.dev = shared ? dev : device(isa, 2), .m = meshes[k & 1], .want = &want[k & 1],
+            c[k] = (committer){.dev = shared ? dev : test_device_threads(isa, 2), .m = meshes[k & 1], .want = &want[k & 1],
                                .want_info = &want_info[k & 1], .rounds = 2};
             assert_int_equal(pthread_create(&t[k], NULL, commit_loop, &c[k]), 0);
         }
@@ -634,7 +595,7 @@ static void workers_end_with_device(void **state)
     const int before = thread_count_now();
     if (before < 0)
         skip();
-    rtk_device dev = device(names[nb - 1], 4);
+    rtk_device dev = test_device_threads(names[nb - 1], 4);
     assert_int_equal(thread_count_now(), before); /* lazily: none before a build */
     rtk_scene s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
     assert_int_equal(thread_count_now(), before + 3);
@@ -646,7 +607,7 @@ static void workers_end_with_device(void **state)
     assert_int_equal(thread_count_now(), before);
 
     /* threads=1 starts none */
-    dev = device(names[nb - 1], 1);
+    dev = test_device_threads(names[nb - 1], 1);
     s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
     assert_int_equal(thread_count_now(), before);
     rtk_scene_release(s);

@@ -129,13 +129,7 @@ static rtk_mesh bunny;
 static int load_bunny(void **state)
 {
     (void)state;
-    char *files[1];
-    if (test_mesh_files(files, 1, "bunny.ply") != 1)
-        return -1;
-    char err[512];
-    int rc = rtk_mesh_load(files[0], &bunny, err, sizeof err);
-    free(files[0]);
-    return rc ? -1 : 0;
+    return test_load_shared_mesh("bunny.ply", &bunny);
 }
 
 static int free_bunny(void **state)

@@ -1,4 +1,5 @@
 #include "testlib.h"
+#include "mesh_import.h"
 
 #include <dirent.h>
 
@@ -35,6 +36,36 @@ rtk_device test_device(const char *isa)
         fail_msg("device isa=%s: %s", isa, rtk_device_get_error_message(NULL));
     assert_string_equal(rtk_device_get_backend_name(dev), isa);
     return dev;
+}
+
+rtk_device test_device_threads(const char *isa, int threads)
+{
+    char config[64];
+    snprintf(config, sizeof config, "isa=%s,threads=%d", isa, threads);
+    rtk_device dev = NULL;
+    if (rtk_device_new(config, &dev) != RTK_OK)
+        fail_msg("device %s: %s", config, rtk_device_get_error_message(NULL));
+    return dev;
+}
+
+int test_ray_vs_reference(rtk_scene s, const ref_mesh *ref, rtk_ray ray)
+{
+    rtk_rayhit rh = {.ray = ray};
+    rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
+    assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+    rtk_ray shadow = ray;
+    assert_int_equal(rtk_occluded1(s, &shadow), RTK_OK);
+    rtk_tri_hit want;
+    uint32_t prim;
+    const int hit = ref->count ? ref_closest(ref, &ray, &want, &prim) : 0;
+    assert_int_equal(rh.hit.geomID != RTK_INVALID_GEOMETRY_ID, hit);
+    assert_int_equal(shadow.tfar == -INFINITY, hit);
+    if (hit) {
+        assert_true(rh.ray.tfar == want.t);
+        rtk_tri_hit other; /* a tie in t: the other triangle must give the same t */
+        assert_true(rh.hit.primID == prim || (ref_one(ref, rh.hit.primID, &ray, &other) && other.t == want.t));
+    }
+    return hit;
 }
 
 rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt)
@@ -231,4 +262,15 @@ void test_assert_same_tree(const rtk_bvh *a, const rtk_bvh *b)
     assert_memory_equal(a->child_upper, b->child_upper, slots * 3 * sizeof(float));
     assert_memory_equal(a->leaf_first, b->leaf_first, (a->leaf_count + 1) * sizeof *a->leaf_first);
     assert_memory_equal(a->prims, b->prims, a->prim_count * sizeof *a->prims);
+}
+
+int test_load_shared_mesh(const char *name, rtk_mesh *mesh)
+{
+    char *files[1];
+    if (test_mesh_files(files, 1, name) != 1)
+        return -1;
+    char err[512];
+    const int rc = rtk_mesh_load(files[0], mesh, err, sizeof err);
+    free(files[0]);
+    return rc ? -1 : 0;
 }

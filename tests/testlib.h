@@ -19,6 +19,8 @@
 size_t test_backend_names(char names[][32], size_t max);
 /* A device on exactly this backend (fails the test otherwise). */
 rtk_device test_device(const char *isa);
+/* A device on this backend with threads= set. */
+rtk_device test_device_threads(const char *isa, int threads);
 /* One committed triangle-mesh scene over the arrays (shared, not copied). */
 rtk_scene test_scene(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt);
 /* The same with scene flags (RTK_SCENE_FLAG_COMPACT: the index-leaf layout). */
@@ -46,6 +48,11 @@ int ref_closest(const ref_mesh *m, const rtk_ray *ray, rtk_tri_hit *hit, uint32_
 /* The hit of one triangle alone (for tie checks). */
 int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *ray, rtk_tri_hit *hit);
 
+/* intersect1 and occluded1 of one ray against brute force over ref (the
+ * scene's triangles): the same hit or miss, the same t, and the same
+ * triangle unless another gives the same t; returns 1 on a hit. */
+int test_ray_vs_reference(rtk_scene s, const ref_mesh *ref, rtk_ray ray);
+
 rtk_ray test_ray(float ox, float oy, float oz, float dx, float dy, float dz, float tnear, float tfar);
 
 /* Packets of `width` rays (rtk.h's layout: field f of lane j is 4-byte word
@@ -59,6 +66,11 @@ rtk_error test_trace_packet(rtk_scene scene, unsigned width, int occluded, const
  * else just that file name), full paths sorted by name, malloc'd: the
  * caller frees each.  Fails the test when the directory cannot be read. */
 size_t test_mesh_files(char *files[], size_t max, const char *only);
+
+struct rtk_mesh;
+/* Loads a mesh of the shared directory by file name (for a group setup:
+ * 0, or -1 when it cannot be read). */
+int test_load_shared_mesh(const char *name, struct rtk_mesh *mesh);
 
 typedef struct rng {
     uint64_t s;

@@ -15,6 +15,9 @@
  *   build     the paper's Table 4: start time, from the first scene call
  *             to a committed scene (API calls, allocation, build), at
  *             every build quality, with what the tree then costs to trace.
+ *   refit     a deforming mesh (quality REFIT): the time to refit after
+ *             the vertices move, and the trace speed of the refitted tree
+ *             beside a tree built afresh over the same shape.
  *   accuracy  rays aimed at points on edges shared by two triangles, from
  *             the side both face: in exact arithmetic each hits one of the
  *             two (or something nearer), so a miss, or a hit beyond the
@@ -113,8 +116,11 @@ static render_tracer embree_tracer(embree_target *e)
 
 /* ---- the libraries under test ---- */
 
-enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST };
-static const char *const mode_names[] = {"default", "compact", "robust"};
+/* MODE_REFIT: a geometry that deforms (quality REFIT): rtk's scene at the
+ * given quality, Embree's at low quality and flagged dynamic, the two-level
+ * mode in which alone Embree refits. */
+enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST, MODE_REFIT };
+static const char *const mode_names[] = {"default", "compact", "robust", "refit"};
 
 typedef struct lib {
     char name[40];   /* "embree isa=avx2", "embree default", "rtk avx2" */
@@ -198,6 +204,11 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtcSetSceneBuildQuality(s, q[quality]);
         RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_TRIANGLE);
         rtcSetGeometryBuildQuality(g, q[quality]);
+        if (mode == MODE_REFIT) {
+            rtcSetSceneFlags(s, RTC_SCENE_FLAG_DYNAMIC);
+            rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_LOW);
+            rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_REFIT);
+        }
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded, 0, 12, m->vertex_count);
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12,
                                    m->triangle_count);
@@ -228,6 +239,7 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
                                : mode == MODE_ROBUST ? RTK_SCENE_FLAG_ROBUST
                                                      : RTK_SCENE_FLAG_NONE) ||
         rtk_scene_set_build_quality(s, q[quality]) || rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
+        rtk_geometry_set_build_quality(g, mode == MODE_REFIT ? RTK_BUILD_QUALITY_REFIT : q[quality]) ||
         rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
         rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
         rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL) || rtk_scene_commit(s)) {
@@ -588,7 +600,7 @@ typedef struct bench_opts {
     char isa[4][16];
     int nisa;
     int api_on[4];
-    int do_trace, do_render, do_build, do_accuracy;
+    int do_trace, do_render, do_build, do_refit, do_accuracy;
     int render_w, render_h, render_spp;
 } bench_opts;
 
@@ -614,14 +626,15 @@ static void bench_usage(FILE *f)
             "  rtk beside Embree 3 (at isa=avx2 and at its default) on the same meshes and rays, in one run:\n"
             "  trace (primary, diffuse and shadow rays; single rays and packets; 1 and 2 threads), render\n"
             "  (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2 and 3), build (start\n"
-            "  time at every quality, as in its Table 4, against the time to trace the tree) and accuracy\n"
+            "  time at every quality, as in its Table 4, against the time to trace the tree), refit (a\n"
+            "  deforming mesh: refit time, and the trace speed of the refitted tree) and accuracy\n"
             "  (rays aimed at shared edges that leak through, beside speed). Ratios are to Embree isa=avx2.\n"
             "  -o, --output DIR  bench.csv, the charts (PNG, drawn by gnuplot when installed) and their\n"
             "                    gnuplot scripts (default: bench-out)\n"
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
-            "  --only LIST       trace,render,build,accuracy (default: all)\n"
+            "  --only LIST       trace,render,build,refit,accuracy (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
             "  --repeat N        best of N passes per measurement (default: 3)\n"
             "  --builds N        best of N builds per start time (default: 3)\n"
@@ -962,6 +975,133 @@ static int section_build(ctx *c, char *err, size_t err_size)
     return 0;
 }
 
+/* The mesh twisted about its vertical (y) axis, by up to t radians at the
+ * top: the smooth motion of an animation.  dst has the mesh's layout. */
+static void twist(const rtk_mesh *m, float t, float *dst)
+{
+    float lo[3], hi[3];
+    rtk_mesh_bounds(m, lo, hi);
+    const float cx = 0.5f * (lo[0] + hi[0]), cz = 0.5f * (lo[2] + hi[2]), height = hi[1] - lo[1];
+    for (size_t i = 0; i < m->vertex_count; i++) {
+        const float *p = m->vertices + 3 * i;
+        const float a = height > 0 ? t * (p[1] - lo[1]) / height : 0.0f, dx = p[0] - cx, dz = p[2] - cz;
+        dst[3 * i] = cx + cosf(a) * dx - sinf(a) * dz;
+        dst[3 * i + 1] = p[1];
+        dst[3 * i + 2] = cz + sinf(a) * dx + cosf(a) * dz;
+    }
+}
+
+/* The vertices changed in place: the calls that tell the library and the
+ * commit that refits. */
+static void refit_commit(scene *sc)
+{
+    if (sc->escene) {
+        RTCGeometry g = rtcGetGeometry(sc->escene, 0);
+        rtcUpdateGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0);
+        rtcCommitGeometry(g);
+        rtcCommitScene(sc->escene);
+        return;
+    }
+    rtk_geometry g = rtk_scene_get_geometry(sc->rscene, 0);
+    rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX);
+    rtk_geometry_commit(g);
+    rtk_scene_commit(sc->rscene);
+}
+
+/* Deforming geometry: the mesh built once with quality REFIT, then twisted
+ * a little more each frame and refitted (the time from the update calls to
+ * the committed scene, best of the frames); then the diffuse rays through
+ * the refitted tree, and through a tree built afresh over the final shape
+ * (at medium quality), to show what keeping the tree costs in trace speed. */
+static int section_refit(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    const int frames = o->builds + 1;
+    printf("\nrefit: the mesh twisted a little more in each of %d frames (up to 0.6 radians at the top) and "
+           "refitted; refit time from the update calls to the committed scene, best of the frames; then the diffuse "
+           "rays through the refitted tree and through one built afresh over the last frame (medium quality), "
+           "single rays, 1 thread\n",
+           frames);
+    printf("  %-20s %7s %9s %8s %9s  %s\n", "library", "threads", "refit ms", "ratio", "Mtris/s",
+           "diffuse Mrays/s refitted / built");
+    const size_t floats = c->m->vertex_count * 3 + 4; /* Embree reads 16 bytes at the last vertex */
+    float *v = calloc(floats, sizeof *v);
+    const rayset diff = c->sets[SET_DIFFUSE];
+    unsigned char *hits = malloc(diff.n + 1);
+    if (!v || !hits) {
+        free(v);
+        free(hits);
+        snprintf(err, err_size, "out of memory");
+        return 1;
+    }
+    rtk_mesh moved = *c->m;
+    moved.vertices = v;
+    double ref_ms[4] = {0};
+    int rc = 0;
+    for (int l = 0; l < c->nlibs && !rc; l++)
+        for (int ti = 0; ti < o->nthreads && !rc; ti++) {
+            lib bl;
+            rc = lib_open(&bl, c->libs[l].name, c->libs[l].embree, c->libs[l].config, o->threads[ti], err, err_size);
+            if (rc)
+                break;
+            memcpy(v, c->padded, floats * sizeof *v);
+            scene sc;
+            rc = scene_build(&sc, &bl, &moved, v, MODE_REFIT, 1, err, err_size);
+            double best = 1e30;
+            for (int f = 1; f <= frames && !rc; f++) {
+                twist(c->m, 0.6f * (float)f / (float)frames, v);
+                const double t0 = now();
+                refit_commit(&sc);
+                const double dt = now() - t0;
+                best = dt < best ? dt : best;
+            }
+            if (!rc && sc.rscene) {
+                rtk_scene_info info = {.struct_size = sizeof info};
+                if (rtk_scene_get_info(sc.rscene, &info) || info.refits != (uint32_t)frames) {
+                    snprintf(err, err_size, "%s did not refit: %s", bl.name, rtk_device_get_error_message(bl.rdev));
+                    rc = 1;
+                }
+            }
+            if (!rc && sc.escene && rtcGetDeviceError(bl.edev) != RTC_ERROR_NONE) {
+                snprintf(err, err_size, "%s: a refit commit failed", bl.name);
+                rc = 1;
+            }
+            double refitted = 0, built = 0;
+            if (!rc && ti == 0) {
+                const render_tracer t = scene_tracer(&sc, 0);
+                refitted = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits);
+                scene fresh;
+                rc = scene_build(&fresh, &bl, &moved, v, MODE_DEFAULT, 1, err, err_size);
+                if (!rc) {
+                    const render_tracer tf = scene_tracer(&fresh, 0);
+                    built = trace_set(&tf, &diff, 1, 0, 1, o->repeat, hits);
+                    scene_release(&fresh);
+                }
+            }
+            if (sc.lib)
+                scene_release(&sc);
+            lib_close(&bl);
+            if (rc)
+                break;
+            if (l == 0)
+                ref_ms[ti] = best;
+            printf("  %-20s %7d %9.2f %7.2fx %9.2f", c->libs[l].name, o->threads[ti], best * 1e3,
+                   ratio(ref_ms[ti], best), (double)c->m->triangle_count / best * 1e-6);
+            if (ti == 0)
+                printf("  %.2f / %.2f", refitted, built);
+            printf("\n");
+            csv_row(&c->csv, "refit", c->libs[l].name, "refit", "refit", "", o->threads[ti], best * 1e3, "ms",
+                    ratio(ref_ms[ti], best));
+            if (ti == 0) {
+                csv_row(&c->csv, "refit", c->libs[l].name, "refitted", "diffuse", "single", 1, refitted, "Mrays/s", 0);
+                csv_row(&c->csv, "refit", c->libs[l].name, "built", "diffuse", "single", 1, built, "Mrays/s", 0);
+            }
+        }
+    free(v);
+    free(hits);
+    return rc;
+}
+
 static int section_accuracy(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
@@ -1031,7 +1171,7 @@ int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
                     .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .do_trace = 1, .do_render = 1,
-                    .do_build = 1, .do_accuracy = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
+                    .do_build = 1, .do_refit = 1, .do_accuracy = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
     const char *meshes[64];
     int nmeshes = 0;
     for (int i = 0; i < argc; i++) {
@@ -1080,11 +1220,12 @@ int cmd_bench(int argc, char **argv)
             }
         } else if (!strcmp(a, "--only") && more) {
             n = parse_list(argv[++i], items, 8);
-            o.do_trace = o.do_render = o.do_build = o.do_accuracy = 0;
+            o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_accuracy = 0;
             for (int k = 0; k < n; k++) {
                 int *flag = !strcmp(items[k], "trace")      ? &o.do_trace
                             : !strcmp(items[k], "render")   ? &o.do_render
                             : !strcmp(items[k], "build")    ? &o.do_build
+                            : !strcmp(items[k], "refit")    ? &o.do_refit
                             : !strcmp(items[k], "accuracy") ? &o.do_accuracy
                                                             : NULL;
                 if (!flag)
@@ -1093,7 +1234,8 @@ int cmd_bench(int argc, char **argv)
                     *flag = 1;
             }
             if (n < 1) {
-                fprintf(stderr, "rtktool bench: --only wants a list of trace, render, build, accuracy (got '%s')\n",
+                fprintf(stderr,
+                        "rtktool bench: --only wants a list of trace, render, build, refit, accuracy (got '%s')\n",
                         argv[i]);
                 return 2;
             }
@@ -1229,10 +1371,11 @@ int cmd_bench(int argc, char **argv)
             csv_row(&c.csv, "memory", c.libs[l].name, sc.layout, "", "", 1, sc.bytes_per_tri, "bytes per triangle", 0);
             scene_release(&sc);
         }
-        int bad = ((o.do_trace || o.do_build || o.do_accuracy) && make_sets(&c, err, sizeof err)) ||
+        int bad = ((o.do_trace || o.do_build || o.do_refit || o.do_accuracy) && make_sets(&c, err, sizeof err)) ||
                   (o.do_trace && section_trace(&c, err, sizeof err)) ||
                   (o.do_render && section_render(&c, err, sizeof err)) ||
                   (o.do_build && section_build(&c, err, sizeof err)) ||
+                  (o.do_refit && section_refit(&c, err, sizeof err)) ||
                   (o.do_accuracy && section_accuracy(&c, err, sizeof err));
         free_sets(&c);
         free(padded);

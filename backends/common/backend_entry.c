@@ -140,6 +140,17 @@ static const rtk_layout_io_entry layout_io[] = {
     {0},
 };
 
+/* Every layout refits the same way (refit.c). */
+#define LAYOUT_REFIT(id) {.layout = id, .refit = RTK_SYM(rtk_bvh_refit)}
+static const rtk_layout_refit_entry layout_refit[] = {
+#ifdef RTK_SIMD_HAS_8
+    LAYOUT_REFIT(RTK_LAYOUT_BVH8_TRIANGLE4),
+#endif
+    LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4),
+    LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4I),
+    {0},
+};
+
 static const rtk_backend_desc desc = {
     .struct_size = sizeof(rtk_backend_desc),
     .name = RTK_STR(RTK_BACKEND_NAME),
@@ -147,6 +158,7 @@ static const rtk_backend_desc desc = {
     .layouts = layouts,
     .kernels = kernels,
     .layout_io = layout_io,
+    .layout_refit = layout_refit,
 };
 
 #define HEADER_SYM RTK_CAT(RTK_CAT(rtk_backend_, RTK_BACKEND_NAME), _header)

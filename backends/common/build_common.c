@@ -211,11 +211,12 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
         out->refs = prims;
 }
 
-void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim, uint32_t count,
-                       box4 *bounds)
+uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
+                           uint32_t count, box4 *bounds)
 {
     const rtk_build_input *in = bd->in;
     box4 b = box_empty();
+    uint32_t never_hit = 0;
     if (bd->indexed) {
         rtk_triangle4i *t = (rtk_triangle4i *)bd->leaves + index;
         for (uint32_t lane = 0; lane < 4; lane++) {
@@ -227,9 +228,12 @@ void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, co
             }
             const rtk_build_geometry *g = &in->geometries[geom[lane]];
             const uint32_t *tri = triangle_at(g, prim[lane]);
+            const int never = build_unhittable_lane(g, vertex_at(g, tri[0]), vertex_at(g, tri[1]),
+                                                    vertex_at(g, tri[2]));
+            never_hit += (uint32_t)never;
             t->v0[lane] = tri[0];
-            t->v1[lane] = tri[1];
-            t->v2[lane] = tri[2];
+            t->v1[lane] = never ? tri[0] : tri[1];
+            t->v2[lane] = never ? tri[0] : tri[2];
             t->geom[lane] = geom[lane];
             t->prim[lane] = prim[lane];
             if (bounds)
@@ -254,6 +258,12 @@ void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, co
             const uint32_t *tri = triangle_at(g, prim[lane]);
             const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
             rtk_triangle4_set_lane(t, (int)lane, v0, v1, v2, g->geom_id, prim[lane]);
+            if (build_unhittable_lane(g, v0, v1, v2)) {
+                never_hit++;
+                t->v0x[lane] = t->v0y[lane] = t->v0z[lane] = nan;
+                t->e1x[lane] = t->e1y[lane] = t->e1z[lane] = 0.0f;
+                t->e2x[lane] = t->e2y[lane] = t->e2z[lane] = 0.0f;
+            }
             if (bounds) {
                 const vfloat4 p0 = vf4_set(v0[0], v0[1], v0[2], 0.0f), p1 = vf4_set(v1[0], v1[1], v1[2], 0.0f);
                 const vfloat4 p2 = vf4_set(v2[0], v2[1], v2[2], 0.0f);
@@ -263,6 +273,7 @@ void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, co
     }
     if (bounds)
         box_grow(bounds, b.lo, b.hi);
+    return never_hit;
 }
 
 void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)

@@ -150,9 +150,11 @@ static inline uint32_t build_geometry_of(const uint64_t *geom_first, uint32_t co
     return g;
 }
 
-/* Whether triangle prim of g can be hit, with its vertices in v.  The
- * others are left out of every build and counted as every build counts
- * them: a non-finite vertex in *skipped, else no area in *degenerate. */
+/* Whether triangle prim of g goes in the tree, with its vertices in v:
+ * those that can be hit, and a deforming geometry's zero-area ones (as
+ * lanes that are never hit: build_write_block).  Every build counts the
+ * same way: a non-finite vertex in *skipped (left out), else no area in
+ * *degenerate (left out unless the geometry deforms). */
 static inline int build_hittable(const rtk_build_geometry *g, size_t prim, const float *v[3], uint64_t *skipped,
                                  uint64_t *degenerate)
 {
@@ -166,9 +168,16 @@ static inline int build_hittable(const rtk_build_geometry *g, size_t prim, const
     }
     if (rtk_triangle_is_degenerate(v[0], v[1], v[2])) {
         (*degenerate)++;
-        return 0;
+        return (g->flags & RTK_BUILD_GEOMETRY_DEFORMS) != 0;
     }
     return 1;
+}
+
+/* A deforming geometry's triangle of zero area: in the tree, never hit. */
+static inline int build_unhittable_lane(const rtk_build_geometry *g, const float *v0, const float *v1,
+                                        const float *v2)
+{
+    return (g->flags & RTK_BUILD_GEOMETRY_DEFORMS) && rtk_triangle_is_degenerate(v0, v1, v2);
 }
 
 #define build_reserve RTK_SYM(rtk_build_reserve)
@@ -260,8 +269,11 @@ RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uin
 /* Leaf block `index` of bd->leaves: `count` (1..4) triangles, geom[k] the
  * index of triangle k's geometry in the build input and prim[k] its
  * primitive index.  If `bounds` is not NULL, the triangles' box is added
- * to it. */
-RTK_HIDDEN void build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
+ * to it.  A deforming geometry's zero-area triangle gets a lane that is
+ * never hit (NaN v0 and no edges; three equal vertex indices), whatever
+ * rounding would make of its edges, and keeps its ids for a refit.
+ * Returns the number of such lanes. */
+RTK_HIDDEN uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
                                   uint32_t count, box4 *bounds);
 
 #endif

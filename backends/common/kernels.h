@@ -10,6 +10,7 @@ RTK_HIDDEN int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_ou
 RTK_HIDDEN void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel);
 RTK_HIDDEN int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *tree);
 RTK_HIDDEN int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *tree, rtk_build_output *out);
+RTK_HIDDEN int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);

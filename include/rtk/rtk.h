@@ -217,14 +217,31 @@ typedef enum rtk_scene_flags {
 } rtk_scene_flags;
 #define RTK_SCENE_FLAGS_ALL (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_DYNAMIC)
 
-/* Picks the builder (named in rtk_scene_info.builder): low is the Morton
- * builder, the fastest build for a tree somewhat slower to trace (for
- * geometry that changes every frame); medium (the default) and high the
- * binned SAH builder. */
+/* A scene's quality picks the builder (named in rtk_scene_info.builder):
+ * low is the Morton builder, the fastest build for a tree somewhat slower
+ * to trace (for geometry that changes every frame); medium (the default)
+ * the binned SAH builder; high the same with spatial splits.
+ *
+ * REFIT is a geometry's quality (rtk_geometry_set_build_quality), never a
+ * scene's: the geometry deforms, its vertices move while its triangles
+ * stay.  When the only changes since a scene's last commit are new vertex
+ * positions of REFIT geometries (rtk_geometry_update_buffer, or a new
+ * vertex buffer of the same size), rtk_scene_commit keeps the tree and
+ * refits it: leaves rewritten, boxes recomputed bottom-up, in a fraction
+ * of a build's time.  Such a geometry's zero-area triangles stay in the
+ * tree (never hit) for a refit to give them area.  The answers are a
+ * rebuild's; the tree's shape, and so its trace speed, stays that of the
+ * last build, which suits motion that keeps neighbours together
+ * (animation, skinning), not geometry that scatters.  Anything else (a
+ * vertex that becomes or stops being NaN or infinite, geometry attached,
+ * detached, enabled or disabled, other buffers, a geometry's or the
+ * scene's quality, the scene's flags) makes the commit build afresh.
+ * rtk_scene_info.refits counts the refits since that build. */
 typedef enum rtk_build_quality {
     RTK_BUILD_QUALITY_LOW = 0,
     RTK_BUILD_QUALITY_MEDIUM = 1,
     RTK_BUILD_QUALITY_HIGH = 2,
+    RTK_BUILD_QUALITY_REFIT = 3,
 } rtk_build_quality;
 
 RTK_API rtk_error rtk_scene_new(rtk_device device, rtk_scene *out);
@@ -257,7 +274,10 @@ typedef struct rtk_scene_info {
     const char *layout;          /* e.g. "bvh8.triangle4", "bvh4.triangle4i" (compact) */
     uint64_t triangles;          /* in the BVH */
     uint64_t triangles_skipped;  /* left out: a NaN or infinite vertex */
-    uint64_t triangles_degenerate; /* left out: zero area (never hit) */
+    /* Zero area (never hit): left out, except that REFIT geometries keep
+     * theirs in the tree (so counted in triangles as well), in case a
+     * refit gives them their area back. */
+    uint64_t triangles_degenerate;
     uint64_t nodes, leaves;      /* inner nodes; leaf blocks of up to 4 triangles (a leaf holds 1 to 4) */
     uint32_t depth;
     uint64_t bytes;              /* BVH nodes + leaf primitives */
@@ -277,6 +297,10 @@ typedef struct rtk_scene_info {
      * triangle that crosses a split plane in a leaf on each side, each
      * with the box of its own part: at most 1.2 times triangles. */
     uint64_t references;
+    /* Added after rtk 0.1.0: the commits since the tree was built that
+     * refitted it (RTK_BUILD_QUALITY_REFIT) instead of building; 0 when
+     * the last commit built it.  build_seconds is then the refit's time. */
+    uint32_t refits;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -364,6 +388,15 @@ RTK_API rtk_error rtk_geometry_set_shared_buffer(rtk_geometry geometry, rtk_buff
 /* Memory owned by rtk (zeroed), returned in *out for the application to fill. */
 RTK_API rtk_error rtk_geometry_set_new_buffer(rtk_geometry geometry, rtk_buffer_type type, size_t byte_stride,
                                               size_t count, void **out);
+/* Tells rtk the application changed the contents of a buffer in place
+ * (a shared buffer, or one from rtk_geometry_set_new_buffer); commit the
+ * geometry and the scene to use them.  A geometry of quality
+ * RTK_BUILD_QUALITY_REFIT whose vertex buffer changed is refitted. */
+RTK_API rtk_error rtk_geometry_update_buffer(rtk_geometry geometry, rtk_buffer_type type);
+/* RTK_BUILD_QUALITY_REFIT marks a deforming geometry (see rtk_build_quality);
+ * the other qualities (the default is medium) rebuild the scene on any
+ * change, with the scene's quality. */
+RTK_API rtk_error rtk_geometry_set_build_quality(rtk_geometry geometry, rtk_build_quality quality);
 RTK_API rtk_error rtk_geometry_enable(rtk_geometry geometry);
 RTK_API rtk_error rtk_geometry_disable(rtk_geometry geometry);
 RTK_API rtk_error rtk_geometry_set_user_data(rtk_geometry geometry, void *user);

@@ -84,8 +84,13 @@ typedef struct rtk_build_geometry {
     size_t index_stride;
     size_t prim_count;
     uint32_t geom_id;
-    uint32_t reserved;
+    uint32_t flags; /* RTK_BUILD_GEOMETRY_* (was reserved, 0, before rtk 0.1.0's refit) */
 } rtk_build_geometry;
+
+/* The geometry deforms (RTK_BUILD_QUALITY_REFIT): builders keep its
+ * zero-area triangles in the tree, as leaf lanes that can never be hit, so
+ * that a refit can give them their area back without a build. */
+#define RTK_BUILD_GEOMETRY_DEFORMS 1u
 
 typedef struct rtk_build_input {
     uint32_t struct_size;
@@ -206,6 +211,30 @@ typedef struct rtk_layout_io_entry {
     rtk_accel_import_fn import_tree;
 } rtk_layout_io_entry;
 
+/* Refitting: after the vertex positions of the geometries an accel was
+ * built over have changed (the same geometries, triangles and flags, as
+ * the core checks), the accel keeps its tree and takes the new positions:
+ * leaf data rewritten, every box recomputed bottom-up.  Only geometries
+ * flagged RTK_BUILD_GEOMETRY_DEFORMS may have moved; the others are as
+ * they were at the build.  `in` describes the geometries as for the build
+ * (vertex buffers may have moved in memory), `out` holds the accel's
+ * rtk_build_output on entry and is updated (bounds, SAH cost, counts of
+ * left-out triangles, threads).
+ *
+ * Returns 0 on success; RTK_REFIT_NEEDS_BUILD when the triangles that go
+ * in the tree are no longer the ones it holds (a vertex became or stopped
+ * being NaN or infinite): the accel may then be partly rewritten, and the
+ * core must build afresh or drop it.  Any other non-zero value is an
+ * rtk_error, with the accel untouched. */
+#define RTK_REFIT_NEEDS_BUILD (-1)
+RTK_BACKEND_FN(int, rtk_accel_refit, (rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out));
+
+typedef struct rtk_layout_refit_entry {
+    uint32_t layout;        /* 0 ends the table */
+    uint32_t reserved;
+    rtk_accel_refit_fn refit;
+} rtk_layout_refit_entry;
+
 typedef struct rtk_backend_desc {
     uint32_t struct_size;
     uint32_t reserved;
@@ -216,6 +245,9 @@ typedef struct rtk_backend_desc {
     /* Added after rtk 0.1.0 (still interface version 1: read only when
      * struct_size covers it; NULL or absent = no tree export or import). */
     const rtk_layout_io_entry *layout_io;
+    /* Added after rtk 0.1.0 (the same way; NULL or absent = no refit, the
+     * core rebuilds instead). */
+    const rtk_layout_refit_entry *layout_refit;
 } rtk_backend_desc;
 
 #define RTK_BACKEND_EXPORT __attribute__((visibility("default")))

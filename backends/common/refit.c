@@ -1,0 +1,301 @@
+/*
+ * Refit (rtk_backend.h, rtk_accel_refit): a built accel keeps its tree and
+ * takes its geometries' new vertex positions.  Every leaf block is written
+ * again as a build writes it (build_write_block: the same floats a build of
+ * the same tree would hold), and every box is recomputed bottom-up from its
+ * leaves' triangles, so the boxes are as tight as the tree allows and the
+ * answers are a rebuild's (only the tree's shape, and so its speed, is the
+ * old one).  A triangle that spatial splits put in several leaves is whole
+ * in each of them again: its parts' planes are not kept.
+ *
+ * If the triangles that go in the tree now (build_hittable: those that
+ * can be hit, and a deforming geometry's zero-area ones) are not the ones
+ * it holds, RTK_REFIT_NEEDS_BUILD, and the core builds afresh.  One pass
+ * over the leaves does the work (reading each triangle's vertices once),
+ * then one over the nodes, both on the build's threads.
+ */
+#include <stdio.h>
+#include <stdlib.h>
+
+#include "build_common.h"
+#include "kernels.h"
+
+/* Triangles or leaf blocks per task; a multiple of 64, so the tasks of the
+ * first pass own whole words of the bit set. */
+#define REFIT_CHUNK 8192u
+/* Subtrees refitted as parallel tasks: those at this depth, below which
+ * a 4-wide tree has up to 64 (an 8-wide one 64 at depth 2). */
+#define REFIT_CUT_DEPTH(width) ((width) == 8 ? 2 : 3)
+#define REFIT_MAX_CUTS 512
+
+typedef struct refit {
+    build *bd;
+    struct rtk_accel *accel;
+    const uint64_t *geom_first; /* build_geom_first */
+    uint64_t total;             /* triangles over all geometries */
+    uint64_t *kept;             /* exact check: one bit per triangle that goes in the tree, by global index */
+    uint64_t (*counts)[3];      /* per chunk: non-finite, zero-area, kept (exact check); the leaf pass: bad, never-hit */
+    const uint32_t *index_of;   /* triangle4 leaves: geometry id -> index in the input */
+    uint32_t max_id;
+    box4 *block_box;            /* per leaf block */
+    uint32_t cuts[REFIT_MAX_CUTS]; /* the subtrees refitted in parallel, in depth-first order */
+    box4 cut_box[REFIT_MAX_CUTS];
+    uint32_t cut_count;
+} refit;
+
+/* Exact check, one chunk of triangles: which go in the tree now
+ * (build_hittable). */
+static void mark_kept(void *data, uint32_t chunk)
+{
+    refit *r = data;
+    const rtk_build_input *in = r->bd->in;
+    const uint64_t begin = (uint64_t)chunk * REFIT_CHUNK;
+    const uint64_t end = begin + REFIT_CHUNK < r->total ? begin + REFIT_CHUNK : r->total;
+    uint32_t gi = build_geometry_of(r->geom_first, in->geometry_count, begin);
+    uint64_t skipped = 0, degenerate = 0, kept = 0;
+    for (uint64_t i = begin; i < end; i++) {
+        while (i >= r->geom_first[gi + 1])
+            gi++;
+        const float *v[3];
+        if (build_hittable(&in->geometries[gi], i - r->geom_first[gi], v, &skipped, &degenerate)) {
+            r->kept[i / 64] |= (uint64_t)1 << (i % 64);
+            kept++;
+        }
+    }
+    r->counts[chunk][0] = skipped;
+    r->counts[chunk][1] = degenerate;
+    r->counts[chunk][2] = kept;
+}
+
+/* The triangles of leaf block k: input geometry indices and primitive
+ * indices; the count, or -1 if one is not a triangle of the input. */
+static int block_triangles(const refit *r, uint64_t k, uint32_t geom[4], uint32_t prim[4])
+{
+    const rtk_build_input *in = r->bd->in;
+    int n = 0;
+    for (int lane = 0; lane < 4; lane++) {
+        const uint32_t p = r->bd->indexed ? r->accel->trisi[k].prim[lane] : r->accel->tris[k].prim[lane];
+        if (p == RTK_BVH4_EMPTY)
+            break; /* the used lanes come first */
+        uint32_t g;
+        if (r->bd->indexed) {
+            g = r->accel->trisi[k].geom[lane];
+        } else {
+            const uint32_t id = r->accel->tris[k].geom[lane];
+            g = id <= r->max_id ? r->index_of[id] : UINT32_MAX;
+        }
+        if (g >= in->geometry_count || p >= in->geometries[g].prim_count)
+            return -1;
+        geom[n] = g;
+        prim[n++] = p;
+    }
+    return n;
+}
+
+/* The leaf pass, one chunk of leaf blocks: every triangle checked (a
+ * finite one, and with the exact check one that goes in the tree), the
+ * block written again and its box kept.  counts[chunk]: [0] the triangles
+ * that failed, [1] the lanes written never to hit. */
+static void rewrite_blocks(void *data, uint32_t chunk)
+{
+    refit *r = data;
+    const rtk_build_input *in = r->bd->in;
+    const uint64_t begin = (uint64_t)chunk * REFIT_CHUNK;
+    const uint64_t end = begin + REFIT_CHUNK < r->accel->leaf_count ? begin + REFIT_CHUNK : r->accel->leaf_count;
+    uint64_t bad = 0, never_hit = 0;
+    for (uint64_t k = begin; k < end; k++) {
+        uint32_t geom[4], prim[4];
+        const int n = block_triangles(r, k, geom, prim);
+        if (n <= 0) {
+            bad++;
+            continue;
+        }
+        for (int j = 0; j < n; j++) {
+            const rtk_build_geometry *g = &in->geometries[geom[j]];
+            const uint32_t *tri = triangle_at(g, prim[j]);
+            if (!rtk_triangle_is_finite(vertex_at(g, tri[0]), vertex_at(g, tri[1]), vertex_at(g, tri[2])))
+                bad++;
+            if (r->kept) {
+                const uint64_t i = r->geom_first[geom[j]] + prim[j];
+                bad += !(r->kept[i / 64] >> (i % 64) & 1);
+            }
+        }
+        r->block_box[k] = box_empty();
+        never_hit += build_write_block(r->bd, k, geom, prim, (uint32_t)n, &r->block_box[k]);
+    }
+    r->counts[chunk][0] = bad;
+    r->counts[chunk][1] = never_hit;
+}
+
+/* The boxes of the subtree `ref`, written into its nodes; returns the
+ * subtree's box.  Above the cut (depth < cut), the subtrees at the cut
+ * were refitted already: their boxes are taken in depth-first order from
+ * r->cut_box through *next.  Depth is at most RTK_BVH4_MAX_DEPTH. */
+static box4 refit_subtree(refit *r, uint32_t ref, int depth, int cut, uint32_t *next)
+{
+    if (depth == cut || (cut > 0 && (ref & RTK_BVH4_LEAF_BIT)))
+        return r->cut_box[(*next)++];
+    box4 all = box_empty();
+    if (ref & RTK_BVH4_LEAF_BIT) {
+        const uint32_t first = rtk_leaf_first(ref);
+        for (uint32_t k = first; k < first + rtk_leaf_blocks(ref); k++)
+            box_grow(&all, r->block_box[k].lo, r->block_box[k].hi);
+        return all;
+    }
+    node_view v = view_node(r->bd, r->bd->nodes, ref);
+    for (int c = 0; c < r->bd->width; c++) {
+        if (v.child[c] == RTK_BVH4_EMPTY)
+            continue;
+        const box4 b = refit_subtree(r, v.child[c], depth + 1, cut, next);
+        _Alignas(16) float lo[4], hi[4];
+        vf4_store(lo, b.lo);
+        vf4_store(hi, b.hi);
+        v.lx[c] = lo[0], v.ly[c] = lo[1], v.lz[c] = lo[2];
+        v.ux[c] = hi[0], v.uy[c] = hi[1], v.uz[c] = hi[2];
+        box_grow(&all, b.lo, b.hi);
+    }
+    return all;
+}
+
+/* The subtrees at depth `cut` (and leaves above it), in depth-first order. */
+static void collect_cuts(refit *r, uint32_t ref, int depth, int cut)
+{
+    if (depth == cut || (ref & RTK_BVH4_LEAF_BIT)) {
+        r->cuts[r->cut_count++] = ref;
+        return;
+    }
+    node_view v = view_node(r->bd, r->bd->nodes, ref);
+    for (int c = 0; c < r->bd->width; c++)
+        if (v.child[c] != RTK_BVH4_EMPTY)
+            collect_cuts(r, v.child[c], depth + 1, cut);
+}
+
+static void refit_cut(void *data, uint32_t i)
+{
+    refit *r = data;
+    uint32_t unused = 0;
+    r->cut_box[i] = refit_subtree(r, r->cuts[i], 0, -1, &unused);
+}
+
+/* The root's box, every node refitted: the subtrees below the cut as
+ * parallel tasks, then the nodes above it. */
+static box4 refit_nodes(refit *r)
+{
+    const uint32_t root = r->accel->root;
+    if (root == RTK_BVH4_EMPTY)
+        return box_empty();
+    uint32_t next = 0;
+    if (!r->bd->tasks) /* one thread: no cut */
+        return refit_subtree(r, root, 0, -1, &next);
+    const int cut = REFIT_CUT_DEPTH(r->bd->width);
+    collect_cuts(r, root, 0, cut);
+    run_parallel(r->bd, r->cut_count, refit_cut, r);
+    return refit_subtree(r, root, 0, cut, &next);
+}
+
+static int refit_fail(rtk_build_output *out, int rc, const char *text)
+{
+    build_set_message(out, text);
+    return rc;
+}
+
+int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_build_output *out)
+{
+    struct rtk_accel *accel = accel_;
+    build bd;
+    int rc = build_layout_setup(&bd, in, out);
+    if (rc)
+        return rc;
+    if (in->layout != accel->layout)
+        return refit_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the input asks for another layout than the accel's");
+    bd.nodes = accel->nodes;
+    bd.leaves = bd.indexed ? (void *)accel->trisi : (void *)accel->tris;
+
+    /* The quick check serves when nothing was left out for a non-finite
+     * vertex and every triangle is in one leaf: then the tree holds every
+     * triangle of the deforming geometries, and the others have not
+     * changed (rtk_accel_refit), so the leaf pass need only find every
+     * triangle still finite.  Otherwise the exact check first marks the
+     * triangles that go in the tree now. */
+    const uint64_t refs = out->refs ? out->refs : out->prims;
+    const int exact = out->prims_skipped != 0 || refs != out->prims;
+    refit r = {.bd = &bd, .accel = accel};
+    uint64_t *geom_first = build_geom_first(in);
+    r.geom_first = geom_first;
+    r.total = geom_first ? geom_first[in->geometry_count] : 0;
+    const uint32_t tri_chunks = (uint32_t)((r.total + REFIT_CHUNK - 1) / REFIT_CHUNK);
+    const uint32_t block_chunks = (uint32_t)((accel->leaf_count + REFIT_CHUNK - 1) / REFIT_CHUNK);
+    const uint32_t chunks = tri_chunks > block_chunks ? tri_chunks : block_chunks;
+    if (exact)
+        r.kept = calloc(r.total / 64 + 1, sizeof *r.kept);
+    r.counts = calloc(chunks ? chunks : 1, sizeof *r.counts);
+    r.block_box = malloc((accel->leaf_count ? accel->leaf_count : 1) * sizeof *r.block_box);
+    uint32_t *index_of = NULL;
+    if (!bd.indexed) {
+        for (uint32_t gi = 0; gi < in->geometry_count; gi++)
+            r.max_id = in->geometries[gi].geom_id > r.max_id ? in->geometries[gi].geom_id : r.max_id;
+        index_of = malloc(((size_t)r.max_id + 1) * sizeof *index_of);
+        if (index_of) {
+            for (uint32_t id = 0; id <= r.max_id; id++)
+                index_of[id] = UINT32_MAX;
+            for (uint32_t gi = 0; gi < in->geometry_count; gi++)
+                index_of[in->geometries[gi].geom_id] = gi;
+        }
+        r.index_of = index_of;
+    }
+    if (!geom_first || (exact && !r.kept) || !r.counts || !r.block_box || (!bd.indexed && !index_of)) {
+        rc = refit_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the refit");
+        goto done;
+    }
+
+    uint64_t skipped = 0, degenerate = 0;
+    if (exact) {
+        run_parallel(&bd, tri_chunks, mark_kept, &r);
+        uint64_t kept = 0;
+        for (uint32_t c = 0; c < tri_chunks; c++) {
+            skipped += r.counts[c][0];
+            degenerate += r.counts[c][1];
+            kept += r.counts[c][2];
+        }
+        if (kept != out->prims) {
+            rc = RTK_REFIT_NEEDS_BUILD;
+            goto done;
+        }
+    }
+
+    /* The leaves, checked and written; then the nodes. */
+    for (uint32_t gi = 0; bd.indexed && gi < in->geometry_count; gi++) {
+        accel->geoms[gi].vertices = in->geometries[gi].vertices;
+        accel->geoms[gi].stride = in->geometries[gi].vertex_stride;
+    }
+    memset(r.counts, 0, (size_t)chunks * sizeof *r.counts);
+    run_parallel(&bd, block_chunks, rewrite_blocks, &r);
+    uint64_t bad = 0, never_hit = 0;
+    for (uint32_t c = 0; c < block_chunks; c++) {
+        bad += r.counts[c][0];
+        never_hit += r.counts[c][1];
+    }
+    if (bad) {
+        rc = RTK_REFIT_NEEDS_BUILD;
+        goto done;
+    }
+    if (!exact) /* left out: the unchanged geometries' zero-area triangles */
+        degenerate = r.total - out->prims + never_hit;
+    const box4 bounds = refit_nodes(&r);
+    build_accel_finish(&bd, accel, accel->root, out->prims, out->depth, &bounds, out);
+    if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
+        out->refs = refs;
+    out->prims_skipped = skipped;
+    out->prims_degenerate = degenerate;
+
+done:
+    if (rc == RTK_REFIT_NEEDS_BUILD)
+        build_set_message(out, "the triangles that go in the tree have changed: a vertex became or stopped being "
+                               "NaN or infinite");
+    free(geom_first);
+    free(r.kept);
+    free(r.counts);
+    free(r.block_box);
+    free(index_of);
+    return rc;
+}
