@@ -420,12 +420,12 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
                                  vertex_at(&geoms[g], tri[2])};
             const size_t at = base[g] + p.prim_id;
             const int finite = rtk_triangle_is_finite(v[0], v[1], v[2]);
-            if (finite && rtk_triangle_is_degenerate(v[0], v[1], v[2]) &&
-                (geoms[g].flags & RTK_BUILD_GEOMETRY_DEFORMS)) {
+            const int flat = finite && rtk_triangle_is_degenerate(v[0], v[1], v[2]);
+            if (flat && (geoms[g].flags & RTK_BUILD_GEOMETRY_DEFORMS)) {
                 marked[at] = 2; /* kept for a refit, never hit: no box needs to hold it */
                 continue;
             }
-            if (!finite || rtk_triangle_is_degenerate(v[0], v[1], v[2])) {
+            if (!finite || flat) {
                 err = bad(msg, size,
                           "leaf %llu: triangle %u of geometry %u can never be hit (zero area or a non-finite "
                           "vertex), so it cannot be in a tree",

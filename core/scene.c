@@ -103,9 +103,13 @@ struct rtk_scene_s {
 
 static atomic_uint_fast64_t version_clock;
 
-static uint64_t next_version(void)
+/* A buffer of g was set or its contents changed: a new version, and the
+ * geometry must be committed again. */
+static void buffer_changed(rtk_geometry g, rtk_buffer_type type)
 {
-    return (uint64_t)atomic_fetch_add(&version_clock, 1) + 1;
+    *(type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex_version : &g->index_version) =
+        (uint64_t)atomic_fetch_add(&version_clock, 1) + 1;
+    g->committed = 0;
 }
 
 rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geometry *out)
@@ -180,12 +184,11 @@ rtk_error rtk_geometry_set_shared_buffer(rtk_geometry g, rtk_buffer_type type, c
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_geometry_set_shared_buffer: data is not 4-byte aligned");
     buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
-    *(type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex_version : &g->index_version) = next_version();
+    buffer_changed(g, type);
     buffer_free(b);
     b->data = data;
     b->stride = byte_stride;
     b->count = count;
-    g->committed = 0;
     return RTK_OK;
 }
 
@@ -206,13 +209,12 @@ rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size
                         count * byte_stride);
     atomic_init(&mem->refs, 1);
     buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
-    *(type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex_version : &g->index_version) = next_version();
+    buffer_changed(g, type);
     buffer_free(b);
     b->owned = mem;
     b->data = (const char *)mem->data;
     b->stride = byte_stride;
     b->count = count;
-    g->committed = 0;
     *out = mem->data;
     return RTK_OK;
 }
@@ -227,8 +229,7 @@ rtk_error rtk_geometry_update_buffer(rtk_geometry g, rtk_buffer_type type)
     if (!b->stride)
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_update_buffer: no %s buffer set",
                         type == RTK_BUFFER_TYPE_VERTEX ? "vertex" : "index");
-    *(type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex_version : &g->index_version) = next_version();
-    g->committed = 0;
+    buffer_changed(g, type);
     return RTK_OK;
 }
 
@@ -479,6 +480,22 @@ static const rtk_layout_io_entry *find_layout_io(const rtk_backend_desc *d, uint
     return NULL;
 }
 
+/* What a build, import or refit of the scene's geometries is handed:
+ * tasks NULL means the calling thread only. */
+static rtk_build_input build_input(rtk_scene s, const rtk_build_geometry *geoms, size_t n, uint32_t layout,
+                                   const rtk_task_system *tasks)
+{
+    return (rtk_build_input){
+        .struct_size = sizeof(rtk_build_input),
+        .geometry_count = (uint32_t)n,
+        .geometries = geoms,
+        .quality = (uint32_t)s->quality,
+        .layout = layout,
+        .threads = tasks ? tasks->threads : 1,
+        .tasks = tasks,
+    };
+}
+
 static const rtk_layout_refit_entry *find_layout_refit(const rtk_backend_desc *d, uint32_t layout)
 {
     if (d->struct_size < offsetof(rtk_backend_desc, layout_refit) + sizeof d->layout_refit || !d->layout_refit)
@@ -575,16 +592,7 @@ static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, con
         return 1;
     }
     rtk_task_system task_copy;
-    const rtk_task_system *tasks = rtk_device_tasks(dev, &task_copy);
-    const rtk_build_input in = {
-        .struct_size = sizeof in,
-        .geometry_count = (uint32_t)n,
-        .geometries = geoms,
-        .quality = (uint32_t)s->quality,
-        .layout = s->layout->id,
-        .threads = tasks ? tasks->threads : 1,
-        .tasks = tasks,
-    };
+    const rtk_build_input in = build_input(s, geoms, n, s->layout->id, rtk_device_tasks(dev, &task_copy));
     rtk_build_output out = s->stats;
     out.struct_size = sizeof out;
     out.message[0] = '\0';
@@ -704,16 +712,8 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     }
 
     rtk_task_system task_copy;
-    const rtk_task_system *tasks = tree ? NULL : rtk_device_tasks(dev, &task_copy);
-    rtk_build_input in = {
-        .struct_size = sizeof in,
-        .geometry_count = (uint32_t)n,
-        .geometries = in_geoms,
-        .quality = (uint32_t)s->quality,
-        .layout = layout->id,
-        .threads = tasks ? tasks->threads : 1,
-        .tasks = tasks,
-    };
+    const rtk_build_input in =
+        build_input(s, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
     rtk_build_output out = {.struct_size = sizeof out};
     double t0 = now_seconds();
     int rc;

@@ -124,6 +124,21 @@ uint64_t *build_geom_first(const rtk_build_input *in)
     return first;
 }
 
+uint32_t *build_geometry_index(const rtk_build_input *in, uint32_t *max_id)
+{
+    *max_id = 0;
+    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
+        *max_id = in->geometries[gi].geom_id > *max_id ? in->geometries[gi].geom_id : *max_id;
+    uint32_t *index_of = malloc(((size_t)*max_id + 1) * sizeof *index_of);
+    if (!index_of)
+        return NULL;
+    for (uint32_t id = 0; id <= *max_id; id++)
+        index_of[id] = UINT32_MAX;
+    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
+        index_of[in->geometries[gi].geom_id] = gi;
+    return index_of;
+}
+
 static int cmp_u64(const void *a, const void *b)
 {
     const uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;

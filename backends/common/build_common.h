@@ -187,11 +187,16 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_layout_setup RTK_SYM(rtk_build_layout_setup)
 #define build_begin RTK_SYM(rtk_build_begin)
 #define build_geom_first RTK_SYM(rtk_build_geom_first)
+#define build_geometry_index RTK_SYM(rtk_build_geometry_index)
 #define build_largest_first RTK_SYM(rtk_build_largest_first)
 #define build_run_ordered RTK_SYM(rtk_build_run_ordered)
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
+
+/* geom_id -> index of that geometry in in->geometries, UINT32_MAX for ids
+ * not there (malloc'd, *max_id + 1 entries); NULL when out of memory. */
+RTK_HIDDEN uint32_t *build_geometry_index(const rtk_build_input *in, uint32_t *max_id);
 
 /* Makes *array (of *cap elements of `size` bytes) hold at least `need`,
  * doubling; 0 when out of memory (the array is then unchanged). */

@@ -1377,10 +1377,8 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
 
     /* The triangles as primitive references in tree order: the leaf
      * writers read them from there.  geom_id -> index in the input. */
-    uint32_t max_id = 0;
-    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
-        max_id = in->geometries[gi].geom_id > max_id ? in->geometries[gi].geom_id : max_id;
-    uint32_t *index_of = malloc(((size_t)max_id + 1) * sizeof *index_of);
+    uint32_t max_id;
+    uint32_t *index_of = build_geometry_index(in, &max_id);
     const size_t ref_bytes = (t->prim_count ? t->prim_count : 1) * sizeof *bd.refs;
     bd.refs = build_reserve(ref_bytes);
     part p = {.bd = &bd, .node_count = (uint32_t)t->node_count, .leaf_count = (uint32_t)t->leaf_count};
@@ -1395,8 +1393,6 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
         build_set_message(out, "out of memory for the BVH");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
-    for (uint32_t gi = 0; gi < in->geometry_count; gi++)
-        index_of[in->geometries[gi].geom_id] = gi;
     for (uint64_t k = 0; k < t->prim_count; k++) {
         bd.refs[k].lo[3] = rtk_bits_float(index_of[t->prims[k].geom_id]);
         bd.refs[k].hi[3] = rtk_bits_float(t->prims[k].prim_id);

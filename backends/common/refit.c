@@ -14,7 +14,6 @@
  * over the leaves does the work (reading each triangle's vertices once),
  * then one over the nodes, both on the build's threads.
  */
-#include <stdio.h>
 #include <stdlib.h>
 
 #include "build_common.h"
@@ -230,19 +229,8 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
         r.kept = calloc(r.total / 64 + 1, sizeof *r.kept);
     r.counts = calloc(chunks ? chunks : 1, sizeof *r.counts);
     r.block_box = malloc((accel->leaf_count ? accel->leaf_count : 1) * sizeof *r.block_box);
-    uint32_t *index_of = NULL;
-    if (!bd.indexed) {
-        for (uint32_t gi = 0; gi < in->geometry_count; gi++)
-            r.max_id = in->geometries[gi].geom_id > r.max_id ? in->geometries[gi].geom_id : r.max_id;
-        index_of = malloc(((size_t)r.max_id + 1) * sizeof *index_of);
-        if (index_of) {
-            for (uint32_t id = 0; id <= r.max_id; id++)
-                index_of[id] = UINT32_MAX;
-            for (uint32_t gi = 0; gi < in->geometry_count; gi++)
-                index_of[in->geometries[gi].geom_id] = gi;
-        }
-        r.index_of = index_of;
-    }
+    uint32_t *index_of = bd.indexed ? NULL : build_geometry_index(in, &r.max_id);
+    r.index_of = index_of;
     if (!geom_first || (exact && !r.kept) || !r.counts || !r.block_box || (!bd.indexed && !index_of)) {
         rc = refit_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the refit");
         goto done;
