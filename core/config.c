@@ -46,7 +46,18 @@ static int parse_uint(const char *s, size_t n, unsigned long max, unsigned long 
     return 1;
 }
 
-#define KNOWN_KEYS "isa, max_isa, threads, verbose, backend_path"
+/* A builder or layout name: lower-case letters, digits, '.', '-', '_'. */
+static int valid_table_name(const char *s, size_t n)
+{
+    if (n == 0 || n >= RTK_BACKEND_NAME_MAX)
+        return 0;
+    for (size_t i = 0; i < n; i++)
+        if (!(islower((unsigned char)s[i]) || isdigit((unsigned char)s[i]) || strchr(".-_", s[i])))
+            return 0;
+    return 1;
+}
+
+#define KNOWN_KEYS "isa, max_isa, threads, verbose, backend_path, builder, layout"
 
 rtk_error rtk_config_parse(const char *text, rtk_config *cfg, char *msg, size_t msg_size)
 {
@@ -80,6 +91,15 @@ rtk_error rtk_config_parse(const char *text, rtk_config *cfg, char *msg, size_t 
                 return RTK_ERROR_INVALID_CONFIG;
             }
             char *dst = KEY("isa") ? cfg->isa : cfg->max_isa;
+            memcpy(dst, val, vlen);
+            dst[vlen] = '\0';
+        } else if (KEY("builder") || KEY("layout")) {
+            if (!valid_table_name(val, vlen)) {
+                snprintf(msg, msg_size, "config %.*s='%.*s': expected a name such as %s", (int)klen, p, (int)vlen,
+                         val, KEY("builder") ? "morton, sah-binned, sah-spatial" : "bvh4.triangle4, bvh8.triangle4");
+                return RTK_ERROR_INVALID_CONFIG;
+            }
+            char *dst = KEY("builder") ? cfg->builder : cfg->layout;
             memcpy(dst, val, vlen);
             dst[vlen] = '\0';
         } else if (KEY("threads")) {

@@ -79,6 +79,43 @@ static const char *status_word(rtk_backend_status s)
     return s == RTK_BACKEND_STATUS_ACTIVE ? "active" : s == RTK_BACKEND_STATUS_USABLE ? "loaded" : "rejected";
 }
 
+/* The config's builder= and layout= must name a builder, a layout, and
+ * together a builder that produces that layout, in the active backend;
+ * else msg lists what the backend has. */
+static int check_builder_layout(const rtk_backend_desc *bk, const rtk_config *cfg, char *msg, size_t size)
+{
+    if (!cfg->builder[0] && !cfg->layout[0])
+        return 1;
+    int builder_seen = 0, layout_seen = 0;
+    for (const rtk_builder_entry *b = bk->builders; b->name; b++) {
+        const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
+        const int bm = !cfg->builder[0] || !strcmp(b->name, cfg->builder);
+        const int lm = !cfg->layout[0] || (l && !strcmp(l->name, cfg->layout));
+        if (bm && lm)
+            return 1;
+        builder_seen |= bm;
+        layout_seen |= lm;
+    }
+    char list[512] = ""; /* what there is */
+    size_t len = 0;
+    for (const rtk_builder_entry *b = bk->builders; b->name; b++) {
+        const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
+        if (len < sizeof list)
+            len += (size_t)snprintf(list + len, sizeof list - len, "%s%s/%s", len ? ", " : "", b->name,
+                                    l ? l->name : "?");
+    }
+    if (!builder_seen)
+        snprintf(msg, size, "config builder='%s': backend %s has no such builder (it has, as builder/layout: %s)",
+                 cfg->builder, bk->name, list);
+    else if (!layout_seen)
+        snprintf(msg, size, "config layout='%s': backend %s has no such layout (it has, as builder/layout: %s)",
+                 cfg->layout, bk->name, list);
+    else
+        snprintf(msg, size, "config builder='%s' with layout='%s': backend %s has no such pair (it has, as "
+                 "builder/layout: %s)", cfg->builder, cfg->layout, bk->name, list);
+    return 0;
+}
+
 rtk_error rtk_device_new(const char *config, rtk_device *out)
 {
     tls_error = RTK_OK;
@@ -123,6 +160,16 @@ rtk_error rtk_device_new(const char *config, rtk_device *out)
     }
     d->backend = d->backends.entries[d->backends.active].desc;
     rtk_log(d, 1, "active backend: %s", d->backends.entries[d->backends.active].name);
+    if (!check_builder_layout(d->backend, &d->config, msg, sizeof msg)) {
+        rtk_backends_unload(&d->backends);
+        rtk_config_free(&d->config);
+        pthread_mutex_destroy(&d->lock);
+        free(d);
+        return rtk_fail(NULL, RTK_ERROR_INVALID_CONFIG, "rtk_device_new: %s", msg);
+    }
+    if (d->config.builder[0] || d->config.layout[0])
+        rtk_log(d, 1, "every scene is built%s%s%s%s (device config)", d->config.builder[0] ? " by " : "",
+                d->config.builder, d->config.layout[0] ? " into " : "", d->config.layout);
     pthread_mutex_init(&d->pool_lock, NULL);
     d->thread_count = d->config.threads ? d->config.threads : rtk_cpu_count();
     rtk_log(d, 1, "builds on %u thread%s%s", d->thread_count, d->thread_count == 1 ? "" : "s",

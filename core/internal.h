@@ -20,6 +20,8 @@ typedef struct rtk_config {
     unsigned threads;                   /* 0 = all cores */
     int verbose;
     char *backend_path; /* NULL = default search order; else ':'-separated dirs (owned) */
+    char builder[RTK_BACKEND_NAME_MAX]; /* "" = the scene's quality picks it */
+    char layout[RTK_BACKEND_NAME_MAX];  /* "" = the scene's flags pick it */
 } rtk_config;
 
 /* Parses "key=value,..." into cfg; on failure returns RTK_ERROR_INVALID_CONFIG
@@ -58,6 +60,8 @@ typedef struct rtk_backend_registry {
 RTK_INTERNAL rtk_error rtk_backends_load(rtk_backend_registry *reg, const rtk_config *cfg, uint64_t cpu,
                                          char *msg, size_t msg_size);
 RTK_INTERNAL void rtk_backends_unload(rtk_backend_registry *reg);
+/* The layout entry with this id in a backend's table, or NULL. */
+RTK_INTERNAL const rtk_layout_entry *rtk_backend_find_layout(const rtk_backend_desc *d, uint32_t id);
 
 /* ---- pool.c: the device's worker threads ---- */
 typedef struct rtk_pool rtk_pool;

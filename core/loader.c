@@ -484,3 +484,11 @@ void rtk_backends_unload(rtk_backend_registry *reg)
     memset(reg, 0, sizeof *reg);
     reg->active = -1;
 }
+
+const rtk_layout_entry *rtk_backend_find_layout(const rtk_backend_desc *d, uint32_t id)
+{
+    for (const rtk_layout_entry *l = d->layouts; l->id; l++)
+        if (l->id == id)
+            return l;
+    return NULL;
+}

@@ -462,14 +462,6 @@ static struct packet_kernel find_packet_kernel(const rtk_backend_desc *d, uint32
     return best;
 }
 
-static const rtk_layout_entry *find_layout(const rtk_backend_desc *d, uint32_t id)
-{
-    for (const rtk_layout_entry *l = d->layouts; l->id; l++)
-        if (l->id == id)
-            return l;
-    return NULL;
-}
-
 static const rtk_layout_io_entry *find_layout_io(const rtk_backend_desc *d, uint32_t layout)
 {
     if (d->struct_size < offsetof(rtk_backend_desc, layout_io) + sizeof d->layout_io || !d->layout_io)
@@ -677,16 +669,20 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     /* The leanest layout that serves: among the builders for this quality
      * (else all of them, saying so), the first whose layout honours the most
      * of the scene's flags and nothing the scene did not ask for (a compact
-     * layout is slower; a robust one costs time too). */
+     * layout is slower; a robust one costs time too).  The device config's
+     * builder= and layout= override the quality and the flags (the device
+     * checked that the backend has them). */
+    const char *want_builder = dev->config.builder[0] ? dev->config.builder : NULL;
+    const char *want_layout = dev->config.layout[0] ? dev->config.layout : NULL;
     const rtk_builder_entry *builder = NULL;
     const rtk_layout_entry *layout = NULL;
-    for (int any_quality = 0; any_quality < 2 && !builder; any_quality++) {
+    for (int any_quality = want_builder != NULL; any_quality < 2 && !builder; any_quality++) {
         int best = -1;
         for (const rtk_builder_entry *b = bk->builders; b->name; b++) {
-            if (!any_quality && !(b->qualities & (1u << s->quality)))
+            if (want_builder ? strcmp(b->name, want_builder) : !any_quality && !(b->qualities & (1u << s->quality)))
                 continue;
-            const rtk_layout_entry *l = find_layout(bk, b->layout);
-            if (!l || (l->scene_flags & ~s->flags))
+            const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
+            if (!l || (want_layout ? strcmp(l->name, want_layout) : (l->scene_flags & ~s->flags) != 0))
                 continue;
             const int score = __builtin_popcount(l->scene_flags & s->flags);
             if (score > best) {
@@ -695,7 +691,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
                 layout = l;
             }
         }
-        if (builder && any_quality)
+        if (builder && any_quality && !want_builder)
             rtk_log(dev, 1, "scene: no builder for quality %d in backend %s; using %s", (int)s->quality, bk->name,
                     builder->name);
     }

@@ -44,6 +44,17 @@ expect 0 "10000 identical, 0 ties settled differently, 0 different" -- \
     "$tool" build --load "$work/bunny.rtkb" "$data/bunny.ply" --verify 10000
 expect 0 "dump:" -- "$tool" build "$data/bunny.ply" --compact --isa sse41 --dump "$work/compact.rtkb"
 expect 0 "bvh4.triangle4i" -- "$tool" build --load "$work/compact.rtkb" "$data/bunny.ply" --verify 2000
+# a builder and a layout chosen whatever the quality; a dump in a layout the
+# default backend would not pick loads all the same, and only in its layout
+expect 0 '"builder": "morton"' -- "$tool" build "$data/bunny.ply" --json --quality high --builder morton
+expect 0 'bvh4.triangle4, sah-spatial builder' -- \
+    "$tool" build "$data/bunny.ply" --builder sah-spatial --layout bvh4.triangle4 --dump "$work/b4.rtkb"
+expect 0 "2000 identical, 0 ties settled differently, 0 different" -- \
+    "$tool" build --load "$work/b4.rtkb" "$data/bunny.ply" --verify 2000
+expect 2 "--layout bvh4.triangle4i, but the dump holds a bvh4.triangle4 tree" -- \
+    "$tool" trace "$data/bunny.ply" --load "$work/b4.rtkb" --layout bvh4.triangle4i --size 8x8
+expect 1 "config builder='sweep': backend" -- "$tool" build "$data/bunny.ply" --builder sweep
+expect 1 "no such layout" -- "$tool" trace "$data/bunny.ply" --isa scalar --layout bvh8.triangle4 --size 8x8
 printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n' >"$work/tri.obj"
 expect 1 "was built over another mesh" -- "$tool" build --load "$work/bunny.rtkb" "$work/tri.obj"
 expect 0 "build:      none: the tree of $work/bunny.rtkb" -- \
@@ -112,8 +123,9 @@ if "$tool" bench --help >/dev/null 2>&1; then
         --api single,packet8 -o "$work/bench"
     csv="$work/bench/bench.csv"
     for want in "trace,rtk avx2,default,primary,packet8,1," "trace,rtk scalar,default,shadow,single,1," \
-                "render,rtk avx2,default,diffuse path tracer,packet8,1," "build,embree default,high,start,,1," \
-                "build,rtk avx2,low,diffuse,single,1," "accuracy,embree isa=avx2,robust,edge,single,1," \
+                "render,rtk avx2,default,diffuse path tracer,packet8,1," \
+                "build,embree default,high:sah-spatial,start,,1," "build,rtk avx2,low:morton,start,,1," \
+                "build,rtk avx2,low:morton,diffuse,single,1," "accuracy,embree isa=avx2,robust,edge,single,1," \
                 "accuracy,rtk scalar,compact,diffuse,single,1," "memory,rtk avx2,bvh8.triangle4,"; do
         grep -qF "bunny.ply,$want" "$csv" || fail "bench.csv lacks a row '$want'"
     done

@@ -103,6 +103,12 @@ static void test_bad_config(void **state)
         {"isa", "not key=value"},
         {"max_isa=pentium", "max_isa=pentium: not a known ISA level"},
         {"isa=avx9", "isa=avx9: no such usable backend; usable: "},
+        {"builder=Morton", "config builder='Morton': expected a name such as morton"},
+        {"builder=", "config builder='': expected a name"},
+        {"layout=bvh4 triangle4", "config layout='bvh4 triangle4': expected a name"},
+        {"builder=sweep", "config builder='sweep': backend "},
+        {"layout=bvh16.triangle4", "config layout='bvh16.triangle4': backend "},
+        {"isa=scalar,layout=bvh8.triangle4", "backend scalar has no such layout"},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         rtk_device dev = (rtk_device)0x1;

@@ -222,6 +222,82 @@ static void hits_match_brute_force(void **state)
     ref_free(&ref);
 }
 
+/* ---- a builder and layout chosen in the device config ----
+ * builder= overrides the scene's quality and layout= its flags: the tree is
+ * the one the named builder makes at its own quality (to the byte, when the
+ * layout is the one the flags would pick), rtk_scene_info names both, a
+ * compact scene in a vertex-copy layout reports the flag not honoured, and
+ * the hits match brute force in every layout.  A backend without the
+ * layout (bvh8 needs 8-wide vectors) fails device creation. */
+static void chosen_builder_and_layout(void **state)
+{
+    (void)state;
+    static const char *const layouts[] = {"bvh4.triangle4", "bvh8.triangle4", "bvh4.triangle4i"};
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const mesh *x = &bunny_mesh;
+    ref_mesh ref = ref_prepare(x->v, x->idx, x->nt);
+    for (size_t b = 0; b < nb; b++)
+        for (size_t q = 0; q < QUALITIES; q++) {
+            /* the reference: this builder at its own quality, default layout */
+            rtk_device plain = test_device_threads(names[b], 2);
+            rtk_scene want_scene = scene_q(plain, x, RTK_SCENE_FLAG_NONE, qualities[q]);
+            rtk_scene_info want_info = {.struct_size = sizeof want_info};
+            assert_int_equal(rtk_scene_get_info(want_scene, &want_info), RTK_OK);
+            assert_string_equal(want_info.builder, builder_names[q]);
+            rtk_bvh want = tree_of(want_scene);
+            for (size_t l = 0; l < 3; l++) {
+                char config[128];
+                snprintf(config, sizeof config, "isa=%s,threads=2,builder=%s,layout=%s", names[b], builder_names[q],
+                         layouts[l]);
+                rtk_device dev = NULL;
+                const rtk_error err = rtk_device_new(config, &dev);
+                if (err) {
+                    /* only bvh8, and only where vectors are 4 wide or fewer */
+                    assert_int_equal(err, RTK_ERROR_INVALID_CONFIG);
+                    assert_int_equal(l, 1);
+                    assert_true(strcmp(names[b], "avx") && strcmp(names[b], "avx2"));
+                    assert_non_null(strstr(rtk_device_get_error_message(NULL), "no such layout"));
+                    continue;
+                }
+                /* another quality than the builder's own; compact only where
+                 * the layout is the compact one or can show it unhonoured */
+                const unsigned flags = l == 1 ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE;
+                rtk_scene s = scene_q(dev, x, flags, qualities[(q + 1) % QUALITIES]);
+                rtk_scene_info info = {.struct_size = sizeof info};
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                assert_string_equal(info.builder, builder_names[q]);
+                assert_string_equal(info.layout, layouts[l]);
+                assert_int_equal(info.flags_not_honoured, flags);
+                if (!strcmp(layouts[l], want_info.layout))
+                    assert_same_build(s, &want, &want_info);
+                rng r = {7};
+                int hits = 0;
+                for (int i = 0; i < 300; i++) {
+                    float o[3], d[3];
+                    for (int k = 0; k < 3; k++) {
+                        o[k] = want_info.bounds_lower[k] +
+                               (want_info.bounds_upper[k] - want_info.bounds_lower[k]) * (3.0f * rng_float(&r) - 1.0f);
+                        d[k] = 0.5f * (want_info.bounds_lower[k] + want_info.bounds_upper[k]) - o[k];
+                    }
+                    hits += test_ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
+                }
+                assert_true(hits > 100);
+                rtk_scene_release(s);
+                rtk_device_release(dev);
+            }
+            rtk_bvh_free(&want);
+            rtk_scene_release(want_scene);
+            rtk_device_release(plain);
+        }
+    ref_free(&ref);
+    /* the error names what the backend has */
+    rtk_device dev = (rtk_device)0x1;
+    assert_int_equal(rtk_device_new("builder=sah-sweep", &dev), RTK_ERROR_INVALID_CONFIG);
+    assert_null(dev);
+    assert_non_null(strstr(rtk_device_get_error_message(NULL), "no such builder (it has, as builder/layout: morton/"));
+}
+
 /* ---- spatial splits against brute force ---- */
 
 /* Long thin triangles crossing each other and large ones lying in likely
@@ -622,7 +698,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(same_tree_any_threads),   cmocka_unit_test(hits_match_brute_force),
         cmocka_unit_test(morton_edge_cases),       cmocka_unit_test(spatial_splits_vs_brute_force),
         cmocka_unit_test(application_task_system), cmocka_unit_test(concurrent_commits),
-        cmocka_unit_test(workers_end_with_device),
+        cmocka_unit_test(workers_end_with_device), cmocka_unit_test(chosen_builder_and_layout),
     };
     const struct CMUnitTest threads_only[] = {
         cmocka_unit_test(application_task_system),

@@ -139,6 +139,7 @@ typedef struct scene {
     double seconds;          /* start time: first scene call to committed scene */
     double bytes_per_tri;
     char layout[48];
+    char builder[32]; /* rtk: rtk_scene_info.builder; Embree: its builder for the quality */
 } scene;
 
 static long long embree_bytes; /* Embree's memory monitor: allocations minus frees */
@@ -225,6 +226,11 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         sc->escene = s;
         sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
         snprintf(sc->layout, sizeof sc->layout, "embree %s", mode_names[mode]);
+        /* Embree 3 (rtcSetSceneBuildQuality(3)): low builds a two-level
+         * structure, each mesh by the Morton builder; medium is its binned
+         * SAH builder, high the SAH builder with fast spatial splits. */
+        static const char *const builders[3] = {"morton-2level", "sah", "sah-spatial"};
+        snprintf(sc->builder, sizeof sc->builder, "%s", mode == MODE_REFIT ? "refit-2level" : builders[quality]);
         for (int c = 0; c < 2; c++)
             sc->target[c] = (embree_target){s, c ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT
                                                  : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT};
@@ -255,6 +261,7 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
     rtk_scene_get_info(s, &info);
     sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
     snprintf(sc->layout, sizeof sc->layout, "%s", info.layout);
+    snprintf(sc->builder, sizeof sc->builder, "%s", info.builder);
     return 0;
 }
 
@@ -896,8 +903,8 @@ static int section_build(ctx *c, char *err, size_t err_size)
            "calls, allocation, build), best of %d, at each quality; then the diffuse rays of the trace section "
            "through that tree, single rays, 1 thread\n",
            o->builds);
-    printf("  %-20s %-8s %7s %9s %8s %9s %7s  %s\n", "library", "quality", "threads", "start ms", "ratio", "Mtris/s",
-           "B/tri", "diffuse Mrays/s");
+    printf("  %-20s %-8s %-14s %7s %9s %8s %9s %7s  %s\n", "library", "quality", "builder", "threads", "start ms",
+           "ratio", "Mtris/s", "B/tri", "diffuse Mrays/s");
     const rayset diff = c->sets[SET_DIFFUSE];
     unsigned char *hits = malloc(diff.n + 1);
     char path[600];
@@ -914,6 +921,7 @@ static int section_build(ctx *c, char *err, size_t err_size)
                              err_size))
                     return 1;
                 double best = 1e30, bytes = 0, trace_rate = 0;
+                char builder[32] = "";
                 for (int b = 0; b < o->builds; b++) {
                     scene sc;
                     if (scene_build(&sc, &bl, c->m, c->padded, MODE_DEFAULT, q, err, err_size)) {
@@ -922,6 +930,7 @@ static int section_build(ctx *c, char *err, size_t err_size)
                     }
                     best = sc.seconds < best ? sc.seconds : best;
                     bytes = sc.bytes_per_tri;
+                    memcpy(builder, sc.builder, sizeof builder);
                     if (b == o->builds - 1 && ti == 0) {
                         const render_tracer t = scene_tracer(&sc, 0);
                         trace_rate = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits);
@@ -931,19 +940,21 @@ static int section_build(ctx *c, char *err, size_t err_size)
                 lib_close(&bl);
                 if (l == 0)
                     ref_start[q][ti] = best;
-                printf("  %-20s %-8s %7d %9.1f %7.2fx %9.2f %7.1f", c->libs[l].name, qn[q], o->threads[ti],
-                       best * 1e3, ratio(ref_start[q][ti], best), (double)c->m->triangle_count / best * 1e-6, bytes);
+                printf("  %-20s %-8s %-14s %7d %9.1f %7.2fx %9.2f %7.1f", c->libs[l].name, qn[q], builder,
+                       o->threads[ti], best * 1e3, ratio(ref_start[q][ti], best), (double)c->m->triangle_count / best * 1e-6, bytes);
                 if (ti == 0)
                     printf("  %.2f", trace_rate);
                 printf("\n");
-                csv_row(&c->csv, "build", c->libs[l].name, qn[q], "start", "", o->threads[ti], best * 1e3, "ms",
+                char variant[48]; /* quality:builder */
+                snprintf(variant, sizeof variant, "%s:%s", qn[q], builder);
+                csv_row(&c->csv, "build", c->libs[l].name, variant, "start", "", o->threads[ti], best * 1e3, "ms",
                         ratio(ref_start[q][ti], best));
                 if (ti == 0) {
-                    csv_row(&c->csv, "build", c->libs[l].name, qn[q], "diffuse", "single", 1, trace_rate, "Mrays/s",
+                    csv_row(&c->csv, "build", c->libs[l].name, variant, "diffuse", "single", 1, trace_rate, "Mrays/s",
                             0);
                     if (dat)
                         fprintf(dat, "%.3f %.4f %s%s", best * 1e3,
-                                trace_rate > 0 ? (double)diff.n / trace_rate * 1e-3 : 0.0, qn[q],
+                                trace_rate > 0 ? (double)diff.n / trace_rate * 1e-3 : 0.0, variant,
                                 q == 2 ? "\n\n\n" : "\n");
                 }
                 progress_update(&bar, (double)(l * 3 + q + 1) / (c->nlibs * 3));
@@ -958,15 +969,19 @@ static int section_build(ctx *c, char *err, size_t err_size)
         if (gp) {
             fprintf(gp,
                     "set terminal pngcairo size 900,600 font 'sans,10'\nset output '%s-build.png'\n"
-                    "set title '%s: build (start) time against the time to trace %zu diffuse rays, 1 thread'\n"
+                    "set title '%s: build (start) time against the time to trace %zu diffuse rays, per builder "
+                    "(quality:builder), 1 thread'\n"
                     "set xlabel 'start time, ms (lower is better)'\nset ylabel 'trace time, ms (lower is better)'\n"
                     "set grid\nset key outside right\nset offsets graph 0.05, graph 0.1, graph 0.1, graph 0.1\n"
                     "set xrange [0:*]\nset yrange [0:*]\nplot ",
                     c->stem, base_name(c->csv.mesh), diff.n);
-            for (int l = 0; l < c->nlibs; l++)
-                fprintf(gp, "%s'%s-build.dat' index %d using 1:2 with linespoints pt 7 ps 1.2 lw 1.5 lc %d title '%s', "
-                        "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' tc lt -1 notitle",
-                        l ? ", " : "", c->stem, l, l + 1, c->libs[l].name, l);
+            for (int l = 0; l < c->nlibs; l++) {
+                fprintf(gp, "%s'%s-build.dat' index %d using 1:2 with linespoints pt 7 ps 1.2 lw 1.5 lc %d title '%s'",
+                        l ? ", " : "", c->stem, l, l + 1, c->libs[l].name);
+                if (!c->libs[l].embree || l == 0) /* Embree's other ISA has the same builders */
+                    fprintf(gp, ", '' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' tc lt -1 "
+                            "notitle", l);
+            }
             fprintf(gp, "\n");
             fclose(gp);
         }

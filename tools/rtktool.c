@@ -129,6 +129,31 @@ static unsigned dump_scene_flags(const rtkb_file *file)
     return strstr(file->info.layout, "triangle4i") ? RTK_SCENE_FLAG_COMPACT : 0;
 }
 
+/* The device config of build and trace: threads, backend, builder and
+ * layout as asked (a loaded dump's layout unless another was asked for,
+ * which is an error), then the --config text.  0 after saying why not. */
+static int device_config(char *buf, size_t size, const char *cmd, long threads, const char *isa, const char *builder,
+                         const char *layout, const rtkb_file *dump, const char *extra)
+{
+    if (dump && layout && strcmp(layout, dump->info.layout)) {
+        fprintf(stderr, "rtktool %s: --layout %s, but the dump holds a %s tree\n", cmd, layout, dump->info.layout);
+        return 0;
+    }
+    if (dump)
+        layout = dump->info.layout;
+    size_t n = 0;
+    buf[0] = '\0';
+    if (threads)
+        n += (size_t)snprintf(buf, size, "threads=%ld,", threads);
+    const char *const keys[] = {"isa", "builder", "layout"}, *const vals[] = {isa, builder, layout};
+    for (int k = 0; k < 3; k++)
+        if (vals[k] && n < size)
+            n += (size_t)snprintf(buf + n, size - n, "%s=%s,", keys[k], vals[k]);
+    if (n < size)
+        snprintf(buf + n, size - n, "%s", extra);
+    return 1;
+}
+
 /* Whether a dump was built over this mesh (else says so on stderr). */
 static int dump_fits_mesh(const char *load, const rtkb_file *file, const char *mesh_path, const rtk_mesh *mesh)
 {
@@ -215,10 +240,15 @@ static void trace_usage(FILE *f)
             "  --isa NAME           backend (scalar, sse41, avx, avx2; default: the best)\n"
             "  --threads N          render threads (default: all cores)\n"
             "  --quality Q          build quality low, medium (default) or high\n"
+            "  --builder NAME       build with this builder whatever the quality: morton,\n"
+            "                       sah-binned, sah-spatial (default: the quality's)\n"
+            "  --layout NAME        build into this layout: bvh4.triangle4, bvh8.triangle4 (avx, avx2),\n"
+            "                       bvh4.triangle4i (default: the backend's fastest)\n"
             "  --frames N           render N times and report the best rate (default: 3)\n"
             "  --seed N             random numbers (default: 1); the image does not depend on\n"
             "                       --threads or --api\n"
-            "  --load F.rtkb        trace with the BVH dumped by rtktool build --dump (no build)\n"
+            "  --load F.rtkb        trace with the BVH dumped by rtktool build --dump (no build), in\n"
+            "                       the dump's layout on any backend that has it\n"
             "  --json               the report as JSON on stdout\n"
             "  --config STR         extra device config (e.g. verbose=1)\n"
             "  A progress bar goes to stderr for renders longer than a second when it is a terminal.\n"
@@ -255,6 +285,7 @@ static void print_build_line(const char *label, double seconds, uint64_t triangl
 static int cmd_trace(int argc, char **argv)
 {
     const char *mesh_path = NULL, *out = "trace.png", *isa = NULL, *extra = "", *load = NULL, *camera = NULL;
+    const char *builder = NULL, *layout = NULL;
     int w = 1024, h = 768, json = 0, api = 1;
     long frames = 3, spp = 1, bounces = 4, ao_samples = 8, seed = 1;
     long threads = sysconf(_SC_NPROCESSORS_ONLN);
@@ -300,6 +331,10 @@ static int cmd_trace(int argc, char **argv)
             camera = argv[++i];
         else if (!strcmp(a, "--isa") && more)
             isa = argv[++i];
+        else if (!strcmp(a, "--builder") && more)
+            builder = argv[++i];
+        else if (!strcmp(a, "--layout") && more)
+            layout = argv[++i];
         else if (!strcmp(a, "--threads") && more)
             ok = int_arg("trace", a, argv[++i], 1, 1024, &threads);
         else if (!strcmp(a, "--quality") && more)
@@ -330,35 +365,39 @@ static int cmd_trace(int argc, char **argv)
         threads = 1;
 
     char config[512], err[1024];
-    snprintf(config, sizeof config, "%s%s%s%s", isa ? "isa=" : "", isa ? isa : "", isa && extra[0] ? "," : "", extra);
     render_camera given;
     if (camera && render_camera_parse(&given, camera, w, h, err, sizeof err)) {
         fprintf(stderr, "rtktool trace: %s\n", err);
         return 2;
     }
-    rtk_device dev = open_device(config);
-    if (!dev)
-        return 1;
-
-    rtk_mesh mesh;
-    double t0 = now();
-    if (rtk_mesh_load(mesh_path, &mesh, err, sizeof err)) {
-        fprintf(stderr, "rtktool: %s\n", err);
-        rtk_device_release(dev);
-        return 1;
-    }
-    double t_load = now() - t0;
-
     int rc = 1;
+    rtk_device dev = NULL;
     rtk_scene scene = NULL;
     float *rgb = NULL;
     unsigned char *rgb8 = NULL;
+    rtk_mesh mesh;
+    memset(&mesh, 0, sizeof mesh);
     rtkb_file dump;
     memset(&dump, 0, sizeof dump);
     if (load && rtkb_load(load, &dump, err, sizeof err)) {
         fprintf(stderr, "rtktool: %s\n", err);
         goto done;
     }
+    if (!device_config(config, sizeof config, "trace", 0, isa, builder, layout, load ? &dump : NULL, extra)) {
+        rc = 2;
+        goto done;
+    }
+    dev = open_device(config);
+    if (!dev)
+        goto done;
+
+    double t0 = now();
+    if (rtk_mesh_load(mesh_path, &mesh, err, sizeof err)) {
+        fprintf(stderr, "rtktool: %s\n", err);
+        goto done;
+    }
+    double t_load = now() - t0;
+
     if (load && !dump_fits_mesh(load, &dump, mesh_path, &mesh))
         goto done;
     scene = mesh_scene(dev, &mesh, load ? dump_scene_flags(&dump) : 0, quality, load ? &dump.tree : NULL);
@@ -592,10 +631,16 @@ static void build_usage(FILE *f)
             "  depth, triangles per leaf, SAH cost, memory, build time.\n"
             "  With --load, reads a dump instead: checks every offset, count and reference\n"
             "  in it and prints the same statistics (no backend needed); given MESH too,\n"
-            "  commits MESH with the dumped tree and checks that it traces like a build.\n"
+            "  commits MESH with the dumped tree (in the dump's layout, on the best backend\n"
+            "  that has it) and checks that it traces like a build.\n"
             "  --quality low|medium|high  build quality (default: medium)\n"
             "  --isa NAME                 backend (scalar, sse41, avx, avx2; default: the best)\n"
-            "  --compact                  the compact layout (index leaves, half the memory)\n"
+            "  --compact                  a compact scene: index leaves, half the memory\n"
+            "  --builder NAME             this builder whatever the quality: morton (low),\n"
+            "                             sah-binned (medium), sah-spatial (high)\n"
+            "  --layout NAME              this layout: bvh4.triangle4, bvh8.triangle4 (avx, avx2),\n"
+            "                             bvh4.triangle4i (default: the backend's fastest, or\n"
+            "                             bvh4.triangle4i with --compact)\n"
             "  --threads N                threads the device may use (default: all cores)\n"
             "  --json                     the statistics as one JSON object on stdout\n"
             "  --dump FILE.rtkb           write the tree to FILE.rtkb (tools/rtkb.h)\n"
@@ -607,7 +652,8 @@ static void build_usage(FILE *f)
             "  rtktool build dragon.ply --json\n"
             "  rtktool build bunny.ply --isa sse41 --dump bunny.rtkb --png bunny-boxes.png\n"
             "  rtktool build --load bunny.rtkb\n"
-            "  rtktool build --load bunny.rtkb bunny.ply --isa sse41\n");
+            "  rtktool build --load bunny.rtkb bunny.ply\n"
+            "  rtktool build dragon.ply --builder morton --layout bvh4.triangle4 --threads 1\n");
 }
 
 static const char *quality_name(unsigned q)
@@ -746,6 +792,7 @@ static void compare_scenes(rtk_scene a, rtk_scene b, const float lo[3], const fl
 static int cmd_build(int argc, char **argv)
 {
     const char *mesh_path = NULL, *isa = NULL, *extra = "", *dump = NULL, *load = NULL, *png = NULL;
+    const char *builder = NULL, *layout = NULL;
     int json = 0, compact = 0;
     long threads = 0, verify = 100000;
     rtk_build_quality quality = RTK_BUILD_QUALITY_MEDIUM;
@@ -762,6 +809,10 @@ static int cmd_build(int argc, char **argv)
             isa = argv[++i];
         else if (!strcmp(a, "--compact"))
             compact = 1;
+        else if (!strcmp(a, "--builder") && more)
+            builder = argv[++i];
+        else if (!strcmp(a, "--layout") && more)
+            layout = argv[++i];
         else if (!strcmp(a, "--threads") && more) {
             if (!int_arg("build", a, argv[++i], 1, 1024, &threads))
                 return 2;
@@ -829,10 +880,12 @@ static int cmd_build(int argc, char **argv)
         }
         if (load && !dump_fits_mesh(load, &file, mesh_path, &mesh))
             goto done;
-        char config[512], threads_kv[32] = "";
-        if (threads)
-            snprintf(threads_kv, sizeof threads_kv, "threads=%ld,", threads);
-        snprintf(config, sizeof config, "%s%s%s%s", threads_kv, isa ? "isa=" : "", isa ? isa : "", extra);
+        char config[512];
+        if (!device_config(config, sizeof config, "build", threads, isa, builder, layout, load ? &file : NULL,
+                           extra)) {
+            rc = 2;
+            goto done;
+        }
         dev = open_device(config);
         if (!dev)
             goto done;

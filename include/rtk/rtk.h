@@ -126,6 +126,13 @@ typedef struct rtk_geometry_s *rtk_geometry;
  *   verbose=N       0 silent; 1 one line per backend file and per decision
  *                   on stderr; 2 also scene build statistics
  *   backend_path=D  search only these ':'-separated directories for backends
+ *   builder=NAME    build every scene with this builder whatever its quality
+ *                   (morton, sah-binned, sah-spatial; Embree's tri_builder)
+ *   layout=NAME     build every scene into this layout whatever its flags
+ *                   (bvh4.triangle4, bvh8.triangle4 where vectors are 8
+ *                   wide, bvh4.triangle4i; Embree's tri_accel)
+ *                   A builder or layout the active backend lacks fails
+ *                   device creation with a message listing what it has.
  * The environment variable RTK_ISA (same values as isa=) narrows the choice
  * further; RTK_BACKEND_PATH (':'-separated) is searched before the directory
  * next to librtk and the compiled-in install directory.
@@ -270,7 +277,7 @@ typedef struct rtk_scene_info {
     unsigned flags;              /* as requested */
     unsigned flags_not_honoured; /* requested but not implemented in this version */
     rtk_build_quality quality;
-    const char *builder;         /* "sah-binned" or "morton" */
+    const char *builder;         /* "morton", "sah-binned", "sah-spatial"; "tree" after rtk_scene_commit_bvh */
     const char *layout;          /* e.g. "bvh8.triangle4", "bvh4.triangle4i" (compact) */
     uint64_t triangles;          /* in the BVH */
     uint64_t triangles_skipped;  /* left out: a NaN or infinite vertex */
