@@ -795,10 +795,10 @@ static int section_trace(ctx *c, char *err, size_t err_size)
         FILE *gp = fopen(path, "w");
         if (gp) {
             fprintf(gp,
-                    "set terminal pngcairo size 1200,520 font 'sans,10'\nset output '%s-trace.png'\n"
+                    "set terminal pngcairo noenhanced size 1200,520 font 'sans,10'\nset output '%s-trace.png'\n"
                     "set title '%s: trace rate, %d thread%s (higher is better)'\nset ylabel 'Mrays/s'\n"
                     "set style data histogram\nset style histogram clustered gap 1\nset style fill solid 0.85 border -1\n"
-                    "set boxwidth 0.9\nset xtics rotate by -30 scale 0\nset key top right\nset grid ytics\n"
+                    "set boxwidth 0.9\nset xtics rotate by -30 scale 0\nset key outside top center horizontal\nset grid ytics\n"
                     "set yrange [0:*]\nplot ",
                     c->stem, base_name(c->csv.mesh), o->threads[0], o->threads[0] > 1 ? "s" : "");
             for (int l = 0; l < c->nlibs; l++)
@@ -968,9 +968,8 @@ static int section_build(ctx *c, char *err, size_t err_size)
         FILE *gp = fopen(path, "w");
         if (gp) {
             fprintf(gp,
-                    "set terminal pngcairo size 900,600 font 'sans,10'\nset output '%s-build.png'\n"
-                    "set title '%s: build (start) time against the time to trace %zu diffuse rays, per builder "
-                    "(quality:builder), 1 thread'\n"
+                    "set terminal pngcairo noenhanced size 900,600 font 'sans,10'\nset output '%s-build.png'\n"
+                    "set title '%s: start time against the time to trace %zu diffuse rays, per builder, 1 thread'\n"
                     "set xlabel 'start time, ms (lower is better)'\nset ylabel 'trace time, ms (lower is better)'\n"
                     "set grid\nset key outside right\nset offsets graph 0.05, graph 0.1, graph 0.1, graph 0.1\n"
                     "set xrange [0:*]\nset yrange [0:*]\nplot ",
@@ -1162,7 +1161,7 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
         FILE *gp = fopen(path, "w");
         if (gp) {
             fprintf(gp,
-                    "set terminal pngcairo size 900,600 font 'sans,10'\nset output '%s-accuracy.png'\n"
+                    "set terminal pngcairo noenhanced size 900,600 font 'sans,10'\nset output '%s-accuracy.png'\n"
                     "set title '%s: speed against accuracy per intersector and mode'\n"
                     "set xlabel 'rays leaking through shared edges, per million (lower is better)'\n"
                     "set ylabel 'diffuse rays, Mrays/s, 1 thread (higher is better)'\n"
