@@ -208,6 +208,12 @@ static int check_tables(rtk_backend_entry *e, const rtk_backend_desc *d)
                 return 0;
             }
         }
+    if (d->struct_size >= offsetof(rtk_backend_desc, objects) + sizeof d->objects && d->objects)
+        for (const rtk_objects_entry *o = d->objects; o->layout; o++)
+            if (!o->build || !rtk_backend_find_layout(d, o->layout)) {
+                reject(e, "the objects builder for layout %u lacks a function or the layout", o->layout);
+                return 0;
+            }
     if (d->struct_size >= offsetof(rtk_backend_desc, layout_refit) + sizeof d->layout_refit && d->layout_refit)
         for (const rtk_layout_refit_entry *rf = d->layout_refit; rf->layout; rf++) {
             int found = 0;

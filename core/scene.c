@@ -30,6 +30,40 @@ static void unpin_buffers(blob **pinned, uint32_t count)
     free(pinned);
 }
 
+/* A built tree and what it needs to stay valid: a scene holds one, and so
+ * does every scene that instances it (committed since), so a tree lives
+ * until the last of them lets it go.  Never changed once made, except by a
+ * refit (in place, like Embree's: commit the instancing scenes again). */
+typedef struct accel_ref {
+    atomic_int refs;
+    const rtk_layout_entry *layout;
+    rtk_accel *accel;
+    rtk_intersect1_fn intersect1;
+    rtk_occluded1_fn occluded1;
+    /* A compact layout reads the vertex buffers: the rtk-allocated ones it
+     * uses are held here. */
+    blob **pinned;
+    uint32_t pinned_count;
+    /* A top level (bvh4.object): the trees of its objects. */
+    struct accel_ref **children;
+    uint32_t child_count;
+    uint32_t depth; /* levels of instances below: 0 for a tree of triangles */
+    float lower[3], upper[3];
+} accel_ref;
+
+static void accel_ref_release(accel_ref *r)
+{
+    if (!r || atomic_fetch_sub(&r->refs, 1) != 1)
+        return;
+    if (r->accel)
+        r->layout->release(r->accel);
+    unpin_buffers(r->pinned, r->pinned_count);
+    for (uint32_t i = 0; i < r->child_count; i++)
+        accel_ref_release(r->children[i]);
+    free(r->children);
+    free(r);
+}
+
 typedef struct buffer {
     const char *data; /* first element */
     size_t stride, count;
@@ -48,7 +82,14 @@ struct rtk_geometry_s {
     int enabled;
     int committed;
     void *user;
+    /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained), the
+     * transform from its space (row-major 3x4) and, once committed, the
+     * inverse. */
+    rtk_scene instanced;
+    float xfm[12], inv[12];
 };
+
+static const float identity_3x4[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
 
 /* What a scene's tree was built over, per geometry slot, to tell at the
  * next commit whether a refit serves. */
@@ -67,7 +108,9 @@ struct rtk_scene_s {
     rtk_geometry *geoms; /* by geomID; NULL for free slots */
     uint32_t geom_count;
 
-    /* After a successful commit: */
+    /* After a successful commit: the tree (ref), and ref->accel and
+     * ref->layout at hand. */
+    accel_ref *ref;
     rtk_accel *accel;
     const rtk_layout_entry *layout;
     const char *builder; /* the builder's name, or "tree" */
@@ -81,10 +124,10 @@ struct rtk_scene_s {
     } packet[2][3];
     rtk_build_output stats;
     double build_seconds;
-    /* A compact layout reads the vertex buffers: the rtk-allocated ones it
-     * uses are held here until the next commit. */
-    blob **pinned;
-    uint32_t pinned_count;
+    /* With instances: how many, and the build of the scene's own triangles
+     * (zero when it has none); stats is then the top level's. */
+    uint64_t instances;
+    rtk_build_output own_stats;
     /* What the tree holds (see built_geom), and the refits since its build. */
     built_geom *built;
     uint32_t built_count;
@@ -118,7 +161,7 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     if (!out)
         return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: out is NULL");
     *out = NULL;
-    if (type != RTK_GEOMETRY_TYPE_TRIANGLE)
+    if (type != RTK_GEOMETRY_TYPE_TRIANGLE && type != RTK_GEOMETRY_TYPE_INSTANCE)
         return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: unknown geometry type %d", (int)type);
     rtk_geometry g = calloc(1, sizeof *g);
     if (!g)
@@ -126,6 +169,8 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     atomic_init(&g->refs, 1);
     g->device = device;
     g->type = type;
+    memcpy(g->xfm, identity_3x4, sizeof g->xfm);
+    memcpy(g->inv, identity_3x4, sizeof g->inv);
     g->quality = RTK_BUILD_QUALITY_MEDIUM;
     g->enabled = 1;
     rtk_device_retain(device);
@@ -151,6 +196,7 @@ void rtk_geometry_release(rtk_geometry g)
         return;
     buffer_free(&g->vertex);
     buffer_free(&g->index);
+    rtk_scene_release(g->instanced);
     rtk_device dev = g->device;
     free(g);
     rtk_device_release(dev);
@@ -158,6 +204,8 @@ void rtk_geometry_release(rtk_geometry g)
 
 static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, size_t stride, size_t count, const char *fn)
 {
+    if (g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "%s: an instance geometry has no buffers", fn);
     if (type != RTK_BUFFER_TYPE_VERTEX && type != RTK_BUFFER_TYPE_INDEX)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: unknown buffer type %d", fn, (int)type);
     if (stride < 12 || stride % 4)
@@ -226,7 +274,7 @@ rtk_error rtk_geometry_update_buffer(rtk_geometry g, rtk_buffer_type type)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_update_buffer: unknown buffer type %d",
                         (int)type);
     const buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
-    if (!b->stride)
+    if (!b->stride) /* (an instance has none) */
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_update_buffer: no %s buffer set",
                         type == RTK_BUFFER_TYPE_VERTEX ? "vertex" : "index");
     buffer_changed(g, type);
@@ -274,9 +322,88 @@ void *rtk_geometry_get_user_data(rtk_geometry g)
     return g->user;
 }
 
+rtk_error rtk_geometry_set_instanced_scene(rtk_geometry g, rtk_scene scene)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_instanced_scene");
+    if (g->type != RTK_GEOMETRY_TYPE_INSTANCE)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                        "rtk_geometry_set_instanced_scene: the geometry is not an instance");
+    if (scene && scene->device != g->device)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_geometry_set_instanced_scene: the scene belongs to another device");
+    rtk_scene_retain(scene);
+    rtk_scene_release(g->instanced);
+    g->instanced = scene;
+    g->committed = 0;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_transform(rtk_geometry g, rtk_format format, const float *xfm)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_transform");
+    if (g->type != RTK_GEOMETRY_TYPE_INSTANCE)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                        "rtk_geometry_set_transform: the geometry is not an instance");
+    if (!xfm)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_set_transform: xfm is NULL");
+    float m[12];
+    for (int r = 0; r < 3; r++)
+        for (int c = 0; c < 4; c++) {
+            if (format == RTK_FORMAT_FLOAT3X4_ROW_MAJOR)
+                m[4 * r + c] = xfm[4 * r + c];
+            else if (format == RTK_FORMAT_FLOAT3X4_COLUMN_MAJOR)
+                m[4 * r + c] = xfm[3 * c + r];
+            else if (format == RTK_FORMAT_FLOAT4X4_COLUMN_MAJOR)
+                m[4 * r + c] = xfm[4 * c + r];
+            else
+                return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_set_transform: unknown format %d",
+                                (int)format);
+        }
+    for (int i = 0; i < 12; i++)
+        if (!isfinite(m[i]))
+            return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                            "rtk_geometry_set_transform: element %d of the transform is not finite", i);
+    memcpy(g->xfm, m, sizeof m);
+    g->committed = 0;
+    return RTK_OK;
+}
+
+/* inv = the inverse of the affine map m (row-major 3x4), in double
+ * precision; 0 when m is singular or the inverse is not finite. */
+static int invert_3x4(const float *m, float *inv)
+{
+    const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9], i = m[10];
+    const double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
+    const double det = a * A + b * B + c * C;
+    if (!(fabs(det) > 0.0) || !isfinite(det))
+        return 0;
+    const double r[9] = {A / det, (c * h - b * i) / det, (b * f - c * e) / det,
+                         B / det, (a * i - c * g) / det, (c * d - a * f) / det,
+                         C / det, (b * g - a * h) / det, (a * e - b * d) / det};
+    const double t[3] = {m[3], m[7], m[11]};
+    for (int row = 0; row < 3; row++) {
+        for (int col = 0; col < 3; col++)
+            inv[4 * row + col] = (float)r[3 * row + col];
+        inv[4 * row + 3] = (float)-(r[3 * row] * t[0] + r[3 * row + 1] * t[1] + r[3 * row + 2] * t[2]);
+    }
+    for (int k = 0; k < 12; k++)
+        if (!isfinite(inv[k]))
+            return 0;
+    return 1;
+}
+
 rtk_error rtk_geometry_commit(rtk_geometry g)
 {
     CHECK_HANDLE(g, "rtk_geometry_commit");
+    if (g->type == RTK_GEOMETRY_TYPE_INSTANCE) {
+        if (!g->instanced)
+            return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: the instance has no scene");
+        if (!invert_3x4(g->xfm, g->inv))
+            return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                            "rtk_geometry_commit: the instance's transform is singular (no inverse in floats)");
+        g->committed = 1;
+        return RTK_OK;
+    }
     if (!g->vertex.stride)
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: no vertex buffer set");
     if (!g->index.stride)
@@ -312,11 +439,9 @@ void rtk_scene_retain(rtk_scene s)
 
 static void scene_drop_accel(rtk_scene s)
 {
-    if (s->accel)
-        s->layout->release(s->accel);
-    unpin_buffers(s->pinned, s->pinned_count);
-    s->pinned = NULL;
-    s->pinned_count = 0;
+    accel_ref_release(s->ref);
+    s->ref = NULL;
+    s->instances = 0;
     free(s->built);
     s->built = NULL;
     s->built_count = 0;
@@ -542,7 +667,7 @@ static void remember_built(rtk_scene s)
  * positions in REFIT geometries only (at least one). */
 static int refit_serves(rtk_scene s)
 {
-    if (!s->accel || !s->built || s->flags != s->built_flags || s->quality != s->built_quality)
+    if (!s->accel || s->instances || !s->built || s->flags != s->built_flags || s->quality != s->built_quality)
         return 0;
     const uint32_t slots = s->geom_count > s->built_count ? s->geom_count : s->built_count;
     int moved = 0;
@@ -575,7 +700,9 @@ static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, con
 {
     rtk_device dev = s->device;
     const rtk_layout_refit_entry *rf = find_layout_refit(dev->backend, s->layout->id);
-    if (!rf)
+    /* A tree that scenes instancing this one hold too stays as they saw it
+     * (their boxes of it): a new one is built. */
+    if (!rf || atomic_load(&s->ref->refs) > 1)
         return 0;
     blob **pinned;
     uint32_t pinned_count;
@@ -603,9 +730,11 @@ static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, con
                         "%s: refit failed: %s", fn, out.message[0] ? out.message : "no reason given");
         return 1;
     }
-    unpin_buffers(s->pinned, s->pinned_count);
-    s->pinned = pinned;
-    s->pinned_count = pinned_count;
+    unpin_buffers(s->ref->pinned, s->ref->pinned_count);
+    s->ref->pinned = pinned;
+    s->ref->pinned_count = pinned_count;
+    memcpy(s->ref->lower, out.lower, sizeof out.lower);
+    memcpy(s->ref->upper, out.upper, sizeof out.upper);
     s->stats = out;
     s->build_seconds = t1 - t0;
     s->refits++;
@@ -616,56 +745,53 @@ static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, con
     return 1;
 }
 
-/* rtk_scene_commit (tree == NULL) and rtk_scene_commit_bvh: fn names the
- * entry point in messages. */
-static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
+/* A reference to a new tree, with its kernels and box; NULL when out of
+ * memory. */
+static accel_ref *make_ref(const rtk_backend_desc *bk, const rtk_layout_entry *layout, rtk_accel *accel,
+                           const rtk_build_output *out)
+{
+    accel_ref *r = calloc(1, sizeof *r);
+    if (!r)
+        return NULL;
+    atomic_init(&r->refs, 1);
+    r->layout = layout;
+    r->accel = accel;
+    r->intersect1 = find_kernel(bk, layout->id, RTK_QUERY_INTERSECT)->fn.intersect1;
+    r->occluded1 = find_kernel(bk, layout->id, RTK_QUERY_OCCLUDED)->fn.occluded1;
+    memcpy(r->lower, out->lower, sizeof r->lower);
+    memcpy(r->upper, out->upper, sizeof r->upper);
+    return r;
+}
+
+/* The scene's new tree (its old one let go). */
+static void install(rtk_scene s, accel_ref *ref, const rtk_build_output *out, const char *builder, double seconds)
+{
+    const rtk_backend_desc *bk = s->device->backend;
+    scene_drop_accel(s);
+    s->ref = ref;
+    s->accel = ref->accel;
+    s->layout = ref->layout;
+    s->builder = builder;
+    s->stats = *out;
+    s->build_seconds = seconds;
+    s->intersect1 = ref->intersect1;
+    s->occluded1 = ref->occluded1;
+    for (int w = 0; w < 3; w++) {
+        s->packet[0][w] = find_packet_kernel(bk, ref->layout->id, RTK_QUERY_INTERSECT, packet_widths[w]);
+        s->packet[1][w] = find_packet_kernel(bk, ref->layout->id, RTK_QUERY_OCCLUDED, packet_widths[w]);
+    }
+    remember_built(s);
+}
+
+/* Builds (or, with `tree`, imports) a tree over the triangles of geoms[0, n)
+ * with the builder and layout the scene calls for: *ref_out, with the
+ * build's output, the builder's name and the time taken. */
+static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms, size_t n, const rtk_bvh *tree,
+                                 const char *fn, accel_ref **ref_out, rtk_build_output *out_io,
+                                 const char **builder_name, double *seconds)
 {
     rtk_device dev = s->device;
     const rtk_backend_desc *bk = dev->backend;
-
-    /* A refit keeps the indices, checked at the last commit: in range still
-     * unless the vertex buffer shrank. */
-    const int refit = !tree && refit_serves(s);
-    size_t n = 0;
-    for (uint32_t i = 0; i < s->geom_count; i++) {
-        rtk_geometry g = s->geoms[i];
-        if (!g)
-            continue;
-        if (!g->committed)
-            return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
-                            "%s: geometry %u is attached but not committed", fn, i);
-        if (!g->enabled)
-            continue;
-        rtk_error err = refit && g->vertex.count >= s->built[i].vertex_count ? RTK_OK : check_indices(s, i, g, fn);
-        if (err)
-            return err;
-        n++;
-    }
-    rtk_build_geometry *in_geoms = calloc(n ? n : 1, sizeof *in_geoms);
-    if (!in_geoms)
-        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
-    n = 0;
-    for (uint32_t i = 0; i < s->geom_count; i++) {
-        rtk_geometry g = s->geoms[i];
-        if (!g || !g->enabled)
-            continue;
-        in_geoms[n++] = (rtk_build_geometry){
-            .vertices = g->vertex.data,
-            .vertex_stride = g->vertex.stride,
-            .vertex_count = g->vertex.count,
-            .indices = g->index.data,
-            .index_stride = g->index.stride,
-            .prim_count = g->index.count,
-            .geom_id = i,
-            .flags = g->quality == RTK_BUILD_QUALITY_REFIT ? RTK_BUILD_GEOMETRY_DEFORMS : 0,
-        };
-    }
-    rtk_error refit_err;
-    if (refit && try_refit(s, in_geoms, n, fn, &refit_err)) {
-        free(in_geoms);
-        return refit_err;
-    }
-
     /* The leanest layout that serves: among the builders for this quality
      * (else all of them, saying so), the first whose layout honours the most
      * of the scene's flags and nothing the scene did not ask for (a compact
@@ -696,7 +822,6 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
                     builder->name);
     }
     if (!builder) {
-        free(in_geoms);
         return rtk_fail(dev, RTK_ERROR_UNKNOWN, "%s: backend %s has no builder for a scene with flags 0x%x", fn,
                         bk->name, s->flags);
     }
@@ -717,19 +842,15 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         /* Everything the backend will trust is checked here first. */
         const rtk_layout_io_entry *io = find_layout_io(bk, layout->id);
         char why[256];
-        if (!io) {
-            free(in_geoms);
+        if (!io)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot import a tree into layout %s", fn,
                             bk->name, layout->name);
-        }
         uint64_t non_finite = 0, degenerate = 0, in_tree = 0;
         rtk_error err = rtk_bvh_check(tree, why, sizeof why);
         if (!err)
             err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, &in_tree, why, sizeof why);
-        if (err) {
-            free(in_geoms);
+        if (err)
             return rtk_fail(dev, err, "%s: %s", fn, why);
-        }
         rc = io->import_tree(&in, tree, &out);
         /* the tree may hold a triangle more than once (spatial splits) */
         out.refs = tree->prim_count;
@@ -740,7 +861,6 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         rc = builder->build(&in, &out);
     }
     double t1 = now_seconds();
-    free(in_geoms);
     if (rc != 0)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
@@ -753,22 +873,18 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         layout->release(out.accel);
         return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
-
-    scene_drop_accel(s);
-    s->pinned = pinned;
-    s->pinned_count = pinned_count;
-    s->accel = out.accel;
-    s->layout = layout;
-    s->builder = tree ? "tree" : builder->name;
-    s->stats = out;
-    s->build_seconds = t1 - t0;
-    remember_built(s);
-    s->intersect1 = find_kernel(bk, layout->id, RTK_QUERY_INTERSECT)->fn.intersect1;
-    s->occluded1 = find_kernel(bk, layout->id, RTK_QUERY_OCCLUDED)->fn.occluded1;
-    for (int w = 0; w < 3; w++) {
-        s->packet[0][w] = find_packet_kernel(bk, layout->id, RTK_QUERY_INTERSECT, packet_widths[w]);
-        s->packet[1][w] = find_packet_kernel(bk, layout->id, RTK_QUERY_OCCLUDED, packet_widths[w]);
+    accel_ref *ref = make_ref(bk, layout, out.accel, &out);
+    if (!ref) {
+        unpin_buffers(pinned, pinned_count);
+        layout->release(out.accel);
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
+    ref->pinned = pinned;
+    ref->pinned_count = pinned_count;
+    *ref_out = ref;
+    *out_io = out;
+    *builder_name = tree ? "tree" : builder->name;
+    *seconds = t1 - t0;
     if (out.prims_skipped)
         rtk_log(dev, 1, "scene: %llu triangles with NaN or infinite vertices left out (never hit)",
                 (unsigned long long)out.prims_skipped);
@@ -777,9 +893,208 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
                 (unsigned long long)out.prims_degenerate);
     rtk_log(dev, 2, "scene: %s/%s on %s: %llu triangles, %llu nodes, %llu leaves, depth %u, %.1f bytes/triangle, "
             "SAH %.2f, %.3f s on %u thread%s",
-            s->builder, layout->name, bk->name, (unsigned long long)out.prims, (unsigned long long)out.nodes,
+            *builder_name, layout->name, bk->name, (unsigned long long)out.prims, (unsigned long long)out.nodes,
             (unsigned long long)out.leaves, out.depth, out.prims ? (double)out.bytes / (double)out.prims : 0.0,
-            out.sah_cost, s->build_seconds, out.threads ? out.threads : 1, out.threads > 1 ? "s" : "");
+            out.sah_cost, *seconds, out.threads ? out.threads : 1, out.threads > 1 ? "s" : "");
+    return RTK_OK;
+
+}
+
+static const rtk_objects_entry *find_objects(const rtk_backend_desc *d)
+{
+    if (d->struct_size < offsetof(rtk_backend_desc, objects) + sizeof d->objects || !d->objects ||
+        !d->objects[0].layout)
+        return NULL;
+    return d->objects;
+}
+
+/* The box of lower/upper mapped by the row-major 3x4 m, rounded outwards
+ * and padded for the rounding of rays taken into the object's space; an
+ * inverted box for an empty one. */
+static void world_box(const float *m, const float lower[3], const float upper[3], float lo[3], float hi[3])
+{
+    if (!(lower[0] <= upper[0] && lower[1] <= upper[1] && lower[2] <= upper[2])) {
+        for (int k = 0; k < 3; k++) {
+            lo[k] = INFINITY;
+            hi[k] = -INFINITY;
+        }
+        return;
+    }
+    double dlo[3] = {INFINITY, INFINITY, INFINITY}, dhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    for (int c = 0; c < 8; c++) {
+        const double p[3] = {c & 1 ? upper[0] : lower[0], c & 2 ? upper[1] : lower[1], c & 4 ? upper[2] : lower[2]};
+        for (int k = 0; k < 3; k++) {
+            const double v = (double)m[4 * k] * p[0] + (double)m[4 * k + 1] * p[1] + (double)m[4 * k + 2] * p[2] +
+                             (double)m[4 * k + 3];
+            dlo[k] = v < dlo[k] ? v : dlo[k];
+            dhi[k] = v > dhi[k] ? v : dhi[k];
+        }
+    }
+    for (int k = 0; k < 3; k++) {
+        const double mag = fmax(fmax(fabs(dlo[k]), fabs(dhi[k])), dhi[k] - dlo[k]);
+        const double pad = mag * 0x1p-18 + 1e-30;
+        lo[k] = (float)(dlo[k] - pad);
+        hi[k] = (float)(dhi[k] + pad);
+        if ((double)lo[k] > dlo[k] - pad)
+            lo[k] = nextafterf(lo[k], -INFINITY);
+        if ((double)hi[k] < dhi[k] + pad)
+            hi[k] = nextafterf(hi[k], INFINITY);
+    }
+}
+
+/* The top level of a scene with ni instances: over the instanced scenes'
+ * trees and `own` (the scene's own triangles' tree, NULL when it has none,
+ * taken over here whatever happens). */
+static rtk_error commit_objects(rtk_scene s, accel_ref *own, const rtk_build_output *own_out, double own_seconds,
+                                uint32_t ni, const char *fn)
+{
+    rtk_device dev = s->device;
+    const rtk_backend_desc *bk = dev->backend;
+    const rtk_objects_entry *oe = find_objects(bk);
+    const rtk_layout_entry *layout = oe ? rtk_backend_find_layout(bk, oe->layout) : NULL;
+    if (!layout || !oe->build) {
+        accel_ref_release(own);
+        return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot trace instances (it predates them)",
+                        fn, bk->name);
+    }
+    const uint32_t count = ni + (own != NULL);
+    rtk_build_object *objs = calloc(count, sizeof *objs);
+    accel_ref **children = calloc(count, sizeof *children);
+    if (!objs || !children) {
+        free(objs);
+        free(children);
+        accel_ref_release(own);
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+    }
+    uint32_t k = 0, depth = 0;
+    if (own) {
+        objs[k] = (rtk_build_object){.accel = own->accel, .intersect1 = own->intersect1, .occluded1 = own->occluded1,
+                                     .inst_id = RTK_INVALID_GEOMETRY_ID, .flags = RTK_BUILD_OBJECT_IDENTITY};
+        memcpy(objs[k].world_to_object, identity_3x4, sizeof identity_3x4);
+        memcpy(objs[k].lower, own->lower, sizeof own->lower);
+        memcpy(objs[k].upper, own->upper, sizeof own->upper);
+        children[k++] = own;
+    }
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (!g || !g->enabled || g->type != RTK_GEOMETRY_TYPE_INSTANCE)
+            continue;
+        accel_ref *c = g->instanced->ref;
+        atomic_fetch_add(&c->refs, 1);
+        objs[k] = (rtk_build_object){.accel = c->accel, .intersect1 = c->intersect1, .occluded1 = c->occluded1,
+                                     .inst_id = i};
+        memcpy(objs[k].world_to_object, g->inv, sizeof g->inv);
+        world_box(g->xfm, c->lower, c->upper, objs[k].lower, objs[k].upper);
+        children[k++] = c;
+        depth = c->depth + 1 > depth ? c->depth + 1 : depth;
+    }
+    rtk_build_input in = build_input(s, NULL, 0, layout->id, NULL);
+    in.object_count = count;
+    in.objects = objs;
+    rtk_build_output out = {.struct_size = sizeof out};
+    const double t0 = now_seconds();
+    const int rc = oe->build(&in, &out);
+    const double t1 = now_seconds();
+    free(objs);
+    accel_ref *top = rc ? NULL : make_ref(bk, layout, out.accel, &out);
+    if (!top) {
+        if (!rc)
+            layout->release(out.accel);
+        for (uint32_t c = 0; c < k; c++)
+            accel_ref_release(children[c]);
+        free(children);
+        return rc ? rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+                             "%s: the top level's build failed: %s", fn, out.message[0] ? out.message : "no reason given")
+                  : rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+    }
+    top->children = children;
+    top->child_count = k;
+    top->depth = depth;
+    install(s, top, &out, "objects", own_seconds + (t1 - t0));
+    s->instances = ni;
+    s->own_stats = own ? *own_out : (rtk_build_output){0};
+    rtk_log(dev, 2, "scene: two levels on %s: %u instances%s, %llu top-level nodes, depth %u, %.3f s", bk->name, ni,
+            own ? " and the scene's own triangles" : "", (unsigned long long)out.nodes, out.depth,
+            s->build_seconds);
+    return RTK_OK;
+}
+
+/* rtk_scene_commit (tree == NULL) and rtk_scene_commit_bvh: fn names the
+ * entry point in messages. */
+static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
+{
+    rtk_device dev = s->device;
+
+    /* A refit keeps the indices, checked at the last commit: in range still
+     * unless the vertex buffer shrank. */
+    const int refit = !tree && refit_serves(s);
+    size_t n = 0;
+    uint32_t ni = 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (!g)
+            continue;
+        if (!g->committed)
+            return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
+                            "%s: geometry %u is attached but not committed", fn, i);
+        if (!g->enabled)
+            continue;
+        if (g->type == RTK_GEOMETRY_TYPE_INSTANCE) {
+            const accel_ref *c = g->instanced->ref;
+            if (!c)
+                return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
+                                "%s: geometry %u instances a scene that was never committed", fn, i);
+            if (c->depth + 1 > RTK_MAX_INSTANCE_DEPTH)
+                return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
+                                "%s: geometry %u nests instances deeper than RTK_MAX_INSTANCE_DEPTH (%d)", fn, i,
+                                RTK_MAX_INSTANCE_DEPTH);
+            ni++;
+            continue;
+        }
+        rtk_error err = refit && g->vertex.count >= s->built[i].vertex_count ? RTK_OK : check_indices(s, i, g, fn);
+        if (err)
+            return err;
+        n++;
+    }
+    if (ni && tree)
+        return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: a scene with instances cannot take a loaded tree", fn);
+    rtk_build_geometry *in_geoms = calloc(n ? n : 1, sizeof *in_geoms);
+    if (!in_geoms)
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+    n = 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (!g || !g->enabled || g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
+            continue;
+        in_geoms[n++] = (rtk_build_geometry){
+            .vertices = g->vertex.data,
+            .vertex_stride = g->vertex.stride,
+            .vertex_count = g->vertex.count,
+            .indices = g->index.data,
+            .index_stride = g->index.stride,
+            .prim_count = g->index.count,
+            .geom_id = i,
+            .flags = g->quality == RTK_BUILD_QUALITY_REFIT ? RTK_BUILD_GEOMETRY_DEFORMS : 0,
+        };
+    }
+    rtk_error err;
+    if (refit && try_refit(s, in_geoms, n, fn, &err)) {
+        free(in_geoms);
+        return err;
+    }
+    /* the scene's own triangles: all of it without instances, else (when
+     * it has any) one object of its top level */
+    accel_ref *own = NULL;
+    rtk_build_output own_out = {.struct_size = sizeof own_out};
+    const char *own_builder = NULL;
+    double own_seconds = 0.0;
+    err = !ni || n ? build_triangles(s, in_geoms, n, tree, fn, &own, &own_out, &own_builder, &own_seconds) : RTK_OK;
+    free(in_geoms);
+    if (err)
+        return err;
+    if (ni)
+        return commit_objects(s, own, &own_out, own_seconds, ni, fn);
+    install(s, own, &own_out, own_builder, own_seconds);
     return RTK_OK;
 }
 
@@ -843,14 +1158,16 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     info->quality = s->quality;
     info->builder = s->builder;
     info->layout = s->layout->name;
-    info->triangles = o->prims;
-    info->triangles_skipped = o->prims_skipped;
-    info->triangles_degenerate = o->prims_degenerate;
+    /* with instances: the triangles and bytes of the scene's own tree too */
+    const rtk_build_output *tris = s->instances ? &s->own_stats : o;
+    info->triangles = tris->prims;
+    info->triangles_skipped = tris->prims_skipped;
+    info->triangles_degenerate = tris->prims_degenerate;
     info->nodes = o->nodes;
     info->leaves = o->leaves;
     info->depth = o->depth;
-    info->bytes = o->bytes;
-    info->bytes_per_triangle = o->prims ? (double)o->bytes / (double)o->prims : 0.0;
+    info->bytes = o->bytes + (s->instances ? s->own_stats.bytes : 0);
+    info->bytes_per_triangle = tris->prims ? (double)info->bytes / (double)tris->prims : 0.0;
     info->build_seconds = s->build_seconds;
     info->sah_cost = o->sah_cost;
     memcpy(info->bounds_lower, o->lower, sizeof o->lower);
@@ -861,9 +1178,11 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     if (keep >= offsetof(rtk_scene_info, build_threads) + sizeof info->build_threads)
         info->build_threads = o->threads ? o->threads : 1;
     if (keep >= offsetof(rtk_scene_info, references) + sizeof info->references)
-        info->references = o->refs ? o->refs : o->prims;
+        info->references = tris->refs ? tris->refs : tris->prims;
     if (keep >= offsetof(rtk_scene_info, refits) + sizeof info->refits)
         info->refits = s->refits;
+    if (keep >= offsetof(rtk_scene_info, instances) + sizeof info->instances)
+        info->instances = s->instances;
     return RTK_OK;
 }
 

@@ -73,6 +73,9 @@ static const rtk_layout_entry layouts[] = {
     {.id = RTK_LAYOUT_BVH4_TRIANGLE4, .scene_flags = 0, .name = "bvh4.triangle4", .release = RTK_SYM(rtk_bvh4_release)},
     {.id = RTK_LAYOUT_BVH4_TRIANGLE4I, .scene_flags = RTK_SCENE_FLAG_COMPACT, .name = "bvh4.triangle4i",
      .release = RTK_SYM(rtk_bvh4_release)},
+    /* the top level of scenes with instances (objects.c): built by the
+     * objects entry below, never by a triangle builder */
+    {.id = RTK_LAYOUT_BVH4_OBJECT, .scene_flags = 0, .name = "bvh4.object", .release = RTK_SYM(rtk_objects_release)},
     {0},
 };
 
@@ -126,6 +129,10 @@ static const rtk_kernel_entry kernels[] = {
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 8,
      .fn.occludedN = RTK_SYM(rtk_bvh4i_occluded8)},
 #endif
+    {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_objects_intersect1)},
+    {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_objects_occluded1)},
     {0},
 };
 
@@ -151,6 +158,11 @@ static const rtk_layout_refit_entry layout_refit[] = {
     {0},
 };
 
+static const rtk_objects_entry objects[] = {
+    {.layout = RTK_LAYOUT_BVH4_OBJECT, .build = RTK_SYM(rtk_build_objects)},
+    {0},
+};
+
 static const rtk_backend_desc desc = {
     .struct_size = sizeof(rtk_backend_desc),
     .name = RTK_STR(RTK_BACKEND_NAME),
@@ -159,6 +171,7 @@ static const rtk_backend_desc desc = {
     .kernels = kernels,
     .layout_io = layout_io,
     .layout_refit = layout_refit,
+    .objects = objects,
 };
 
 #define HEADER_SYM RTK_CAT(RTK_CAT(rtk_backend_, RTK_BACKEND_NAME), _header)

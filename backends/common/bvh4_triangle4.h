@@ -107,7 +107,7 @@ typedef struct rtk_leaf_geometry {
 } rtk_leaf_geometry;
 
 struct rtk_accel {
-    uint32_t layout; /* RTK_LAYOUT_BVH4_TRIANGLE4, _BVH8_TRIANGLE4 or _BVH4_TRIANGLE4I */
+    uint32_t layout; /* RTK_LAYOUT_BVH4_TRIANGLE4, _BVH8_TRIANGLE4, _BVH4_TRIANGLE4I or _BVH4_OBJECT */
     uint32_t root;   /* a child reference */
     void *nodes;     /* rtk_bvh4_node or rtk_bvh8_node, by layout */
     rtk_triangle4 *tris;   /* the leaf blocks of the triangle4 layouts, else NULL */
@@ -115,6 +115,9 @@ struct rtk_accel {
     rtk_leaf_geometry *geoms; /* bvh4.triangle4i: one per geometry in the build input */
     uint64_t node_count, leaf_count;
     size_t nodes_mapped, tris_mapped; /* bytes mapped for the node and leaf arrays (page-rounded) */
+    /* bvh4.object (objects.c): the objects in leaf order, else NULL */
+    struct rtk_build_object *objects;
+    uint64_t object_count;
 };
 
 #endif

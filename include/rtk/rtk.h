@@ -308,6 +308,12 @@ typedef struct rtk_scene_info {
      * refitted it (RTK_BUILD_QUALITY_REFIT) instead of building; 0 when
      * the last commit built it.  build_seconds is then the refit's time. */
     uint32_t refits;
+    /* Added after rtk 0.1.0: instances in the scene's top level (0: a
+     * one-level scene).  A scene with instances reports its top level in
+     * layout ("bvh4.object"), builder ("objects"), nodes, leaves, depth,
+     * sah_cost and bounds, its own triangles' tree in triangles and
+     * triangles_*, and both in bytes. */
+    uint64_t instances;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -374,6 +380,9 @@ RTK_API rtk_error rtk_scene_commit_bvh(rtk_scene scene, const rtk_bvh *bvh);
 /* ---- geometry --------------------------------------------------------------*/
 typedef enum rtk_geometry_type {
     RTK_GEOMETRY_TYPE_TRIANGLE = 0,
+    /* Added after rtk 0.1.0: another committed scene, placed by an affine
+     * transform (rtk_geometry_set_instanced_scene, _set_transform). */
+    RTK_GEOMETRY_TYPE_INSTANCE = 1,
 } rtk_geometry_type;
 
 typedef enum rtk_buffer_type {
@@ -408,9 +417,49 @@ RTK_API rtk_error rtk_geometry_enable(rtk_geometry geometry);
 RTK_API rtk_error rtk_geometry_disable(rtk_geometry geometry);
 RTK_API rtk_error rtk_geometry_set_user_data(rtk_geometry geometry, void *user);
 RTK_API void *rtk_geometry_get_user_data(rtk_geometry geometry);
-/* Checks that the buffers are set and consistent; a scene commit uses only
+/* Checks that the buffers are set and consistent (an instance: that it has
+ * a scene and an invertible, finite transform); a scene commit uses only
  * committed geometry. */
 RTK_API rtk_error rtk_geometry_commit(rtk_geometry geometry);
+
+/* ---- instances (added after rtk 0.1.0) --------------------------------------
+ * An instance geometry places a scene of the same device in the scene it is
+ * attached to, by an affine transform from the instanced scene's space (its
+ * "object space") to the instancing scene's.  A scene holding instances is
+ * built as two levels: a top-level tree over its instances (and over one
+ * tree of its own triangles, if it has any), each instance's rays traced
+ * through the instanced scene's own tree.  Instances of scenes that hold
+ * instances work too, up to RTK_MAX_INSTANCE_DEPTH levels.
+ *
+ * A hit inside an instance reports, as Embree does: instID = the geomID of
+ * the instance in the scene traced (the outermost one, when instances are
+ * nested), geomID and primID = the triangle's in the innermost scene, Ng in
+ * that scene's object space (transform it with the inverse transpose of
+ * the instance's transform for a world-space normal), and t along the
+ * ray as given (the transform keeps the ray's parametrisation).  Hits in
+ * the scene's own triangles report instID = RTK_INVALID_GEOMETRY_ID.
+ *
+ * The instancing scene uses the instanced scene's tree as it was at the
+ * instancing scene's commit (it holds a reference to it, so the instanced
+ * scene may be committed again or released meanwhile); commit the
+ * instancing scene again to see the instanced scene's changes.  A ray that
+ * the transform takes out of the finite floats misses that instance. */
+#define RTK_MAX_INSTANCE_DEPTH 8
+
+typedef enum rtk_format {
+    RTK_FORMAT_FLOAT3X4_ROW_MAJOR = 1,    /* m[0..3] the first row (x' = m0 x + m1 y + m2 z + m3), ... */
+    RTK_FORMAT_FLOAT3X4_COLUMN_MAJOR = 2, /* m[0..2] the first column, ..., m[9..11] the translation */
+    RTK_FORMAT_FLOAT4X4_COLUMN_MAJOR = 3, /* the same with a fourth row (ignored; OpenGL's layout) */
+} rtk_format;
+
+/* The scene an instance geometry places (retained; NULL lets it go).
+ * RTK_ERROR_INVALID_OPERATION on a geometry that is not an instance,
+ * RTK_ERROR_INVALID_ARGUMENT for a scene of another device. */
+RTK_API rtk_error rtk_geometry_set_instanced_scene(rtk_geometry geometry, rtk_scene scene);
+/* The instance's transform from the instanced scene's space to the
+ * instancing scene's (default: the identity).  Non-finite values are
+ * refused; a singular transform is refused by rtk_geometry_commit. */
+RTK_API rtk_error rtk_geometry_set_transform(rtk_geometry geometry, rtk_format format, const float *xfm);
 
 /* ---- rays ------------------------------------------------------------------*/
 typedef struct rtk_ray {
@@ -429,7 +478,7 @@ typedef struct rtk_hit {
     float u, v;
     uint32_t primID;
     uint32_t geomID;
-    uint32_t instID; /* RTK_INVALID_GEOMETRY_ID: no instancing yet */
+    uint32_t instID; /* the instance hit (see rtk_geometry_set_instanced_scene), else RTK_INVALID_GEOMETRY_ID */
 } rtk_hit;
 
 typedef struct rtk_rayhit {

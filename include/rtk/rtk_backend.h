@@ -87,6 +87,30 @@ typedef struct rtk_build_geometry {
     uint32_t flags; /* RTK_BUILD_GEOMETRY_* (was reserved, 0, before rtk 0.1.0's refit) */
 } rtk_build_geometry;
 
+RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit));
+RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray));
+
+/* One object of a two-level scene (a scene with instances): an accel this
+ * backend built before (another scene's, or the scene's own triangles'),
+ * placed by an affine map.  Its kernels are called with the ray taken into
+ * the object's space: org' = M org + t, dir' = M dir, where world_to_object
+ * is the row-major 3x4 [M | t]; t along the ray is the same in both spaces.
+ * A hit inside gets hit.instID = inst_id unless that is
+ * RTK_INVALID_GEOMETRY_ID (the scene's own triangles); the normal stays in
+ * the object's space, as Embree reports it. */
+typedef struct rtk_build_object {
+    const rtk_accel *accel;
+    rtk_intersect1_fn intersect1;
+    rtk_occluded1_fn occluded1;
+    float lower[3], upper[3];  /* the object's box in the scene's space (conservative, from the core) */
+    float world_to_object[12]; /* row-major 3x4 [M | t] */
+    uint32_t inst_id;
+    uint32_t flags;            /* RTK_BUILD_OBJECT_* */
+} rtk_build_object;
+
+/* world_to_object is the identity: the ray goes in unchanged. */
+#define RTK_BUILD_OBJECT_IDENTITY 1u
+
 /* The geometry deforms (RTK_BUILD_QUALITY_REFIT): builders keep its
  * zero-area triangles in the tree, as leaf lanes that can never be hit, so
  * that a refit can give them their area back without a build. */
@@ -105,6 +129,12 @@ typedef struct rtk_build_input {
      * NULL or absent: everything on the calling thread.  The builder's
      * output must not depend on it. */
     const rtk_task_system *tasks;
+    /* Added after rtk 0.1.0 (the same way): the objects of a two-level
+     * scene, for the objects builder (rtk_objects_entry); geometry_count is
+     * then 0.  Objects with an empty or non-finite box are left out. */
+    uint32_t object_count;
+    uint32_t reserved2;
+    const rtk_build_object *objects;
 } rtk_build_input;
 
 typedef struct rtk_build_output {
@@ -131,8 +161,6 @@ typedef struct rtk_build_output {
 
 RTK_BACKEND_FN(int, rtk_build, (const rtk_build_input *in, rtk_build_output *out));
 RTK_BACKEND_FN(void, rtk_accel_release, (rtk_accel *accel));
-RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit));
-RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray));
 /* Packet kernels of width N (4, 8 or 16): `packet` is an rtk_rayhitN
  * (intersect) or rtk_rayN (occluded), aligned to 4*N bytes; `active` holds N
  * int32 lanes, -1 where the lane is active and its ray valid (the core has
@@ -152,7 +180,8 @@ enum rtk_query_kind {
 #define RTK_LAYOUT_LIST(X)                                                                                             \
     X(RTK_LAYOUT_BVH4_TRIANGLE4, 1, "bvh4.triangle4")                                                                  \
     X(RTK_LAYOUT_BVH8_TRIANGLE4, 2, "bvh8.triangle4")                                                                  \
-    X(RTK_LAYOUT_BVH4_TRIANGLE4I, 3, "bvh4.triangle4i")
+    X(RTK_LAYOUT_BVH4_TRIANGLE4I, 3, "bvh4.triangle4i")                                                                \
+    X(RTK_LAYOUT_BVH4_OBJECT, 4, "bvh4.object")
 enum rtk_layout_id {
     RTK_LAYOUT_NONE = 0,
 #define RTK_X_(id, value, text) id = value,
@@ -235,6 +264,16 @@ typedef struct rtk_layout_refit_entry {
     rtk_accel_refit_fn refit;
 } rtk_layout_refit_entry;
 
+/* The top level of two-level scenes: a builder over rtk_build_input.objects
+ * producing `layout` (which has its width-1 kernels in the kernel table;
+ * the core traces packets through it ray by ray).  Not in the builders
+ * table: a triangle scene never gets this layout. */
+typedef struct rtk_objects_entry {
+    uint32_t layout;
+    uint32_t reserved;
+    rtk_build_fn build;
+} rtk_objects_entry;
+
 typedef struct rtk_backend_desc {
     uint32_t struct_size;
     uint32_t reserved;
@@ -248,6 +287,9 @@ typedef struct rtk_backend_desc {
     /* Added after rtk 0.1.0 (the same way; NULL or absent = no refit, the
      * core rebuilds instead). */
     const rtk_layout_refit_entry *layout_refit;
+    /* Added after rtk 0.1.0 (the same way; NULL or absent = no instances:
+     * the core refuses to commit a scene that has some). */
+    const rtk_objects_entry *objects;
 } rtk_backend_desc;
 
 #define RTK_BACKEND_EXPORT __attribute__((visibility("default")))

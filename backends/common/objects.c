@@ -1,0 +1,476 @@
+/*
+ * Layout "bvh4.object": the top level of a two-level scene (a scene with
+ * instances).  A 4-wide BVH of rtk_bvh4_node over objects (rtk_backend.h,
+ * rtk_build_object): other accels of this backend, each placed by an affine
+ * map.  A leaf reference (rtk_leaf_ref) names up to four consecutive
+ * objects, as it names up to four triangle blocks elsewhere.
+ *
+ * The builder is a binned SAH builder over the objects' boxes, on the
+ * calling thread (scenes hold a few objects to some hundred thousands; the
+ * objects' own trees are where the triangles are).  The traversal tests a
+ * node's four boxes, visits the children nearest first and calls each
+ * object's own kernel with the ray taken into the object's space.  Both are
+ * deterministic: the same objects give the same tree, byte for byte.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "backend_common.h"
+#include "build_common.h"
+#include "bvh4_triangle4.h"
+#include "kernels.h"
+
+#define OBJ_BINS 16
+#define OBJ_LEAF_MAX RTK_LEAF_MAX_BLOCKS
+/* Below this depth splits are by SAH; past it by the median, which halves
+ * the objects at least once per level, so no tree is deeper than
+ * 32 + 29 < RTK_BVH4_MAX_DEPTH levels (fewer than 2^29 objects). */
+#define OBJ_SAH_DEPTH 32
+
+typedef struct obj_ref {
+    float lo[3], hi[3], c[3]; /* box and twice its centre */
+    uint32_t index;           /* into in->objects */
+} obj_ref;
+
+typedef struct obj_build {
+    obj_ref *refs;
+    rtk_bvh4_node *nodes;
+    uint64_t node_count, node_cap;
+    rtk_build_object *objects; /* in leaf order */
+    uint64_t object_count;
+    const rtk_build_input *in;
+    uint32_t max_depth;
+    double sah; /* sum over nodes of their area (relative to the root's, at the end) */
+} obj_build;
+
+static float half_area(const float lo[3], const float hi[3])
+{
+    const float d[3] = {hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]};
+    return d[0] >= 0.0f ? d[0] * d[1] + d[1] * d[2] + d[2] * d[0] : 0.0f;
+}
+
+static void grow(float lo[3], float hi[3], const float blo[3], const float bhi[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = blo[k] < lo[k] ? blo[k] : lo[k];
+        hi[k] = bhi[k] > hi[k] ? bhi[k] : hi[k];
+    }
+}
+
+static void range_bounds(const obj_ref *r, size_t n, float lo[3], float hi[3], float clo[3], float chi[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = clo[k] = INFINITY;
+        hi[k] = chi[k] = -INFINITY;
+    }
+    for (size_t i = 0; i < n; i++) {
+        grow(lo, hi, r[i].lo, r[i].hi);
+        grow(clo, chi, r[i].c, r[i].c);
+    }
+}
+
+static int by_centre(const obj_ref *x, const obj_ref *y, int axis)
+{
+    const float p = x->c[axis], q = y->c[axis];
+    return p < q ? -1 : p > q ? 1 : (x->index > y->index) - (x->index < y->index);
+}
+static int by_centre_x(const void *a, const void *b) { return by_centre(a, b, 0); }
+static int by_centre_y(const void *a, const void *b) { return by_centre(a, b, 1); }
+static int by_centre_z(const void *a, const void *b) { return by_centre(a, b, 2); }
+
+static int obj_bin(const obj_ref *r, int axis, float lo, float scale)
+{
+    const int b = (int)((r->c[axis] - lo) * scale);
+    return b < 0 ? 0 : b >= OBJ_BINS ? OBJ_BINS - 1 : b;
+}
+
+/* Splits r[0, n) in two non-empty parts; returns the size of the first. */
+static size_t split(obj_ref *r, size_t n, uint32_t depth)
+{
+    float lo[3], hi[3], clo[3], chi[3];
+    range_bounds(r, n, lo, hi, clo, chi);
+    int axis = 0;
+    for (int k = 1; k < 3; k++)
+        if (chi[k] - clo[k] > chi[axis] - clo[axis])
+            axis = k;
+    const float extent = chi[axis] - clo[axis];
+    if (depth < OBJ_SAH_DEPTH && extent > 0.0f) {
+        /* binned SAH along every axis with an extent; the cheapest wins */
+        float best_cost = INFINITY;
+        int best_axis = -1, best_bin = 0;
+        for (int a = 0; a < 3; a++) {
+            const float ext = chi[a] - clo[a];
+            if (!(ext > 0.0f))
+                continue;
+            const float scale = (float)OBJ_BINS / ext * 0.99999f;
+            size_t count[OBJ_BINS] = {0};
+            float blo[OBJ_BINS][3], bhi[OBJ_BINS][3];
+            for (int b = 0; b < OBJ_BINS; b++)
+                for (int k = 0; k < 3; k++) {
+                    blo[b][k] = INFINITY;
+                    bhi[b][k] = -INFINITY;
+                }
+            for (size_t i = 0; i < n; i++) {
+                const int b = obj_bin(&r[i], a, clo[a], scale);
+                count[b]++;
+                grow(blo[b], bhi[b], r[i].lo, r[i].hi);
+            }
+            float rlo[3] = {INFINITY, INFINITY, INFINITY}, rhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            float right_area[OBJ_BINS];
+            size_t right_count[OBJ_BINS];
+            size_t acc = 0;
+            for (int b = OBJ_BINS - 1; b > 0; b--) {
+                grow(rlo, rhi, blo[b], bhi[b]);
+                acc += count[b];
+                right_area[b] = half_area(rlo, rhi);
+                right_count[b] = acc;
+            }
+            float llo[3] = {INFINITY, INFINITY, INFINITY}, lhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            size_t left = 0;
+            for (int b = 1; b < OBJ_BINS; b++) {
+                grow(llo, lhi, blo[b - 1], bhi[b - 1]);
+                left += count[b - 1];
+                if (!left || !right_count[b])
+                    continue;
+                const float cost = half_area(llo, lhi) * (float)left + right_area[b] * (float)right_count[b];
+                if (cost < best_cost) {
+                    best_cost = cost;
+                    best_axis = a;
+                    best_bin = b;
+                }
+            }
+        }
+        if (best_axis >= 0) {
+            /* the same bin mapping as above decides the side */
+            const float scale = (float)OBJ_BINS / (chi[best_axis] - clo[best_axis]) * 0.99999f;
+            size_t i = 0, j = n;
+            while (i < j) {
+                if (obj_bin(&r[i], best_axis, clo[best_axis], scale) < best_bin) {
+                    i++;
+                } else {
+                    const obj_ref t = r[i];
+                    r[i] = r[--j];
+                    r[j] = t;
+                }
+            }
+            if (i > 0 && i < n)
+                return i;
+        }
+    }
+    /* the median along the widest axis (equal centres: by index) */
+    qsort(r, n, sizeof *r, axis == 0 ? by_centre_x : axis == 1 ? by_centre_y : by_centre_z);
+    return n / 2;
+}
+
+static int64_t new_node(obj_build *b)
+{
+    if (b->node_count == b->node_cap) {
+        const uint64_t cap = b->node_cap ? 2 * b->node_cap : 16;
+        void *p = realloc(b->nodes, cap * sizeof *b->nodes);
+        if (!p)
+            return -1;
+        b->nodes = p;
+        b->node_cap = cap;
+    }
+    return (int64_t)b->node_count++;
+}
+
+/* The subtree over r[0, n) (n >= 1); its reference in *ref, its box in
+ * lo/hi.  0 when out of memory. */
+static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint32_t *ref, float lo[3], float hi[3])
+{
+    float clo[3], chi[3];
+    range_bounds(r, n, lo, hi, clo, chi);
+    if (depth + 1 > b->max_depth)
+        b->max_depth = depth + 1;
+    if (n <= OBJ_LEAF_MAX) {
+        const uint64_t first = b->object_count;
+        for (size_t i = 0; i < n; i++)
+            b->objects[b->object_count++] = b->in->objects[r[i].index];
+        *ref = rtk_leaf_ref((uint32_t)first, (uint32_t)n);
+        return 1;
+    }
+    /* up to four children: split the range, then its largest parts */
+    size_t start[4] = {0}, size[4] = {n};
+    int nc = 1;
+    while (nc < 4) {
+        int widest = -1;
+        for (int c = 0; c < nc; c++)
+            if (size[c] > OBJ_LEAF_MAX && (widest < 0 || size[c] > size[widest]))
+                widest = c;
+        if (widest < 0)
+            break;
+        const size_t left = split(r + start[widest], size[widest], depth);
+        start[nc] = start[widest] + left;
+        size[nc] = size[widest] - left;
+        size[widest] = left;
+        nc++;
+    }
+    const int64_t index = new_node(b);
+    if (index < 0)
+        return 0;
+    b->sah += half_area(lo, hi);
+    box4 box[4];
+    uint32_t child[4];
+    for (int c = 0; c < nc; c++) {
+        float clo4[3], chi4[3];
+        if (!build_range(b, r + start[c], size[c], depth + 1, &child[c], clo4, chi4))
+            return 0;
+        box[c].lo = vf4_load((const float[4]){clo4[0], clo4[1], clo4[2], 0.0f});
+        box[c].hi = vf4_load((const float[4]){chi4[0], chi4[1], chi4[2], 0.0f});
+    }
+    const build bd = {.width = 4, .node_size = sizeof(rtk_bvh4_node)};
+    build_store_node(&bd, b->nodes, (uint64_t)index, box, child, nc);
+    *ref = (uint32_t)index;
+    return 1;
+}
+
+static int finite_box(const rtk_build_object *o)
+{
+    for (int k = 0; k < 3; k++)
+        if (!isfinite(o->lower[k]) || !isfinite(o->upper[k]) || !(o->lower[k] <= o->upper[k]))
+            return 0;
+    return 1;
+}
+
+int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
+{
+    if (in->struct_size < offsetof(rtk_build_input, objects) + sizeof in->objects ||
+        in->layout != RTK_LAYOUT_BVH4_OBJECT) {
+        build_set_message(out, "the objects builder needs a build input with objects, for layout bvh4.object");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+    if (in->object_count >= RTK_LEAF_INDEX_LIMIT) {
+        build_set_message(out, "too many objects for one top level");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+    obj_build b = {.in = in};
+    rtk_accel *accel = calloc(1, sizeof *accel);
+    b.refs = malloc((in->object_count ? in->object_count : 1) * sizeof *b.refs);
+    b.objects = malloc((in->object_count ? in->object_count : 1) * sizeof *b.objects);
+    if (!accel || !b.refs || !b.objects) {
+        free(accel);
+        free(b.refs);
+        free(b.objects);
+        build_set_message(out, "out of memory");
+        return RTK_ERROR_OUT_OF_MEMORY;
+    }
+    size_t n = 0;
+    for (uint32_t i = 0; i < in->object_count; i++) {
+        const rtk_build_object *o = &in->objects[i];
+        if (!finite_box(o) || !o->accel || !o->intersect1 || !o->occluded1)
+            continue;
+        obj_ref *r = &b.refs[n++];
+        for (int k = 0; k < 3; k++) {
+            r->lo[k] = o->lower[k];
+            r->hi[k] = o->upper[k];
+            r->c[k] = o->lower[k] + o->upper[k];
+        }
+        r->index = i;
+    }
+    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    accel->layout = RTK_LAYOUT_BVH4_OBJECT;
+    accel->root = RTK_BVH4_EMPTY;
+    if (n && !build_range(&b, b.refs, n, 0, &accel->root, lo, hi)) {
+        free(b.nodes);
+        free(b.refs);
+        free(b.objects);
+        free(accel);
+        build_set_message(out, "out of memory");
+        return RTK_ERROR_OUT_OF_MEMORY;
+    }
+    free(b.refs);
+    accel->nodes = b.nodes;
+    accel->node_count = b.node_count;
+    accel->objects = b.objects;
+    accel->object_count = b.object_count;
+    accel->leaf_count = 0;
+    out->accel = accel;
+    out->prims = b.object_count;
+    out->refs = b.object_count;
+    out->prims_skipped = in->object_count - b.object_count;
+    out->prims_degenerate = 0;
+    out->nodes = b.node_count;
+    uint64_t leaves = 0;
+    for (uint64_t i = 0; i < b.node_count; i++)
+        for (int c = 0; c < 4; c++)
+            leaves += b.nodes[i].child[c] != RTK_BVH4_EMPTY && (b.nodes[i].child[c] & RTK_BVH4_LEAF_BIT);
+    out->leaves = n && !b.node_count ? 1 : leaves;
+    out->depth = b.max_depth;
+    out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.object_count * sizeof(rtk_build_object);
+    const float root_area = half_area(lo, hi);
+    out->sah_cost = root_area > 0.0f ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
+    memcpy(out->lower, lo, sizeof lo);
+    memcpy(out->upper, hi, sizeof hi);
+    if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
+        out->threads = 1;
+    return 0;
+}
+
+void RTK_SYM(rtk_objects_release)(rtk_accel *accel)
+{
+    if (!accel)
+        return;
+    free(accel->nodes);
+    free(accel->objects);
+    free(accel);
+}
+
+/* ---- traversal ---- */
+
+typedef struct obj_ray {
+    float org[3], inv[3];
+} obj_ray;
+
+static void obj_ray_init(obj_ray *p, const rtk_ray *r)
+{
+    const float d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    p->org[0] = r->org_x;
+    p->org[1] = r->org_y;
+    p->org[2] = r->org_z;
+    for (int k = 0; k < 3; k++) {
+        /* as the triangle kernels do: no 0 * inf NaN in a slab test */
+        const float dk = fabsf(d[k]) < 1e-18f ? copysignf(1e-18f, d[k]) : d[k];
+        p->inv[k] = 1.0f / dk;
+    }
+}
+
+/* 1 + 2 * gamma(3): the far distances no smaller than the exact ones. */
+#define OBJ_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
+
+/* The children of n the ray enters within [tnear, tfar], nearest first, in
+ * ref[] and dist[]; returns how many. */
+static int node_children(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, uint32_t ref[4],
+                         float dist[4])
+{
+    const float *lo[3] = {n->lower_x, n->lower_y, n->lower_z}, *hi[3] = {n->upper_x, n->upper_y, n->upper_z};
+    int count = 0;
+    for (int c = 0; c < 4; c++) {
+        if (n->child[c] == RTK_BVH4_EMPTY)
+            continue;
+        float t0 = tnear, t1 = tfar;
+        for (int k = 0; k < 3; k++) {
+            float a = (lo[k][c] - p->org[k]) * p->inv[k], b = (hi[k][c] - p->org[k]) * p->inv[k];
+            if (a > b) {
+                const float t = a;
+                a = b;
+                b = t;
+            }
+            b *= OBJ_FAR_SCALE;
+            t0 = a > t0 ? a : t0;
+            t1 = b < t1 ? b : t1;
+        }
+        if (!(t0 <= t1))
+            continue;
+        int i = count++;
+        for (; i > 0 && dist[i - 1] > t0; i--) {
+            dist[i] = dist[i - 1];
+            ref[i] = ref[i - 1];
+        }
+        dist[i] = t0;
+        ref[i] = n->child[c];
+    }
+    return count;
+}
+
+/* The ray in the object's space, in `local`; 0 when it is not finite there
+ * (a transform that overflows it): the object is then missed. */
+static int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local)
+{
+    *local = *r;
+    if (o->flags & RTK_BUILD_OBJECT_IDENTITY)
+        return 1;
+    const float *m = o->world_to_object;
+    local->org_x = m[0] * r->org_x + m[1] * r->org_y + m[2] * r->org_z + m[3];
+    local->org_y = m[4] * r->org_x + m[5] * r->org_y + m[6] * r->org_z + m[7];
+    local->org_z = m[8] * r->org_x + m[9] * r->org_y + m[10] * r->org_z + m[11];
+    local->dir_x = m[0] * r->dir_x + m[1] * r->dir_y + m[2] * r->dir_z;
+    local->dir_y = m[4] * r->dir_x + m[5] * r->dir_y + m[6] * r->dir_z;
+    local->dir_z = m[8] * r->dir_x + m[9] * r->dir_y + m[10] * r->dir_z;
+    const float f = 0.0f * local->org_x + 0.0f * local->org_y + 0.0f * local->org_z + 0.0f * local->dir_x +
+                    0.0f * local->dir_y + 0.0f * local->dir_z;
+    return f == 0.0f;
+}
+
+#define OBJ_STACK (3 * RTK_BVH4_MAX_DEPTH + 4)
+
+void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    obj_ray p;
+    obj_ray_init(&p, &rh->ray);
+    const rtk_bvh4_node *nodes = accel->nodes;
+    uint32_t stack[OBJ_STACK];
+    float sdist[OBJ_STACK];
+    int sp = 0;
+    stack[sp] = accel->root;
+    sdist[sp++] = rh->ray.tnear;
+    while (sp) {
+        sp--;
+        if (sdist[sp] > rh->ray.tfar)
+            continue;
+        const uint32_t cur = stack[sp];
+        if (cur & RTK_BVH4_LEAF_BIT) {
+            const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+            for (uint32_t i = first; i < end; i++) {
+                const rtk_build_object *o = &accel->objects[i];
+                rtk_rayhit local;
+                if (!to_object(o, &rh->ray, &local.ray))
+                    continue;
+                local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                o->intersect1(o->accel, &local);
+                if (local.hit.geomID == RTK_INVALID_GEOMETRY_ID)
+                    continue;
+                rh->ray.tfar = local.ray.tfar;
+                rh->hit = local.hit;
+                if (o->inst_id != RTK_INVALID_GEOMETRY_ID)
+                    rh->hit.instID = o->inst_id;
+            }
+            continue;
+        }
+        uint32_t ref[4];
+        float dist[4];
+        const int nc = node_children(&nodes[cur], &p, rh->ray.tnear, rh->ray.tfar, ref, dist);
+        for (int c = nc - 1; c >= 0; c--) { /* the nearest on top */
+            stack[sp] = ref[c];
+            sdist[sp++] = dist[c];
+        }
+    }
+}
+
+void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    obj_ray p;
+    obj_ray_init(&p, ray);
+    const rtk_bvh4_node *nodes = accel->nodes;
+    uint32_t stack[OBJ_STACK];
+    int sp = 0;
+    stack[sp++] = accel->root;
+    while (sp) {
+        const uint32_t cur = stack[--sp];
+        if (cur & RTK_BVH4_LEAF_BIT) {
+            const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+            for (uint32_t i = first; i < end; i++) {
+                const rtk_build_object *o = &accel->objects[i];
+                rtk_ray local;
+                if (!to_object(o, ray, &local))
+                    continue;
+                o->occluded1(o->accel, &local);
+                if (local.tfar == -INFINITY) {
+                    ray->tfar = -INFINITY;
+                    return;
+                }
+            }
+            continue;
+        }
+        uint32_t ref[4];
+        float dist[4];
+        const int nc = node_children(&nodes[cur], &p, ray->tnear, ray->tfar, ref, dist);
+        for (int c = nc - 1; c >= 0; c--)
+            stack[sp++] = ref[c];
+    }
+}

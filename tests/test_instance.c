@@ -1,0 +1,598 @@
+/*
+ * Instances: scenes placed in other scenes by affine transforms, checked
+ * against a reference that transforms the triangles explicitly (in double
+ * precision) and intersects the world-space rays with them by brute force.
+ * Transforms with rotation, shear, large and small scale and large
+ * translation; nested instances (an instance of a scene of instances) with
+ * the outermost instID; a scene's own triangles beside its instances; every
+ * backend, single rays and packets; the snapshot semantics (an instanced
+ * scene committed again or released) and the errors.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "testlib.h"
+
+/* ---- a small procedural mesh: a bumpy sphere of 2 * R * R triangles ---- */
+#define R 24
+typedef struct mesh {
+    float *v;
+    uint32_t *idx;
+    size_t nv, nt;
+} mesh;
+static mesh ball, slab;
+
+static void make_ball(mesh *m)
+{
+    m->nv = (size_t)(R + 1) * (R + 1);
+    m->nt = (size_t)2 * R * R;
+    m->v = malloc(m->nv * 3 * sizeof *m->v);
+    m->idx = malloc(m->nt * 3 * sizeof *m->idx);
+    for (int j = 0; j <= R; j++)
+        for (int i = 0; i <= R; i++) {
+            const float th = 3.14159265f * (float)j / R, ph = 6.2831853f * (float)i / R;
+            const float r = 1.0f + 0.1f * sinf(5.0f * th) * cosf(3.0f * ph);
+            float *p = m->v + 3 * ((size_t)j * (R + 1) + i);
+            p[0] = r * sinf(th) * cosf(ph);
+            p[1] = r * sinf(th) * sinf(ph);
+            p[2] = r * cosf(th);
+        }
+    size_t t = 0;
+    for (int j = 0; j < R; j++)
+        for (int i = 0; i < R; i++) {
+            const uint32_t a = (uint32_t)(j * (R + 1) + i), b = a + 1, c = a + R + 1, d = c + 1;
+            uint32_t *q = m->idx + 3 * t;
+            q[0] = a, q[1] = b, q[2] = c, q[3] = b, q[4] = d, q[5] = c;
+            t += 2;
+        }
+}
+
+/* two big triangles: a floor */
+static void make_slab(mesh *m)
+{
+    static const float v[] = {-30, -3, -30, 30, -3, -30, 30, -3, 30, -30, -3, 30};
+    static const uint32_t idx[] = {0, 1, 2, 0, 2, 3};
+    m->nv = 4;
+    m->nt = 2;
+    m->v = malloc(sizeof v);
+    m->idx = malloc(sizeof idx);
+    memcpy(m->v, v, sizeof v);
+    memcpy(m->idx, idx, sizeof idx);
+}
+
+static int setup(void **state)
+{
+    (void)state;
+    make_ball(&ball);
+    make_slab(&slab);
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    free(ball.v);
+    free(ball.idx);
+    free(slab.v);
+    free(slab.idx);
+    return 0;
+}
+
+/* ---- transforms (row-major 3x4, object -> world) ---- */
+
+static void xfm_mul(const double *a, const double *b, double *out) /* out = a * b */
+{
+    double r[12];
+    for (int i = 0; i < 3; i++) {
+        for (int j = 0; j < 4; j++)
+            r[4 * i + j] = a[4 * i] * b[j] + a[4 * i + 1] * b[4 + j] + a[4 * i + 2] * b[8 + j];
+        r[4 * i + 3] += a[4 * i + 3];
+    }
+    memcpy(out, r, sizeof r);
+}
+
+static void xfm_apply(const double *m, const double p[3], double out[3])
+{
+    for (int i = 0; i < 3; i++)
+        out[i] = m[4 * i] * p[0] + m[4 * i + 1] * p[1] + m[4 * i + 2] * p[2] + m[4 * i + 3];
+}
+
+/* rotation about an axis by a, scale s (per axis), shear, then translation */
+static void xfm_make(double *m, double ax, double ay, double az, double a, const double s[3], double shear,
+                     const double t[3])
+{
+    const double n = sqrt(ax * ax + ay * ay + az * az);
+    ax /= n, ay /= n, az /= n;
+    const double c = cos(a), si = sin(a), C = 1 - c;
+    const double rot[12] = {c + ax * ax * C,      ax * ay * C - az * si, ax * az * C + ay * si, 0,
+                            ay * ax * C + az * si, c + ay * ay * C,      ay * az * C - ax * si, 0,
+                            az * ax * C - ay * si, az * ay * C + ax * si, c + az * az * C,      0};
+    const double sc[12] = {s[0], shear, 0, 0, 0, s[1], 0, 0, 0, 0, s[2], 0};
+    xfm_mul(rot, sc, m);
+    m[3] += t[0], m[7] += t[1], m[11] += t[2];
+}
+
+static void xfm_to_float(const double *m, float *f)
+{
+    for (int i = 0; i < 12; i++)
+        f[i] = (float)m[i];
+}
+
+static void xfm_from_float(const float *f, double *m)
+{
+    for (int i = 0; i < 12; i++)
+        m[i] = f[i];
+}
+
+/* ---- the reference: every triangle placed in world space ---- */
+
+typedef struct placed {
+    double v[3][3];     /* world space */
+    double n_obj[3];    /* the normal in the innermost object space (unnormalised) */
+    uint32_t inst, geom, prim;
+} placed;
+
+typedef struct reference {
+    placed *t;
+    size_t n, cap;
+} reference;
+
+static void ref_add_mesh(reference *r, const mesh *m, const double *xfm, uint32_t inst, uint32_t geom)
+{
+    for (size_t k = 0; k < m->nt; k++) {
+        if (r->n == r->cap) {
+            r->cap = r->cap ? 2 * r->cap : 1024;
+            r->t = realloc(r->t, r->cap * sizeof *r->t);
+        }
+        placed *p = &r->t[r->n++];
+        double o[3][3];
+        for (int c = 0; c < 3; c++) {
+            const float *v = m->v + 3 * m->idx[3 * k + c];
+            for (int d = 0; d < 3; d++)
+                o[c][d] = v[d];
+            xfm_apply(xfm, o[c], p->v[c]);
+        }
+        const double e1[3] = {o[1][0] - o[0][0], o[1][1] - o[0][1], o[1][2] - o[0][2]};
+        const double e2[3] = {o[2][0] - o[0][0], o[2][1] - o[0][1], o[2][2] - o[0][2]};
+        p->n_obj[0] = e1[1] * e2[2] - e1[2] * e2[1];
+        p->n_obj[1] = e1[2] * e2[0] - e1[0] * e2[2];
+        p->n_obj[2] = e1[0] * e2[1] - e1[1] * e2[0];
+        p->inst = inst;
+        p->geom = geom;
+        p->prim = (uint32_t)k;
+    }
+}
+
+/* Moeller-Trumbore in double: t, and the smallest barycentric (how far the
+ * hit is from an edge); 0 when missed. */
+static int tri_hit(const placed *p, const double o[3], const double d[3], double *t, double *margin)
+{
+    const double *v0 = p->v[0];
+    const double e1[3] = {p->v[1][0] - v0[0], p->v[1][1] - v0[1], p->v[1][2] - v0[2]};
+    const double e2[3] = {p->v[2][0] - v0[0], p->v[2][1] - v0[1], p->v[2][2] - v0[2]};
+    const double pv[3] = {d[1] * e2[2] - d[2] * e2[1], d[2] * e2[0] - d[0] * e2[2], d[0] * e2[1] - d[1] * e2[0]};
+    const double det = e1[0] * pv[0] + e1[1] * pv[1] + e1[2] * pv[2];
+    if (det == 0.0)
+        return 0;
+    const double tv[3] = {o[0] - v0[0], o[1] - v0[1], o[2] - v0[2]};
+    const double u = (tv[0] * pv[0] + tv[1] * pv[1] + tv[2] * pv[2]) / det;
+    const double q[3] = {tv[1] * e1[2] - tv[2] * e1[1], tv[2] * e1[0] - tv[0] * e1[2], tv[0] * e1[1] - tv[1] * e1[0]};
+    const double v = (d[0] * q[0] + d[1] * q[1] + d[2] * q[2]) / det;
+    const double tt = (e2[0] * q[0] + e2[1] * q[1] + e2[2] * q[2]) / det;
+    const double w = 1.0 - u - v;
+    *margin = fmin(fmin(u, v), w);
+    *t = tt;
+    return *margin >= 0.0;
+}
+
+/* The closest placed triangle hit within [tnear, tfar]; -1 for none. */
+static long ref_closest_placed(const reference *r, const rtk_ray *ray, double *t_out, double *margin_out)
+{
+    const double o[3] = {ray->org_x, ray->org_y, ray->org_z}, d[3] = {ray->dir_x, ray->dir_y, ray->dir_z};
+    long best = -1;
+    double bt = INFINITY, bm = 0;
+    for (size_t k = 0; k < r->n; k++) {
+        double t, m;
+        if (tri_hit(&r->t[k], o, d, &t, &m) && t >= ray->tnear && t <= ray->tfar && t < bt) {
+            bt = t;
+            bm = m;
+            best = (long)k;
+        }
+    }
+    *t_out = bt;
+    *margin_out = bm;
+    return best;
+}
+
+static long ref_find(const reference *r, uint32_t inst, uint32_t geom, uint32_t prim)
+{
+    for (size_t k = 0; k < r->n; k++)
+        if (r->t[k].inst == inst && r->t[k].geom == geom && r->t[k].prim == prim)
+            return (long)k;
+    return -1;
+}
+
+/* Rays at the scene from outside its box, towards points inside it.  A
+ * disagreement with the reference is allowed only where a rounding could
+ * explain it: the hit lies within `tol` (barycentric) of an edge, or two
+ * triangles' distances tie within tol.  Counts those in *excused. */
+static void check_rays(rtk_scene s, const reference *r, int nrays, uint32_t seed, double tol, int *hits, int *excused)
+{
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+    rng g = {seed};
+    for (int i = 0; i < nrays; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            const float lo = info.bounds_lower[k], hi = info.bounds_upper[k], ext = hi - lo;
+            o[k] = lo - 0.5f * ext + 2.0f * ext * rng_float(&g);
+            d[k] = lo + ext * rng_float(&g) - o[k];
+        }
+        const rtk_ray ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+        rtk_rayhit rh = {.ray = ray};
+        rh.hit.geomID = rh.hit.instID = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+        rtk_ray oc = ray;
+        assert_int_equal(rtk_occluded1(s, &oc), RTK_OK);
+        double t_ref, margin;
+        const long want = ref_closest_placed(r, &ray, &t_ref, &margin);
+        const int got = rh.hit.geomID != RTK_INVALID_GEOMETRY_ID;
+        if ((want >= 0) != got || (oc.tfar == -INFINITY) != (want >= 0)) {
+            if (want >= 0 && margin < tol) {
+                (*excused)++;
+                continue;
+            }
+            if (got) { /* rtk's triangle: its own edge margin */
+                const long k = ref_find(r, rh.hit.instID, rh.hit.geomID, rh.hit.primID);
+                const double ro[3] = {ray.org_x, ray.org_y, ray.org_z}, rd[3] = {ray.dir_x, ray.dir_y, ray.dir_z};
+                double t2, m2;
+                tri_hit(&r->t[k], ro, rd, &t2, &m2);
+                if (m2 > -tol && m2 < tol) {
+                    (*excused)++;
+                    continue;
+                }
+            }
+            fail_msg("ray %d (%a %a %a -> %a %a %a): rtk %s (inst %u geom %u prim %u, occluded %d), reference %s "
+                     "(margin %g)",
+                     i, o[0], o[1], o[2], d[0], d[1], d[2], got ? "hit" : "missed", rh.hit.instID, rh.hit.geomID,
+                     rh.hit.primID, oc.tfar == -INFINITY, want >= 0 ? "hit" : "missed", margin);
+        }
+        if (!got)
+            continue;
+        (*hits)++;
+        const placed *p = &r->t[want];
+        if (fabs(rh.ray.tfar - t_ref) > tol * (t_ref + 1.0))
+            fail_msg("ray %d: t %.9g, reference %.9g", i, rh.ray.tfar, t_ref);
+        if (p->inst != rh.hit.instID || p->geom != rh.hit.geomID || p->prim != rh.hit.primID) {
+            /* a tie: rtk's triangle must be hit as near */
+            const long k = ref_find(r, rh.hit.instID, rh.hit.geomID, rh.hit.primID);
+            if (k < 0)
+                fail_msg("ray %d: rtk reports inst %u geom %u prim %u, which does not exist", i, rh.hit.instID,
+                         rh.hit.geomID, rh.hit.primID);
+            const double ro[3] = {ray.org_x, ray.org_y, ray.org_z}, rd[3] = {ray.dir_x, ray.dir_y, ray.dir_z};
+            double t2, m2;
+            tri_hit(&r->t[k], ro, rd, &t2, &m2);
+            if (!(fabs(t2 - t_ref) <= tol * (t_ref + 1.0) || margin < tol || fabs(m2) < tol))
+                fail_msg("ray %d: rtk hit inst %u geom %u prim %u at %.9g, reference inst %u geom %u prim %u at %.9g",
+                         i, rh.hit.instID, rh.hit.geomID, rh.hit.primID, rh.ray.tfar, p->inst, p->geom, p->prim,
+                         t_ref);
+            (*excused)++;
+            continue;
+        }
+        /* the normal, in the innermost object space */
+        const double ng[3] = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
+        const double dot = ng[0] * p->n_obj[0] + ng[1] * p->n_obj[1] + ng[2] * p->n_obj[2];
+        const double len = sqrt(ng[0] * ng[0] + ng[1] * ng[1] + ng[2] * ng[2]) *
+                           sqrt(p->n_obj[0] * p->n_obj[0] + p->n_obj[1] * p->n_obj[1] + p->n_obj[2] * p->n_obj[2]);
+        if (!(dot > 0.9999 * len))
+            fail_msg("ray %d: Ng (%g %g %g) is not the object-space normal", i, ng[0], ng[1], ng[2]);
+    }
+}
+
+/* ---- scenes ---- */
+
+static rtk_geometry instance_of(rtk_device dev, rtk_scene child, const double *xfm)
+{
+    rtk_geometry g = NULL;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &g), RTK_OK);
+    assert_int_equal(rtk_geometry_set_instanced_scene(g, child), RTK_OK);
+    float f[12];
+    xfm_to_float(xfm, f);
+    assert_int_equal(rtk_geometry_set_transform(g, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, f), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    return g;
+}
+
+static uint32_t attach(rtk_scene s, rtk_geometry g)
+{
+    uint32_t id;
+    assert_int_equal(rtk_scene_attach_geometry(s, g, &id), RTK_OK);
+    rtk_geometry_release(g);
+    return id;
+}
+
+static uint32_t attach_mesh(rtk_device dev, rtk_scene s, const mesh *m)
+{
+    rtk_geometry g = NULL;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->v, 0, 12, m->nv), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->idx, 0, 12, m->nt), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    return attach(s, g);
+}
+
+#define NX 6
+static void transforms(double xf[NX][12])
+{
+    static const double one[3] = {1, 1, 1}, zero[3] = {0, 0, 0};
+    xfm_make(xf[0], 0, 1, 0, 0.0, one, 0.0, (const double[3]){3, 0, 0});                  /* translation */
+    xfm_make(xf[1], 1, 1, 0, 0.7, one, 0.0, (const double[3]){-3, 0.5, 0});               /* rotation */
+    xfm_make(xf[2], 0, 0, 1, 0.3, (const double[3]){2.5, 0.4, 1.3}, 0.8, (const double[3]){0, 3, -1}); /* shear */
+    xfm_make(xf[3], 1, 0, 0, 2.0, (const double[3]){1e-3, 1e-3, 1e-3}, 0.0, (const double[3]){0, -2, 2}); /* tiny */
+    xfm_make(xf[4], 0, 1, 1, -1.1, (const double[3]){8, 8, 8}, 0.0, zero);                /* large */
+    xfm_make(xf[5], 0, 1, 0, 3.0, (const double[3]){-1, 1, 1}, 0.0, (const double[3]){0, 0, 5}); /* mirror */
+}
+
+/* A scene of NX instances of the ball (and, with own, the slab beside
+ * them), against the reference, on every backend. */
+static void instances_vs_reference(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    double xf[NX][12];
+    transforms(xf);
+    for (size_t b = 0; b < nb; b++)
+        for (int own = 0; own < 2; own++) {
+            rtk_device dev = test_device(names[b]);
+            rtk_scene child = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
+            rtk_scene top = NULL;
+            assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
+            reference ref = {0};
+            const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+            if (own) {
+                const uint32_t id = attach_mesh(dev, top, &slab);
+                ref_add_mesh(&ref, &slab, identity, RTK_INVALID_GEOMETRY_ID, id);
+            }
+            for (int k = 0; k < NX; k++) {
+                const uint32_t id = attach(top, instance_of(dev, child, xf[k]));
+                /* the reference takes the transform as rtk has it: in floats */
+                float f[12];
+                double back[12];
+                xfm_to_float(xf[k], f);
+                xfm_from_float(f, back);
+                ref_add_mesh(&ref, &ball, back, id, 0);
+            }
+            assert_int_equal(rtk_scene_commit(top), RTK_OK);
+            rtk_scene_info info = {.struct_size = sizeof info};
+            assert_int_equal(rtk_scene_get_info(top, &info), RTK_OK);
+            assert_int_equal(info.instances, NX);
+            assert_string_equal(info.layout, "bvh4.object");
+            assert_int_equal(info.triangles, own ? slab.nt : 0);
+            /* the child may go: the top level holds its tree */
+            rtk_scene_release(child);
+            int hits = 0, excused = 0;
+            check_rays(top, &ref, 3000, 11 + (uint32_t)b, 1e-4, &hits, &excused);
+            assert_true(hits > 600);
+            assert_true(excused < 30);
+            /* packets agree with single rays (the core traces them ray by ray here) */
+            rng g = {5};
+            for (int i = 0; i < 64; i++) {
+                rtk_rayhit16 p16;
+                memset(&p16, 0, sizeof p16);
+                int valid[16];
+                rtk_rayhit single[16];
+                for (int l = 0; l < 16; l++) {
+                    valid[l] = -1;
+                    float o[3], d[3];
+                    for (int k = 0; k < 3; k++) {
+                        o[k] = -20.0f + 40.0f * rng_float(&g);
+                        d[k] = 4.0f * rng_float(&g) - 2.0f - o[k];
+                    }
+                    single[l] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY)};
+                    single[l].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                    p16.ray.org_x[l] = o[0], p16.ray.org_y[l] = o[1], p16.ray.org_z[l] = o[2];
+                    p16.ray.dir_x[l] = d[0], p16.ray.dir_y[l] = d[1], p16.ray.dir_z[l] = d[2];
+                    p16.ray.tnear[l] = 0.0f, p16.ray.tfar[l] = INFINITY;
+                    p16.hit.geomID[l] = RTK_INVALID_GEOMETRY_ID;
+                    assert_int_equal(rtk_intersect1(top, &single[l]), RTK_OK);
+                }
+                assert_int_equal(rtk_intersect16(top, valid, &p16), RTK_OK);
+                for (int l = 0; l < 16; l++) {
+                    assert_int_equal(p16.hit.geomID[l], single[l].hit.geomID);
+                    assert_int_equal(p16.hit.instID[l], single[l].hit.instID);
+                    assert_int_equal(p16.hit.primID[l], single[l].hit.primID);
+                    assert_true(p16.ray.tfar[l] == single[l].ray.tfar);
+                }
+            }
+            free(ref.t);
+            rtk_scene_release(top);
+            rtk_device_release(dev);
+        }
+}
+
+/* A -> B -> ball: B holds two instances of the ball, A two of B and the
+ * slab; hits report A's instance (the outermost) and the ball's triangle. */
+static void nested_instances(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    double xf[NX][12];
+    transforms(xf);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene c = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
+        rtk_scene mid = NULL, top = NULL;
+        assert_int_equal(rtk_scene_new(dev, &mid), RTK_OK);
+        assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
+        attach(mid, instance_of(dev, c, xf[0]));
+        attach(mid, instance_of(dev, c, xf[2]));
+        assert_int_equal(rtk_scene_commit(mid), RTK_OK);
+        reference ref = {0};
+        const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+        const uint32_t slab_id = attach_mesh(dev, top, &slab);
+        ref_add_mesh(&ref, &slab, identity, RTK_INVALID_GEOMETRY_ID, slab_id);
+        const int outer[2] = {1, 5}, inner[2] = {0, 2};
+        for (int a = 0; a < 2; a++) {
+            const uint32_t id = attach(top, instance_of(dev, mid, xf[outer[a]]));
+            for (int m = 0; m < 2; m++) {
+                float fo[12], fi[12];
+                double o[12], in[12], both[12];
+                xfm_to_float(xf[outer[a]], fo);
+                xfm_to_float(xf[inner[m]], fi);
+                xfm_from_float(fo, o);
+                xfm_from_float(fi, in);
+                xfm_mul(o, in, both);
+                ref_add_mesh(&ref, &ball, both, id, 0);
+            }
+        }
+        assert_int_equal(rtk_scene_commit(top), RTK_OK);
+        int hits = 0, excused = 0;
+        check_rays(top, &ref, 3000, 77 + (uint32_t)b, 1e-4, &hits, &excused);
+        assert_true(hits > 600);
+        assert_true(excused < 30);
+        free(ref.t);
+        rtk_scene_release(top);
+        rtk_scene_release(mid);
+        rtk_scene_release(c);
+        rtk_device_release(dev);
+    }
+}
+
+static int ball_hit(rtk_scene s, float x)
+{
+    rtk_rayhit rh = {.ray = test_ray(x, 0, -10, 0, 0, 1, 0, INFINITY)};
+    rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+    assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+    return rh.hit.geomID != RTK_INVALID_GEOMETRY_ID;
+}
+
+/* The top level keeps the tree it was committed with: the instanced scene
+ * changed and committed again shows only after the top level's commit. */
+static void snapshot_until_commit(void **state)
+{
+    (void)state;
+    rtk_device dev = test_device("scalar");
+    float *v = malloc(ball.nv * 3 * sizeof *v);
+    memcpy(v, ball.v, ball.nv * 3 * sizeof *v);
+    rtk_scene child = test_scene(dev, v, ball.nv, ball.idx, ball.nt);
+    rtk_scene top = NULL;
+    assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
+    const double ident[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    attach(top, instance_of(dev, child, ident));
+    assert_int_equal(rtk_scene_commit(top), RTK_OK);
+    assert_true(ball_hit(top, 0.0f));
+    assert_false(ball_hit(top, 5.0f));
+    /* the child's mesh moves 5 along x */
+    for (size_t i = 0; i < ball.nv; i++)
+        v[3 * i] += 5.0f;
+    rtk_geometry g = rtk_scene_get_geometry(child, 0);
+    assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_commit(child), RTK_OK);
+    assert_true(ball_hit(child, 5.0f));
+    /* the top level still traces the tree it was committed with */
+    assert_true(ball_hit(top, 0.0f));
+    assert_false(ball_hit(top, 5.0f));
+    assert_int_equal(rtk_scene_commit(top), RTK_OK);
+    assert_true(ball_hit(top, 5.0f));
+    assert_false(ball_hit(top, 0.0f));
+    rtk_scene_release(top);
+    rtk_scene_release(child);
+    rtk_device_release(dev);
+    free(v);
+}
+
+static void instance_errors(void **state)
+{
+    (void)state;
+    rtk_device dev = test_device("scalar"), other = test_device("scalar");
+    rtk_scene child = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt), foreign = NULL, fresh = NULL;
+    assert_int_equal(rtk_scene_new(other, &foreign), RTK_OK);
+    assert_int_equal(rtk_scene_new(dev, &fresh), RTK_OK);
+    rtk_geometry inst = NULL, tri = NULL;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &tri), RTK_OK);
+    const float xf[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+    /* what is not an instance, and buffers on an instance */
+    assert_int_equal(rtk_geometry_set_instanced_scene(tri, child), RTK_ERROR_INVALID_OPERATION);
+    assert_int_equal(rtk_geometry_set_transform(tri, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xf), RTK_ERROR_INVALID_OPERATION);
+    assert_int_equal(rtk_geometry_set_shared_buffer(inst, RTK_BUFFER_TYPE_VERTEX, ball.v, 0, 12, ball.nv),
+                     RTK_ERROR_INVALID_OPERATION);
+    /* no scene yet; another device's scene */
+    assert_int_equal(rtk_geometry_commit(inst), RTK_ERROR_INVALID_OPERATION);
+    assert_int_equal(rtk_geometry_set_instanced_scene(inst, foreign), RTK_ERROR_INVALID_ARGUMENT);
+    /* bad transforms */
+    const float nan_xf[12] = {1, 0, 0, NAN, 0, 1, 0, 0, 0, 0, 1, 0};
+    const float flat[12] = {1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 1, 0};
+    assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, nan_xf),
+                     RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_geometry_set_transform(inst, (rtk_format)99, xf), RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, NULL),
+                     RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_geometry_set_instanced_scene(inst, fresh), RTK_OK);
+    assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, flat), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(inst), RTK_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "singular"));
+    /* an instance of a scene never committed */
+    assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xf), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+    rtk_scene top = NULL;
+    assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
+    assert_int_equal(rtk_scene_attach_geometry(top, inst, NULL), RTK_OK);
+    assert_int_equal(rtk_scene_commit(top), RTK_ERROR_INVALID_OPERATION);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "never committed"));
+    /* an empty scene instanced: never hit; the formats agree */
+    assert_int_equal(rtk_scene_commit(fresh), RTK_OK);
+    assert_int_equal(rtk_scene_commit(top), RTK_OK);
+    assert_false(ball_hit(top, 0.0f));
+    const float cm[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0}, m4[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
+    assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_COLUMN_MAJOR, cm), RTK_OK);
+    assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT4X4_COLUMN_MAJOR, m4), RTK_OK);
+    /* nesting deeper than RTK_MAX_INSTANCE_DEPTH */
+    rtk_scene level = child;
+    rtk_scene_retain(level);
+    rtk_error last = RTK_OK;
+    for (int d = 0; d <= RTK_MAX_INSTANCE_DEPTH && last == RTK_OK; d++) {
+        rtk_scene up = NULL;
+        assert_int_equal(rtk_scene_new(dev, &up), RTK_OK);
+        attach(up, instance_of(dev, level, (const double[12]){1, 0, 0, 0.1, 0, 1, 0, 0, 0, 0, 1, 0}));
+        last = rtk_scene_commit(up);
+        rtk_scene_release(level);
+        level = up;
+        if (last == RTK_OK)
+            assert_true(ball_hit(level, 0.0f));
+        else
+            assert_int_equal(d, RTK_MAX_INSTANCE_DEPTH);
+    }
+    assert_int_equal(last, RTK_ERROR_INVALID_OPERATION);
+    rtk_scene_release(level);
+    /* a tree cannot be loaded into a scene with instances */
+    rtk_bvh bvh = {.struct_size = sizeof bvh};
+    assert_int_equal(rtk_scene_get_bvh(child, &bvh), RTK_OK);
+    assert_int_equal(rtk_scene_commit_bvh(top, &bvh), RTK_ERROR_INVALID_OPERATION);
+    assert_int_equal(rtk_scene_get_bvh(top, &bvh), RTK_ERROR_INVALID_OPERATION); /* (bvh stays the child's) */
+    rtk_bvh_free(&bvh);
+    rtk_geometry_release(inst);
+    rtk_geometry_release(tri);
+    rtk_scene_release(top);
+    rtk_scene_release(fresh);
+    rtk_scene_release(foreign);
+    rtk_scene_release(child);
+    rtk_device_release(other);
+    rtk_device_release(dev);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(instances_vs_reference),
+        cmocka_unit_test(nested_instances),
+        cmocka_unit_test(snapshot_until_commit),
+        cmocka_unit_test(instance_errors),
+    };
+    return cmocka_run_group_tests(tests, setup, teardown);
+}
