@@ -100,6 +100,13 @@ typedef struct built_geom {
     rtk_build_quality quality;
 } built_geom;
 
+/* One geometry's own tree in a dynamic scene. */
+typedef struct dyn_tree {
+    struct accel_ref *ref; /* NULL: none */
+    built_geom b;
+    rtk_build_output out;
+} dyn_tree;
+
 struct rtk_scene_s {
     atomic_int refs;
     rtk_device device;
@@ -128,6 +135,14 @@ struct rtk_scene_s {
      * (zero when it has none); stats is then the top level's. */
     uint64_t instances;
     rtk_build_output own_stats;
+    int two_level;     /* the tree is a top level (bvh4.object) */
+    unsigned honoured; /* the flags the scene's trees honour */
+    /* RTK_SCENE_FLAG_DYNAMIC: a tree per triangle geometry, by slot, kept
+     * from commit to commit while its geometry is unchanged, refitted when
+     * only a REFIT geometry's vertices moved; what the last commit did. */
+    struct dyn_tree *dyn;
+    uint32_t dyn_count;
+    uint32_t trees_built, trees_refitted;
     /* What the tree holds (see built_geom), and the refits since its build. */
     built_geom *built;
     uint32_t built_count;
@@ -442,6 +457,12 @@ static void scene_drop_accel(rtk_scene s)
     accel_ref_release(s->ref);
     s->ref = NULL;
     s->instances = 0;
+    s->two_level = 0;
+    for (uint32_t i = 0; i < s->dyn_count; i++)
+        accel_ref_release(s->dyn[i].ref);
+    free(s->dyn);
+    s->dyn = NULL;
+    s->dyn_count = 0;
     free(s->built);
     s->built = NULL;
     s->built_count = 0;
@@ -599,14 +620,14 @@ static const rtk_layout_io_entry *find_layout_io(const rtk_backend_desc *d, uint
 
 /* What a build, import or refit of the scene's geometries is handed:
  * tasks NULL means the calling thread only. */
-static rtk_build_input build_input(rtk_scene s, const rtk_build_geometry *geoms, size_t n, uint32_t layout,
-                                   const rtk_task_system *tasks)
+static rtk_build_input build_input(rtk_build_quality quality, const rtk_build_geometry *geoms, size_t n,
+                                   uint32_t layout, const rtk_task_system *tasks)
 {
     return (rtk_build_input){
         .struct_size = sizeof(rtk_build_input),
         .geometry_count = (uint32_t)n,
         .geometries = geoms,
-        .quality = (uint32_t)s->quality,
+        .quality = (uint32_t)quality,
         .layout = layout,
         .threads = tasks ? tasks->threads : 1,
         .tasks = tasks,
@@ -626,7 +647,8 @@ static const rtk_layout_refit_entry *find_layout_refit(const rtk_backend_desc *d
 /* A compact layout reads vertices from the geometries' buffers: the ones
  * rtk allocated are held (in *pinned, *count) until the next commit.  0
  * when out of memory. */
-static int pin_buffers(rtk_scene s, const rtk_layout_entry *layout, size_t n, blob ***pinned, uint32_t *count)
+static int pin_buffers(rtk_scene s, const rtk_layout_entry *layout, const rtk_build_geometry *geoms, size_t n,
+                       blob ***pinned, uint32_t *count)
 {
     *pinned = NULL;
     *count = 0;
@@ -635,9 +657,9 @@ static int pin_buffers(rtk_scene s, const rtk_layout_entry *layout, size_t n, bl
     *pinned = calloc(n ? n : 1, sizeof **pinned);
     if (!*pinned)
         return 0;
-    for (uint32_t i = 0; i < s->geom_count; i++) {
-        rtk_geometry g = s->geoms[i];
-        if (g && g->enabled && g->vertex.owned) {
+    for (size_t k = 0; k < n; k++) {
+        rtk_geometry g = s->geoms[geoms[k].geom_id];
+        if (g->vertex.owned) {
             atomic_fetch_add(&g->vertex.owned->refs, 1);
             (*pinned)[(*count)++] = g->vertex.owned;
         }
@@ -667,7 +689,7 @@ static void remember_built(rtk_scene s)
  * positions in REFIT geometries only (at least one). */
 static int refit_serves(rtk_scene s)
 {
-    if (!s->accel || s->instances || !s->built || s->flags != s->built_flags || s->quality != s->built_quality)
+    if (!s->accel || s->two_level || !s->built || s->flags != s->built_flags || s->quality != s->built_quality)
         return 0;
     const uint32_t slots = s->geom_count > s->built_count ? s->geom_count : s->built_count;
     int moved = 0;
@@ -691,57 +713,79 @@ static int refit_serves(rtk_scene s)
     return moved;
 }
 
-/* Refits the scene's tree over geoms[0, n).  Returns 0 when a build must
- * serve instead (no refit in the backend; or the triangles that go in the
- * tree have changed, and the tree is dropped, so that if the build fails
- * the scene has none rather than one that no longer fits its vertices),
- * else 1 with the commit's result in *err. */
-static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, const char *fn, rtk_error *err)
+/* What refit_tree did. */
+enum { REFIT_NONE, REFIT_DONE, REFIT_DROP };
+
+/* Refits the tree `ref` over geoms[0, n), *stats its build's output (then
+ * the refit's).  REFIT_NONE when a build must serve instead (no refit in
+ * the backend, or more than the scene's own own_refs references hold it:
+ * scenes instancing this one keep it as they saw it, with their boxes of
+ * it); REFIT_DROP when the triangles that go in
+ * the tree have changed and it may be partly rewritten (never to be traced
+ * again); else REFIT_DONE with the result in *err. */
+static int refit_tree(rtk_scene s, accel_ref *ref, int own_refs, const rtk_build_geometry *geoms, size_t n,
+                      rtk_build_output *stats, double *seconds, const char *fn, rtk_error *err)
 {
     rtk_device dev = s->device;
-    const rtk_layout_refit_entry *rf = find_layout_refit(dev->backend, s->layout->id);
-    /* A tree that scenes instancing this one hold too stays as they saw it
-     * (their boxes of it): a new one is built. */
-    if (!rf || atomic_load(&s->ref->refs) > 1)
-        return 0;
+    const rtk_layout_refit_entry *rf = find_layout_refit(dev->backend, ref->layout->id);
+    if (!rf || atomic_load(&ref->refs) > own_refs)
+        return REFIT_NONE;
     blob **pinned;
     uint32_t pinned_count;
-    if (!pin_buffers(s, s->layout, n, &pinned, &pinned_count)) {
+    if (!pin_buffers(s, ref->layout, geoms, n, &pinned, &pinned_count)) {
         *err = rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
-        return 1;
+        return REFIT_DONE;
     }
     rtk_task_system task_copy;
-    const rtk_build_input in = build_input(s, geoms, n, s->layout->id, rtk_device_tasks(dev, &task_copy));
-    rtk_build_output out = s->stats;
+    const rtk_build_input in = build_input(s->quality, geoms, n, ref->layout->id, rtk_device_tasks(dev, &task_copy));
+    rtk_build_output out = *stats;
     out.struct_size = sizeof out;
     out.message[0] = '\0';
     const double t0 = now_seconds();
-    const int rc = rf->refit(s->accel, &in, &out);
+    const int rc = rf->refit(ref->accel, &in, &out);
     const double t1 = now_seconds();
     if (rc) {
         unpin_buffers(pinned, pinned_count);
         if (rc == RTK_REFIT_NEEDS_BUILD) {
-            /* the tree may be partly rewritten: never traced again */
             rtk_log(dev, 1, "scene: no refit (%s): building afresh", out.message);
-            scene_drop_accel(s);
-            return 0;
+            return REFIT_DROP;
         }
         *err = rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "%s: refit failed: %s", fn, out.message[0] ? out.message : "no reason given");
-        return 1;
+        return REFIT_DONE;
     }
-    unpin_buffers(s->ref->pinned, s->ref->pinned_count);
-    s->ref->pinned = pinned;
-    s->ref->pinned_count = pinned_count;
-    memcpy(s->ref->lower, out.lower, sizeof out.lower);
-    memcpy(s->ref->upper, out.upper, sizeof out.upper);
+    unpin_buffers(ref->pinned, ref->pinned_count);
+    ref->pinned = pinned;
+    ref->pinned_count = pinned_count;
+    memcpy(ref->lower, out.lower, sizeof out.lower);
+    memcpy(ref->upper, out.upper, sizeof out.upper);
+    *stats = out;
+    *seconds = t1 - t0;
+    *err = RTK_OK;
+    return REFIT_DONE;
+}
+
+/* Refits the scene's (one-level) tree.  Returns 0 when a build must serve
+ * instead (the tree dropped if it may be partly rewritten, so that if the
+ * build fails the scene has none rather than one that no longer fits its
+ * vertices), else 1 with the commit's result in *err. */
+static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, const char *fn, rtk_error *err)
+{
+    rtk_build_output out = s->stats;
+    double seconds = 0.0;
+    const int r = refit_tree(s, s->ref, 1, geoms, n, &out, &seconds, fn, err);
+    if (r == REFIT_DROP)
+        scene_drop_accel(s);
+    if (r != REFIT_DONE)
+        return 0;
+    if (*err)
+        return 1;
     s->stats = out;
-    s->build_seconds = t1 - t0;
+    s->build_seconds = seconds;
     s->refits++;
     remember_built(s);
-    rtk_log(dev, 2, "scene: refit %u of the %s tree: %llu triangles, SAH %.2f, %.3f s", s->refits, s->builder,
+    rtk_log(s->device, 2, "scene: refit %u of the %s tree: %llu triangles, SAH %.2f, %.3f s", s->refits, s->builder,
             (unsigned long long)out.prims, out.sah_cost, s->build_seconds);
-    *err = RTK_OK;
     return 1;
 }
 
@@ -776,6 +820,7 @@ static void install(rtk_scene s, accel_ref *ref, const rtk_build_output *out, co
     s->build_seconds = seconds;
     s->intersect1 = ref->intersect1;
     s->occluded1 = ref->occluded1;
+    s->honoured = ref->layout->scene_flags;
     for (int w = 0; w < 3; w++) {
         s->packet[0][w] = find_packet_kernel(bk, ref->layout->id, RTK_QUERY_INTERSECT, packet_widths[w]);
         s->packet[1][w] = find_packet_kernel(bk, ref->layout->id, RTK_QUERY_OCCLUDED, packet_widths[w]);
@@ -786,8 +831,8 @@ static void install(rtk_scene s, accel_ref *ref, const rtk_build_output *out, co
 /* Builds (or, with `tree`, imports) a tree over the triangles of geoms[0, n)
  * with the builder and layout the scene calls for: *ref_out, with the
  * build's output, the builder's name and the time taken. */
-static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms, size_t n, const rtk_bvh *tree,
-                                 const char *fn, accel_ref **ref_out, rtk_build_output *out_io,
+static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms, size_t n, rtk_build_quality quality,
+                                 const rtk_bvh *tree, const char *fn, accel_ref **ref_out, rtk_build_output *out_io,
                                  const char **builder_name, double *seconds)
 {
     rtk_device dev = s->device;
@@ -805,7 +850,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     for (int any_quality = want_builder != NULL; any_quality < 2 && !builder; any_quality++) {
         int best = -1;
         for (const rtk_builder_entry *b = bk->builders; b->name; b++) {
-            if (want_builder ? strcmp(b->name, want_builder) : !any_quality && !(b->qualities & (1u << s->quality)))
+            if (want_builder ? strcmp(b->name, want_builder) : !any_quality && !(b->qualities & (1u << quality)))
                 continue;
             const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
             if (!l || (want_layout ? strcmp(l->name, want_layout) : (l->scene_flags & ~s->flags) != 0))
@@ -818,7 +863,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
             }
         }
         if (builder && any_quality && !want_builder)
-            rtk_log(dev, 1, "scene: no builder for quality %d in backend %s; using %s", (int)s->quality, bk->name,
+            rtk_log(dev, 1, "scene: no builder for quality %d in backend %s; using %s", (int)quality, bk->name,
                     builder->name);
     }
     if (!builder) {
@@ -834,7 +879,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
 
     rtk_task_system task_copy;
     const rtk_build_input in =
-        build_input(s, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
+        build_input(quality, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
     rtk_build_output out = {.struct_size = sizeof out};
     double t0 = now_seconds();
     int rc;
@@ -869,7 +914,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     /* (the application keeps its shared buffers alive itself) */
     blob **pinned;
     uint32_t pinned_count;
-    if (!pin_buffers(s, layout, n, &pinned, &pinned_count)) {
+    if (!pin_buffers(s, layout, in_geoms, n, &pinned, &pinned_count)) {
         layout->release(out.accel);
         return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
@@ -942,38 +987,47 @@ static void world_box(const float *m, const float lower[3], const float upper[3]
     }
 }
 
-/* The top level of a scene with ni instances: over the instanced scenes'
- * trees and `own` (the scene's own triangles' tree, NULL when it has none,
- * taken over here whatever happens). */
-static rtk_error commit_objects(rtk_scene s, accel_ref *own, const rtk_build_output *own_out, double own_seconds,
-                                uint32_t ni, const char *fn)
+static void release_refs(accel_ref **refs, uint32_t n)
+{
+    for (uint32_t i = 0; i < n; i++)
+        accel_ref_release(refs[i]);
+}
+
+/* The top level of a scene with ni instances, or a dynamic one: over the
+ * instanced scenes' trees and own[0, own_count) (trees of the scene's own
+ * triangles: one, or one per geometry in a dynamic scene; the references
+ * are taken over here whatever happens), own_total their builds' output
+ * summed. */
+static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count, const rtk_build_output *own_total,
+                                double own_seconds, uint32_t ni, const char *fn)
 {
     rtk_device dev = s->device;
     const rtk_backend_desc *bk = dev->backend;
     const rtk_objects_entry *oe = find_objects(bk);
     const rtk_layout_entry *layout = oe ? rtk_backend_find_layout(bk, oe->layout) : NULL;
     if (!layout || !oe->build) {
-        accel_ref_release(own);
+        release_refs(own, own_count);
         return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot trace instances (it predates them)",
                         fn, bk->name);
     }
-    const uint32_t count = ni + (own != NULL);
+    const uint32_t count = ni + own_count;
     rtk_build_object *objs = calloc(count, sizeof *objs);
     accel_ref **children = calloc(count, sizeof *children);
     if (!objs || !children) {
         free(objs);
         free(children);
-        accel_ref_release(own);
+        release_refs(own, own_count);
         return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
     uint32_t k = 0, depth = 0;
-    if (own) {
-        objs[k] = (rtk_build_object){.accel = own->accel, .intersect1 = own->intersect1, .occluded1 = own->occluded1,
+    for (uint32_t o = 0; o < own_count; o++) {
+        const accel_ref *t = own[o];
+        objs[k] = (rtk_build_object){.accel = t->accel, .intersect1 = t->intersect1, .occluded1 = t->occluded1,
                                      .inst_id = RTK_INVALID_GEOMETRY_ID, .flags = RTK_BUILD_OBJECT_IDENTITY};
         memcpy(objs[k].world_to_object, identity_3x4, sizeof identity_3x4);
-        memcpy(objs[k].lower, own->lower, sizeof own->lower);
-        memcpy(objs[k].upper, own->upper, sizeof own->upper);
-        children[k++] = own;
+        memcpy(objs[k].lower, t->lower, sizeof t->lower);
+        memcpy(objs[k].upper, t->upper, sizeof t->upper);
+        children[k++] = own[o];
     }
     for (uint32_t i = 0; i < s->geom_count; i++) {
         rtk_geometry g = s->geoms[i];
@@ -988,7 +1042,7 @@ static rtk_error commit_objects(rtk_scene s, accel_ref *own, const rtk_build_out
         children[k++] = c;
         depth = c->depth + 1 > depth ? c->depth + 1 : depth;
     }
-    rtk_build_input in = build_input(s, NULL, 0, layout->id, NULL);
+    rtk_build_input in = build_input(s->quality, NULL, 0, layout->id, NULL);
     in.object_count = count;
     in.objects = objs;
     rtk_build_output out = {.struct_size = sizeof out};
@@ -1000,8 +1054,7 @@ static rtk_error commit_objects(rtk_scene s, accel_ref *own, const rtk_build_out
     if (!top) {
         if (!rc)
             layout->release(out.accel);
-        for (uint32_t c = 0; c < k; c++)
-            accel_ref_release(children[c]);
+        release_refs(children, k);
         free(children);
         return rc ? rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                              "%s: the top level's build failed: %s", fn, out.message[0] ? out.message : "no reason given")
@@ -1012,10 +1065,106 @@ static rtk_error commit_objects(rtk_scene s, accel_ref *own, const rtk_build_out
     top->depth = depth;
     install(s, top, &out, "objects", own_seconds + (t1 - t0));
     s->instances = ni;
-    s->own_stats = own ? *own_out : (rtk_build_output){0};
-    rtk_log(dev, 2, "scene: two levels on %s: %u instances%s, %llu top-level nodes, depth %u, %.3f s", bk->name, ni,
-            own ? " and the scene's own triangles" : "", (unsigned long long)out.nodes, out.depth,
+    s->two_level = 1;
+    s->own_stats = *own_total;
+    /* with no triangles of its own, a compact request is served */
+    s->honoured = own_count ? own[0]->layout->scene_flags : s->flags & RTK_SCENE_FLAG_COMPACT;
+    rtk_log(dev, 2, "scene: two levels on %s: %u instances and %u trees of the scene's own triangles, %llu top-level "
+            "nodes, depth %u, %.3f s", bk->name, ni, own_count, (unsigned long long)out.nodes, out.depth,
             s->build_seconds);
+    return RTK_OK;
+}
+
+/* How a dynamic scene builds a geometry's own tree: its quality (low: the
+ * Morton builder, for geometry that changes every frame; medium, high:
+ * SAH), a deforming (REFIT) geometry's first build at medium. */
+static rtk_build_quality tree_quality(rtk_geometry g)
+{
+    return g->quality == RTK_BUILD_QUALITY_REFIT ? RTK_BUILD_QUALITY_MEDIUM : g->quality;
+}
+
+/* A dynamic scene (RTK_SCENE_FLAG_DYNAMIC): a tree per triangle geometry
+ * of geoms[0, n) (kept while its geometry is unchanged, refitted when only
+ * a REFIT geometry's vertices moved, else built with tree_quality) and a
+ * top level over them and the ni instances. */
+static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, size_t n, uint32_t ni, const char *fn)
+{
+    rtk_device dev = s->device;
+    dyn_tree *nd = calloc(s->geom_count ? s->geom_count : 1, sizeof *nd);
+    accel_ref **own = calloc(n ? n : 1, sizeof *own);
+    if (!nd || !own) {
+        free(nd);
+        free(own);
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+    }
+    /* the scene's old top level holds each old tree once more; scenes that
+     * instance this one hold its top level, and so them */
+    const int own_refs = s->ref && atomic_load(&s->ref->refs) == 1 ? 2 : 0;
+    rtk_build_output total = {.struct_size = sizeof total};
+    double seconds = 0.0;
+    uint32_t built = 0, refitted = 0;
+    int touched = 0; /* an old tree refitted or rewritten in place */
+    rtk_error err = RTK_OK;
+    for (size_t k = 0; k < n && !err; k++) {
+        const uint32_t i = geoms[k].geom_id;
+        const rtk_geometry g = s->geoms[i];
+        const built_geom now = {g, g->vertex_version, g->index_version, g->index.count, g->vertex.count, g->quality};
+        const dyn_tree *old = i < s->dyn_count && s->dyn[i].ref && s->dyn[i].b.g == g ? &s->dyn[i] : NULL;
+        const int same_tris = old && old->b.index_version == now.index_version &&
+                              old->b.prim_count == now.prim_count && old->b.quality == now.quality;
+        if (same_tris && old->b.vertex_version == now.vertex_version && old->b.vertex_count == now.vertex_count) {
+            atomic_fetch_add(&old->ref->refs, 1);
+            nd[i] = (dyn_tree){old->ref, now, old->out};
+        } else if (same_tris && g->quality == RTK_BUILD_QUALITY_REFIT && g->vertex.count >= old->b.vertex_count) {
+            rtk_build_output out = old->out;
+            double t = 0.0;
+            const int r = refit_tree(s, old->ref, own_refs, &geoms[k], 1, &out, &t, fn, &err);
+            touched |= r != REFIT_NONE;
+            if (r == REFIT_DONE && !err) {
+                atomic_fetch_add(&old->ref->refs, 1);
+                nd[i] = (dyn_tree){old->ref, now, out};
+                refitted++;
+                seconds += t;
+            }
+        }
+        if (!nd[i].ref && !err) {
+            /* (indices were checked in range when the tree is not kept) */
+            const char *name;
+            double t = 0.0;
+            err = build_triangles(s, &geoms[k], 1, tree_quality(g), NULL, fn, &nd[i].ref, &nd[i].out, &name, &t);
+            nd[i].b = now;
+            built++;
+            seconds += t;
+        }
+        if (nd[i].ref) {
+            own[k] = nd[i].ref;
+            atomic_fetch_add(&nd[i].ref->refs, 1); /* one for the top level's children */
+            const rtk_build_output *o = &nd[i].out;
+            total.prims += o->prims;
+            total.prims_skipped += o->prims_skipped;
+            total.prims_degenerate += o->prims_degenerate;
+            total.refs += o->refs ? o->refs : o->prims;
+            total.bytes += o->bytes;
+        }
+    }
+    if (!err)
+        err = commit_objects(s, own, (uint32_t)n, &total, seconds, ni, fn);
+    else
+        release_refs(own, (uint32_t)n);
+    free(own);
+    if (err) {
+        for (uint32_t i = 0; i < s->geom_count; i++)
+            accel_ref_release(nd[i].ref);
+        free(nd);
+        if (touched) /* its old top level's boxes may no longer hold */
+            scene_drop_accel(s);
+        return err;
+    }
+    s->dyn = nd;
+    s->dyn_count = s->geom_count;
+    s->trees_built = built;
+    s->trees_refitted = refitted;
+    s->honoured |= RTK_SCENE_FLAG_DYNAMIC;
     return RTK_OK;
 }
 
@@ -1051,7 +1200,14 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             ni++;
             continue;
         }
-        rtk_error err = refit && g->vertex.count >= s->built[i].vertex_count ? RTK_OK : check_indices(s, i, g, fn);
+        /* indices unchanged since the tree that is kept (a refit's, or a
+         * dynamic scene's geometry's) are in range still, unless the
+         * vertex buffer shrank */
+        const int kept = refit ? g->vertex.count >= s->built[i].vertex_count
+                               : (s->flags & RTK_SCENE_FLAG_DYNAMIC) && i < s->dyn_count && s->dyn[i].ref &&
+                                     s->dyn[i].b.g == g && s->dyn[i].b.index_version == g->index_version &&
+                                     g->vertex.count >= s->dyn[i].b.vertex_count;
+        rtk_error err = kept ? RTK_OK : check_indices(s, i, g, fn);
         if (err)
             return err;
         n++;
@@ -1082,18 +1238,23 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         free(in_geoms);
         return err;
     }
+    if ((s->flags & RTK_SCENE_FLAG_DYNAMIC) && !tree) {
+        err = commit_dynamic(s, in_geoms, n, ni, fn);
+        free(in_geoms);
+        return err;
+    }
     /* the scene's own triangles: all of it without instances, else (when
      * it has any) one object of its top level */
     accel_ref *own = NULL;
     rtk_build_output own_out = {.struct_size = sizeof own_out};
     const char *own_builder = NULL;
     double own_seconds = 0.0;
-    err = !ni || n ? build_triangles(s, in_geoms, n, tree, fn, &own, &own_out, &own_builder, &own_seconds) : RTK_OK;
+    err = !ni || n ? build_triangles(s, in_geoms, n, s->quality, tree, fn, &own, &own_out, &own_builder, &own_seconds) : RTK_OK;
     free(in_geoms);
     if (err)
         return err;
     if (ni)
-        return commit_objects(s, own, &own_out, own_seconds, ni, fn);
+        return commit_objects(s, own ? &own : NULL, own != NULL, &own_out, own_seconds, ni, fn);
     install(s, own, &own_out, own_builder, own_seconds);
     return RTK_OK;
 }
@@ -1154,19 +1315,19 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     memset(info, 0, keep < sizeof *info ? keep : sizeof *info);
     info->struct_size = keep;
     info->flags = s->flags;
-    info->flags_not_honoured = s->flags & ~s->layout->scene_flags;
+    info->flags_not_honoured = s->flags & ~s->honoured;
     info->quality = s->quality;
     info->builder = s->builder;
     info->layout = s->layout->name;
     /* with instances: the triangles and bytes of the scene's own tree too */
-    const rtk_build_output *tris = s->instances ? &s->own_stats : o;
+    const rtk_build_output *tris = s->two_level ? &s->own_stats : o;
     info->triangles = tris->prims;
     info->triangles_skipped = tris->prims_skipped;
     info->triangles_degenerate = tris->prims_degenerate;
     info->nodes = o->nodes;
     info->leaves = o->leaves;
     info->depth = o->depth;
-    info->bytes = o->bytes + (s->instances ? s->own_stats.bytes : 0);
+    info->bytes = o->bytes + (s->two_level ? s->own_stats.bytes : 0);
     info->bytes_per_triangle = tris->prims ? (double)info->bytes / (double)tris->prims : 0.0;
     info->build_seconds = s->build_seconds;
     info->sah_cost = o->sah_cost;
@@ -1180,9 +1341,11 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     if (keep >= offsetof(rtk_scene_info, references) + sizeof info->references)
         info->references = tris->refs ? tris->refs : tris->prims;
     if (keep >= offsetof(rtk_scene_info, refits) + sizeof info->refits)
-        info->refits = s->refits;
+        info->refits = s->dyn ? s->trees_refitted : s->refits;
     if (keep >= offsetof(rtk_scene_info, instances) + sizeof info->instances)
         info->instances = s->instances;
+    if (keep >= offsetof(rtk_scene_info, trees_built) + sizeof info->trees_built)
+        info->trees_built = s->dyn ? s->trees_built : s->refits ? 0 : 1;
     return RTK_OK;
 }
 

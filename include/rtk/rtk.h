@@ -220,7 +220,14 @@ typedef enum rtk_scene_flags {
      * the application's to keep).  Slower than the default layout. */
     RTK_SCENE_FLAG_COMPACT = 1 << 0,
     RTK_SCENE_FLAG_ROBUST = 1 << 1,  /* watertight intersection */
-    RTK_SCENE_FLAG_DYNAMIC = 1 << 2, /* geometry changes often: cheap rebuilds */
+    /* Geometry changes often: two levels, a tree per triangle geometry
+     * (built with the geometry's own quality: low the Morton builder,
+     * medium and high SAH; REFIT built at medium, then refitted when only
+     * its vertices moved) and a top level over them (and over the scene's
+     * instances), so a commit rebuilds only the trees of the geometries
+     * changed since the last one (rtk_scene_info.trees_built, .refits).
+     * Tracing is somewhat slower than through one tree over everything. */
+    RTK_SCENE_FLAG_DYNAMIC = 1 << 2,
 } rtk_scene_flags;
 #define RTK_SCENE_FLAGS_ALL (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_DYNAMIC)
 
@@ -314,6 +321,11 @@ typedef struct rtk_scene_info {
      * sah_cost and bounds, its own triangles' tree in triangles and
      * triangles_*, and both in bytes. */
     uint64_t instances;
+    /* Added after rtk 0.1.0: the trees the last commit built.  A scene
+     * flagged RTK_SCENE_FLAG_DYNAMIC has one per triangle geometry, and a
+     * commit builds only those of geometries changed since (refits then
+     * counts the trees it refitted); any other scene: 1, or 0 after a refit. */
+    uint32_t trees_built;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
