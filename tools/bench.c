@@ -41,6 +41,7 @@
 #include <unistd.h>
 
 #include "mesh_import.h"
+#include "mesh_tools.h"
 #include "progress.h"
 #include "render.h"
 #include "rtk/rtk.h"
@@ -581,8 +582,11 @@ static void mesh_stem(const char *path, char *stem, size_t size)
 {
     snprintf(stem, size, "%s", base_name(path));
     char *dot = strrchr(stem, '.');
-    if (dot && dot != stem)
+    if (dot && dot != stem && strncmp(stem, "procedural:", 11))
         *dot = 0;
+    for (char *c = stem; *c; c++)
+        if (*c == ':' || *c == '.')
+            *c = '-';
 }
 
 static int have_gnuplot(void)
@@ -634,8 +638,10 @@ static void bench_usage(FILE *f)
             "  trace (primary, diffuse and shadow rays; single rays and packets; 1 and 2 threads), render\n"
             "  (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2 and 3), build (start\n"
             "  time at every quality, as in its Table 4, against the time to trace the tree), refit (a\n"
-            "  deforming mesh: refit time, and the trace speed of the refitted tree) and accuracy\n"
-            "  (rays aimed at shared edges that leak through, beside speed). Ratios are to Embree isa=avx2.\n"
+            "  deforming mesh: refit time, and the trace speed of the refitted tree), two levels (instances\n"
+            "  and a dynamic scene: commit times and trace speed) and accuracy (rays aimed at shared edges\n"
+            "  that leak through, beside speed). Ratios are to Embree isa=avx2.  A MESH named\n"
+            "  procedural:N (e.g. procedural:10M) is a bumpy sphere of about N triangles made on the spot.\n"
             "  -o, --output DIR  bench.csv, the charts (PNG, drawn by gnuplot when installed) and their\n"
             "                    gnuplot scripts (default: bench-out)\n"
             "  --threads LIST    thread counts (default: 1,2)\n"
@@ -651,7 +657,8 @@ static void bench_usage(FILE *f)
             "                    128x96x1 render\n"
             "examples:\n"
             "  rtktool bench ../shared/meshes/dragon.ply ../shared/meshes/sanmiguel_building.ply -o bench-out\n"
-            "  rtktool bench dragon.ply --only trace --isa avx2 --api single,packet8 --threads 1\n");
+            "  rtktool bench dragon.ply --only trace --isa avx2 --api single,packet8 --threads 1\n"
+            "  rtktool bench procedural:100k procedural:1M procedural:16M --only build --isa avx2\n");
 }
 
 /* ---- the sections ---- */
@@ -1653,7 +1660,13 @@ int cmd_bench(int argc, char **argv)
     const int gnuplot = have_gnuplot();
     for (int mi = 0; mi < nmeshes; mi++) {
         rtk_mesh m;
-        if (rtk_mesh_load(meshes[mi], &m, err, sizeof err)) {
+        size_t want;
+        if (rtk_mesh_procedural_name(meshes[mi], &want)) {
+            if (rtk_mesh_procedural(want, &m)) {
+                fprintf(stderr, "rtktool bench: out of memory for %s\n", meshes[mi]);
+                goto done;
+            }
+        } else if (rtk_mesh_load(meshes[mi], &m, err, sizeof err)) {
             fprintf(stderr, "rtktool: %s\n", err);
             goto done;
         }

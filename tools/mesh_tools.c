@@ -1,6 +1,8 @@
 /* Mesh clean-ups for rtktool convert.  See mesh_tools.h. */
 #include "mesh_tools.h"
 
+#include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -102,4 +104,62 @@ void rtk_mesh_drop_unhittable(rtk_mesh *mesh, size_t *degenerate, size_t *non_fi
     mesh->triangle_count = kept;
     *degenerate = n[1];
     *non_finite = n[2];
+}
+
+int rtk_mesh_procedural(size_t triangles, rtk_mesh *mesh)
+{
+    memset(mesh, 0, sizeof *mesh);
+    size_t r = (size_t)sqrt((double)triangles / 2.0);
+    r = r < 1 ? 1 : r;
+    const size_t nv = (r + 1) * (r + 1), nt = 2 * r * r;
+    mesh->vertices = malloc(nv * 3 * sizeof(float));
+    mesh->indices = malloc(nt * 3 * sizeof(uint32_t));
+    if (!mesh->vertices || !mesh->indices || nv > UINT32_MAX) {
+        free(mesh->vertices);
+        free(mesh->indices);
+        memset(mesh, 0, sizeof *mesh);
+        return 1;
+    }
+    for (size_t j = 0; j <= r; j++)
+        for (size_t i = 0; i <= r; i++) {
+            const double th = 3.14159265358979 * ((double)j + 0.5) / ((double)r + 1.0);
+            const double ph = 6.28318530717959 * (double)i / (double)r;
+            const double bump = 0.06 * sin(7.0 * th) * cos(5.0 * ph) + 0.02 * sin(41.0 * th) * sin(37.0 * ph) +
+                                0.005 * sin(263.0 * th + 1.0) * cos(241.0 * ph);
+            float *p = mesh->vertices + 3 * (j * (r + 1) + i);
+            p[0] = (float)((1.0 + bump) * sin(th) * cos(ph));
+            p[1] = (float)((1.0 + bump) * cos(th));
+            p[2] = (float)((1.0 + bump) * sin(th) * sin(ph));
+        }
+    size_t t = 0;
+    for (size_t j = 0; j < r; j++)
+        for (size_t i = 0; i < r; i++) {
+            const uint32_t a = (uint32_t)(j * (r + 1) + i), b = a + 1, c = a + (uint32_t)r + 1, d = c + 1;
+            uint32_t *q = mesh->indices + 3 * t;
+            q[0] = a, q[1] = c, q[2] = b, q[3] = b, q[4] = c, q[5] = d;
+            t += 2;
+        }
+    mesh->vertex_count = nv;
+    mesh->triangle_count = nt;
+    mesh->faces_read = nt;
+    return 0;
+}
+
+int rtk_mesh_procedural_name(const char *name, size_t *triangles)
+{
+    static const char prefix[] = "procedural:";
+    if (strncmp(name, prefix, sizeof prefix - 1))
+        return 0;
+    const char *s = name + sizeof prefix - 1;
+    char *end;
+    const double v = strtod(s, &end);
+    double scale = 1.0;
+    if (*end == 'k')
+        scale = 1e3, end++;
+    else if (*end == 'M')
+        scale = 1e6, end++;
+    if (end == s || *end || !(v * scale >= 2.0) || v * scale > 2147483648.0)
+        return 0;
+    *triangles = (size_t)(v * scale);
+    return 1;
 }

@@ -22,6 +22,15 @@ void rtk_mesh_drop_unhittable(rtk_mesh *mesh, size_t *degenerate, size_t *non_fi
 /* Counts without dropping. */
 void rtk_mesh_count_unhittable(const rtk_mesh *mesh, size_t *degenerate, size_t *non_finite);
 
+/* A procedural mesh of about `triangles` triangles (at least 2): a sphere
+ * of radius 1 with bumps at several scales, as a grid of 2 R^2 triangles in
+ * scanline order (as scans come).  What "procedural:N" names to the tools.
+ * Returns 0, or non-zero when out of memory (*mesh then empty). */
+int rtk_mesh_procedural(size_t triangles, rtk_mesh *mesh);
+/* "procedural:N" (N a whole number from 2 to 2^31, with an optional k or M
+ * suffix): 1 and N in *triangles; anything else 0. */
+int rtk_mesh_procedural_name(const char *name, size_t *triangles);
+
 #ifdef __cplusplus
 }
 #endif
