@@ -226,7 +226,8 @@ typedef enum rtk_scene_flags {
      * its vertices moved) and a top level over them (and over the scene's
      * instances), so a commit rebuilds only the trees of the geometries
      * changed since the last one (rtk_scene_info.trees_built, .refits).
-     * Tracing is somewhat slower than through one tree over everything. */
+     * Tracing is slower than through one tree over everything
+     * (docs/BENCHMARKS.md measures it beside Embree's two-level mode). */
     RTK_SCENE_FLAG_DYNAMIC = 1 << 2,
 } rtk_scene_flags;
 #define RTK_SCENE_FLAGS_ALL (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_DYNAMIC)
@@ -454,8 +455,11 @@ RTK_API rtk_error rtk_geometry_commit(rtk_geometry geometry);
  * The instancing scene uses the instanced scene's tree as it was at the
  * instancing scene's commit (it holds a reference to it, so the instanced
  * scene may be committed again or released meanwhile); commit the
- * instancing scene again to see the instanced scene's changes.  A ray that
- * the transform takes out of the finite floats misses that instance. */
+ * instancing scene again to see the instanced scene's changes.  As with
+ * any scene, a commit must not overlap another call on the same scene, and
+ * the commit of a scene must not overlap the commit of a scene that
+ * instances it.  A ray that the transform takes out of the finite floats
+ * misses that instance. */
 #define RTK_MAX_INSTANCE_DEPTH 8
 
 typedef enum rtk_format {
