@@ -60,6 +60,10 @@ typedef struct rtk_backend_registry {
 RTK_INTERNAL rtk_error rtk_backends_load(rtk_backend_registry *reg, const rtk_config *cfg, uint64_t cpu,
                                          char *msg, size_t msg_size);
 RTK_INTERNAL void rtk_backends_unload(rtk_backend_registry *reg);
+/* Whether a backend's descriptor has the table `field` (one added after
+ * rtk 0.1.0): its struct_size covers it and it is not NULL. */
+#define RTK_DESC_HAS(d, field)                                                                                         \
+    ((d)->struct_size >= offsetof(rtk_backend_desc, field) + sizeof(d)->field && (d)->field)
 /* The layout entry with this id in a backend's table, or NULL. */
 RTK_INTERNAL const rtk_layout_entry *rtk_backend_find_layout(const rtk_backend_desc *d, uint32_t id);
 

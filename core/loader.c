@@ -190,36 +190,27 @@ static int check_tables(rtk_backend_entry *e, const rtk_backend_desc *d)
             return 0;
         }
     for (const rtk_builder_entry *b = d->builders; b->name; b++) {
-        int found = 0;
-        for (const rtk_layout_entry *l = d->layouts; l->id; l++)
-            found |= l->id == b->layout;
-        if (!b->build || !found) {
+        if (!b->build || !rtk_backend_find_layout(d, b->layout)) {
             reject(e, "builder %s has no build function or produces an unknown layout", b->name);
             return 0;
         }
     }
-    if (d->struct_size >= offsetof(rtk_backend_desc, layout_io) + sizeof d->layout_io && d->layout_io)
+    if (RTK_DESC_HAS(d, layout_io))
         for (const rtk_layout_io_entry *io = d->layout_io; io->layout; io++) {
-            int found = 0;
-            for (const rtk_layout_entry *l = d->layouts; l->id; l++)
-                found |= l->id == io->layout;
-            if (!io->export_tree || !io->import_tree || !found) {
+            if (!io->export_tree || !io->import_tree || !rtk_backend_find_layout(d, io->layout)) {
                 reject(e, "tree import/export for layout %u lacks a function or the layout", io->layout);
                 return 0;
             }
         }
-    if (d->struct_size >= offsetof(rtk_backend_desc, objects) + sizeof d->objects && d->objects)
+    if (RTK_DESC_HAS(d, objects))
         for (const rtk_objects_entry *o = d->objects; o->layout; o++)
             if (!o->build || !rtk_backend_find_layout(d, o->layout)) {
                 reject(e, "the objects builder for layout %u lacks a function or the layout", o->layout);
                 return 0;
             }
-    if (d->struct_size >= offsetof(rtk_backend_desc, layout_refit) + sizeof d->layout_refit && d->layout_refit)
+    if (RTK_DESC_HAS(d, layout_refit))
         for (const rtk_layout_refit_entry *rf = d->layout_refit; rf->layout; rf++) {
-            int found = 0;
-            for (const rtk_layout_entry *l = d->layouts; l->id; l++)
-                found |= l->id == rf->layout;
-            if (!rf->refit || !found) {
+            if (!rf->refit || !rtk_backend_find_layout(d, rf->layout)) {
                 reject(e, "refit for layout %u lacks a function or the layout", rf->layout);
                 return 0;
             }

@@ -610,7 +610,7 @@ static struct packet_kernel find_packet_kernel(const rtk_backend_desc *d, uint32
 
 static const rtk_layout_io_entry *find_layout_io(const rtk_backend_desc *d, uint32_t layout)
 {
-    if (d->struct_size < offsetof(rtk_backend_desc, layout_io) + sizeof d->layout_io || !d->layout_io)
+    if (!RTK_DESC_HAS(d, layout_io))
         return NULL;
     for (const rtk_layout_io_entry *e = d->layout_io; e->layout; e++)
         if (e->layout == layout)
@@ -636,7 +636,7 @@ static rtk_build_input build_input(rtk_build_quality quality, const rtk_build_ge
 
 static const rtk_layout_refit_entry *find_layout_refit(const rtk_backend_desc *d, uint32_t layout)
 {
-    if (d->struct_size < offsetof(rtk_backend_desc, layout_refit) + sizeof d->layout_refit || !d->layout_refit)
+    if (!RTK_DESC_HAS(d, layout_refit))
         return NULL;
     for (const rtk_layout_refit_entry *e = d->layout_refit; e->layout; e++)
         if (e->layout == layout)
@@ -947,8 +947,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
 
 static const rtk_objects_entry *find_objects(const rtk_backend_desc *d)
 {
-    if (d->struct_size < offsetof(rtk_backend_desc, objects) + sizeof d->objects || !d->objects ||
-        !d->objects[0].layout)
+    if (!RTK_DESC_HAS(d, objects) || !d->objects[0].layout)
         return NULL;
     return d->objects;
 }

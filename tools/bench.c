@@ -188,6 +188,38 @@ static void lib_close(lib *l)
     memset(l, 0, sizeof *l);
 }
 
+/* Commits Embree's scene s into sc, timed from t0 (the first scene call);
+ * when the device reports an error, releases it and says `what` failed. */
+static int embree_commit(scene *sc, RTCScene s, double t0, const char *what, char *err, size_t err_size)
+{
+    rtcCommitScene(s);
+    sc->seconds = now() - t0;
+    if (rtcGetDeviceError(sc->lib->edev) != RTC_ERROR_NONE) {
+        rtcReleaseScene(s);
+        snprintf(err, err_size, "embree: %s did not commit", what);
+        return 1;
+    }
+    sc->escene = s;
+    for (int c = 0; c < 2; c++)
+        sc->target[c] = (embree_target){s, c ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT
+                                             : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT};
+    return 0;
+}
+
+/* The same for rtk's scene s, unless `bad` (an earlier call failed). */
+static int rtk_commit(scene *sc, rtk_scene s, int bad, double t0, char *err, size_t err_size)
+{
+    bad = bad || rtk_scene_commit(s);
+    sc->seconds = now() - t0;
+    if (bad) {
+        snprintf(err, err_size, "rtk: %s", rtk_device_get_error_message(sc->lib->rdev));
+        rtk_scene_release(s);
+        return 1;
+    }
+    sc->rscene = s;
+    return 0;
+}
+
 /* A scene over the mesh, timed from the first call to the commit's end. */
 static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded, int mode, int quality, char *err,
                        size_t err_size)
@@ -217,14 +249,8 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtcCommitGeometry(g);
         rtcAttachGeometry(s, g);
         rtcReleaseGeometry(g);
-        rtcCommitScene(s);
-        sc->seconds = now() - t0;
-        if (rtcGetDeviceError(l->edev) != RTC_ERROR_NONE) {
-            rtcReleaseScene(s);
-            snprintf(err, err_size, "embree: the scene did not commit");
+        if (embree_commit(sc, s, t0, "the scene", err, err_size))
             return 1;
-        }
-        sc->escene = s;
         sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
         snprintf(sc->layout, sizeof sc->layout, "embree %s", mode_names[mode]);
         /* Embree 3 (rtcSetSceneBuildQuality(3)): low builds a two-level
@@ -232,16 +258,14 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
          * SAH builder, high the SAH builder with fast spatial splits. */
         static const char *const builders[3] = {"morton-2level", "sah", "sah-spatial"};
         snprintf(sc->builder, sizeof sc->builder, "%s", mode == MODE_REFIT ? "refit-2level" : builders[quality]);
-        for (int c = 0; c < 2; c++)
-            sc->target[c] = (embree_target){s, c ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT
-                                                 : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT};
         return 0;
     }
     static const rtk_build_quality q[3] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM, RTK_BUILD_QUALITY_HIGH};
     const double t0 = now();
     rtk_scene s = NULL;
     rtk_geometry g = NULL;
-    if (rtk_scene_new(l->rdev, &s) ||
+    const int bad =
+        rtk_scene_new(l->rdev, &s) ||
         rtk_scene_set_flags(s, mode == MODE_COMPACT ? RTK_SCENE_FLAG_COMPACT
                                : mode == MODE_ROBUST ? RTK_SCENE_FLAG_ROBUST
                                                      : RTK_SCENE_FLAG_NONE) ||
@@ -249,15 +273,10 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtk_geometry_set_build_quality(g, mode == MODE_REFIT ? RTK_BUILD_QUALITY_REFIT : q[quality]) ||
         rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
         rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
-        rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL) || rtk_scene_commit(s)) {
-        snprintf(err, err_size, "rtk: %s", rtk_device_get_error_message(l->rdev));
-        rtk_geometry_release(g);
-        rtk_scene_release(s);
-        return 1;
-    }
+        rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
     rtk_geometry_release(g);
-    sc->seconds = now() - t0;
-    sc->rscene = s;
+    if (rtk_commit(sc, s, bad, t0, err, err_size))
+        return 1;
     rtk_scene_info info = {.struct_size = sizeof info};
     rtk_scene_get_info(s, &info);
     sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
@@ -1148,17 +1167,7 @@ static int grid_scene(scene *sc, lib *l, const scene *child, float spacing, char
             rtcAttachGeometry(s, g);
             rtcReleaseGeometry(g);
         }
-        rtcCommitScene(s);
-        sc->seconds = now() - t0;
-        sc->escene = s;
-        for (int c = 0; c < 2; c++)
-            sc->target[c] = (embree_target){s, c ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT
-                                                 : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT};
-        if (rtcGetDeviceError(l->edev) != RTC_ERROR_NONE) {
-            snprintf(err, err_size, "embree: the instances did not commit");
-            return 1;
-        }
-        return 0;
+        return embree_commit(sc, s, t0, "the instances", err, err_size);
     }
     rtk_scene s = NULL;
     int bad = rtk_scene_new(l->rdev, &s) != RTK_OK;
@@ -1171,14 +1180,7 @@ static int grid_scene(scene *sc, lib *l, const scene *child, float spacing, char
               rtk_scene_attach_geometry(s, g, NULL);
         rtk_geometry_release(g);
     }
-    bad = bad || rtk_scene_commit(s);
-    sc->seconds = now() - t0;
-    sc->rscene = s;
-    if (bad) {
-        snprintf(err, err_size, "rtk: %s", rtk_device_get_error_message(l->rdev));
-        return 1;
-    }
-    return 0;
+    return rtk_commit(sc, s, bad, t0, err, err_size);
 }
 
 /* The mesh cut in PIECES runs of triangles, each with its own vertices
@@ -1250,17 +1252,7 @@ static int pieces_scene(scene *sc, lib *l, const pieces *p, char *err, size_t er
             rtcAttachGeometry(s, g);
             rtcReleaseGeometry(g);
         }
-        rtcCommitScene(s);
-        sc->seconds = now() - t0;
-        sc->escene = s;
-        for (int c = 0; c < 2; c++)
-            sc->target[c] = (embree_target){s, c ? RTC_INTERSECT_CONTEXT_FLAG_COHERENT
-                                                 : RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT};
-        if (rtcGetDeviceError(l->edev) != RTC_ERROR_NONE) {
-            snprintf(err, err_size, "embree: the dynamic scene did not commit");
-            return 1;
-        }
-        return 0;
+        return embree_commit(sc, s, t0, "the dynamic scene", err, err_size);
     }
     rtk_scene s = NULL;
     int bad = rtk_scene_new(l->rdev, &s) || rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC);
@@ -1273,14 +1265,7 @@ static int pieces_scene(scene *sc, lib *l, const pieces *p, char *err, size_t er
               rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
         rtk_geometry_release(g);
     }
-    bad = bad || rtk_scene_commit(s);
-    sc->seconds = now() - t0;
-    sc->rscene = s;
-    if (bad) {
-        snprintf(err, err_size, "rtk: %s", rtk_device_get_error_message(l->rdev));
-        return 1;
-    }
-    return 0;
+    return rtk_commit(sc, s, bad, t0, err, err_size);
 }
 
 /* Piece 0 moved up by dy: its buffer updated, geometry and scene committed. */
@@ -1413,7 +1398,6 @@ static int section_twolevel(ctx *c, char *err, size_t err_size)
         csv_row(&c->csv, "twolevel", lb->name, "dynamic", "diffuse path tracer", "single", 1, dyn_rate, "Mrays/s",
                 ratio(dyn_rate, ref[3]));
     }
-    (void)diag;
     free(rest);
     pieces_free(&p);
     free(rgb);
