@@ -208,6 +208,12 @@ static int check_tables(rtk_backend_entry *e, const rtk_backend_desc *d)
                 reject(e, "the objects builder for layout %u lacks a function or the layout", o->layout);
                 return 0;
             }
+    if (RTK_DESC_HAS(d, motion_builders))
+        for (const rtk_builder_entry *b = d->motion_builders; b->name; b++)
+            if (!b->build || !rtk_backend_find_layout(d, b->layout)) {
+                reject(e, "motion builder %s has no build function or produces an unknown layout", b->name);
+                return 0;
+            }
     if (RTK_DESC_HAS(d, layout_refit))
         for (const rtk_layout_refit_entry *rf = d->layout_refit; rf->layout; rf++) {
             if (!rf->refit || !rtk_backend_find_layout(d, rf->layout)) {

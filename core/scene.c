@@ -75,6 +75,10 @@ struct rtk_geometry_s {
     rtk_device device;
     rtk_geometry_type type;
     buffer vertex, index;
+    /* Motion blur: time_steps vertex buffers, slot 0 in vertex and slots
+     * 1 .. time_steps - 1 in steps[0 ..]. */
+    unsigned time_steps;
+    buffer *steps;
     /* Changed whenever a buffer is set or updated: unique over all
      * geometries, so a scene can tell what changed since its last commit. */
     uint64_t vertex_version, index_version;
@@ -136,6 +140,7 @@ struct rtk_scene_s {
     uint64_t instances;
     rtk_build_output own_stats;
     int two_level;     /* the tree is a top level (bvh4.object) */
+    uint64_t motion_prims; /* triangles with motion blur in the scene's own trees */
     unsigned honoured; /* the flags the scene's trees honour */
     /* RTK_SCENE_FLAG_DYNAMIC: a tree per triangle geometry, by slot, kept
      * from commit to commit while its geometry is unchanged, refitted when
@@ -188,6 +193,7 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     memcpy(g->inv, identity_3x4, sizeof g->inv);
     g->quality = RTK_BUILD_QUALITY_MEDIUM;
     g->enabled = 1;
+    g->time_steps = 1;
     rtk_device_retain(device);
     *out = g;
     return RTK_OK;
@@ -211,18 +217,37 @@ void rtk_geometry_release(rtk_geometry g)
         return;
     buffer_free(&g->vertex);
     buffer_free(&g->index);
+    for (unsigned k = 1; k < g->time_steps; k++)
+        buffer_free(&g->steps[k - 1]);
+    free(g->steps);
     rtk_scene_release(g->instanced);
     rtk_device dev = g->device;
     free(g);
     rtk_device_release(dev);
 }
 
-static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, size_t stride, size_t count, const char *fn)
+/* The buffer of a type and slot (checked by check_buffer_args). */
+static buffer *slot_buffer(rtk_geometry g, rtk_buffer_type type, unsigned slot)
+{
+    if (type == RTK_BUFFER_TYPE_INDEX)
+        return &g->index;
+    return slot ? &g->steps[slot - 1] : &g->vertex;
+}
+
+static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, unsigned slot, size_t stride, size_t count,
+                                   const char *fn)
 {
     if (g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "%s: an instance geometry has no buffers", fn);
     if (type != RTK_BUFFER_TYPE_VERTEX && type != RTK_BUFFER_TYPE_INDEX)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: unknown buffer type %d", fn, (int)type);
+    if (type == RTK_BUFFER_TYPE_INDEX && slot)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: slot %u: the index buffer has slot 0 only", fn,
+                        slot);
+    if (slot >= g->time_steps)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: vertex slot %u: the geometry has %u time step%s (rtk_geometry_set_time_step_count)", fn,
+                        slot, g->time_steps, g->time_steps == 1 ? "" : "s");
     if (stride < 12 || stride % 4)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
                         "%s: byte_stride %zu: must be at least 12 and a multiple of 4", fn, stride);
@@ -233,20 +258,18 @@ static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, size_t 
     return RTK_OK;
 }
 
-rtk_error rtk_geometry_set_shared_buffer(rtk_geometry g, rtk_buffer_type type, const void *ptr, size_t byte_offset,
-                                         size_t byte_stride, size_t count)
+static rtk_error set_shared_buffer(rtk_geometry g, rtk_buffer_type type, unsigned slot, const void *ptr,
+                                   size_t byte_offset, size_t byte_stride, size_t count, const char *fn)
 {
-    CHECK_HANDLE(g, "rtk_geometry_set_shared_buffer");
-    rtk_error err = check_buffer_args(g, type, byte_stride, count, "rtk_geometry_set_shared_buffer");
+    rtk_error err = check_buffer_args(g, type, slot, byte_stride, count, fn);
     if (err)
         return err;
     if (!ptr && count)
-        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_set_shared_buffer: ptr is NULL");
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: ptr is NULL", fn);
     const char *data = (const char *)ptr + (ptr ? byte_offset : 0);
     if ((uintptr_t)data % 4)
-        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
-                        "rtk_geometry_set_shared_buffer: data is not 4-byte aligned");
-    buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: data is not 4-byte aligned", fn);
+    buffer *b = slot_buffer(g, type, slot);
     buffer_changed(g, type);
     buffer_free(b);
     b->data = data;
@@ -255,23 +278,37 @@ rtk_error rtk_geometry_set_shared_buffer(rtk_geometry g, rtk_buffer_type type, c
     return RTK_OK;
 }
 
-rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size_t byte_stride, size_t count,
-                                      void **out)
+rtk_error rtk_geometry_set_shared_buffer(rtk_geometry g, rtk_buffer_type type, const void *ptr, size_t byte_offset,
+                                         size_t byte_stride, size_t count)
 {
-    CHECK_HANDLE(g, "rtk_geometry_set_new_buffer");
+    CHECK_HANDLE(g, "rtk_geometry_set_shared_buffer");
+    return set_shared_buffer(g, type, 0, ptr, byte_offset, byte_stride, count, "rtk_geometry_set_shared_buffer");
+}
+
+rtk_error rtk_geometry_set_shared_buffer_slot(rtk_geometry g, rtk_buffer_type type, unsigned slot, const void *ptr,
+                                              size_t byte_offset, size_t byte_stride, size_t count)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_shared_buffer_slot");
+    return set_shared_buffer(g, type, slot, ptr, byte_offset, byte_stride, count,
+                             "rtk_geometry_set_shared_buffer_slot");
+}
+
+static rtk_error set_new_buffer(rtk_geometry g, rtk_buffer_type type, unsigned slot, size_t byte_stride, size_t count,
+                                void **out, const char *fn)
+{
     if (!out)
-        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_set_new_buffer: out is NULL");
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: out is NULL", fn);
     *out = NULL;
-    rtk_error err = check_buffer_args(g, type, byte_stride, count, "rtk_geometry_set_new_buffer");
+    rtk_error err = check_buffer_args(g, type, slot, byte_stride, count, fn);
     if (err)
         return err;
     const size_t bytes = (count ? count : 1) * byte_stride; /* no overflow: checked above */
     blob *mem = bytes > SIZE_MAX - sizeof(blob) ? NULL : calloc(1, sizeof(blob) + bytes);
     if (!mem)
-        return rtk_fail(g->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_geometry_set_new_buffer: out of memory for %zu bytes",
+        return rtk_fail(g->device, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory for %zu bytes", fn,
                         count * byte_stride);
     atomic_init(&mem->refs, 1);
-    buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
+    buffer *b = slot_buffer(g, type, slot);
     buffer_changed(g, type);
     buffer_free(b);
     b->owned = mem;
@@ -279,6 +316,49 @@ rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size
     b->stride = byte_stride;
     b->count = count;
     *out = mem->data;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_new_buffer(rtk_geometry g, rtk_buffer_type type, size_t byte_stride, size_t count,
+                                      void **out)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_new_buffer");
+    return set_new_buffer(g, type, 0, byte_stride, count, out, "rtk_geometry_set_new_buffer");
+}
+
+rtk_error rtk_geometry_set_new_buffer_slot(rtk_geometry g, rtk_buffer_type type, unsigned slot, size_t byte_stride,
+                                           size_t count, void **out)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_new_buffer_slot");
+    return set_new_buffer(g, type, slot, byte_stride, count, out, "rtk_geometry_set_new_buffer_slot");
+}
+
+rtk_error rtk_geometry_set_time_step_count(rtk_geometry g, unsigned count)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_time_step_count");
+    if (g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                        "rtk_geometry_set_time_step_count: only triangle geometry has time steps");
+    if (count < 1 || count > RTK_MAX_TIME_STEPS)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "rtk_geometry_set_time_step_count: %u time steps: must be 1 to %d", count, RTK_MAX_TIME_STEPS);
+    if (count == g->time_steps)
+        return RTK_OK;
+    for (unsigned k = count; k < g->time_steps; k++)
+        buffer_free(&g->steps[k - 1]);
+    buffer *steps = NULL;
+    if (count > 1) {
+        steps = calloc(count - 1, sizeof *steps);
+        if (!steps)
+            return rtk_fail(g->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_geometry_set_time_step_count: out of memory");
+        const unsigned keep = count < g->time_steps ? count : g->time_steps;
+        if (keep > 1)
+            memcpy(steps, g->steps, (keep - 1) * sizeof *steps);
+    }
+    free(g->steps);
+    g->steps = steps;
+    g->time_steps = count;
+    buffer_changed(g, RTK_BUFFER_TYPE_VERTEX);
     return RTK_OK;
 }
 
@@ -423,6 +503,16 @@ rtk_error rtk_geometry_commit(rtk_geometry g)
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: no vertex buffer set");
     if (!g->index.stride)
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: no index buffer set");
+    for (unsigned k = 1; k < g->time_steps; k++) {
+        if (!g->steps[k - 1].stride)
+            return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                            "rtk_geometry_commit: no vertex buffer set in slot %u (of %u time steps)", k,
+                            g->time_steps);
+        if (g->steps[k - 1].count != g->vertex.count)
+            return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
+                            "rtk_geometry_commit: vertex slot %u has %zu vertices, slot 0 has %zu", k,
+                            g->steps[k - 1].count, g->vertex.count);
+    }
     g->committed = 1;
     return RTK_OK;
 }
@@ -458,6 +548,7 @@ static void scene_drop_accel(rtk_scene s)
     s->ref = NULL;
     s->instances = 0;
     s->two_level = 0;
+    s->motion_prims = 0;
     for (uint32_t i = 0; i < s->dyn_count; i++)
         accel_ref_release(s->dyn[i].ref);
     free(s->dyn);
@@ -847,7 +938,24 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     const char *want_layout = dev->config.layout[0] ? dev->config.layout : NULL;
     const rtk_builder_entry *builder = NULL;
     const rtk_layout_entry *layout = NULL;
-    for (int any_quality = want_builder != NULL; any_quality < 2 && !builder; any_quality++) {
+    /* geometries with motion blur come in groups of one time step count */
+    const unsigned steps = n ? s->geoms[in_geoms[0].geom_id]->time_steps : 1;
+    if (steps > 1) {
+        /* the motion builder of the quality (or the one named builder=;
+         * layout= names layouts of static triangles) */
+        if (!RTK_DESC_HAS(bk, motion_builders) || !bk->motion_builders[0].name)
+            return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
+                            "%s: backend %s cannot trace motion blur (it predates it)", fn, bk->name);
+        for (const rtk_builder_entry *b = bk->motion_builders; b->name && !builder; b++)
+            if (want_builder && !strcmp(b->name, want_builder))
+                builder = b;
+        for (const rtk_builder_entry *b = bk->motion_builders; b->name && !builder; b++)
+            if (b->qualities & (1u << quality))
+                builder = b;
+        builder = builder ? builder : bk->motion_builders;
+        layout = rtk_backend_find_layout(bk, builder->layout);
+    }
+    for (int any_quality = want_builder != NULL; steps == 1 && any_quality < 2 && !builder; any_quality++) {
         int best = -1;
         for (const rtk_builder_entry *b = bk->builders; b->name; b++) {
             if (want_builder ? strcmp(b->name, want_builder) : !any_quality && !(b->qualities & (1u << quality)))
@@ -878,8 +986,21 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     }
 
     rtk_task_system task_copy;
-    const rtk_build_input in =
-        build_input(quality, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
+    rtk_build_input in = build_input(quality, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
+    rtk_build_vertices *time_vertices = NULL;
+    if (steps > 1) {
+        time_vertices = calloc(n * steps, sizeof *time_vertices);
+        if (!time_vertices)
+            return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+        for (size_t k = 0; k < n; k++)
+            for (unsigned t = 0; t < steps; t++) {
+                const rtk_geometry g = s->geoms[in_geoms[k].geom_id];
+                const buffer *b = t ? &g->steps[t - 1] : &g->vertex;
+                time_vertices[k * steps + t] = (rtk_build_vertices){b->data, b->stride};
+            }
+        in.time_steps = steps;
+        in.time_vertices = time_vertices;
+    }
     rtk_build_output out = {.struct_size = sizeof out};
     double t0 = now_seconds();
     int rc;
@@ -906,6 +1027,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
         rc = builder->build(&in, &out);
     }
     double t1 = now_seconds();
+    free(time_vertices);
     if (rc != 0)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
@@ -1074,6 +1196,18 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     return RTK_OK;
 }
 
+/* Adds a tree's build to the sum of a scene's own trees. */
+static void add_output(rtk_build_output *total, uint64_t *motion, const rtk_build_output *o, const accel_ref *tree)
+{
+    total->prims += o->prims;
+    total->prims_skipped += o->prims_skipped;
+    total->prims_degenerate += o->prims_degenerate;
+    total->refs += o->refs ? o->refs : o->prims;
+    total->bytes += o->bytes;
+    if (tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB)
+        *motion += o->prims;
+}
+
 /* How a dynamic scene builds a geometry's own tree: its quality (low: the
  * Morton builder, for geometry that changes every frame; medium, high:
  * SAH), a deforming (REFIT) geometry's first build at medium. */
@@ -1100,6 +1234,7 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
      * instance this one hold its top level, and so them */
     const int own_refs = s->ref && atomic_load(&s->ref->refs) == 1 ? 2 : 0;
     rtk_build_output total = {.struct_size = sizeof total};
+    uint64_t motion = 0;
     double seconds = 0.0;
     uint32_t built = 0, refitted = 0;
     int touched = 0; /* an old tree refitted or rewritten in place */
@@ -1138,12 +1273,7 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
         if (nd[i].ref) {
             own[k] = nd[i].ref;
             atomic_fetch_add(&nd[i].ref->refs, 1); /* one for the top level's children */
-            const rtk_build_output *o = &nd[i].out;
-            total.prims += o->prims;
-            total.prims_skipped += o->prims_skipped;
-            total.prims_degenerate += o->prims_degenerate;
-            total.refs += o->refs ? o->refs : o->prims;
-            total.bytes += o->bytes;
+            add_output(&total, &motion, &nd[i].out, nd[i].ref);
         }
     }
     if (!err)
@@ -1161,10 +1291,44 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
     }
     s->dyn = nd;
     s->dyn_count = s->geom_count;
+    s->motion_prims = motion;
     s->trees_built = built;
     s->trees_refitted = refitted;
     s->honoured |= RTK_SCENE_FLAG_DYNAMIC;
     return RTK_OK;
+}
+
+/* The most trees of a scene's own triangles: one without motion blur and
+ * one per time step count (2 .. RTK_MAX_TIME_STEPS). */
+#define MAX_OWN_TREES RTK_MAX_TIME_STEPS
+
+static int cmp_u64(const void *a, const void *b)
+{
+    const uint64_t x = *(const uint64_t *)a, y = *(const uint64_t *)b;
+    return x < y ? -1 : x > y;
+}
+
+/* Orders geoms[0, n) (in id order) as the trees take them: without motion
+ * blur first, then by time step count, ids ascending within each.  0 when
+ * out of memory. */
+static int group_by_time_steps(rtk_scene s, rtk_build_geometry *geoms, size_t n)
+{
+    uint64_t *key = malloc((n ? n : 1) * sizeof *key);
+    rtk_build_geometry *copy = malloc((n ? n : 1) * sizeof *copy);
+    if (!key || !copy) {
+        free(key);
+        free(copy);
+        return 0;
+    }
+    for (size_t k = 0; k < n; k++)
+        key[k] = (uint64_t)s->geoms[geoms[k].geom_id]->time_steps << 32 | k;
+    qsort(key, n, sizeof *key, cmp_u64);
+    memcpy(copy, geoms, n * sizeof *copy);
+    for (size_t k = 0; k < n; k++)
+        geoms[k] = copy[(uint32_t)key[k]];
+    free(key);
+    free(copy);
+    return 1;
 }
 
 /* rtk_scene_commit (tree == NULL) and rtk_scene_commit_bvh: fn names the
@@ -1209,6 +1373,9 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         rtk_error err = kept ? RTK_OK : check_indices(s, i, g, fn);
         if (err)
             return err;
+        if (tree && g->time_steps > 1)
+            return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
+                            "%s: geometry %u has motion blur: a loaded tree holds no motion", fn, i);
         n++;
     }
     if (ni && tree)
@@ -1242,20 +1409,51 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         free(in_geoms);
         return err;
     }
-    /* the scene's own triangles: all of it without instances, else (when
-     * it has any) one object of its top level */
-    accel_ref *own = NULL;
-    rtk_build_output own_out = {.struct_size = sizeof own_out};
-    const char *own_builder = NULL;
-    double own_seconds = 0.0;
-    err = !ni || n ? build_triangles(s, in_geoms, n, s->quality, tree, fn, &own, &own_out, &own_builder, &own_seconds) : RTK_OK;
+    /* The scene's own triangles: those without motion blur in one tree,
+     * those with it in one per time step count.  A single tree with no
+     * instances is the whole scene; else each is an object of the top
+     * level. */
+    if (!group_by_time_steps(s, in_geoms, n)) {
+        free(in_geoms);
+        return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+    }
+    accel_ref *own[MAX_OWN_TREES];
+    rtk_build_output own_out[MAX_OWN_TREES], total = {.struct_size = sizeof total};
+    const char *own_builder[MAX_OWN_TREES];
+    uint32_t own_count = 0;
+    uint64_t motion = 0;
+    double seconds = 0.0;
+    err = RTK_OK;
+    for (size_t k = 0; (k < n || (!n && !ni && !own_count)) && !err; own_count++) {
+        size_t end = k;
+        while (end < n && s->geoms[in_geoms[end].geom_id]->time_steps == s->geoms[in_geoms[k].geom_id]->time_steps)
+            end++;
+        double t = 0.0;
+        own_out[own_count] = (rtk_build_output){.struct_size = sizeof own_out[0]};
+        err = build_triangles(s, in_geoms + k, end - k, s->quality, tree, fn, &own[own_count], &own_out[own_count],
+                              &own_builder[own_count], &t);
+        if (err)
+            break;
+        add_output(&total, &motion, &own_out[own_count], own[own_count]);
+        seconds += t;
+        k = end;
+    }
     free(in_geoms);
-    if (err)
+    if (err) {
+        release_refs(own, own_count);
         return err;
-    if (ni)
-        return commit_objects(s, own ? &own : NULL, own != NULL, &own_out, own_seconds, ni, fn);
-    install(s, own, &own_out, own_builder, own_seconds);
-    return RTK_OK;
+    }
+    if (ni || own_count > 1) {
+        err = commit_objects(s, own, own_count, &total, seconds, ni, fn);
+    } else {
+        install(s, own[0], &own_out[0], own_builder[0], seconds);
+        s->own_stats = total;
+    }
+    if (!err) {
+        s->motion_prims = motion;
+        s->trees_built = own_count;
+    }
+    return err;
 }
 
 rtk_error rtk_scene_commit(rtk_scene s)
@@ -1344,7 +1542,9 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     if (keep >= offsetof(rtk_scene_info, instances) + sizeof info->instances)
         info->instances = s->instances;
     if (keep >= offsetof(rtk_scene_info, trees_built) + sizeof info->trees_built)
-        info->trees_built = s->dyn ? s->trees_built : s->refits ? 0 : 1;
+        info->trees_built = s->dyn || !s->refits ? s->trees_built : 0;
+    if (keep >= offsetof(rtk_scene_info, triangles_motion) + sizeof info->triangles_motion)
+        info->triangles_motion = s->motion_prims;
     return RTK_OK;
 }
 

@@ -15,39 +15,10 @@
 
 #include "testlib.h"
 
-/* ---- a small procedural mesh: a bumpy sphere of 2 * R * R triangles ---- */
+/* ---- a small procedural mesh (test_ball: 2 * R * R triangles) and a floor ---- */
 #define R 24
-typedef struct mesh {
-    float *v;
-    uint32_t *idx;
-    size_t nv, nt;
-} mesh;
+typedef test_mesh mesh;
 static mesh ball, slab;
-
-static void make_ball(mesh *m)
-{
-    m->nv = (size_t)(R + 1) * (R + 1);
-    m->nt = (size_t)2 * R * R;
-    m->v = malloc(m->nv * 3 * sizeof *m->v);
-    m->idx = malloc(m->nt * 3 * sizeof *m->idx);
-    for (int j = 0; j <= R; j++)
-        for (int i = 0; i <= R; i++) {
-            const float th = 3.14159265f * (float)j / R, ph = 6.2831853f * (float)i / R;
-            const float r = 1.0f + 0.1f * sinf(5.0f * th) * cosf(3.0f * ph);
-            float *p = m->v + 3 * ((size_t)j * (R + 1) + i);
-            p[0] = r * sinf(th) * cosf(ph);
-            p[1] = r * sinf(th) * sinf(ph);
-            p[2] = r * cosf(th);
-        }
-    size_t t = 0;
-    for (int j = 0; j < R; j++)
-        for (int i = 0; i < R; i++) {
-            const uint32_t a = (uint32_t)(j * (R + 1) + i), b = a + 1, c = a + R + 1, d = c + 1;
-            uint32_t *q = m->idx + 3 * t;
-            q[0] = a, q[1] = b, q[2] = c, q[3] = b, q[4] = d, q[5] = c;
-            t += 2;
-        }
-}
 
 /* two big triangles: a floor */
 static void make_slab(mesh *m)
@@ -65,7 +36,7 @@ static void make_slab(mesh *m)
 static int setup(void **state)
 {
     (void)state;
-    make_ball(&ball);
+    ball = test_ball(R);
     make_slab(&slab);
     return 0;
 }
@@ -126,27 +97,12 @@ static void xfm_from_float(const float *f, double *m)
         m[i] = f[i];
 }
 
-/* ---- the reference: every triangle placed in world space ---- */
+/* ---- the reference: every triangle placed in world space (testlib.h) ---- */
 
-typedef struct placed {
-    double v[3][3];     /* world space */
-    double n_obj[3];    /* the normal in the innermost object space (unnormalised) */
-    uint32_t inst, geom, prim;
-} placed;
-
-typedef struct reference {
-    placed *t;
-    size_t n, cap;
-} reference;
-
-static void ref_add_mesh(reference *r, const mesh *m, const double *xfm, uint32_t inst, uint32_t geom)
+static void ref_add_mesh(placed_ref *r, const mesh *m, const double *xfm, uint32_t inst, uint32_t geom)
 {
     for (size_t k = 0; k < m->nt; k++) {
-        if (r->n == r->cap) {
-            r->cap = r->cap ? 2 * r->cap : 1024;
-            r->t = realloc(r->t, r->cap * sizeof *r->t);
-        }
-        placed *p = &r->t[r->n++];
+        placed *p = placed_add(r);
         double o[3][3];
         for (int c = 0; c < 3; c++) {
             const float *v = m->v + 3 * m->idx[3 * k + c];
@@ -154,71 +110,18 @@ static void ref_add_mesh(reference *r, const mesh *m, const double *xfm, uint32_
                 o[c][d] = v[d];
             xfm_apply(xfm, o[c], p->v[c]);
         }
-        const double e1[3] = {o[1][0] - o[0][0], o[1][1] - o[0][1], o[1][2] - o[0][2]};
-        const double e2[3] = {o[2][0] - o[0][0], o[2][1] - o[0][1], o[2][2] - o[0][2]};
-        p->n_obj[0] = e1[1] * e2[2] - e1[2] * e2[1];
-        p->n_obj[1] = e1[2] * e2[0] - e1[0] * e2[2];
-        p->n_obj[2] = e1[0] * e2[1] - e1[1] * e2[0];
+        placed_normal(p, o);
         p->inst = inst;
         p->geom = geom;
         p->prim = (uint32_t)k;
     }
 }
 
-/* Moeller-Trumbore in double: t, and the smallest barycentric (how far the
- * hit is from an edge); 0 when missed. */
-static int tri_hit(const placed *p, const double o[3], const double d[3], double *t, double *margin)
-{
-    const double *v0 = p->v[0];
-    const double e1[3] = {p->v[1][0] - v0[0], p->v[1][1] - v0[1], p->v[1][2] - v0[2]};
-    const double e2[3] = {p->v[2][0] - v0[0], p->v[2][1] - v0[1], p->v[2][2] - v0[2]};
-    const double pv[3] = {d[1] * e2[2] - d[2] * e2[1], d[2] * e2[0] - d[0] * e2[2], d[0] * e2[1] - d[1] * e2[0]};
-    const double det = e1[0] * pv[0] + e1[1] * pv[1] + e1[2] * pv[2];
-    if (det == 0.0)
-        return 0;
-    const double tv[3] = {o[0] - v0[0], o[1] - v0[1], o[2] - v0[2]};
-    const double u = (tv[0] * pv[0] + tv[1] * pv[1] + tv[2] * pv[2]) / det;
-    const double q[3] = {tv[1] * e1[2] - tv[2] * e1[1], tv[2] * e1[0] - tv[0] * e1[2], tv[0] * e1[1] - tv[1] * e1[0]};
-    const double v = (d[0] * q[0] + d[1] * q[1] + d[2] * q[2]) / det;
-    const double tt = (e2[0] * q[0] + e2[1] * q[1] + e2[2] * q[2]) / det;
-    const double w = 1.0 - u - v;
-    *margin = fmin(fmin(u, v), w);
-    *t = tt;
-    return *margin >= 0.0;
-}
-
-/* The closest placed triangle hit within [tnear, tfar]; -1 for none. */
-static long ref_closest_placed(const reference *r, const rtk_ray *ray, double *t_out, double *margin_out)
-{
-    const double o[3] = {ray->org_x, ray->org_y, ray->org_z}, d[3] = {ray->dir_x, ray->dir_y, ray->dir_z};
-    long best = -1;
-    double bt = INFINITY, bm = 0;
-    for (size_t k = 0; k < r->n; k++) {
-        double t, m;
-        if (tri_hit(&r->t[k], o, d, &t, &m) && t >= ray->tnear && t <= ray->tfar && t < bt) {
-            bt = t;
-            bm = m;
-            best = (long)k;
-        }
-    }
-    *t_out = bt;
-    *margin_out = bm;
-    return best;
-}
-
-static long ref_find(const reference *r, uint32_t inst, uint32_t geom, uint32_t prim)
-{
-    for (size_t k = 0; k < r->n; k++)
-        if (r->t[k].inst == inst && r->t[k].geom == geom && r->t[k].prim == prim)
-            return (long)k;
-    return -1;
-}
-
 /* Rays at the scene from outside its box, towards points inside it.  A
  * disagreement with the reference is allowed only where a rounding could
  * explain it: the hit lies within `tol` (barycentric) of an edge, or two
  * triangles' distances tie within tol.  Counts those in *excused. */
-static void check_rays(rtk_scene s, const reference *r, int nrays, uint32_t seed, double tol, int *hits, int *excused)
+static void check_rays(rtk_scene s, const placed_ref *r, int nrays, uint32_t seed, double tol, int *hits, int *excused)
 {
     rtk_scene_info info = {.struct_size = sizeof info};
     assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
@@ -231,63 +134,7 @@ static void check_rays(rtk_scene s, const reference *r, int nrays, uint32_t seed
             d[k] = lo + ext * rng_float(&g) - o[k];
         }
         const rtk_ray ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
-        rtk_rayhit rh = {.ray = ray};
-        rh.hit.geomID = rh.hit.instID = RTK_INVALID_GEOMETRY_ID;
-        assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
-        rtk_ray oc = ray;
-        assert_int_equal(rtk_occluded1(s, &oc), RTK_OK);
-        double t_ref, margin;
-        const long want = ref_closest_placed(r, &ray, &t_ref, &margin);
-        const int got = rh.hit.geomID != RTK_INVALID_GEOMETRY_ID;
-        if ((want >= 0) != got || (oc.tfar == -INFINITY) != (want >= 0)) {
-            if (want >= 0 && margin < tol) {
-                (*excused)++;
-                continue;
-            }
-            if (got) { /* rtk's triangle: its own edge margin */
-                const long k = ref_find(r, rh.hit.instID, rh.hit.geomID, rh.hit.primID);
-                const double ro[3] = {ray.org_x, ray.org_y, ray.org_z}, rd[3] = {ray.dir_x, ray.dir_y, ray.dir_z};
-                double t2, m2;
-                tri_hit(&r->t[k], ro, rd, &t2, &m2);
-                if (m2 > -tol && m2 < tol) {
-                    (*excused)++;
-                    continue;
-                }
-            }
-            fail_msg("ray %d (%a %a %a -> %a %a %a): rtk %s (inst %u geom %u prim %u, occluded %d), reference %s "
-                     "(margin %g)",
-                     i, o[0], o[1], o[2], d[0], d[1], d[2], got ? "hit" : "missed", rh.hit.instID, rh.hit.geomID,
-                     rh.hit.primID, oc.tfar == -INFINITY, want >= 0 ? "hit" : "missed", margin);
-        }
-        if (!got)
-            continue;
-        (*hits)++;
-        const placed *p = &r->t[want];
-        if (fabs(rh.ray.tfar - t_ref) > tol * (t_ref + 1.0))
-            fail_msg("ray %d: t %.9g, reference %.9g", i, rh.ray.tfar, t_ref);
-        if (p->inst != rh.hit.instID || p->geom != rh.hit.geomID || p->prim != rh.hit.primID) {
-            /* a tie: rtk's triangle must be hit as near */
-            const long k = ref_find(r, rh.hit.instID, rh.hit.geomID, rh.hit.primID);
-            if (k < 0)
-                fail_msg("ray %d: rtk reports inst %u geom %u prim %u, which does not exist", i, rh.hit.instID,
-                         rh.hit.geomID, rh.hit.primID);
-            const double ro[3] = {ray.org_x, ray.org_y, ray.org_z}, rd[3] = {ray.dir_x, ray.dir_y, ray.dir_z};
-            double t2, m2;
-            tri_hit(&r->t[k], ro, rd, &t2, &m2);
-            if (!(fabs(t2 - t_ref) <= tol * (t_ref + 1.0) || margin < tol || fabs(m2) < tol))
-                fail_msg("ray %d: rtk hit inst %u geom %u prim %u at %.9g, reference inst %u geom %u prim %u at %.9g",
-                         i, rh.hit.instID, rh.hit.geomID, rh.hit.primID, rh.ray.tfar, p->inst, p->geom, p->prim,
-                         t_ref);
-            (*excused)++;
-            continue;
-        }
-        /* the normal, in the innermost object space */
-        const double ng[3] = {rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z};
-        const double dot = ng[0] * p->n_obj[0] + ng[1] * p->n_obj[1] + ng[2] * p->n_obj[2];
-        const double len = sqrt(ng[0] * ng[0] + ng[1] * ng[1] + ng[2] * ng[2]) *
-                           sqrt(p->n_obj[0] * p->n_obj[0] + p->n_obj[1] * p->n_obj[1] + p->n_obj[2] * p->n_obj[2]);
-        if (!(dot > 0.9999 * len))
-            fail_msg("ray %d: Ng (%g %g %g) is not the object-space normal", i, ng[0], ng[1], ng[2]);
+        check_ray_placed(s, r, ray, i, tol, hits, excused);
     }
 }
 
@@ -350,7 +197,7 @@ static void instances_vs_reference(void **state)
             rtk_scene child = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
             rtk_scene top = NULL;
             assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
-            reference ref = {0};
+            placed_ref ref = {0};
             const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
             if (own) {
                 const uint32_t id = attach_mesh(dev, top, &slab);
@@ -431,7 +278,7 @@ static void nested_instances(void **state)
         attach(mid, instance_of(dev, c, xf[0]));
         attach(mid, instance_of(dev, c, xf[2]));
         assert_int_equal(rtk_scene_commit(mid), RTK_OK);
-        reference ref = {0};
+        placed_ref ref = {0};
         const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
         const uint32_t slab_id = attach_mesh(dev, top, &slab);
         ref_add_mesh(&ref, &slab, identity, RTK_INVALID_GEOMETRY_ID, slab_id);
@@ -605,9 +452,9 @@ static void place_ball(moving *b, float x, float twist)
 }
 
 /* The reference of a dynamic scene: every geometry as it is now. */
-static reference dynamic_reference(const moving *balls, const uint32_t *ids, int nballs, uint32_t slab_id)
+static placed_ref dynamic_reference(const moving *balls, const uint32_t *ids, int nballs, uint32_t slab_id)
 {
-    reference ref = {0};
+    placed_ref ref = {0};
     const double identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
     ref_add_mesh(&ref, &slab, identity, RTK_INVALID_GEOMETRY_ID, slab_id);
     for (int k = 0; k < nballs; k++)
@@ -618,7 +465,7 @@ static reference dynamic_reference(const moving *balls, const uint32_t *ids, int
 static void check_dynamic(rtk_scene s, const moving *balls, const uint32_t *ids, int nballs, uint32_t slab_id,
                           uint32_t seed)
 {
-    reference ref = dynamic_reference(balls, ids, nballs, slab_id);
+    placed_ref ref = dynamic_reference(balls, ids, nballs, slab_id);
     int hits = 0, excused = 0;
     check_rays(s, &ref, 1500, seed, 1e-4, &hits, &excused);
     assert_true(hits > 300);

@@ -72,6 +72,38 @@ struct rtk_mesh;
  * 0, or -1 when it cannot be read). */
 int test_load_shared_mesh(const char *name, struct rtk_mesh *mesh);
 
+/* A small procedural mesh: a bumpy sphere of radius about 1 around the
+ * origin, with (r + 1)^2 vertices and 2 r^2 triangles (malloc'd). */
+typedef struct test_mesh {
+    float *v;
+    uint32_t *idx;
+    size_t nv, nt;
+} test_mesh;
+test_mesh test_ball(int r);
+
+/* A reference in double precision for scenes whose triangles are placed
+ * (instances) or moved (motion blur): each triangle as the ray sees it. */
+typedef struct placed {
+    double v[3][3];  /* where the ray meets it */
+    double n_obj[3]; /* the normal rtk reports (unnormalised): in the innermost object space */
+    uint32_t inst, geom, prim;
+} placed;
+typedef struct placed_ref {
+    placed *t;
+    size_t n, cap;
+} placed_ref;
+/* A new triangle at the end (grown as needed). */
+placed *placed_add(placed_ref *r);
+/* n_obj from the triangle's vertices in object space. */
+void placed_normal(placed *p, const double o[3][3]);
+/* intersect1 and occluded1 of one ray (number i, for messages) against the
+ * reference, failing the test on a disagreement that rounding cannot
+ * explain: a hit or miss or a triangle that differs where the reference's
+ * hit is within `tol` (barycentric) of an edge, or two triangles' distances
+ * tie within tol, is counted in *excused; hits in *hits.  t must agree to
+ * tol (relative) and Ng point along n_obj. */
+void check_ray_placed(rtk_scene s, const placed_ref *r, rtk_ray ray, int i, double tol, int *hits, int *excused);
+
 typedef struct rng {
     uint64_t s;
 } rng;

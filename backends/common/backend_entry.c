@@ -76,6 +76,9 @@ static const rtk_layout_entry layouts[] = {
     /* the top level of scenes with instances (objects.c): built by the
      * objects entry below, never by a triangle builder */
     {.id = RTK_LAYOUT_BVH4_OBJECT, .scene_flags = 0, .name = "bvh4.object", .release = RTK_SYM(rtk_objects_release)},
+    /* motion blur (build_motion.c): built by the motion builders below */
+    {.id = RTK_LAYOUT_BVH4_TRIANGLE4MB, .scene_flags = 0, .name = "bvh4.triangle4mb",
+     .release = RTK_SYM(rtk_motion_release)},
     {0},
 };
 
@@ -133,6 +136,10 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersect1 = RTK_SYM(rtk_objects_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = 1,
      .fn.occluded1 = RTK_SYM(rtk_objects_occluded1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_bvh4mb_intersect1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_bvh4mb_occluded1)},
     {0},
 };
 
@@ -163,6 +170,17 @@ static const rtk_objects_entry objects[] = {
     {0},
 };
 
+/* Motion blur: one build function, shaping each time segment's tree with
+ * the Morton builder at low quality and the binned SAH builder otherwise
+ * (spatial splits would cut triangles at planes of one time only). */
+static const rtk_builder_entry motion_builders[] = {
+    {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4MB,
+     .build = RTK_SYM(rtk_build_motion)},
+    {.name = "sah-binned", .qualities = SAH_QUALITIES | SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4MB,
+     .build = RTK_SYM(rtk_build_motion)},
+    {0},
+};
+
 static const rtk_backend_desc desc = {
     .struct_size = sizeof(rtk_backend_desc),
     .name = RTK_STR(RTK_BACKEND_NAME),
@@ -172,6 +190,7 @@ static const rtk_backend_desc desc = {
     .layout_io = layout_io,
     .layout_refit = layout_refit,
     .objects = objects,
+    .motion_builders = motion_builders,
 };
 
 #define HEADER_SYM RTK_CAT(RTK_CAT(rtk_backend_, RTK_BACKEND_NAME), _header)

@@ -98,6 +98,35 @@ typedef struct rtk_triangle4i {
     uint32_t prim[4];
 } rtk_triangle4i;
 
+/* Layout "bvh4.triangle4mb" (motion blur, build_motion.c): one 4-wide tree
+ * per time segment (between two consecutive time steps), all over the same
+ * triangles.  A node holds each child's box at the segment's start and its
+ * change over the segment (lower + f * dlower at the segment's time f in
+ * [0, 1], padded so that this covers the triangles whatever the rounding);
+ * a leaf block holds its triangles' vertices at both ends, interpolated by
+ * the traversal as (1 - f) * a + f * b, which is a exactly at f = 0 and b
+ * at f = 1. */
+#define RTK_MB_DELTA 96 /* bytes from a plane at the start to its change */
+typedef struct rtk_bvh4mb_node {
+    float lower_x[4], upper_x[4];
+    float lower_y[4], upper_y[4];
+    float lower_z[4], upper_z[4];
+    float dlower_x[4], dupper_x[4];
+    float dlower_y[4], dupper_y[4];
+    float dlower_z[4], dupper_z[4];
+    uint32_t child[4];
+    uint32_t reserved[12]; /* pads the node to four cache lines */
+} rtk_bvh4mb_node;
+
+/* Up to four triangles' vertices at the segment's two ends:
+ * v[end][3 * vertex + axis][lane].  Unused lanes have prim =
+ * RTK_BVH4_EMPTY and NaN vertices, so they never hit. */
+typedef struct rtk_triangle4mb {
+    float v[2][9][4];
+    uint32_t geom[4];
+    uint32_t prim[4];
+} rtk_triangle4mb;
+
 /* Where a triangle4i leaf finds its vertices. */
 typedef struct rtk_leaf_geometry {
     const char *vertices; /* the geometry's vertex buffer at build time */
@@ -118,6 +147,12 @@ struct rtk_accel {
     /* bvh4.object (objects.c): the objects in leaf order, else NULL */
     struct rtk_build_object *objects;
     uint64_t object_count;
+    /* bvh4.triangle4mb: the trees of the time segments, else NULL.  Each
+     * is an accel of its own (root, nodes: rtk_bvh4mb_node, trismb). */
+    struct rtk_accel *segments;
+    uint32_t segment_count;
+    uint32_t reserved;
+    rtk_triangle4mb *trismb;
 };
 
 #endif

@@ -33,4 +33,8 @@ RTK_HIDDEN int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_o
 RTK_HIDDEN void RTK_SYM(rtk_objects_release)(rtk_accel *accel);
 RTK_HIDDEN void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
 RTK_HIDDEN void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out);
+RTK_HIDDEN void RTK_SYM(rtk_motion_release)(rtk_accel *accel);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 #endif

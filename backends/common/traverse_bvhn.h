@@ -33,8 +33,24 @@
 #include "kernels.h"
 #include "simd/simd.h"
 
+/* RTK_MOTION 1: bvh4.triangle4mb (motion blur): nodes whose planes are
+ * interpolated to the ray's time in its segment, and leaves whose vertices
+ * are; the entry points are traverse_bvh4mb.c's. */
+#ifndef RTK_MOTION
+#define RTK_MOTION 0
+#endif
+
+#if RTK_MOTION && RTK_BVHN != 4
+#error "motion blur nodes are 4 wide"
+#endif
 #if RTK_BVHN == 4
+#if RTK_MOTION
+typedef rtk_bvh4mb_node node_t;
+#define BVHN_NODES(accel) ((const rtk_bvh4mb_node *)(accel)->nodes)
+#else
 typedef rtk_bvh4_node node_t;
+#define BVHN_NODES(accel) ((const rtk_bvh4_node *)(accel)->nodes)
+#endif
 typedef vfloat4 vnode;
 #define vn_load vf4_load
 #define vn_set1 vf4_set1
@@ -52,7 +68,7 @@ typedef vfloat4 vnode;
 #define vn_maxi vf4_maxi
 #define vn_mini vf4_mini
 #define vn_gti vf4_gti
-#define BVHN_NODES(accel) ((const rtk_bvh4_node *)(accel)->nodes)
+#define vn_madd vf4_madd
 #define RTK_NODE_INT_ORDER RTK_SIMD_INT_ORDER_4
 #elif RTK_BVHN == 8
 typedef rtk_bvh8_node node_t;
@@ -86,6 +102,8 @@ typedef vfloat8 vnode;
 #endif
 #if RTK_LEAF_INDEXED
 #define BVHN_TAG RTK_CAT(RTK_BVHN, i)
+#elif RTK_MOTION
+#define BVHN_TAG RTK_CAT(RTK_BVHN, mb)
 #else
 #define BVHN_TAG RTK_BVHN
 #endif
@@ -109,6 +127,10 @@ typedef struct ray_pre {
     int fma;                   /* 0: org * inv is out of range, use the sub-mul test */
 #endif
     size_t near_off[3], far_off[3]; /* byte offsets of the near/far planes in a node */
+#if RTK_MOTION
+    vnode ftime;          /* the ray's time in its segment, for the planes */
+    vfloat4 f4, one_f4;   /* the same and 1 - it, for the vertices */
+#endif
 } ray_pre;
 
 /* Everything per axis is computed for x, y, z at once in lanes 0..2 of
@@ -175,6 +197,12 @@ static inline vnode plane(const node_t *n, size_t off)
 {
     return vn_load((const float *)((const char *)n + off));
 }
+#if RTK_MOTION
+/* a plane at the ray's time: start + f * change */
+#define PLANE(n, off) vn_madd(p->ftime, plane(n, (off) + RTK_MB_DELTA), plane(n, off))
+#else
+#define PLANE(n, off) plane(n, off)
+#endif
 
 /* Tests the N child boxes at once; returns a bit mask of those entered
  * within [tnear, tfar] and their entry distances.  Single-ray traversal is
@@ -209,21 +237,21 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
     (void)fused;
 #if RTK_SIMD_HAS_FMA
     if (fused) {
-        t0x = vn_msub(plane(n, p->near_off[0]), p->ninv[0], p->c_near[0]);
-        t0y = vn_msub(plane(n, p->near_off[1]), p->ninv[1], p->c_near[1]);
-        t0z = vn_msub(plane(n, p->near_off[2]), p->ninv[2], p->c_near[2]);
-        t1x = vn_msub(plane(n, p->far_off[0]), p->ninv_far[0], p->c_far[0]);
-        t1y = vn_msub(plane(n, p->far_off[1]), p->ninv_far[1], p->c_far[1]);
-        t1z = vn_msub(plane(n, p->far_off[2]), p->ninv_far[2], p->c_far[2]);
+        t0x = vn_msub(PLANE(n, p->near_off[0]), p->ninv[0], p->c_near[0]);
+        t0y = vn_msub(PLANE(n, p->near_off[1]), p->ninv[1], p->c_near[1]);
+        t0z = vn_msub(PLANE(n, p->near_off[2]), p->ninv[2], p->c_near[2]);
+        t1x = vn_msub(PLANE(n, p->far_off[0]), p->ninv_far[0], p->c_far[0]);
+        t1y = vn_msub(PLANE(n, p->far_off[1]), p->ninv_far[1], p->c_far[1]);
+        t1z = vn_msub(PLANE(n, p->far_off[2]), p->ninv_far[2], p->c_far[2]);
     } else
 #endif
     {
-        t0x = vn_mul(vn_sub(plane(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
-        t0y = vn_mul(vn_sub(plane(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
-        t0z = vn_mul(vn_sub(plane(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
-        t1x = vn_mul(vn_sub(plane(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
-        t1y = vn_mul(vn_sub(plane(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
-        t1z = vn_mul(vn_sub(plane(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
+        t0x = vn_mul(vn_sub(PLANE(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
+        t0y = vn_mul(vn_sub(PLANE(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
+        t0z = vn_mul(vn_sub(PLANE(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
+        t1x = vn_mul(vn_sub(PLANE(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
+        t1y = vn_mul(vn_sub(PLANE(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
+        t1z = vn_mul(vn_sub(PLANE(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
 #if RTK_NODE_INT_ORDER
         /* + 0.0 turns the far distances' -0.0 into +0.0, the one value where
          * the integer order and the float order disagree here, and changes
@@ -278,6 +306,33 @@ static inline int push_children(const uint32_t *child, unsigned mask, vnode dist
  * the edges computed exactly as the triangle4 builder computes them (so both
  * layouts give the same answers to the bit).  An unused lane's three
  * vertices are one point: no area, never hit. */
+#if RTK_MOTION
+/* Motion blur: the block's vertices interpolated to the ray's time,
+ * (1 - f) * a + f * b (a at f = 0 and b at f = 1 exactly), then the edges
+ * as the triangle4 builder computes them. */
+static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t index, rtk_triangle4 *scratch,
+                                              const ray_pre *p)
+{
+    const rtk_triangle4mb *t = &accel->trismb[index];
+    vfloat4 v[9];
+    for (int c = 0; c < 9; c++)
+        v[c] = vf4_madd(p->f4, vf4_load(t->v[1][c]), vf4_mul(p->one_f4, vf4_load(t->v[0][c])));
+    vf4_store(scratch->v0x, v[0]);
+    vf4_store(scratch->v0y, v[1]);
+    vf4_store(scratch->v0z, v[2]);
+    vf4_store(scratch->e1x, vf4_sub(v[3], v[0]));
+    vf4_store(scratch->e1y, vf4_sub(v[4], v[1]));
+    vf4_store(scratch->e1z, vf4_sub(v[5], v[2]));
+    vf4_store(scratch->e2x, vf4_sub(v[6], v[0]));
+    vf4_store(scratch->e2y, vf4_sub(v[7], v[1]));
+    vf4_store(scratch->e2z, vf4_sub(v[8], v[2]));
+    memcpy(scratch->geom, t->geom, sizeof t->geom);
+    memcpy(scratch->prim, t->prim, sizeof t->prim);
+    return scratch;
+}
+#define LEAF_BLOCK(accel, index, scratch) leaf_block(accel, index, scratch, p)
+#else
+#define LEAF_BLOCK(accel, index, scratch) leaf_block(accel, index, scratch)
 static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t index, rtk_triangle4 *scratch)
 {
 #if RTK_LEAF_INDEXED
@@ -295,6 +350,7 @@ static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t i
     return &accel->tris[index];
 #endif
 }
+#endif
 
 /* Moeller-Trumbore on four triangles at once, the same arithmetic as
  * rtk_triangle_intersect (geometry/triangle.h) lane by lane.  Returns the
@@ -463,7 +519,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t block = first; block < end; block++) {
             rtk_triangle4 scratch;
-            const rtk_triangle4 *t = leaf_block(accel, block, &scratch);
+            const rtk_triangle4 *t = LEAF_BLOCK(accel, block, &scratch);
             tri4_hit h;
             unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
             if (mask) {
@@ -521,7 +577,7 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
         for (uint32_t block = first; block < end; block++) {
             tri4_hit h;
             rtk_triangle4 scratch;
-            if (triangle4_intersect(leaf_block(accel, block, &scratch), p, tnear, tfar, &h))
+            if (triangle4_intersect(LEAF_BLOCK(accel, block, &scratch), p, tnear, tfar, &h))
                 return 1;
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
@@ -553,6 +609,7 @@ static int any_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, flo
     return any_from_(accel, root, p, tnear_s, tfar_s, 0);
 }
 
+#if !RTK_MOTION /* (traverse_bvh4mb.c has its own) */
 /* The geometric normal and ids of a closest hit. */
 static inline void closest_hit_record(const rtk_accel *accel, const closest_hit *best, float ng[3], uint32_t *prim,
                                       uint32_t *geom)
@@ -597,3 +654,4 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
     if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar))
         ray->tfar = -INFINITY;
 }
+#endif

@@ -22,8 +22,12 @@
  *
  * occluded1: on any hit, ray.tfar becomes -inf; on a miss nothing is written.
  *
- * ray.time, ray.mask and ray.flags are carried for forward compatibility:
- * this version has no motion blur and no geometry masks, so it ignores them.
+ * ray.time is the ray's time, in [0, 1], read only by geometry with motion
+ * blur (rtk_geometry_set_time_step_count): such geometry is hit only by
+ * rays whose time lies in [0, 1] (a NaN or other time misses it; the rest
+ * of the scene is hit as usual).  ray.mask and ray.flags are carried for
+ * forward compatibility: this version has no geometry masks, so it ignores
+ * them.
  */
 #ifndef RTK_RTK_H
 #define RTK_RTK_H
@@ -325,8 +329,14 @@ typedef struct rtk_scene_info {
     /* Added after rtk 0.1.0: the trees the last commit built.  A scene
      * flagged RTK_SCENE_FLAG_DYNAMIC has one per triangle geometry, and a
      * commit builds only those of geometries changed since (refits then
-     * counts the trees it refitted); any other scene: 1, or 0 after a refit. */
+     * counts the trees it refitted); any other scene: 1 (one more per time
+     * step count of its geometries with motion blur), or 0 after a refit. */
     uint32_t trees_built;
+    /* Added after rtk 0.1.0: of triangles, those of geometries with motion
+     * blur (more than one time step).  They are built into trees of their
+     * own (layout "bvh4.triangle4mb", one tree per time segment, in bytes),
+     * below a top level when the scene has other triangles or instances. */
+    uint64_t triangles_motion;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -435,6 +445,37 @@ RTK_API void *rtk_geometry_get_user_data(rtk_geometry geometry);
  * committed geometry. */
 RTK_API rtk_error rtk_geometry_commit(rtk_geometry geometry);
 
+/* ---- motion blur (added after rtk 0.1.0) ------------------------------------
+ * A triangle geometry with T > 1 time steps has T vertex buffers, in slots
+ * 0 .. T-1: slot k holds the positions at time k / (T - 1), and between
+ * two steps every vertex moves on a straight line (linear motion blur, as
+ * Embree's rtcSetGeometryTimeStepCount).  A ray at time t sees the
+ * triangles at t (rtk_ray.time; times outside [0, 1] miss them).  The
+ * index buffer is shared by all steps; every vertex buffer must have as
+ * many vertices as slot 0's.  A hit reports u, v and Ng of the triangle at
+ * the ray's time.  A triangle with a NaN or infinite vertex at any step is
+ * left out (triangles_skipped); one of zero area at some steps stays and
+ * is hit where it has area.  Geometry without motion pays nothing for it:
+ * a scene holding both builds its static triangles as always, the moving
+ * ones into trees of their own (one per time segment), and a top level
+ * over them.  Motion-blurred geometry is always rebuilt on a change (a
+ * REFIT quality builds as medium); its tree cannot be exported
+ * (rtk_scene_get_bvh) or loaded (rtk_scene_commit_bvh). */
+#define RTK_MAX_TIME_STEPS 129
+
+/* Sets the number of time steps (1 .. RTK_MAX_TIME_STEPS; 1, the default,
+ * is no motion).  Vertex slots at or beyond the new count are released. */
+RTK_API rtk_error rtk_geometry_set_time_step_count(rtk_geometry geometry, unsigned count);
+/* rtk_geometry_set_shared_buffer and rtk_geometry_set_new_buffer for a
+ * slot: a vertex buffer's time step (slot < the time step count), or 0.
+ * The calls without _slot are slot 0.  rtk_geometry_update_buffer on the
+ * vertex type tells rtk that any of the vertex slots changed. */
+RTK_API rtk_error rtk_geometry_set_shared_buffer_slot(rtk_geometry geometry, rtk_buffer_type type, unsigned slot,
+                                                      const void *ptr, size_t byte_offset, size_t byte_stride,
+                                                      size_t count);
+RTK_API rtk_error rtk_geometry_set_new_buffer_slot(rtk_geometry geometry, rtk_buffer_type type, unsigned slot,
+                                                   size_t byte_stride, size_t count, void **out);
+
 /* ---- instances (added after rtk 0.1.0) --------------------------------------
  * An instance geometry places a scene of the same device in the scene it is
  * attached to, by an affine transform from the instanced scene's space (its
@@ -482,7 +523,7 @@ typedef struct rtk_ray {
     float org_x, org_y, org_z;
     float tnear;
     float dir_x, dir_y, dir_z;
-    float time;  /* reserved: no motion blur yet */
+    float time;  /* in [0, 1]: for geometry with motion blur */
     float tfar;
     uint32_t mask;  /* reserved: no geometry masks yet */
     uint32_t id;    /* the application's */

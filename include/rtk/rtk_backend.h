@@ -135,7 +135,22 @@ typedef struct rtk_build_input {
     uint32_t object_count;
     uint32_t reserved2;
     const rtk_build_object *objects;
+    /* Added after rtk 0.1.0 (the same way): motion blur, for the motion
+     * builders (rtk_backend_desc.motion_builders) only.  Every geometry has
+     * time_steps (>= 2) vertex buffers, the positions at times
+     * k / (time_steps - 1) of the ray time range [0, 1]:
+     * time_vertices[g * time_steps + k] is geometry g's step k (step 0 is
+     * also geometries[g].vertices), all of vertex_count vertices. */
+    uint32_t time_steps;
+    uint32_t reserved3;
+    const struct rtk_build_vertices *time_vertices;
 } rtk_build_input;
+
+/* One vertex buffer of a time step: already offset to the first vertex. */
+typedef struct rtk_build_vertices {
+    const void *vertices;
+    size_t stride;
+} rtk_build_vertices;
 
 typedef struct rtk_build_output {
     uint32_t struct_size;
@@ -181,7 +196,8 @@ enum rtk_query_kind {
     X(RTK_LAYOUT_BVH4_TRIANGLE4, 1, "bvh4.triangle4")                                                                  \
     X(RTK_LAYOUT_BVH8_TRIANGLE4, 2, "bvh8.triangle4")                                                                  \
     X(RTK_LAYOUT_BVH4_TRIANGLE4I, 3, "bvh4.triangle4i")                                                                \
-    X(RTK_LAYOUT_BVH4_OBJECT, 4, "bvh4.object")
+    X(RTK_LAYOUT_BVH4_OBJECT, 4, "bvh4.object")                                                                       \
+    X(RTK_LAYOUT_BVH4_TRIANGLE4MB, 5, "bvh4.triangle4mb")
 enum rtk_layout_id {
     RTK_LAYOUT_NONE = 0,
 #define RTK_X_(id, value, text) id = value,
@@ -290,6 +306,11 @@ typedef struct rtk_backend_desc {
     /* Added after rtk 0.1.0 (the same way; NULL or absent = no instances:
      * the core refuses to commit a scene that has some). */
     const rtk_objects_entry *objects;
+    /* Added after rtk 0.1.0 (the same way; NULL or absent = no motion
+     * blur: the core refuses to commit a scene with geometry of several
+     * time steps).  Builders over rtk_build_input.time_steps > 1, whose
+     * layouts read rtk_ray.time; never used for a scene without motion. */
+    const rtk_builder_entry *motion_builders;
 } rtk_backend_desc;
 
 #define RTK_BACKEND_EXPORT __attribute__((visibility("default")))

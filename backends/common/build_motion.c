@@ -1,0 +1,359 @@
+/*
+ * The motion-blur builder: layout bvh4.triangle4mb (bvh4_triangle4.h) over
+ * triangle meshes with time_steps >= 2 vertex buffers.
+ *
+ * One tree per time segment (between consecutive time steps).  A
+ * segment's tree is shaped by the ordinary builders (Morton for low
+ * quality, binned SAH otherwise) run over the triangles at the segment's
+ * middle time, and then given linear bounds: every box is recomputed
+ * bottom-up from the triangles' vertices at the segment's two ends, and a
+ * node stores the start box and its change, so a ray at time f in the
+ * segment tests the box interpolated to f.  Since every vertex moves on a
+ * straight line, the box of the vertices at f lies inside the
+ * interpolated box (the minimum of linear functions is concave); a small
+ * pad covers the rounding of the interpolation.  Shaping the tree at the
+ * middle time rather than over the boxes swept by the triangles
+ * (Embree's motion-blur builders weigh the swept boxes) costs trace speed
+ * when the motion is large against the triangles; it buys the parallel,
+ * deterministic builders as they are.
+ *
+ * A triangle is left out (at every time) when a vertex is NaN or infinite
+ * at some time step; a triangle of zero area at some or every step stays
+ * in (it may have area in between), hit only where it has area.
+ */
+#include <stdlib.h>
+
+#include "build_common.h"
+#include "kernels.h"
+
+_Static_assert(offsetof(rtk_bvh4mb_node, dlower_x) - offsetof(rtk_bvh4mb_node, lower_x) == RTK_MB_DELTA, "delta");
+_Static_assert(offsetof(rtk_bvh4mb_node, dupper_z) - offsetof(rtk_bvh4mb_node, upper_z) == RTK_MB_DELTA, "delta");
+_Static_assert(sizeof(rtk_bvh4mb_node) == 256, "four cache lines");
+
+#define MB_BLOCK_CHUNK 4096u
+
+/* A box at each end of a segment. */
+typedef struct lbox {
+    box4 b[2];
+} lbox;
+
+typedef struct mb {
+    const rtk_build_input *in;
+    build bd;                  /* for run_parallel */
+    uint32_t steps, seg;       /* time steps; the segment being converted */
+    const uint32_t *index_of;  /* geometry id -> index in the input */
+    uint32_t max_id;
+    const struct rtk_accel *topo; /* the segment's shape (bvh4.triangle4 at the middle time) */
+    struct rtk_accel *out;        /* the segment's tree */
+    lbox *block_box;
+    uint64_t *lanes;              /* per chunk of blocks: triangles in them */
+} mb;
+
+static inline const float *step_vertex(const mb *m, uint32_t g, uint32_t step, uint32_t v)
+{
+    const rtk_build_vertices *b = &m->in->time_vertices[(size_t)g * m->steps + step];
+    return (const float *)((const char *)b->vertices + (size_t)v * b->stride);
+}
+
+/* Leaf blocks of one chunk: the topology's triangles with their vertices
+ * at the segment's two ends. */
+static void convert_blocks(void *data, uint32_t chunk)
+{
+    mb *m = data;
+    const uint64_t begin = (uint64_t)chunk * MB_BLOCK_CHUNK;
+    const uint64_t end = begin + MB_BLOCK_CHUNK < m->topo->leaf_count ? begin + MB_BLOCK_CHUNK : m->topo->leaf_count;
+    uint64_t lanes = 0;
+    for (uint64_t k = begin; k < end; k++) {
+        const rtk_triangle4 *t = &m->topo->tris[k];
+        rtk_triangle4mb *d = &m->out->trismb[k];
+        lbox box = {{box_empty(), box_empty()}};
+        for (int lane = 0; lane < 4; lane++) {
+            d->geom[lane] = t->geom[lane];
+            d->prim[lane] = t->prim[lane];
+            if (t->prim[lane] == RTK_BVH4_EMPTY) {
+                for (int e = 0; e < 2; e++)
+                    for (int c = 0; c < 9; c++)
+                        d->v[e][c][lane] = NAN;
+                continue;
+            }
+            lanes++;
+            const uint32_t gi = m->index_of[t->geom[lane]];
+            const uint32_t *tri = triangle_at(&m->in->geometries[gi], t->prim[lane]);
+            for (int e = 0; e < 2; e++)
+                for (int v = 0; v < 3; v++) {
+                    const float *p = step_vertex(m, gi, m->seg + (uint32_t)e, tri[v]);
+                    for (int c = 0; c < 3; c++)
+                        d->v[e][3 * v + c][lane] = p[c];
+                    const vfloat4 x = vf4_set(p[0], p[1], p[2], 0.0f);
+                    box_grow(&box.b[e], x, x);
+                }
+        }
+        m->block_box[k] = box;
+    }
+    m->lanes[chunk] = lanes;
+}
+
+/* One child slot: the start box and its change, padded (see the file's
+ * comment) by 2^-19 of the largest magnitude involved, about 16 units in
+ * the last place, where the interpolations round by a few.  Where the
+ * padded values overflow, the slot takes the union of both ends with no
+ * change instead. */
+static void store_slot(rtk_bvh4mb_node *n, int c, const lbox *b)
+{
+    _Alignas(16) float lo[2][4], hi[2][4];
+    for (int e = 0; e < 2; e++) {
+        vf4_store(lo[e], b->b[e].lo);
+        vf4_store(hi[e], b->b[e].hi);
+    }
+    float *lower[3] = {n->lower_x, n->lower_y, n->lower_z}, *upper[3] = {n->upper_x, n->upper_y, n->upper_z};
+    float *dlower[3] = {n->dlower_x, n->dlower_y, n->dlower_z}, *dupper[3] = {n->dupper_x, n->dupper_y, n->dupper_z};
+    for (int a = 0; a < 3; a++) {
+        const float mag = fmaxf(fmaxf(fabsf(lo[0][a]), fabsf(hi[0][a])), fmaxf(fabsf(lo[1][a]), fabsf(hi[1][a])));
+        const float pad = mag * 0x1p-19f + 0x1p-126f;
+        const float l0 = lo[0][a] - pad, l1 = lo[1][a] - pad, h0 = hi[0][a] + pad, h1 = hi[1][a] + pad;
+        const float dl = l1 - l0, dh = h1 - h0;
+        if (isfinite(l0) && isfinite(l1) && isfinite(h0) && isfinite(h1) && isfinite(dl) && isfinite(dh)) {
+            lower[a][c] = l0;
+            upper[a][c] = h0;
+            dlower[a][c] = dl;
+            dupper[a][c] = dh;
+        } else {
+            lower[a][c] = fminf(l0, l1);
+            upper[a][c] = fmaxf(h0, h1);
+            dlower[a][c] = dupper[a][c] = 0.0f;
+        }
+    }
+}
+
+/* The nodes of the subtree `ref`, written with the boxes of both ends;
+ * returns its boxes. */
+static lbox convert_subtree(mb *m, uint32_t ref)
+{
+    lbox all = {{box_empty(), box_empty()}};
+    if (ref & RTK_BVH4_LEAF_BIT) {
+        const uint32_t first = rtk_leaf_first(ref);
+        for (uint32_t k = first; k < first + rtk_leaf_blocks(ref); k++)
+            for (int e = 0; e < 2; e++)
+                box_grow(&all.b[e], m->block_box[k].b[e].lo, m->block_box[k].b[e].hi);
+        return all;
+    }
+    const rtk_bvh4_node *t = &((const rtk_bvh4_node *)m->topo->nodes)[ref];
+    rtk_bvh4mb_node *n = &((rtk_bvh4mb_node *)m->out->nodes)[ref];
+    memset(n, 0, sizeof *n);
+    for (int c = 0; c < 4; c++) {
+        n->child[c] = t->child[c];
+        if (t->child[c] == RTK_BVH4_EMPTY) {
+            n->lower_x[c] = n->lower_y[c] = n->lower_z[c] = INFINITY;
+            n->upper_x[c] = n->upper_y[c] = n->upper_z[c] = -INFINITY;
+            continue;
+        }
+        const lbox b = convert_subtree(m, t->child[c]);
+        store_slot(n, c, &b);
+        for (int e = 0; e < 2; e++)
+            box_grow(&all.b[e], b.b[e].lo, b.b[e].hi);
+    }
+    return all;
+}
+
+static void release_segments(struct rtk_accel *accel)
+{
+    for (uint32_t s = 0; s < accel->segment_count; s++) {
+        free(accel->segments[s].nodes);
+        free(accel->segments[s].trismb);
+    }
+    free(accel->segments);
+}
+
+void RTK_SYM(rtk_motion_release)(rtk_accel *accel)
+{
+    if (!accel)
+        return;
+    release_segments(accel);
+    free(accel);
+}
+
+static int mb_fail(rtk_build_output *out, int rc, const char *text)
+{
+    build_set_message(out, text);
+    return rc;
+}
+
+/* The vertices at the middle of segment s, into mid[g] (3 floats each); a
+ * vertex non-finite at any time step is NaN there, so every triangle using
+ * it is left out of every segment's tree. */
+static void middle_vertices(const mb *m, uint32_t s, float *const *mid, const uint8_t *const *bad)
+{
+    const rtk_build_input *in = m->in;
+    for (uint32_t g = 0; g < in->geometry_count; g++)
+        for (size_t v = 0; v < in->geometries[g].vertex_count; v++) {
+            float *q = &mid[g][3 * v];
+            if (bad[g][v]) {
+                q[0] = q[1] = q[2] = NAN;
+                continue;
+            }
+            const float *a = step_vertex(m, g, s, (uint32_t)v), *b = step_vertex(m, g, s + 1, (uint32_t)v);
+            for (int c = 0; c < 3; c++)
+                q[c] = 0.5f * a[c] + 0.5f * b[c];
+        }
+}
+
+int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
+{
+    if (in->struct_size < offsetof(rtk_build_input, time_vertices) + sizeof in->time_vertices || in->time_steps < 2 ||
+        !in->time_vertices)
+        return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the motion builder needs at least two time steps");
+    if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB)
+        return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the motion builder produces bvh4.triangle4mb only");
+    mb m = {.in = in, .steps = in->time_steps};
+    const uint32_t segments = in->time_steps - 1;
+    int rc = RTK_OK;
+    struct rtk_accel *accel = calloc(1, sizeof *accel);
+    float **mid = calloc(in->geometry_count + 1, sizeof *mid);
+    uint8_t **bad = calloc(in->geometry_count + 1, sizeof *bad);
+    rtk_build_geometry *geoms = calloc(in->geometry_count + 1, sizeof *geoms);
+    uint32_t *index_of = build_geometry_index(in, &m.max_id);
+    m.index_of = index_of;
+    if (accel)
+        accel->segments = calloc(segments, sizeof *accel->segments);
+    if (!accel || !accel->segments || !mid || !bad || !geoms || !index_of) {
+        rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
+        goto done;
+    }
+    accel->layout = RTK_LAYOUT_BVH4_TRIANGLE4MB;
+    accel->segment_count = segments;
+    for (uint32_t g = 0; g < in->geometry_count; g++) {
+        const size_t nv = in->geometries[g].vertex_count;
+        mid[g] = malloc((nv ? nv : 1) * 3 * sizeof **mid);
+        bad[g] = calloc(nv ? nv : 1, 1);
+        if (!mid[g] || !bad[g]) {
+            rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
+            goto done;
+        }
+        for (uint32_t k = 0; k < m.steps; k++)
+            for (size_t v = 0; v < nv; v++) {
+                const float *p = step_vertex(&m, g, k, (uint32_t)v);
+                bad[g][v] |= !(0.0f * p[0] + 0.0f * p[1] + 0.0f * p[2] == 0.0f);
+            }
+        geoms[g] = in->geometries[g];
+        geoms[g].vertices = mid[g];
+        geoms[g].vertex_stride = 3 * sizeof(float);
+        /* triangles of zero area at the middle time stay in the shape */
+        geoms[g].flags |= RTK_BUILD_GEOMETRY_DEFORMS;
+    }
+    rtk_build_input topo_in = *in;
+    topo_in.struct_size = sizeof topo_in;
+    topo_in.geometries = geoms;
+    topo_in.layout = RTK_LAYOUT_BVH4_TRIANGLE4;
+    topo_in.time_steps = 0;
+    topo_in.time_vertices = NULL;
+    m.bd = (build){.in = in, .tasks = in->tasks && in->threads > 1 && in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks ? in->tasks : NULL};
+
+    lbox total = {{box_empty(), box_empty()}};
+    uint64_t nodes = 0, blocks = 0, prims = 0, skipped = 0;
+    uint32_t depth = 0, threads = 1;
+    double sah = 0.0;
+    for (uint32_t s = 0; s < segments && !rc; s++) {
+        middle_vertices(&m, s, mid, (const uint8_t *const *)bad);
+        rtk_build_output topo_out = {.struct_size = sizeof topo_out};
+        rc = in->quality == RTK_BUILD_QUALITY_LOW ? RTK_SYM(rtk_build_morton)(&topo_in, &topo_out)
+                                                  : RTK_SYM(rtk_build_sah)(&topo_in, &topo_out);
+        if (rc) {
+            build_set_message(out, topo_out.message);
+            break;
+        }
+        struct rtk_accel *topo = topo_out.accel;
+        struct rtk_accel *seg = &accel->segments[s];
+        seg->layout = RTK_LAYOUT_BVH4_TRIANGLE4MB;
+        seg->root = topo->root;
+        seg->node_count = topo->node_count;
+        seg->leaf_count = topo->leaf_count;
+        seg->nodes = aligned_alloc(64, (topo->node_count ? topo->node_count : 1) * sizeof(rtk_bvh4mb_node));
+        seg->trismb = aligned_alloc(64, (topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4mb));
+        const uint32_t chunks = (uint32_t)((topo->leaf_count + MB_BLOCK_CHUNK - 1) / MB_BLOCK_CHUNK);
+        m.block_box = malloc((topo->leaf_count ? topo->leaf_count : 1) * sizeof *m.block_box);
+        m.lanes = calloc(chunks ? chunks : 1, sizeof *m.lanes);
+        if (!seg->nodes || !seg->trismb || !m.block_box || !m.lanes) {
+            rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
+        } else {
+            m.seg = s;
+            m.topo = topo;
+            m.out = seg;
+            run_parallel(&m.bd, chunks, convert_blocks, &m);
+            if (topo->root != RTK_BVH4_EMPTY) {
+                const lbox b = convert_subtree(&m, topo->root);
+                /* the root's box padded as a slot's is */
+                rtk_bvh4mb_node root = {0};
+                store_slot(&root, 0, &b);
+                const float lo[3] = {root.lower_x[0], root.lower_y[0], root.lower_z[0]};
+                const float hi[3] = {root.upper_x[0], root.upper_y[0], root.upper_z[0]};
+                const float dlo[3] = {root.dlower_x[0], root.dlower_y[0], root.dlower_z[0]};
+                const float dhi[3] = {root.dupper_x[0], root.dupper_y[0], root.dupper_z[0]};
+                _Alignas(16) float l[4] = {0}, h[4] = {0};
+                for (int e = 0; e < 2; e++) {
+                    for (int a = 0; a < 3; a++) {
+                        l[a] = e ? lo[a] + dlo[a] : lo[a];
+                        h[a] = e ? hi[a] + dhi[a] : hi[a];
+                    }
+                    box_grow(&total.b[0], vf4_load(l), vf4_load(h));
+                }
+            }
+            uint64_t lanes = 0;
+            for (uint32_t c = 0; c < chunks; c++)
+                lanes += m.lanes[c];
+            nodes += topo->node_count;
+            blocks += topo->leaf_count;
+            prims = lanes;
+            skipped = topo_out.prims_skipped;
+            depth = topo_out.depth > depth ? topo_out.depth : depth;
+            threads = topo_out.threads > threads ? topo_out.threads : threads;
+            sah += topo_out.sah_cost;
+        }
+        free(m.block_box);
+        free(m.lanes);
+        m.block_box = NULL;
+        m.lanes = NULL;
+        RTK_SYM(rtk_bvh4_release)(topo);
+    }
+    if (rc)
+        goto done;
+    accel->root = prims ? 0 : RTK_BVH4_EMPTY;
+    accel->node_count = nodes;
+    accel->leaf_count = blocks;
+    out->accel = accel;
+    out->depth = depth;
+    out->prims = prims;
+    out->prims_skipped = skipped;
+    out->prims_degenerate = 0;
+    out->nodes = nodes;
+    out->leaves = blocks;
+    out->bytes = nodes * sizeof(rtk_bvh4mb_node) + blocks * sizeof(rtk_triangle4mb) + sizeof *accel +
+                 segments * sizeof *accel->segments;
+    out->sah_cost = sah / segments;
+    _Alignas(16) float lo[4], hi[4];
+    vf4_store(lo, total.b[0].lo);
+    vf4_store(hi, total.b[0].hi);
+    for (int a = 0; a < 3; a++) {
+        out->lower[a] = prims ? lo[a] : INFINITY;
+        out->upper[a] = prims ? hi[a] : -INFINITY;
+    }
+    if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
+        out->threads = threads;
+    if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
+        out->refs = prims;
+    accel = NULL;
+
+done:
+    if (accel) {
+        release_segments(accel);
+        free(accel);
+    }
+    for (uint32_t g = 0; mid && bad && g < in->geometry_count; g++) {
+        free(mid[g]);
+        free(bad[g]);
+    }
+    free(mid);
+    free(bad);
+    free(geoms);
+    free(index_of);
+    return rc;
+}

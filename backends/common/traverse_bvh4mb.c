@@ -1,0 +1,64 @@
+/* Traversal of bvh4.triangle4mb (motion blur, build_motion.c): the
+ * single-ray template at width 4 with planes and vertices interpolated to
+ * the ray's time, through the tree of the time segment the time falls in.
+ * A ray whose time is outside [0, 1] (or NaN) hits nothing here: the
+ * motion is defined over that range only.  No packet kernels: the core
+ * traces packets ray by ray. */
+#define RTK_BVHN 4
+#define RTK_MOTION 1
+#include "traverse_bvhn.h"
+
+/* The segment of the ray's time and the time within it into p; the
+ * segment's tree, or NULL when the time is outside [0, 1]. */
+static inline const rtk_accel *segment_at(const rtk_accel *accel, float time, ray_pre *p)
+{
+    if (!(time >= 0.0f && time <= 1.0f))
+        return NULL;
+    const uint32_t n = accel->segment_count;
+    const float ts = time * (float)n;
+    uint32_t s = (uint32_t)ts;
+    s = s < n ? s : n - 1;
+    const float f = ts - (float)s; /* exact: ts and s are within a factor of two or s is 0 */
+    p->ftime = vn_set1(f);
+    p->f4 = vf4_set1(f);
+    p->one_f4 = vf4_set1(1.0f - f);
+    const rtk_accel *seg = &accel->segments[s];
+    return seg->root == RTK_BVH4_EMPTY ? NULL : seg;
+}
+
+void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit)
+{
+    ray_pre p;
+    ray_pre_init(&p, &rayhit->ray);
+    const rtk_accel *seg = segment_at(accel, rayhit->ray.time, &p);
+    if (!seg)
+        return;
+    closest_hit best = CLOSEST_HIT_NONE;
+    float tfar = rayhit->ray.tfar;
+    closest_from(seg, seg->root, &p, rayhit->ray.tnear, &tfar, &best);
+    if (best.lane < 0)
+        return;
+    rtk_triangle4 scratch;
+    const rtk_triangle4 *t = leaf_block(seg, best.leaf, &scratch, &p);
+    float v0[3], e1[3], e2[3], ng[3];
+    lane_triangle(t, best.lane, v0, e1, e2);
+    rtk_triangle_normal(e1, e2, ng);
+    rayhit->ray.tfar = tfar;
+    rayhit->hit.Ng_x = ng[0];
+    rayhit->hit.Ng_y = ng[1];
+    rayhit->hit.Ng_z = ng[2];
+    rayhit->hit.u = best.u;
+    rayhit->hit.v = best.v;
+    rayhit->hit.primID = t->prim[best.lane];
+    rayhit->hit.geomID = t->geom[best.lane];
+    rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
+}
+
+void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray)
+{
+    ray_pre p;
+    ray_pre_init(&p, ray);
+    const rtk_accel *seg = segment_at(accel, ray->time, &p);
+    if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar))
+        ray->tfar = -INFINITY;
+}
