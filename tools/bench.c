@@ -18,6 +18,10 @@
  *   refit     a deforming mesh (quality REFIT): the time to refit after
  *             the vertices move, and the trace speed of the refitted tree
  *             beside a tree built afresh over the same shape.
+ *   twolevel  instances of the mesh and a dynamic scene of its pieces:
+ *             commit times and the path tracer's speed through them.
+ *   motion    linear motion blur (the mesh turning and moving, at 2 and 5
+ *             time steps): start time, memory, and rays at random times.
  *   accuracy  rays aimed at points on edges shared by two triangles, from
  *             the side both face: in exact arithmetic each hits one of the
  *             two (or something nearer), so a miss, or a hit beyond the
@@ -630,7 +634,7 @@ typedef struct bench_opts {
     char isa[4][16];
     int nisa;
     int api_on[4];
-    int do_trace, do_render, do_build, do_refit, do_twolevel, do_accuracy;
+    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy;
     int render_w, render_h, render_spp;
 } bench_opts;
 
@@ -658,7 +662,8 @@ static void bench_usage(FILE *f)
             "  (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2 and 3), build (start\n"
             "  time at every quality, as in its Table 4, against the time to trace the tree), refit (a\n"
             "  deforming mesh: refit time, and the trace speed of the refitted tree), two levels (instances\n"
-            "  and a dynamic scene: commit times and trace speed) and accuracy (rays aimed at shared edges\n"
+            "  and a dynamic scene: commit times and trace speed), motion blur (2 and 5 time steps: start\n"
+            "  time, memory, trace speed at random ray times) and accuracy (rays aimed at shared edges\n"
             "  that leak through, beside speed). Ratios are to Embree isa=avx2.  A MESH named\n"
             "  procedural:N (e.g. procedural:10M) is a bumpy sphere of about N triangles made on the spot.\n"
             "  -o, --output DIR  bench.csv, the charts (PNG, drawn by gnuplot when installed) and their\n"
@@ -666,7 +671,7 @@ static void bench_usage(FILE *f)
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
-            "  --only LIST       trace,render,build,refit,twolevel,accuracy (default: all)\n"
+            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
             "  --repeat N        best of N passes per measurement (default: 3)\n"
             "  --builds N        best of N builds per start time (default: 3)\n"
@@ -1404,6 +1409,171 @@ static int section_twolevel(ctx *c, char *err, size_t err_size)
     return rc;
 }
 
+/* ---- motion blur ---- */
+
+/* Step k of `steps`: the mesh twisted by up to 0.6 k / (steps - 1) radians
+ * at the top and moved sideways by 5% of its diagonal as far (a turning,
+ * travelling object); dst holds vertex_count * 3 floats and 4 more
+ * (Embree reads 16 bytes at the last vertex). */
+static void motion_step(const rtk_mesh *m, int k, int steps, float diag, float *dst)
+{
+    const float f = (float)k / (float)(steps - 1);
+    twist(m, 0.6f * f, dst);
+    for (size_t i = 0; i < m->vertex_count; i++)
+        dst[3 * i] += 0.05f * diag * f;
+    dst[3 * m->vertex_count] = dst[3 * m->vertex_count + 1] = dst[3 * m->vertex_count + 2] = 0.0f;
+    dst[3 * m->vertex_count + 3] = 0.0f;
+}
+
+/* The mesh with `steps` time steps of vertices v[k], at medium quality,
+ * timed from the first scene call to the committed scene. */
+static int motion_scene(scene *sc, lib *l, const rtk_mesh *m, float *const *v, int steps, char *err, size_t err_size)
+{
+    memset(sc, 0, sizeof *sc);
+    sc->lib = l;
+    if (l->embree) {
+        const long long bytes0 = embree_bytes;
+        const double t0 = now();
+        RTCScene s = rtcNewScene(l->edev);
+        rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_MEDIUM);
+        RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_TRIANGLE);
+        rtcSetGeometryTimeStepCount(g, (unsigned)steps);
+        for (int k = 0; k < steps; k++)
+            rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, (unsigned)k, RTC_FORMAT_FLOAT3, v[k], 0, 12,
+                                       m->vertex_count);
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12,
+                                   m->triangle_count);
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(s, g);
+        rtcReleaseGeometry(g);
+        if (embree_commit(sc, s, t0, "the motion-blur scene", err, err_size))
+            return 1;
+        sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
+        snprintf(sc->layout, sizeof sc->layout, "embree motion blur");
+        return 0;
+    }
+    const double t0 = now();
+    rtk_scene s = NULL;
+    rtk_geometry g = NULL;
+    int bad = rtk_scene_new(l->rdev, &s) || rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
+              rtk_geometry_set_time_step_count(g, (unsigned)steps);
+    for (int k = 0; k < steps && !bad; k++)
+        bad = rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, (unsigned)k, v[k], 0, 12,
+                                                  m->vertex_count) != RTK_OK;
+    bad = bad || rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
+          rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
+    rtk_geometry_release(g);
+    if (rtk_commit(sc, s, bad, t0, err, err_size))
+        return 1;
+    rtk_scene_info info = {.struct_size = sizeof info};
+    rtk_scene_get_info(s, &info);
+    sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
+    snprintf(sc->layout, sizeof sc->layout, "%s", info.layout);
+    return 0;
+}
+
+/* Linear motion blur: the mesh at 2 and at 5 time steps; build (best of
+ * the builds), memory, and the primary and diffuse rays at random times
+ * (the same times for every library) through it, beside the same rays
+ * through the static mesh in the same library. */
+static int section_motion(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    static const int step_counts[2] = {2, 5};
+    float lo[3], hi[3];
+    const float diag = rtk_mesh_bounds(c->m, lo, hi);
+    printf("\nmotion blur, 1 thread: the mesh turning (up to 0.6 radians at the top) and moving sideways (5%% of its "
+           "diagonal) over the shutter, at 2 and 5 time steps, medium quality; start time (best of %d), bytes per "
+           "triangle, and the primary and diffuse rays at random times, single rays and packets of 8 primary rays "
+           "(Mrays/s, best of %d passes; static: the diffuse rays through the static mesh in the same library)\n",
+           o->builds, o->repeat);
+    printf("  %-20s %5s %9s %7s %8s %10s %7s %10s %7s %10s %7s %9s %8s\n", "library", "steps", "build ms", "ratio",
+           "B/tri", "primary", "ratio", "diffuse", "ratio", "primary8", "ratio", "static", "differ");
+    rayset timed[2] = {c->sets[SET_PRIMARY], c->sets[SET_DIFFUSE]};
+    float *v[5] = {0};
+    unsigned char *hits = malloc(timed[0].n + 1), *ref_hits = malloc(timed[0].n + 1);
+    int rc = !hits || !ref_hits;
+    for (int k = 0; k < 2 && !rc; k++) {
+        timed[k].rays = malloc((timed[k].n ? timed[k].n : 1) * sizeof *timed[k].rays);
+        rc = !timed[k].rays;
+        for (size_t i = 0; !rc && i < timed[k].n; i++) {
+            timed[k].rays[i] = c->sets[k ? SET_DIFFUSE : SET_PRIMARY].rays[i];
+            timed[k].rays[i].time = rnd();
+        }
+    }
+    for (int k = 0; k < 5 && !rc; k++)
+        rc = !(v[k] = malloc((c->m->vertex_count * 3 + 4) * sizeof *v[k]));
+    if (rc)
+        snprintf(err, err_size, "out of memory");
+    for (int sv = 0; sv < 2 && !rc; sv++) {
+        const int steps = step_counts[sv];
+        for (int k = 0; k < steps; k++)
+            motion_step(c->m, k, steps, diag, v[k]);
+        double ref[5] = {0};
+        for (int l = 0; l < c->nlibs && !rc; l++) {
+            lib *lb = &c->libs[l];
+            scene sc;
+            double best = 1e30, bytes = 0;
+            for (int b = 0; b < o->builds && !rc; b++) {
+                rc = motion_scene(&sc, lb, c->m, v, steps, err, err_size);
+                if (rc)
+                    break;
+                best = sc.seconds < best ? sc.seconds : best;
+                bytes = sc.bytes_per_tri;
+                if (b + 1 < o->builds)
+                    scene_release(&sc);
+            }
+            if (rc)
+                break;
+            double rate[3];
+            const render_tracer t = scene_tracer(&sc, 0), tc = scene_tracer(&sc, 1);
+            rate[0] = trace_set(&t, &timed[0], 1, 0, 1, o->repeat, hits);
+            size_t differ = 0;
+            if (l == 0)
+                memcpy(ref_hits, hits, timed[0].n);
+            for (size_t i = 0; i < timed[0].n; i++)
+                differ += hits[i] != ref_hits[i];
+            rate[1] = trace_set(&t, &timed[1], 1, 0, 1, o->repeat, hits);
+            rate[2] = trace_set(&tc, &timed[0], 8, 0, 1, o->repeat, hits);
+            scene_release(&sc);
+            scene st;
+            rc = scene_build(&st, lb, c->m, c->padded, MODE_DEFAULT, 1, err, err_size);
+            if (rc)
+                break;
+            const render_tracer ts = scene_tracer(&st, 0);
+            const double static_rate = trace_set(&ts, &timed[1], 1, 0, 1, o->repeat, hits);
+            scene_release(&st);
+            if (l == 0) {
+                ref[0] = best;
+                for (int k = 0; k < 3; k++)
+                    ref[1 + k] = rate[k];
+            }
+            printf("  %-20s %5d %9.1f %6.2fx %8.1f %10.2f %6.2fx %10.2f %6.2fx %10.2f %6.2fx %9.2f %8zu\n", lb->name,
+                   steps, best * 1e3, ratio(ref[0], best), bytes, rate[0], ratio(rate[0], ref[1]), rate[1],
+                   ratio(rate[1], ref[2]), rate[2], ratio(rate[2], ref[3]), static_rate, differ);
+            char variant[32];
+            snprintf(variant, sizeof variant, "%d steps", steps);
+            csv_row(&c->csv, "motion", lb->name, variant, "start time", "", 1, best * 1e3, "ms", ratio(ref[0], best));
+            csv_row(&c->csv, "motion", lb->name, variant, "memory", "", 1, bytes, "bytes per triangle", 0);
+            csv_row(&c->csv, "motion", lb->name, variant, "primary", "single", 1, rate[0], "Mrays/s",
+                    ratio(rate[0], ref[1]));
+            csv_row(&c->csv, "motion", lb->name, variant, "diffuse", "single", 1, rate[1], "Mrays/s",
+                    ratio(rate[1], ref[2]));
+            csv_row(&c->csv, "motion", lb->name, variant, "primary", "packet8", 1, rate[2], "Mrays/s",
+                    ratio(rate[2], ref[3]));
+            csv_row(&c->csv, "motion", lb->name, "static", "diffuse", "single", 1, static_rate, "Mrays/s", 0);
+        }
+    }
+    printf("  (differ: primary rays that hit where %s misses or the other way round)\n", c->libs[0].name);
+    for (int k = 0; k < 5; k++)
+        free(v[k]);
+    for (int k = 0; k < 2; k++)
+        free(timed[k].rays);
+    free(hits);
+    free(ref_hits);
+    return rc;
+}
+
 static int section_accuracy(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
@@ -1473,7 +1643,7 @@ int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
                     .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .do_trace = 1, .do_render = 1,
-                    .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_accuracy = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
+                    .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1, .do_accuracy = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
     const char *meshes[64];
     int nmeshes = 0;
     for (int i = 0; i < argc; i++) {
@@ -1522,13 +1692,14 @@ int cmd_bench(int argc, char **argv)
             }
         } else if (!strcmp(a, "--only") && more) {
             n = parse_list(argv[++i], items, 8);
-            o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_twolevel = o.do_accuracy = 0;
+            o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_twolevel = o.do_motion = o.do_accuracy = 0;
             for (int k = 0; k < n; k++) {
                 int *flag = !strcmp(items[k], "trace")      ? &o.do_trace
                             : !strcmp(items[k], "render")   ? &o.do_render
                             : !strcmp(items[k], "build")    ? &o.do_build
                             : !strcmp(items[k], "refit")    ? &o.do_refit
                             : !strcmp(items[k], "twolevel") ? &o.do_twolevel
+                            : !strcmp(items[k], "motion")   ? &o.do_motion
                             : !strcmp(items[k], "accuracy") ? &o.do_accuracy
                                                             : NULL;
                 if (!flag)
@@ -1538,7 +1709,8 @@ int cmd_bench(int argc, char **argv)
             }
             if (n < 1) {
                 fprintf(stderr,
-                        "rtktool bench: --only wants a list of trace, render, build, refit, accuracy (got '%s')\n",
+                        "rtktool bench: --only wants a list of trace, render, build, refit, twolevel, motion, "
+                        "accuracy (got '%s')\n",
                         argv[i]);
                 return 2;
             }
@@ -1680,12 +1852,14 @@ int cmd_bench(int argc, char **argv)
             csv_row(&c.csv, "memory", c.libs[l].name, sc.layout, "", "", 1, sc.bytes_per_tri, "bytes per triangle", 0);
             scene_release(&sc);
         }
-        int bad = ((o.do_trace || o.do_build || o.do_refit || o.do_accuracy) && make_sets(&c, err, sizeof err)) ||
+        int bad = ((o.do_trace || o.do_build || o.do_refit || o.do_motion || o.do_accuracy) &&
+                   make_sets(&c, err, sizeof err)) ||
                   (o.do_trace && section_trace(&c, err, sizeof err)) ||
                   (o.do_render && section_render(&c, err, sizeof err)) ||
                   (o.do_build && section_build(&c, err, sizeof err)) ||
                   (o.do_refit && section_refit(&c, err, sizeof err)) ||
                   (o.do_twolevel && section_twolevel(&c, err, sizeof err)) ||
+                  (o.do_motion && section_motion(&c, err, sizeof err)) ||
                   (o.do_accuracy && section_accuracy(&c, err, sizeof err));
         free_sets(&c);
         free(padded);
