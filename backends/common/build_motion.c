@@ -17,6 +17,9 @@
  * when the motion is large against the triangles; it buys the parallel,
  * deterministic builders as they are.
  *
+ * Leaves hold vertex indices into the accel's copy of every step's
+ * vertices (bvh4_triangle4.h).
+ *
  * A triangle is left out (at every time) when a vertex is NaN or infinite
  * at some time step; a triangle of zero area at some or every step stays
  * in (it may have area in between), hit only where it has area.
@@ -28,7 +31,7 @@
 
 _Static_assert(offsetof(rtk_bvh4mb_node, dlower_x) - offsetof(rtk_bvh4mb_node, lower_x) == RTK_MB_DELTA, "delta");
 _Static_assert(offsetof(rtk_bvh4mb_node, dupper_z) - offsetof(rtk_bvh4mb_node, upper_z) == RTK_MB_DELTA, "delta");
-_Static_assert(sizeof(rtk_bvh4mb_node) == 256, "four cache lines");
+_Static_assert(sizeof(rtk_bvh4mb_node) == 208, "no padding");
 
 #define MB_BLOCK_CHUNK 4096u
 
@@ -44,7 +47,8 @@ typedef struct mb {
     const uint32_t *index_of;  /* geometry id -> index in the input */
     uint32_t max_id;
     const struct rtk_accel *topo; /* the segment's shape (bvh4.triangle4 at the middle time) */
-    struct rtk_accel *out;        /* the segment's tree */
+    struct rtk_accel *out;        /* the whole accel (its vertex copies) */
+    struct rtk_accel *seg_out;    /* the segment's tree */
     lbox *block_box;
     uint64_t *lanes;              /* per chunk of blocks: triangles in them */
 } mb;
@@ -55,8 +59,15 @@ static inline const float *step_vertex(const mb *m, uint32_t g, uint32_t step, u
     return (const float *)((const char *)b->vertices + (size_t)v * b->stride);
 }
 
-/* Leaf blocks of one chunk: the topology's triangles with their vertices
- * at the segment's two ends. */
+/* The same from the accel's copy. */
+static inline const float *copy_vertex(const mb *m, uint32_t g, uint32_t step, uint32_t v)
+{
+    const rtk_mb_geometry *c = &m->out->mb_geoms[g];
+    return c->vertices + 3 * ((size_t)v * c->steps + step);
+}
+
+/* Leaf blocks of one chunk: the topology's triangles by vertex index, and
+ * their boxes at the segment's two ends. */
 static void convert_blocks(void *data, uint32_t chunk)
 {
     mb *m = data;
@@ -65,25 +76,24 @@ static void convert_blocks(void *data, uint32_t chunk)
     uint64_t lanes = 0;
     for (uint64_t k = begin; k < end; k++) {
         const rtk_triangle4 *t = &m->topo->tris[k];
-        rtk_triangle4mb *d = &m->out->trismb[k];
+        rtk_triangle4i *d = &m->seg_out->trisi[k];
         lbox box = {{box_empty(), box_empty()}};
         for (int lane = 0; lane < 4; lane++) {
-            d->geom[lane] = t->geom[lane];
             d->prim[lane] = t->prim[lane];
             if (t->prim[lane] == RTK_BVH4_EMPTY) {
-                for (int e = 0; e < 2; e++)
-                    for (int c = 0; c < 9; c++)
-                        d->v[e][c][lane] = NAN;
+                d->v0[lane] = d->v1[lane] = d->v2[lane] = d->geom[lane] = 0;
                 continue;
             }
             lanes++;
             const uint32_t gi = m->index_of[t->geom[lane]];
             const uint32_t *tri = triangle_at(&m->in->geometries[gi], t->prim[lane]);
+            d->geom[lane] = gi;
+            d->v0[lane] = tri[0];
+            d->v1[lane] = tri[1];
+            d->v2[lane] = tri[2];
             for (int e = 0; e < 2; e++)
                 for (int v = 0; v < 3; v++) {
-                    const float *p = step_vertex(m, gi, m->seg + (uint32_t)e, tri[v]);
-                    for (int c = 0; c < 3; c++)
-                        d->v[e][3 * v + c][lane] = p[c];
+                    const float *p = copy_vertex(m, gi, m->seg + (uint32_t)e, tri[v]);
                     const vfloat4 x = vf4_set(p[0], p[1], p[2], 0.0f);
                     box_grow(&box.b[e], x, x);
                 }
@@ -138,7 +148,7 @@ static lbox convert_subtree(mb *m, uint32_t ref)
         return all;
     }
     const rtk_bvh4_node *t = &((const rtk_bvh4_node *)m->topo->nodes)[ref];
-    rtk_bvh4mb_node *n = &((rtk_bvh4mb_node *)m->out->nodes)[ref];
+    rtk_bvh4mb_node *n = &((rtk_bvh4mb_node *)m->seg_out->nodes)[ref];
     memset(n, 0, sizeof *n);
     for (int c = 0; c < 4; c++) {
         n->child[c] = t->child[c];
@@ -157,11 +167,14 @@ static lbox convert_subtree(mb *m, uint32_t ref)
 
 static void release_segments(struct rtk_accel *accel)
 {
-    for (uint32_t s = 0; s < accel->segment_count; s++) {
+    for (uint32_t s = 0; accel->segments && s < accel->segment_count; s++) {
         free(accel->segments[s].nodes);
-        free(accel->segments[s].trismb);
+        free(accel->segments[s].trisi);
     }
     free(accel->segments);
+    for (uint32_t g = 0; accel->mb_geoms && g < accel->mb_geom_count; g++)
+        free(accel->mb_geoms[g].vertices);
+    free(accel->mb_geoms);
 }
 
 void RTK_SYM(rtk_motion_release)(rtk_accel *accel)
@@ -205,6 +218,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB)
         return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the motion builder produces bvh4.triangle4mb only");
     mb m = {.in = in, .steps = in->time_steps};
+    size_t vertex_bytes = 0;
     const uint32_t segments = in->time_steps - 1;
     int rc = RTK_OK;
     struct rtk_accel *accel = calloc(1, sizeof *accel);
@@ -213,9 +227,13 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     rtk_build_geometry *geoms = calloc(in->geometry_count + 1, sizeof *geoms);
     uint32_t *index_of = build_geometry_index(in, &m.max_id);
     m.index_of = index_of;
-    if (accel)
+    if (accel) {
         accel->segments = calloc(segments, sizeof *accel->segments);
-    if (!accel || !accel->segments || !mid || !bad || !geoms || !index_of) {
+        accel->mb_geoms = calloc(in->geometry_count + 1, sizeof *accel->mb_geoms);
+        accel->mb_geom_count = in->geometry_count;
+    }
+    m.out = accel;
+    if (!accel || !accel->segments || !accel->mb_geoms || !mid || !bad || !geoms || !index_of) {
         rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
         goto done;
     }
@@ -225,13 +243,21 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         const size_t nv = in->geometries[g].vertex_count;
         mid[g] = malloc((nv ? nv : 1) * 3 * sizeof **mid);
         bad[g] = calloc(nv ? nv : 1, 1);
-        if (!mid[g] || !bad[g]) {
+        rtk_mb_geometry *c = &accel->mb_geoms[g];
+        c->vertices = malloc((3 * nv * m.steps + 1) * sizeof *c->vertices);
+        c->vertex_count = nv;
+        c->steps = m.steps;
+        c->geom_id = in->geometries[g].geom_id;
+        vertex_bytes += (3 * nv * m.steps + 1) * sizeof *c->vertices;
+        if (!mid[g] || !bad[g] || !c->vertices) {
             rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
             goto done;
         }
+        c->vertices[3 * nv * m.steps] = 0.0f;
         for (uint32_t k = 0; k < m.steps; k++)
             for (size_t v = 0; v < nv; v++) {
                 const float *p = step_vertex(&m, g, k, (uint32_t)v);
+                memcpy(&c->vertices[3 * (v * m.steps + k)], p, 3 * sizeof *p);
                 bad[g][v] |= !(0.0f * p[0] + 0.0f * p[1] + 0.0f * p[2] == 0.0f);
             }
         geoms[g] = in->geometries[g];
@@ -267,17 +293,19 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         seg->root = topo->root;
         seg->node_count = topo->node_count;
         seg->leaf_count = topo->leaf_count;
+        seg->segment = s;
+        seg->mb_geoms = accel->mb_geoms;
         seg->nodes = aligned_alloc(64, (topo->node_count ? topo->node_count : 1) * sizeof(rtk_bvh4mb_node));
-        seg->trismb = aligned_alloc(64, (topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4mb));
+        seg->trisi = aligned_alloc(64, (topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4i));
         const uint32_t chunks = (uint32_t)((topo->leaf_count + MB_BLOCK_CHUNK - 1) / MB_BLOCK_CHUNK);
         m.block_box = malloc((topo->leaf_count ? topo->leaf_count : 1) * sizeof *m.block_box);
         m.lanes = calloc(chunks ? chunks : 1, sizeof *m.lanes);
-        if (!seg->nodes || !seg->trismb || !m.block_box || !m.lanes) {
+        if (!seg->nodes || !seg->trisi || !m.block_box || !m.lanes) {
             rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
         } else {
             m.seg = s;
             m.topo = topo;
-            m.out = seg;
+            m.seg_out = seg;
             run_parallel(&m.bd, chunks, convert_blocks, &m);
             if (topo->root != RTK_BVH4_EMPTY) {
                 const lbox b = convert_subtree(&m, topo->root);
@@ -326,8 +354,8 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     out->prims_degenerate = 0;
     out->nodes = nodes;
     out->leaves = blocks;
-    out->bytes = nodes * sizeof(rtk_bvh4mb_node) + blocks * sizeof(rtk_triangle4mb) + sizeof *accel +
-                 segments * sizeof *accel->segments;
+    out->bytes = nodes * sizeof(rtk_bvh4mb_node) + blocks * sizeof(rtk_triangle4i) + vertex_bytes + sizeof *accel +
+                 segments * sizeof *accel->segments + in->geometry_count * sizeof *accel->mb_geoms;
     out->sah_cost = sah / segments;
     _Alignas(16) float lo[4], hi[4];
     vf4_store(lo, total.b[0].lo);

@@ -102,10 +102,13 @@ typedef struct rtk_triangle4i {
  * per time segment (between two consecutive time steps), all over the same
  * triangles.  A node holds each child's box at the segment's start and its
  * change over the segment (lower + f * dlower at the segment's time f in
- * [0, 1], padded so that this covers the triangles whatever the rounding);
- * a leaf block holds its triangles' vertices at both ends, interpolated by
- * the traversal as (1 - f) * a + f * b, which is a exactly at f = 0 and b
- * at f = 1. */
+ * [0, 1], padded so that this covers the triangles whatever the rounding).
+ * Leaves are triangle4i blocks (vertex indices; geom[] indexes
+ * rtk_accel.mb_geoms) over the accel's own copy of every time step's
+ * vertices, shared by the segments' trees: the traversal interpolates a
+ * vertex as (1 - f) * a + f * b, which is a exactly at f = 0 and b at
+ * f = 1.  (Leaves holding both ends' vertices, as triangle4 blocks hold
+ * one, took twice Embree's memory at two time steps, for no speed.) */
 #define RTK_MB_DELTA 96 /* bytes from a plane at the start to its change */
 typedef struct rtk_bvh4mb_node {
     float lower_x[4], upper_x[4];
@@ -115,17 +118,22 @@ typedef struct rtk_bvh4mb_node {
     float dlower_y[4], dupper_y[4];
     float dlower_z[4], dupper_z[4];
     uint32_t child[4];
-    uint32_t reserved[12]; /* pads the node to four cache lines */
+    /* (208 bytes, not padded to 256: on dragon.ply as fast, and 5 bytes
+     * per triangle less) */
 } rtk_bvh4mb_node;
 
-/* Up to four triangles' vertices at the segment's two ends:
- * v[end][3 * vertex + axis][lane].  Unused lanes have prim =
- * RTK_BVH4_EMPTY and NaN vertices, so they never hit. */
-typedef struct rtk_triangle4mb {
-    float v[2][9][4];
-    uint32_t geom[4];
-    uint32_t prim[4];
-} rtk_triangle4mb;
+/* A moving geometry's vertices: vertex i at time step k at
+ * vertices[3 * (i * steps + k)], a vertex's steps side by side (the two a
+ * ray interpolates between usually share a cache line), and one float
+ * more at the end, so a 4-wide load of the last one stays inside. */
+typedef struct rtk_mb_geometry {
+    float *vertices;
+    size_t vertex_count;
+    uint32_t steps;
+    uint32_t reserved2;
+    uint32_t geom_id;
+    uint32_t reserved;
+} rtk_mb_geometry;
 
 /* Where a triangle4i leaf finds its vertices. */
 typedef struct rtk_leaf_geometry {
@@ -148,11 +156,14 @@ struct rtk_accel {
     struct rtk_build_object *objects;
     uint64_t object_count;
     /* bvh4.triangle4mb: the trees of the time segments, else NULL.  Each
-     * is an accel of its own (root, nodes: rtk_bvh4mb_node, trismb). */
+     * is an accel of its own (root, nodes: rtk_bvh4mb_node, trisi, and
+     * mb_geoms, segment its time segment), sharing the top accel's
+     * mb_geoms. */
     struct rtk_accel *segments;
     uint32_t segment_count;
-    uint32_t reserved;
-    rtk_triangle4mb *trismb;
+    uint32_t segment;
+    rtk_mb_geometry *mb_geoms;
+    uint32_t mb_geom_count;
 };
 
 #endif

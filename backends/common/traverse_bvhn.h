@@ -307,26 +307,42 @@ static inline int push_children(const uint32_t *child, unsigned mask, vnode dist
  * layouts give the same answers to the bit).  An unused lane's three
  * vertices are one point: no area, never hit. */
 #if RTK_MOTION
-/* Motion blur: the block's vertices interpolated to the ray's time,
- * (1 - f) * a + f * b (a at f = 0 and b at f = 1 exactly), then the edges
- * as the triangle4 builder computes them. */
+/* Motion blur: the block's vertices from the accel's copy of the time
+ * steps around the ray's time, interpolated as (1 - f) * a + f * b (a at
+ * f = 0 and b at f = 1 exactly), then the edges as the triangle4 builder
+ * computes them.  An unused lane is NaN: never hit. */
 static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t index, rtk_triangle4 *scratch,
                                               const ray_pre *p)
 {
-    const rtk_triangle4mb *t = &accel->trismb[index];
-    vfloat4 v[9];
-    for (int c = 0; c < 9; c++)
-        v[c] = vf4_madd(p->f4, vf4_load(t->v[1][c]), vf4_mul(p->one_f4, vf4_load(t->v[0][c])));
-    vf4_store(scratch->v0x, v[0]);
-    vf4_store(scratch->v0y, v[1]);
-    vf4_store(scratch->v0z, v[2]);
-    vf4_store(scratch->e1x, vf4_sub(v[3], v[0]));
-    vf4_store(scratch->e1y, vf4_sub(v[4], v[1]));
-    vf4_store(scratch->e1z, vf4_sub(v[5], v[2]));
-    vf4_store(scratch->e2x, vf4_sub(v[6], v[0]));
-    vf4_store(scratch->e2y, vf4_sub(v[7], v[1]));
-    vf4_store(scratch->e2z, vf4_sub(v[8], v[2]));
-    memcpy(scratch->geom, t->geom, sizeof t->geom);
+    const rtk_triangle4i *t = &accel->trisi[index];
+    vfloat4 v[3][4]; /* vertex, lane: x, y, z (and a float beyond), then transposed to vertex, axis */
+    for (int lane = 0; lane < 4; lane++) {
+        if (t->prim[lane] == RTK_BVH4_EMPTY) {
+            v[0][lane] = v[1][lane] = v[2][lane] = vf4_set1(NAN);
+            scratch->geom[lane] = RTK_BVH4_EMPTY;
+            continue;
+        }
+        const rtk_mb_geometry *g = &accel->mb_geoms[t->geom[lane]];
+        const float *a = g->vertices + 3 * (size_t)accel->segment;
+        const size_t step = 3 * (size_t)g->steps;
+        const uint32_t idx[3] = {t->v0[lane], t->v1[lane], t->v2[lane]};
+        for (int k = 0; k < 3; k++) {
+            const float *q = a + step * idx[k];
+            v[k][lane] = vf4_madd(p->f4, vf4_loadu(q + 3), vf4_mul(p->one_f4, vf4_loadu(q)));
+        }
+        scratch->geom[lane] = g->geom_id;
+    }
+    for (int k = 0; k < 3; k++)
+        vf4_transpose(&v[k][0], &v[k][1], &v[k][2], &v[k][3]);
+    vf4_store(scratch->v0x, v[0][0]);
+    vf4_store(scratch->v0y, v[0][1]);
+    vf4_store(scratch->v0z, v[0][2]);
+    vf4_store(scratch->e1x, vf4_sub(v[1][0], v[0][0]));
+    vf4_store(scratch->e1y, vf4_sub(v[1][1], v[0][1]));
+    vf4_store(scratch->e1z, vf4_sub(v[1][2], v[0][2]));
+    vf4_store(scratch->e2x, vf4_sub(v[2][0], v[0][0]));
+    vf4_store(scratch->e2y, vf4_sub(v[2][1], v[0][1]));
+    vf4_store(scratch->e2z, vf4_sub(v[2][2], v[0][2]));
     memcpy(scratch->prim, t->prim, sizeof t->prim);
     return scratch;
 }
