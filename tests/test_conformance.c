@@ -62,6 +62,9 @@
 typedef struct scene_data {
     char name[256];
     const float *v;
+    /* Motion blur: NULL, or the vertices at time step 1 (v is step 0), the
+     * scene then being two time steps and the rays carrying times. */
+    const float *v1;
     size_t nv;
     const uint32_t *idx;
     size_t nt;
@@ -167,12 +170,28 @@ static void make_rays(const scene_data *s, rtk_ray *rays, size_t n, uint64_t see
         }
         rays[i] = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, tfar);
     }
+    /* motion blur: random times, except for the rays aimed at vertices and
+     * edges (time 0, where those are where they were aimed) and a few at
+     * the other end, time 1 */
+    rng rt = {seed ^ 0x7777u};
+    for (i = 0; s->v1 && i < n; i++)
+        rays[i].time = i >= tiled && i < third ? 0.0f : i % 97 == 0 ? 1.0f : rng_float(&rt);
 }
 
 static void print_ray(const char *what, const scene_data *s, size_t i, const rtk_ray *r)
 {
-    print_message("%s: %s ray %zu: org %a %a %a dir %a %a %a tnear %a tfar %a\n", s->name, what, i, r->org_x,
-                  r->org_y, r->org_z, r->dir_x, r->dir_y, r->dir_z, r->tnear, r->tfar);
+    print_message("%s: %s ray %zu: org %a %a %a dir %a %a %a tnear %a tfar %a time %a\n", s->name, what, i, r->org_x,
+                  r->org_y, r->org_z, r->dir_x, r->dir_y, r->dir_z, r->tnear, r->tfar, r->time);
+}
+
+/* Vertex j of triangle prim as the ray sees it: at the ray's time, in
+ * double, for a moving scene. */
+static void vertex_at_time(const scene_data *s, uint32_t prim, int j, const rtk_ray *r, double out[3])
+{
+    const size_t vi = 3 * (size_t)s->idx[3 * prim + j];
+    const double f = s->v1 ? r->time : 0.0;
+    for (int k = 0; k < 3; k++)
+        out[k] = s->v1 ? (1.0 - f) * s->v[vi + k] + f * s->v1[vi + k] : s->v[vi + k];
 }
 
 /* ---- the double-precision reference ---- */
@@ -196,14 +215,16 @@ static double norm3(const double a[3])
 
 static int dref_one(const scene_data *s, uint32_t prim, const rtk_ray *r, dref *h)
 {
-    const float *a = s->v + 3 * (size_t)s->idx[3 * prim], *b = s->v + 3 * (size_t)s->idx[3 * prim + 1],
-                *c = s->v + 3 * (size_t)s->idx[3 * prim + 2];
+    double a[3], b[3], c[3];
+    vertex_at_time(s, prim, 0, r, a);
+    vertex_at_time(s, prim, 1, r, b);
+    vertex_at_time(s, prim, 2, r, c);
     const double o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
     const double v0[3] = {a[0], a[1], a[2]};
     double e1[3], e2[3], sv[3], p[3], q[3];
     for (int k = 0; k < 3; k++) {
-        e1[k] = (double)b[k] - a[k];
-        e2[k] = (double)c[k] - a[k];
+        e1[k] = b[k] - a[k];
+        e2[k] = c[k] - a[k];
         sv[k] = o[k] - a[k];
     }
     p[0] = d[1] * e2[2] - d[2] * e2[1];
@@ -242,16 +263,21 @@ static void make_spheres(scene_data *s)
 {
     s->sphere = malloc((s->nt ? s->nt : 1) * sizeof *s->sphere);
     assert_non_null(s->sphere);
+    /* (a moving triangle: a sphere around it at both ends, and so at
+     * every time between) */
+    const int ends = s->v1 ? 2 : 1;
     for (size_t i = 0; i < s->nt; i++) {
         double c[3] = {0, 0, 0}, r = 0.0;
-        for (int j = 0; j < 3; j++)
-            for (int k = 0; k < 3; k++)
-                c[k] += s->v[3 * (size_t)s->idx[3 * i + j] + k] / 3.0;
-        for (int j = 0; j < 3; j++) {
-            const float *p = s->v + 3 * (size_t)s->idx[3 * i + j];
-            const double d[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
-            r = fmax(r, norm3(d));
-        }
+        for (int e = 0; e < ends; e++)
+            for (int j = 0; j < 3; j++)
+                for (int k = 0; k < 3; k++)
+                    c[k] += (e ? s->v1 : s->v)[3 * (size_t)s->idx[3 * i + j] + k] / (3.0 * ends);
+        for (int e = 0; e < ends; e++)
+            for (int j = 0; j < 3; j++) {
+                const float *p = (e ? s->v1 : s->v) + 3 * (size_t)s->idx[3 * i + j];
+                const double d[3] = {p[0] - c[0], p[1] - c[1], p[2] - c[2]};
+                r = fmax(r, norm3(d));
+            }
         memcpy(s->sphere[i], c, sizeof c);
         s->sphere[i][3] = r;
     }
@@ -428,9 +454,13 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
     assert_non_null(dev);
     RTCScene scene = rtcNewScene(dev);
     RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
-    float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, 12, s->nv);
+    if (s->v1)
+        rtcSetGeometryTimeStepCount(g, 2);
+    for (unsigned step = 0; step < (s->v1 ? 2u : 1u); step++) {
+        float *vb = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, step, RTC_FORMAT_FLOAT3, 12, s->nv);
+        memcpy(vb, step ? s->v1 : s->v, s->nv * 12);
+    }
     uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, s->nt);
-    memcpy(vb, s->v, s->nv * 12);
     memcpy(ib, s->idx, s->nt * 12);
     rtcCommitGeometry(g);
     rtcAttachGeometry(scene, g);
@@ -448,7 +478,7 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
             memset(&rh, 0, sizeof rh);
             rh.ray.org_x = r->org_x, rh.ray.org_y = r->org_y, rh.ray.org_z = r->org_z;
             rh.ray.dir_x = r->dir_x, rh.ray.dir_y = r->dir_y, rh.ray.dir_z = r->dir_z;
-            rh.ray.tnear = r->tnear, rh.ray.tfar = r->tfar, rh.ray.mask = 0xffffffffu;
+            rh.ray.tnear = r->tnear, rh.ray.tfar = r->tfar, rh.ray.mask = 0xffffffffu, rh.ray.time = r->time;
             rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
             rtcInitIntersectContext(&ctx);
             answer e = {.prim = RTK_INVALID_GEOMETRY_ID};
@@ -541,6 +571,13 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
         rtk_device dev = test_device(names[b]);
         rtk_scene scene = test_scene_uncommitted(dev, s->v, s->nv, s->idx, s->nt,
                                                  compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
+        if (s->v1) { /* the geometry's second time step */
+            rtk_geometry g = rtk_scene_get_geometry(scene, 0);
+            assert_int_equal(rtk_geometry_set_time_step_count(g, 2), RTK_OK);
+            assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 1, s->v1, 0, 12, s->nv),
+                             RTK_OK);
+            assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+        }
         assert_int_equal(rtk_scene_set_build_quality(scene, morton ? RTK_BUILD_QUALITY_LOW : RTK_BUILD_QUALITY_MEDIUM),
                          RTK_OK);
         if (rtk_scene_commit(scene) != RTK_OK)
@@ -668,12 +705,9 @@ static void test_grid(void **state)
 
 /* A UV sphere (needles and fans of thin triangles at the poles) inside a
  * soup of random overlapping triangles, some far thinner than wide. */
-static void test_sphere_and_soup(void **state)
+enum { RINGS = 200, SEGS = 400, SOUP = 50000 }; /* the sphere's vertices come first, then the soup's */
+static scene_data sphere_and_soup(void)
 {
-    (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = backends(names);
-    enum { RINGS = 200, SEGS = 400, SOUP = 50000 };
     const size_t nv = (size_t)(RINGS + 1) * SEGS + 3 * SOUP, nt = (size_t)RINGS * SEGS * 2 + SOUP;
     float *v = malloc(nv * 3 * sizeof *v);
     uint32_t *idx = malloc(nt * 3 * sizeof *idx);
@@ -709,15 +743,52 @@ static void test_sphere_and_soup(void **state)
         }
         t++;
     }
-    scene_data s = {.name = "procedural sphere and soup", .v = v, .nv = k, .idx = idx, .nt = t};
+    return (scene_data){.name = "procedural sphere and soup", .v = v, .nv = k, .idx = idx, .nt = t};
+}
+
+static void test_sphere_and_soup(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = backends(names);
+    scene_data s = sphere_and_soup();
     assert_int_equal(check_scene(&s, names, nb), 0);
-    free(v);
-    free(idx);
+    free((float *)s.v);
+    free((uint32_t *)s.idx);
+}
+
+/* The same scene with motion blur: at time step 1 the whole turned about
+ * y by 0.3 radians and moved by (0.2, 0.1, 0), and every soup vertex
+ * moved on its own by up to 0.05 (the soup's triangles deform). */
+static void test_sphere_and_soup_moving(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = backends(names);
+    scene_data s = sphere_and_soup();
+    float *v1 = malloc(s.nv * 3 * sizeof *v1);
+    assert_non_null(v1);
+    const float c = cosf(0.3f), sn = sinf(0.3f);
+    rng g = {7};
+    for (size_t i = 0; i < s.nv; i++) {
+        const float *p = s.v + 3 * i;
+        const int soup = i >= (size_t)(RINGS + 1) * SEGS;
+        v1[3 * i] = c * p[0] + sn * p[2] + 0.2f + (soup ? 0.1f * rng_float(&g) - 0.05f : 0.0f);
+        v1[3 * i + 1] = p[1] + 0.1f + (soup ? 0.1f * rng_float(&g) - 0.05f : 0.0f);
+        v1[3 * i + 2] = -sn * p[0] + c * p[2] + (soup ? 0.1f * rng_float(&g) - 0.05f : 0.0f);
+    }
+    s.v1 = v1;
+    snprintf(s.name, sizeof s.name, "procedural sphere and soup, moving");
+    assert_int_equal(check_scene(&s, names, nb), 0);
+    free(v1);
+    free((float *)s.v);
+    free((uint32_t *)s.idx);
 }
 
 /* "test_conformance K/N" runs part K of N, so ctest can spread the suite
- * over cores: the procedural scenes in part 1, the shared meshes dealt out
- * in turn (by sorted name).  No argument: everything. */
+ * over cores: the static procedural scenes in part 1, the moving one in
+ * the others, the shared meshes dealt out in turn (by sorted name).  No
+ * argument: everything. */
 int main(int argc, char **argv)
 {
     if (argc > 1 && (sscanf(argv[1], "%u/%u", &part, &parts) != 2 || part < 1 || part > parts)) {
@@ -729,9 +800,18 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_sphere_and_soup),
         cmocka_unit_test(test_shared_meshes),
     };
+    const struct CMUnitTest everything[] = {
+        cmocka_unit_test(test_grid),
+        cmocka_unit_test(test_sphere_and_soup),
+        cmocka_unit_test(test_sphere_and_soup_moving),
+        cmocka_unit_test(test_shared_meshes),
+    };
+    if (parts == 1)
+        return cmocka_run_group_tests(everything, NULL, NULL);
     if (part == 1)
         return cmocka_run_group_tests(all, NULL, NULL);
     const struct CMUnitTest meshes_only[] = {
+        cmocka_unit_test(test_sphere_and_soup_moving),
         cmocka_unit_test(test_shared_meshes),
     };
     return cmocka_run_group_tests(meshes_only, NULL, NULL);

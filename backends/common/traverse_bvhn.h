@@ -309,7 +309,8 @@ static inline int push_children(const uint32_t *child, unsigned mask, vnode dist
 #if RTK_MOTION
 /* Motion blur: the block's vertices from the accel's copy of the time
  * steps around the ray's time, interpolated as (1 - f) * a + f * b (a at
- * f = 0 and b at f = 1 exactly), then the edges as the triangle4 builder
+ * f = 0 and b at f = 1 exactly; not fused, so every backend computes the
+ * same floats, FMA or not), then the edges as the triangle4 builder
  * computes them.  An unused lane is NaN: never hit. */
 static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t index, rtk_triangle4 *scratch,
                                               const ray_pre *p)
@@ -328,7 +329,7 @@ static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t i
         const uint32_t idx[3] = {t->v0[lane], t->v1[lane], t->v2[lane]};
         for (int k = 0; k < 3; k++) {
             const float *q = a + step * idx[k];
-            v[k][lane] = vf4_madd(p->f4, vf4_loadu(q + 3), vf4_mul(p->one_f4, vf4_loadu(q)));
+            v[k][lane] = vf4_add(vf4_mul(p->f4, vf4_loadu(q + 3)), vf4_mul(p->one_f4, vf4_loadu(q)));
         }
         scratch->geom[lane] = g->geom_id;
     }
