@@ -5,7 +5,8 @@
  * and with the compact one (RTK_SCENE_FLAG_COMPACT), and through the Morton
  * builder's tree (low quality; single rays, 4 and 8), on every mesh of the shared test
  * set and on procedural scenes made to be hard (shared edges and vertices hit
- * dead on, needles and fans, overlapping soup).  The scalar backend's
+ * dead on, needles and fans, overlapping soup; the soup also moving and
+ * deforming, with motion blur, its rays at random times).  The scalar backend's
  * intersect1 / occluded1 answers are the baseline.
  *
  * Rules, per ray:
