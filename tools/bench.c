@@ -34,6 +34,7 @@
 
 #include <embree3/rtcore.h>
 #include <errno.h>
+#include <malloc.h>
 #include <math.h>
 #include <pthread.h>
 #include <stddef.h>
@@ -926,16 +927,63 @@ static int section_render(ctx *c, char *err, size_t err_size)
     return 0;
 }
 
+/* ---- peak memory of a build ----
+ * The growth of the process's resident memory during one commit: freed
+ * heap memory is returned to the system first (malloc_trim), the kernel's
+ * high-water mark is reset to the resident size (clear_refs 5), and after
+ * the commit the high-water mark is read back.  The same measure for both
+ * libraries, whatever they allocate with. */
+
+/* A "VmRSS:"-style field of /proc/self/status in kB, or -1. */
+static long status_kb(const char *key)
+{
+    FILE *f = fopen("/proc/self/status", "r");
+    if (!f)
+        return -1;
+    char line[256];
+    long v = -1;
+    const size_t n = strlen(key);
+    while (fgets(line, sizeof line, f))
+        if (!strncmp(line, key, n)) {
+            v = atol(line + n);
+            break;
+        }
+    fclose(f);
+    return v;
+}
+
+/* Starts a measurement: the resident size in kB, or -1 when the kernel
+ * offers no resettable high-water mark. */
+static long peak_begin(void)
+{
+    malloc_trim(0);
+    FILE *f = fopen("/proc/self/clear_refs", "w");
+    if (!f)
+        return -1;
+    const int ok = fputs("5", f) >= 0;
+    if (fclose(f) || !ok)
+        return -1;
+    return status_kb("VmRSS:");
+}
+
+/* Bytes the resident memory grew by at most since peak_begin, or -1. */
+static double peak_end(long base_kb)
+{
+    const long hwm = status_kb("VmHWM:");
+    return base_kb < 0 || hwm < 0 ? -1.0 : (double)(hwm - base_kb) * 1024.0;
+}
+
 static int section_build(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     static const char *const qn[3] = {"low", "medium", "high"};
     printf("\nbuild (Table 4 of the Embree paper): start time from the first scene call to a committed scene (API "
-           "calls, allocation, build), best of %d, at each quality; then the diffuse rays of the trace section "
-           "through that tree, single rays, 1 thread\n",
+           "calls, allocation, build), best of %d, at each quality; bytes per triangle of the tree and at the "
+           "peak of the first build (the growth of resident memory during it, a fresh device each time); then "
+           "the diffuse rays of the trace section through that tree, single rays, 1 thread\n",
            o->builds);
-    printf("  %-20s %-8s %-14s %7s %9s %8s %9s %7s  %s\n", "library", "quality", "builder", "threads", "start ms",
-           "ratio", "Mtris/s", "B/tri", "diffuse Mrays/s");
+    printf("  %-20s %-8s %-14s %7s %9s %8s %9s %7s %7s  %s\n", "library", "quality", "builder", "threads", "start ms",
+           "ratio", "Mtris/s", "B/tri", "peak", "diffuse Mrays/s");
     const rayset diff = c->sets[SET_DIFFUSE];
     unsigned char *hits = malloc(diff.n + 1);
     char path[600];
@@ -951,14 +999,17 @@ static int section_build(ctx *c, char *err, size_t err_size)
                 if (lib_open(&bl, c->libs[l].name, c->libs[l].embree, c->libs[l].config, o->threads[ti], err,
                              err_size))
                     return 1;
-                double best = 1e30, bytes = 0, trace_rate = 0;
+                double best = 1e30, bytes = 0, trace_rate = 0, peak = -1.0;
                 char builder[32] = "";
                 for (int b = 0; b < o->builds; b++) {
                     scene sc;
+                    const long base = b == 0 ? peak_begin() : -1;
                     if (scene_build(&sc, &bl, c->m, c->padded, MODE_DEFAULT, q, err, err_size)) {
                         lib_close(&bl);
                         return 1;
                     }
+                    if (b == 0)
+                        peak = peak_end(base) / (double)c->m->triangle_count;
                     best = sc.seconds < best ? sc.seconds : best;
                     bytes = sc.bytes_per_tri;
                     memcpy(builder, sc.builder, sizeof builder);
@@ -971,8 +1022,9 @@ static int section_build(ctx *c, char *err, size_t err_size)
                 lib_close(&bl);
                 if (l == 0)
                     ref_start[q][ti] = best;
-                printf("  %-20s %-8s %-14s %7d %9.1f %7.2fx %9.2f %7.1f", c->libs[l].name, qn[q], builder,
-                       o->threads[ti], best * 1e3, ratio(ref_start[q][ti], best), (double)c->m->triangle_count / best * 1e-6, bytes);
+                printf("  %-20s %-8s %-14s %7d %9.1f %7.2fx %9.2f %7.1f %7.1f", c->libs[l].name, qn[q], builder,
+                       o->threads[ti], best * 1e3, ratio(ref_start[q][ti], best),
+                       (double)c->m->triangle_count / best * 1e-6, bytes, peak);
                 if (ti == 0)
                     printf("  %.2f", trace_rate);
                 printf("\n");
@@ -980,6 +1032,9 @@ static int section_build(ctx *c, char *err, size_t err_size)
                 snprintf(variant, sizeof variant, "%s:%s", qn[q], builder);
                 csv_row(&c->csv, "build", c->libs[l].name, variant, "start", "", o->threads[ti], best * 1e3, "ms",
                         ratio(ref_start[q][ti], best));
+                if (peak >= 0)
+                    csv_row(&c->csv, "build", c->libs[l].name, variant, "peak memory", "", o->threads[ti], peak,
+                            "bytes per triangle", 0);
                 if (ti == 0) {
                     csv_row(&c->csv, "build", c->libs[l].name, variant, "diffuse", "single", 1, trace_rate, "Mrays/s",
                             0);

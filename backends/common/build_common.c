@@ -77,6 +77,13 @@ void build_unreserve(void *p, size_t size)
         munmap(p, page_round(size));
 }
 
+void build_release_pages(void *p, size_t size)
+{
+    const uintptr_t lo = ((uintptr_t)p + 4095) & ~(uintptr_t)4095, hi = ((uintptr_t)p + size) & ~(uintptr_t)4095;
+    if (hi > lo)
+        madvise((void *)lo, hi - lo, MADV_DONTNEED);
+}
+
 void build_set_message(rtk_build_output *out, const char *text)
 {
     snprintf(out->message, sizeof out->message, "%s", text);

@@ -183,6 +183,7 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_reserve RTK_SYM(rtk_build_reserve)
 #define build_reserve_huge RTK_SYM(rtk_build_reserve_huge)
 #define build_unreserve RTK_SYM(rtk_build_unreserve)
+#define build_release_pages RTK_SYM(rtk_build_release_pages)
 #define build_set_message RTK_SYM(rtk_build_set_message)
 #define build_layout_setup RTK_SYM(rtk_build_layout_setup)
 #define build_begin RTK_SYM(rtk_build_begin)
@@ -246,6 +247,9 @@ RTK_HIDDEN void *build_reserve(size_t size);
  * arrays: one fault per 2 MiB, and fewer TLB misses). */
 RTK_HIDDEN void *build_reserve_huge(size_t size);
 RTK_HIDDEN void build_unreserve(void *p, size_t size);
+/* Gives the pages wholly inside [p, p + size) of a reservation back to the
+ * system (their contents are lost; the range stays reserved). */
+RTK_HIDDEN void build_release_pages(void *p, size_t size);
 RTK_HIDDEN void build_set_message(rtk_build_output *out, const char *text);
 /* The node and leaf geometry of in->layout, and the task system if the
  * input has one with more than one thread; 0, or an error with out->message. */
