@@ -319,56 +319,64 @@ void RTK_SYM(rtk_objects_release)(rtk_accel *accel)
 
 /* ---- traversal ---- */
 
+/* The ray, broadcast for 4-wide node tests: planes picked once per ray by
+ * the signs of the direction (near: lower where the direction is positive,
+ * upper where negative), as the triangle kernels do. */
 typedef struct obj_ray {
-    float org[3], inv[3];
+    vfloat4 org[3], inv[3], inv_far[3];
+    size_t near_off[3], far_off[3];
 } obj_ray;
-
-static void obj_ray_init(obj_ray *p, const rtk_ray *r)
-{
-    const float d[3] = {r->dir_x, r->dir_y, r->dir_z};
-    p->org[0] = r->org_x;
-    p->org[1] = r->org_y;
-    p->org[2] = r->org_z;
-    for (int k = 0; k < 3; k++) {
-        /* as the triangle kernels do: no 0 * inf NaN in a slab test */
-        const float dk = fabsf(d[k]) < 1e-18f ? copysignf(1e-18f, d[k]) : d[k];
-        p->inv[k] = 1.0f / dk;
-    }
-}
 
 /* 1 + 2 * gamma(3): the far distances no smaller than the exact ones. */
 #define OBJ_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
 
+static void obj_ray_init(obj_ray *p, const rtk_ray *r)
+{
+    static const size_t lower[3] = {offsetof(rtk_bvh4_node, lower_x), offsetof(rtk_bvh4_node, lower_y),
+                                    offsetof(rtk_bvh4_node, lower_z)};
+    static const size_t upper[3] = {offsetof(rtk_bvh4_node, upper_x), offsetof(rtk_bvh4_node, upper_y),
+                                    offsetof(rtk_bvh4_node, upper_z)};
+    const float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    for (int k = 0; k < 3; k++) {
+        /* as the triangle kernels do: no 0 * inf NaN in a slab test */
+        const float dk = fabsf(d[k]) < 1e-18f ? copysignf(1e-18f, d[k]) : d[k];
+        const float inv = 1.0f / dk;
+        p->org[k] = vf4_set1(o[k]);
+        p->inv[k] = vf4_set1(inv);
+        p->inv_far[k] = vf4_set1(inv * OBJ_FAR_SCALE);
+        p->near_off[k] = inv < 0.0f ? upper[k] : lower[k];
+        p->far_off[k] = inv < 0.0f ? lower[k] : upper[k];
+    }
+}
+
+static inline vfloat4 obj_plane(const rtk_bvh4_node *n, size_t off)
+{
+    return vf4_load((const float *)((const char *)n + off));
+}
+
 /* The children of n the ray enters within [tnear, tfar], nearest first, in
- * ref[] and dist[]; returns how many. */
+ * ref[] and dist[]; returns how many.  The four boxes at once (an empty
+ * slot's inverted box is never entered). */
 static int node_children(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, uint32_t ref[4],
                          float dist[4])
 {
-    const float *lo[3] = {n->lower_x, n->lower_y, n->lower_z}, *hi[3] = {n->upper_x, n->upper_y, n->upper_z};
+    vfloat4 tmin = vf4_set1(tnear), tmax = vf4_set1(tfar);
+    for (int k = 0; k < 3; k++) {
+        tmin = vf4_max(tmin, vf4_mul(vf4_sub(obj_plane(n, p->near_off[k]), p->org[k]), p->inv[k]));
+        tmax = vf4_min(tmax, vf4_mul(vf4_sub(obj_plane(n, p->far_off[k]), p->org[k]), p->inv_far[k]));
+    }
+    unsigned mask = (unsigned)vb4_mask(vf4_le(tmin, tmax));
+    _Alignas(16) float t[4];
+    vf4_store(t, tmin);
     int count = 0;
-    for (int c = 0; c < 4; c++) {
-        if (n->child[c] == RTK_BVH4_EMPTY)
-            continue;
-        float t0 = tnear, t1 = tfar;
-        for (int k = 0; k < 3; k++) {
-            float a = (lo[k][c] - p->org[k]) * p->inv[k], b = (hi[k][c] - p->org[k]) * p->inv[k];
-            if (a > b) {
-                const float t = a;
-                a = b;
-                b = t;
-            }
-            b *= OBJ_FAR_SCALE;
-            t0 = a > t0 ? a : t0;
-            t1 = b < t1 ? b : t1;
-        }
-        if (!(t0 <= t1))
-            continue;
+    for (; mask; mask &= mask - 1) {
+        const int c = __builtin_ctz(mask);
         int i = count++;
-        for (; i > 0 && dist[i - 1] > t0; i--) {
+        for (; i > 0 && dist[i - 1] > t[c]; i--) {
             dist[i] = dist[i - 1];
             ref[i] = ref[i - 1];
         }
-        dist[i] = t0;
+        dist[i] = t[c];
         ref[i] = n->child[c];
     }
     return count;
