@@ -787,9 +787,9 @@ static void test_sphere_and_soup_moving(void **state)
 }
 
 /* "test_conformance K/N" runs part K of N, so ctest can spread the suite
- * over cores: the static procedural scenes in part 1, the moving one in
- * the others, the shared meshes dealt out in turn (by sorted name).  No
- * argument: everything. */
+ * over cores: the procedural scenes in part 1, the shared meshes dealt out
+ * in turn (by sorted name).
+ * No argument: everything. */
 int main(int argc, char **argv)
 {
     if (argc > 1 && (sscanf(argv[1], "%u/%u", &part, &parts) != 2 || part < 1 || part > parts)) {
@@ -799,20 +799,12 @@ int main(int argc, char **argv)
     const struct CMUnitTest all[] = {
         cmocka_unit_test(test_grid),
         cmocka_unit_test(test_sphere_and_soup),
-        cmocka_unit_test(test_shared_meshes),
-    };
-    const struct CMUnitTest everything[] = {
-        cmocka_unit_test(test_grid),
-        cmocka_unit_test(test_sphere_and_soup),
         cmocka_unit_test(test_sphere_and_soup_moving),
         cmocka_unit_test(test_shared_meshes),
     };
-    if (parts == 1)
-        return cmocka_run_group_tests(everything, NULL, NULL);
     if (part == 1)
         return cmocka_run_group_tests(all, NULL, NULL);
     const struct CMUnitTest meshes_only[] = {
-        cmocka_unit_test(test_sphere_and_soup_moving),
         cmocka_unit_test(test_shared_meshes),
     };
     return cmocka_run_group_tests(meshes_only, NULL, NULL);

@@ -165,6 +165,13 @@ static lbox convert_subtree(mb *m, uint32_t ref)
     return all;
 }
 
+/* Cache-line aligned memory (aligned_alloc wants a multiple of the
+ * alignment: 208-byte nodes and 80-byte blocks are not). */
+static void *alloc64(size_t size)
+{
+    return aligned_alloc(64, (size + 63) & ~(size_t)63);
+}
+
 static void release_segments(struct rtk_accel *accel)
 {
     for (uint32_t s = 0; accel->segments && s < accel->segment_count; s++) {
@@ -295,8 +302,8 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         seg->leaf_count = topo->leaf_count;
         seg->segment = s;
         seg->mb_geoms = accel->mb_geoms;
-        seg->nodes = aligned_alloc(64, (topo->node_count ? topo->node_count : 1) * sizeof(rtk_bvh4mb_node));
-        seg->trisi = aligned_alloc(64, (topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4i));
+        seg->nodes = alloc64((topo->node_count ? topo->node_count : 1) * sizeof(rtk_bvh4mb_node));
+        seg->trisi = alloc64((topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4i));
         const uint32_t chunks = (uint32_t)((topo->leaf_count + MB_BLOCK_CHUNK - 1) / MB_BLOCK_CHUNK);
         m.block_box = malloc((topo->leaf_count ? topo->leaf_count : 1) * sizeof *m.block_box);
         m.lanes = calloc(chunks ? chunks : 1, sizeof *m.lanes);
