@@ -225,6 +225,40 @@ static int rtk_commit(scene *sc, rtk_scene s, int bad, double t0, char *err, siz
     return 0;
 }
 
+/* What a one-mesh scene of either library ends with, once g has its
+ * vertex buffers: the mesh's indices, g committed and attached to s, s
+ * committed into sc (timed from t0), and the memory it took. */
+static int embree_mesh_commit(scene *sc, RTCScene s, RTCGeometry g, const rtk_mesh *m, double t0, long long bytes0,
+                              const char *what, char *err, size_t err_size)
+{
+    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12, m->triangle_count);
+    rtcCommitGeometry(g);
+    rtcAttachGeometry(s, g);
+    rtcReleaseGeometry(g);
+    if (embree_commit(sc, s, t0, what, err, err_size))
+        return 1;
+    sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
+    return 0;
+}
+
+/* The same for rtk, unless `bad` (an earlier call failed); also the
+ * layout and builder it chose. */
+static int rtk_mesh_commit(scene *sc, rtk_scene s, rtk_geometry g, const rtk_mesh *m, int bad, double t0, char *err,
+                           size_t err_size)
+{
+    bad = bad || rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
+          rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
+    rtk_geometry_release(g);
+    if (rtk_commit(sc, s, bad, t0, err, err_size))
+        return 1;
+    rtk_scene_info info = {.struct_size = sizeof info};
+    rtk_scene_get_info(s, &info);
+    sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
+    snprintf(sc->layout, sizeof sc->layout, "%s", info.layout);
+    snprintf(sc->builder, sizeof sc->builder, "%s", info.builder);
+    return 0;
+}
+
 /* A scene over the mesh, timed from the first call to the commit's end. */
 static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded, int mode, int quality, char *err,
                        size_t err_size)
@@ -249,14 +283,8 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
             rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_REFIT);
         }
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded, 0, 12, m->vertex_count);
-        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12,
-                                   m->triangle_count);
-        rtcCommitGeometry(g);
-        rtcAttachGeometry(s, g);
-        rtcReleaseGeometry(g);
-        if (embree_commit(sc, s, t0, "the scene", err, err_size))
+        if (embree_mesh_commit(sc, s, g, m, t0, bytes0, "the scene", err, err_size))
             return 1;
-        sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
         snprintf(sc->layout, sizeof sc->layout, "embree %s", mode_names[mode]);
         /* Embree 3 (rtcSetSceneBuildQuality(3)): low builds a two-level
          * structure, each mesh by the Morton builder; medium is its binned
@@ -276,18 +304,8 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
                                                      : RTK_SCENE_FLAG_NONE) ||
         rtk_scene_set_build_quality(s, q[quality]) || rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
         rtk_geometry_set_build_quality(g, mode == MODE_REFIT ? RTK_BUILD_QUALITY_REFIT : q[quality]) ||
-        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
-        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
-        rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
-    rtk_geometry_release(g);
-    if (rtk_commit(sc, s, bad, t0, err, err_size))
-        return 1;
-    rtk_scene_info info = {.struct_size = sizeof info};
-    rtk_scene_get_info(s, &info);
-    sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
-    snprintf(sc->layout, sizeof sc->layout, "%s", info.layout);
-    snprintf(sc->builder, sizeof sc->builder, "%s", info.builder);
-    return 0;
+        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count);
+    return rtk_mesh_commit(sc, s, g, m, bad, t0, err, err_size);
 }
 
 static void scene_release(scene *sc)
@@ -1496,14 +1514,8 @@ static int motion_scene(scene *sc, lib *l, const rtk_mesh *m, float *const *v, i
         for (int k = 0; k < steps; k++)
             rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, (unsigned)k, RTC_FORMAT_FLOAT3, v[k], 0, 12,
                                        m->vertex_count);
-        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12,
-                                   m->triangle_count);
-        rtcCommitGeometry(g);
-        rtcAttachGeometry(s, g);
-        rtcReleaseGeometry(g);
-        if (embree_commit(sc, s, t0, "the motion-blur scene", err, err_size))
+        if (embree_mesh_commit(sc, s, g, m, t0, bytes0, "the motion-blur scene", err, err_size))
             return 1;
-        sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
         snprintf(sc->layout, sizeof sc->layout, "embree motion blur");
         return 0;
     }
@@ -1515,16 +1527,7 @@ static int motion_scene(scene *sc, lib *l, const rtk_mesh *m, float *const *v, i
     for (int k = 0; k < steps && !bad; k++)
         bad = rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, (unsigned)k, v[k], 0, 12,
                                                   m->vertex_count) != RTK_OK;
-    bad = bad || rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
-          rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
-    rtk_geometry_release(g);
-    if (rtk_commit(sc, s, bad, t0, err, err_size))
-        return 1;
-    rtk_scene_info info = {.struct_size = sizeof info};
-    rtk_scene_get_info(s, &info);
-    sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
-    snprintf(sc->layout, sizeof sc->layout, "%s", info.layout);
-    return 0;
+    return rtk_mesh_commit(sc, s, g, m, bad, t0, err, err_size);
 }
 
 /* Linear motion blur: the mesh at 2 and at 5 time steps; build (best of
