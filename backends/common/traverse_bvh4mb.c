@@ -36,22 +36,8 @@ void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit)
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(seg, seg->root, &p, rayhit->ray.tnear, &tfar, &best);
-    if (best.lane < 0)
-        return;
-    rtk_triangle4 scratch;
-    const rtk_triangle4 *t = leaf_block(seg, best.leaf, &scratch, &p);
-    float v0[3], e1[3], e2[3], ng[3];
-    lane_triangle(t, best.lane, v0, e1, e2);
-    rtk_triangle_normal(e1, e2, ng);
-    rayhit->ray.tfar = tfar;
-    rayhit->hit.Ng_x = ng[0];
-    rayhit->hit.Ng_y = ng[1];
-    rayhit->hit.Ng_z = ng[2];
-    rayhit->hit.u = best.u;
-    rayhit->hit.v = best.v;
-    rayhit->hit.primID = t->prim[best.lane];
-    rayhit->hit.geomID = t->geom[best.lane];
-    rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
+    if (best.lane >= 0)
+        closest_hit_store(seg, &best, &p, tfar, rayhit);
 }
 
 void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray)

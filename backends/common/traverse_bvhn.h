@@ -626,20 +626,37 @@ static int any_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, flo
     return any_from_(accel, root, p, tnear_s, tfar_s, 0);
 }
 
-#if !RTK_MOTION /* (traverse_bvh4mb.c has its own) */
-/* The geometric normal and ids of a closest hit. */
-static inline void closest_hit_record(const rtk_accel *accel, const closest_hit *best, float ng[3], uint32_t *prim,
-                                      uint32_t *geom)
+/* The geometric normal and ids of a closest hit (p: the ray's, for the
+ * time of a moving leaf; unused, and may be NULL, elsewhere). */
+static inline void closest_hit_record(const rtk_accel *accel, const closest_hit *best, const ray_pre *p, float ng[3],
+                                      uint32_t *prim, uint32_t *geom)
 {
+    (void)p;
     float v0[3], e1[3], e2[3];
     rtk_triangle4 scratch;
-    const rtk_triangle4 *t = leaf_block(accel, best->leaf, &scratch);
+    const rtk_triangle4 *t = LEAF_BLOCK(accel, best->leaf, &scratch);
     lane_triangle(t, best->lane, v0, e1, e2);
     rtk_triangle_normal(e1, e2, ng);
     *prim = t->prim[best->lane];
     *geom = t->geom[best->lane];
 }
 
+/* A single ray's closest hit (at distance tfar) into its ray and hit. */
+static inline void closest_hit_store(const rtk_accel *accel, const closest_hit *best, const ray_pre *p, float tfar,
+                                     rtk_rayhit *rayhit)
+{
+    float ng[3];
+    closest_hit_record(accel, best, p, ng, &rayhit->hit.primID, &rayhit->hit.geomID);
+    rayhit->ray.tfar = tfar;
+    rayhit->hit.Ng_x = ng[0];
+    rayhit->hit.Ng_y = ng[1];
+    rayhit->hit.Ng_z = ng[2];
+    rayhit->hit.u = best->u;
+    rayhit->hit.v = best->v;
+    rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
+}
+
+#if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
 {
     if (accel->root == RTK_BVH4_EMPTY)
@@ -649,17 +666,8 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best);
-    if (best.lane < 0)
-        return;
-    float ng[3];
-    closest_hit_record(accel, &best, ng, &rayhit->hit.primID, &rayhit->hit.geomID);
-    rayhit->ray.tfar = tfar;
-    rayhit->hit.Ng_x = ng[0];
-    rayhit->hit.Ng_y = ng[1];
-    rayhit->hit.Ng_z = ng[2];
-    rayhit->hit.u = best.u;
-    rayhit->hit.v = best.v;
-    rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
+    if (best.lane >= 0)
+        closest_hit_store(accel, &best, &p, tfar, rayhit);
 }
 
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)

@@ -507,7 +507,7 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet)
             continue;
         const closest_hit best = {.leaf = ref[i] / 4, .lane = (int)(ref[i] % 4)};
         float ng[3];
-        closest_hit_record(accel, &best, ng, &rh->hit.primID[i], &rh->hit.geomID[i]);
+        closest_hit_record(accel, &best, NULL, ng, &rh->hit.primID[i], &rh->hit.geomID[i]);
         rh->ray.tfar[i] = t[i];
         rh->hit.Ng_x[i] = ng[0];
         rh->hit.Ng_y[i] = ng[1];
