@@ -15,8 +15,30 @@
  * false, so NaN input never hits.  Both faces are hit (no culling).
  *
  * Guarantees: none at shared edges and vertices (a ray exactly through an edge
- * may hit both triangles or neither).  The watertight variant is a later
- * addition.
+ * may hit both triangles or neither).
+ *
+ * Watertight intersector (Woop, Benthin and Wald 2013, "Watertight
+ * Ray/Triangle Intersection"), used by the robust layouts: the vertices are
+ * taken relative to the ray origin and sheared so that the ray runs along
+ * +z from the origin of the xy plane; the three 2D edge functions
+ * U (of edge v1 v2), V (v2 v0) and W (v0 v1) are then the barycentric
+ * weights of v0, v1, v2 scaled by det = U + V + W.  A point is inside when
+ * all three have one sign.  An edge shared by two triangles has the same
+ * two transformed vertices in both, so its edge function is computed from
+ * the same floats in both and comes out exactly negated (a*b - c*d against
+ * c*d - a*b: no FMA, which rtk's build forbids with -ffp-contract=off):
+ * a ray can never pass between the two, and where a float edge function is
+ * exactly zero all three are recomputed in double, where the products of
+ * floats are exact and the sign of each difference is too; so is a
+ * triangle whose |det| comes out below FLT_MIN (edge functions that
+ * underflow: a triangle of about 1e-19 or less across, as seen from the
+ * origin), which the fast test never hits.  So a ray through a shared edge
+ * or vertex of a closed mesh hits at least one of the triangles; it may
+ * report either.  The hit needs det != 0 (a ray in the triangle's plane, or
+ * a triangle of no area, never hits) and tnear <= t <= tfar.  u and v are the weights of v1 and v2,
+ * as the fast intersector's.  The vertices must be the application's
+ * floats exactly (not v0 + (v1 - v0)): the robust layouts store vertices,
+ * not edges.
  */
 #ifndef RTK_GEOMETRY_TRIANGLE_H
 #define RTK_GEOMETRY_TRIANGLE_H
@@ -101,6 +123,100 @@ static inline int rtk_triangle_intersect(const float o[3], const float d[3], flo
     hit->v = V * inv;
     /* The product may round past an end of the interval the unscaled test
      * accepted; clamp so the reported t always satisfies tnear <= t <= tfar. */
+    if (hit->t < tnear)
+        hit->t = tnear;
+    if (hit->t > tfar)
+        hit->t = tfar;
+    return 1;
+}
+
+/* The per-ray part of the watertight test: the axis of the largest
+ * direction component becomes z (kz), the other two x and y in the order that
+ * keeps the winding (kx, ky swapped for a negative z component), and the
+ * shear constants sx = d[kx]/d[kz], sy = d[ky]/d[kz], sz = 1/d[kz]. */
+typedef struct rtk_watertight_ray {
+    int kx, ky, kz;
+    float sx, sy, sz;
+} rtk_watertight_ray;
+
+static inline void rtk_watertight_ray_init(const float d[3], rtk_watertight_ray *w)
+{
+    const float ax = fabsf(d[0]), ay = fabsf(d[1]), az = fabsf(d[2]);
+    int kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+    if (d[kz] < 0.0f) {
+        const int k = kx;
+        kx = ky;
+        ky = k;
+    }
+    w->kx = kx;
+    w->ky = ky;
+    w->kz = kz;
+    w->sx = d[kx] / d[kz];
+    w->sy = d[ky] / d[kz];
+    w->sz = 1.0f / d[kz];
+}
+
+/* The edge functions of the transformed 2D vertices a, b, c (x then y) in
+ * double precision: every product of two floats is exact there, so each
+ * difference has the exact sign. */
+static inline void rtk_watertight_edges_double(const float a[2], const float b[2], const float c[2], double *u,
+                                               double *v, double *w)
+{
+    *u = (double)c[0] * b[1] - (double)c[1] * b[0];
+    *v = (double)a[0] * c[1] - (double)a[1] * c[0];
+    *w = (double)b[0] * a[1] - (double)b[1] * a[0];
+}
+
+/*
+ * One ray against one triangle given by its three vertices, watertight.
+ * Returns 1 and fills *hit when the ray hits within [tnear, tfar].
+ */
+static inline int rtk_triangle_intersect_watertight(const float o[3], const rtk_watertight_ray *w, float tnear,
+                                                    float tfar, const float v0[3], const float v1[3],
+                                                    const float v2[3], rtk_tri_hit *hit)
+{
+    const int kx = w->kx, ky = w->ky, kz = w->kz;
+    const float az = v0[kz] - o[kz], bz = v1[kz] - o[kz], cz = v2[kz] - o[kz];
+    const float a[2] = {(v0[kx] - o[kx]) - w->sx * az, (v0[ky] - o[ky]) - w->sy * az};
+    const float b[2] = {(v1[kx] - o[kx]) - w->sx * bz, (v1[ky] - o[ky]) - w->sy * bz};
+    const float c[2] = {(v2[kx] - o[kx]) - w->sx * cz, (v2[ky] - o[ky]) - w->sy * cz};
+    float U = c[0] * b[1] - c[1] * b[0];
+    float V = a[0] * c[1] - a[1] * c[0];
+    float W = b[0] * a[1] - b[1] * a[0];
+    const float det = U + V + W;
+    const float absdet = fabsf(det);
+    if (U == 0.0f || V == 0.0f || W == 0.0f || absdet < FLT_MIN) {
+        double ud, vd, wd;
+        rtk_watertight_edges_double(a, b, c, &ud, &vd, &wd);
+        if ((ud < 0.0 || vd < 0.0 || wd < 0.0) && (ud > 0.0 || vd > 0.0 || wd > 0.0))
+            return 0;
+        const double det = ud + vd + wd;
+        if (det == 0.0)
+            return 0;
+        const double t = (ud * (w->sz * az) + vd * (w->sz * bz) + wd * (w->sz * cz)) / det;
+        if (!(t >= tnear && t <= tfar))
+            return 0;
+        hit->t = (float)t;
+        hit->u = (float)(vd / det);
+        hit->v = (float)(wd / det);
+        if (hit->t < tnear)
+            hit->t = tnear;
+        if (hit->t > tfar)
+            hit->t = tfar;
+        return 1;
+    }
+    if ((U < 0.0f || V < 0.0f || W < 0.0f) && (U > 0.0f || V > 0.0f || W > 0.0f))
+        return 0;
+    if (!(absdet >= FLT_MIN))
+        return 0; /* NaN */
+    const float T = rtk_xor_sign(U * (w->sz * az) + V * (w->sz * bz) + W * (w->sz * cz), det);
+    if (!(T >= tnear * absdet && T <= tfar * absdet))
+        return 0;
+    const float inv = 1.0f / absdet;
+    hit->t = T * inv;
+    hit->u = rtk_xor_sign(V, det) * inv;
+    hit->v = rtk_xor_sign(W, det) * inv;
     if (hit->t < tnear)
         hit->t = tnear;
     if (hit->t > tfar)

@@ -126,7 +126,8 @@ if "$tool" bench --help >/dev/null 2>&1; then
                 "render,rtk avx2,default,diffuse path tracer,packet8,1," \
                 "build,embree default,high:sah-spatial,start,,1," "build,rtk avx2,low:morton,start,,1," \
                 "build,rtk avx2,low:morton,diffuse,single,1," "accuracy,embree isa=avx2,robust,edge,single,1," \
-                "accuracy,rtk scalar,compact,diffuse,single,1," "memory,rtk avx2,bvh8.triangle4,"; do
+                "accuracy,rtk scalar,compact,diffuse,single,1," "accuracy,rtk avx2,robust,edge,single,1," \
+                "memory,rtk avx2,bvh8.triangle4,"; do
         grep -qF "bunny.ply,$want" "$csv" || fail "bench.csv lacks a row '$want'"
     done
     ! grep -q "packet16" "$csv" || fail "bench.csv has packet16 rows though --api left them out"

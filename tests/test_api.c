@@ -328,19 +328,25 @@ static void test_flags_reported(void **state)
     rtk_scene_info info = {.struct_size = sizeof info};
     assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
     assert_int_equal(info.flags, RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_COMPACT);
-    /* Robust is not implemented in this version, and said so. */
-    assert_int_equal(info.flags_not_honoured, RTK_SCENE_FLAG_ROBUST);
+    /* both honoured: index leaves and the watertight intersector */
+    assert_int_equal(info.flags_not_honoured, 0);
     assert_int_equal(info.quality, RTK_BUILD_QUALITY_HIGH);
     assert_string_equal(info.builder, "sah-spatial");
-    assert_string_equal(info.layout, "bvh4.triangle4i");
+    assert_string_equal(info.layout, "bvh4.triangle4i.robust");
+    const char *backend = rtk_device_get_backend_name(dev);
+    const int wide = !strcmp(backend, "avx") || !strcmp(backend, "avx2");
+    /* robust alone: vertex leaves, as wide as the default */
+    assert_int_equal(rtk_scene_set_flags(scene, RTK_SCENE_FLAG_ROBUST), RTK_OK);
+    assert_int_equal(rtk_scene_commit(scene), RTK_OK);
+    assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
+    assert_int_equal(info.flags_not_honoured, 0);
+    assert_string_equal(info.layout, wide ? "bvh8.triangle4v" : "bvh4.triangle4v");
     /* Default: 8-wide nodes where the backend has 8-wide vectors, 4-wide
      * elsewhere, and vertex-copy leaves. */
     assert_int_equal(rtk_scene_set_flags(scene, RTK_SCENE_FLAG_NONE), RTK_OK);
     assert_int_equal(rtk_scene_commit(scene), RTK_OK);
     assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
     assert_int_equal(info.flags_not_honoured, 0);
-    const char *backend = rtk_device_get_backend_name(dev);
-    const int wide = !strcmp(backend, "avx") || !strcmp(backend, "avx2");
     assert_string_equal(info.layout, wide ? "bvh8.triangle4" : "bvh4.triangle4");
     rtk_scene_info small = {.struct_size = 8};
     assert_int_equal(rtk_scene_get_info(scene, &small), RTK_ERROR_INVALID_ARGUMENT);

@@ -99,9 +99,11 @@ rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint
 
 ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt)
 {
-    ref_mesh m = {.tri = malloc((nt ? nt : 1) * sizeof *m.tri), .keep = malloc(nt ? nt : 1), .count = nt};
+    ref_mesh m = {.tri = malloc((nt ? nt : 1) * sizeof *m.tri), .keep = malloc(nt ? nt : 1), .count = nt,
+                  .vtx = malloc((nt ? nt : 1) * sizeof *m.vtx)};
     assert_non_null(m.tri);
     assert_non_null(m.keep);
+    assert_non_null(m.vtx);
     for (size_t i = 0; i < nt; i++) {
         const uint32_t *t = idx + 3 * i;
         const float *a = v + 3 * (size_t)t[0], *b = v + 3 * (size_t)t[1], *c = v + 3 * (size_t)t[2];
@@ -110,6 +112,9 @@ ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt)
             m.tri[i][k] = a[k];
             m.tri[i][3 + k] = b[k] - a[k];
             m.tri[i][6 + k] = c[k] - a[k];
+            m.vtx[i][k] = a[k];
+            m.vtx[i][3 + k] = b[k];
+            m.vtx[i][6 + k] = c[k];
         }
     }
     return m;
@@ -119,25 +124,42 @@ void ref_free(ref_mesh *m)
 {
     free(m->tri);
     free(m->keep);
+    free(m->vtx);
     memset(m, 0, sizeof *m);
+}
+
+/* Triangle i against the ray within [tnear, tfar], with the mesh's intersector. */
+static int ref_test(const ref_mesh *m, size_t i, const float o[3], const float d[3], const rtk_watertight_ray *w,
+                    float tnear, float tfar, rtk_tri_hit *hit)
+{
+    if (!m->keep[i])
+        return 0;
+    if (m->watertight) {
+        const float *v = m->vtx[i];
+        return rtk_triangle_intersect_watertight(o, w, tnear, tfar, v, v + 3, v + 6, hit);
+    }
+    const float *t = m->tri[i];
+    return rtk_triangle_intersect(o, d, tnear, tfar, t, t + 3, t + 6, hit);
 }
 
 int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *r, rtk_tri_hit *hit)
 {
     float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
-    const float *t = m->tri[prim];
-    return m->keep[prim] && rtk_triangle_intersect(o, d, r->tnear, r->tfar, t, t + 3, t + 6, hit);
+    rtk_watertight_ray w;
+    rtk_watertight_ray_init(d, &w);
+    return ref_test(m, prim, o, d, &w, r->tnear, r->tfar, hit);
 }
 
 int ref_closest(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t *prim)
 {
     float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    rtk_watertight_ray w;
+    rtk_watertight_ray_init(d, &w);
     float tfar = r->tfar;
     int found = 0;
     for (size_t i = 0; i < m->count; i++) {
-        const float *t = m->tri[i];
         rtk_tri_hit h;
-        if (m->keep[i] && rtk_triangle_intersect(o, d, r->tnear, tfar, t, t + 3, t + 6, &h)) {
+        if (ref_test(m, i, o, d, &w, r->tnear, tfar, &h)) {
             found = 1;
             *hit = h;
             *prim = (uint32_t)i;

@@ -38,6 +38,8 @@ typedef struct ref_mesh {
     float (*tri)[9];
     unsigned char *keep; /* 0: non-finite or zero area, never hit */
     size_t count;
+    float (*vtx)[9];     /* v0, v1, v2 as given */
+    int watertight;      /* 1: the robust layouts' intersector (set by the caller) */
 } ref_mesh;
 ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt);
 void ref_free(ref_mesh *m);

@@ -1649,8 +1649,6 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
     unsigned char *hits = malloc(diff.n + 1);
     for (int l = 0; l < c->nlibs; l++) {
         for (int mode = 0; mode < 3; mode++) {
-            if (!c->libs[l].embree && mode == MODE_ROBUST)
-                continue; /* rtk has one intersector so far: ROBUST changes nothing */
             scene sc;
             if (scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size))
                 return 1;

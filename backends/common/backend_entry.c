@@ -63,6 +63,20 @@ static const rtk_builder_entry builders[] = {
     {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .build = RTK_SYM(rtk_build_morton)},
     {.name = "sah-binned", .qualities = SAH_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .build = BUILD_SAH},
     {.name = "sah-spatial", .qualities = SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .build = RTK_SYM(rtk_build_sah_spatial)},
+    /* robust scenes: vertex leaves (the watertight test needs the
+     * vertices themselves), 8-wide nodes where vectors are 8 wide; robust
+     * and compact: index leaves */
+#ifdef RTK_SIMD_HAS_8
+    {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4V, .build = RTK_SYM(rtk_build_morton)},
+    {.name = "sah-binned", .qualities = SAH_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4V, .build = BUILD_SAH},
+    {.name = "sah-spatial", .qualities = SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH8_TRIANGLE4V, .build = RTK_SYM(rtk_build_sah_spatial)},
+#endif
+    {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4V, .build = RTK_SYM(rtk_build_morton)},
+    {.name = "sah-binned", .qualities = SAH_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4V, .build = BUILD_SAH},
+    {.name = "sah-spatial", .qualities = SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4V, .build = RTK_SYM(rtk_build_sah_spatial)},
+    {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .build = RTK_SYM(rtk_build_morton)},
+    {.name = "sah-binned", .qualities = SAH_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .build = BUILD_SAH},
+    {.name = "sah-spatial", .qualities = SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .build = RTK_SYM(rtk_build_sah_spatial)},
     {0},
 };
 
@@ -73,6 +87,14 @@ static const rtk_layout_entry layouts[] = {
     {.id = RTK_LAYOUT_BVH4_TRIANGLE4, .scene_flags = 0, .name = "bvh4.triangle4", .release = RTK_SYM(rtk_bvh4_release)},
     {.id = RTK_LAYOUT_BVH4_TRIANGLE4I, .scene_flags = RTK_SCENE_FLAG_COMPACT, .name = "bvh4.triangle4i",
      .release = RTK_SYM(rtk_bvh4_release)},
+#ifdef RTK_SIMD_HAS_8
+    {.id = RTK_LAYOUT_BVH8_TRIANGLE4V, .scene_flags = RTK_SCENE_FLAG_ROBUST, .name = "bvh8.triangle4v",
+     .release = RTK_SYM(rtk_bvh4_release)},
+#endif
+    {.id = RTK_LAYOUT_BVH4_TRIANGLE4V, .scene_flags = RTK_SCENE_FLAG_ROBUST, .name = "bvh4.triangle4v",
+     .release = RTK_SYM(rtk_bvh4_release)},
+    {.id = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .scene_flags = RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_COMPACT,
+     .name = "bvh4.triangle4i.robust", .release = RTK_SYM(rtk_bvh4_release)},
     /* the top level of scenes with instances (objects.c): built by the
      * objects entry below, never by a triangle builder */
     {.id = RTK_LAYOUT_BVH4_OBJECT, .scene_flags = 0, .name = "bvh4.object", .release = RTK_SYM(rtk_objects_release)},
@@ -132,6 +154,21 @@ static const rtk_kernel_entry kernels[] = {
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 8,
      .fn.occludedN = RTK_SYM(rtk_bvh4i_occluded8)},
 #endif
+    /* robust layouts: single rays only so far (packets go ray by ray) */
+#ifdef RTK_SIMD_HAS_8
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4V, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_bvh8v_intersect1)},
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4V, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_bvh8v_occluded1)},
+#endif
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4V, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_bvh4v_intersect1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4V, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_bvh4v_occluded1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_bvh4ir_intersect1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_bvh4ir_occluded1)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_INTERSECT, .width = 1,
      .fn.intersect1 = RTK_SYM(rtk_objects_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = 1,
@@ -151,6 +188,11 @@ static const rtk_layout_io_entry layout_io[] = {
 #endif
     LAYOUT_IO(RTK_LAYOUT_BVH4_TRIANGLE4),
     LAYOUT_IO(RTK_LAYOUT_BVH4_TRIANGLE4I),
+#ifdef RTK_SIMD_HAS_8
+    LAYOUT_IO(RTK_LAYOUT_BVH8_TRIANGLE4V),
+#endif
+    LAYOUT_IO(RTK_LAYOUT_BVH4_TRIANGLE4V),
+    LAYOUT_IO(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST),
     {0},
 };
 
@@ -162,6 +204,11 @@ static const rtk_layout_refit_entry layout_refit[] = {
 #endif
     LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4),
     LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4I),
+#ifdef RTK_SIMD_HAS_8
+    LAYOUT_REFIT(RTK_LAYOUT_BVH8_TRIANGLE4V),
+#endif
+    LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4V),
+    LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST),
     {0},
 };
 

@@ -92,14 +92,26 @@ void build_set_message(rtk_build_output *out, const char *text)
 int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *out)
 {
     *bd = (build){.in = in, .leaf_size = sizeof(rtk_triangle4), .width = 4, .node_size = sizeof(rtk_bvh4_node)};
-    if (in->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
+    switch (in->layout) {
+    case RTK_LAYOUT_BVH8_TRIANGLE4V:
+        bd->vertex_leaves = 1;
+        /* fall through */
+    case RTK_LAYOUT_BVH8_TRIANGLE4:
         bd->width = 8;
         bd->node_size = sizeof(rtk_bvh8_node);
-    } else if (in->layout == RTK_LAYOUT_BVH4_TRIANGLE4I) {
+        break;
+    case RTK_LAYOUT_BVH4_TRIANGLE4I:
+    case RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST:
         bd->leaf_size = sizeof(rtk_triangle4i);
         bd->indexed = 1;
-    } else if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4) {
-        build_set_message(out, "this backend makes bvh4.triangle4, bvh8.triangle4 and bvh4.triangle4i only");
+        break;
+    case RTK_LAYOUT_BVH4_TRIANGLE4V:
+        bd->vertex_leaves = 1;
+        break;
+    case RTK_LAYOUT_BVH4_TRIANGLE4:
+        break;
+    default:
+        build_set_message(out, "this backend makes the bvh4/bvh8 triangle4, triangle4v and triangle4i layouts only");
         return RTK_ERROR_INVALID_ARGUMENT;
     }
     if (in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks && in->tasks &&
@@ -223,9 +235,12 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
     out->depth = prims ? depth : 0;
     const float root_area = box_half_area(bounds);
     out->sah_cost = root_area > 0.0f ? tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
+    accel->extent = 0.0f;
     for (int k = 0; k < 3; k++) {
         out->lower[k] = prims ? box_lo(bounds, k) : 0.0f;
         out->upper[k] = prims ? box_hi(bounds, k) : 0.0f;
+        const float side = out->upper[k] - out->lower[k]; /* may round up to inf: then no robust padding helps */
+        accel->extent = side > accel->extent ? side : accel->extent;
     }
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
         out->threads = bd->tasks ? bd->tasks->threads : 1;
@@ -264,6 +279,27 @@ uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom
                     const vfloat4 x = vf4_set(q[0], q[1], q[2], 0.0f);
                     box_grow(&b, x, x);
                 }
+        }
+    } else if (bd->vertex_leaves) {
+        rtk_triangle4v *t = (rtk_triangle4v *)bd->leaves + index;
+        const float nan3[3] = {NAN, NAN, NAN};
+        for (uint32_t lane = 0; lane < 4; lane++) {
+            if (lane >= count) {
+                rtk_triangle4v_set_lane(t, (int)lane, nan3, nan3, nan3, RTK_BVH4_EMPTY, RTK_BVH4_EMPTY);
+                continue;
+            }
+            const rtk_build_geometry *g = &in->geometries[geom[lane]];
+            const uint32_t *tri = triangle_at(g, prim[lane]);
+            const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
+            const int never = build_unhittable_lane(g, v0, v1, v2);
+            never_hit += (uint32_t)never;
+            rtk_triangle4v_set_lane(t, (int)lane, never ? nan3 : v0, never ? nan3 : v1, never ? nan3 : v2,
+                                    g->geom_id, prim[lane]);
+            if (bounds) {
+                const vfloat4 p0 = vf4_set(v0[0], v0[1], v0[2], 0.0f), p1 = vf4_set(v1[0], v1[1], v1[2], 0.0f);
+                const vfloat4 p2 = vf4_set(v2[0], v2[1], v2[2], 0.0f);
+                box_grow(&b, vf4_min(vf4_min(p0, p1), p2), vf4_max(vf4_max(p0, p1), p2));
+            }
         }
     } else {
         rtk_triangle4 *t = (rtk_triangle4 *)bd->leaves + index;

@@ -40,8 +40,9 @@ typedef struct build {
     primref *refs;
     int width;        /* 4 or 8 children per node */
     size_t node_size; /* sizeof(rtk_bvh4_node) or sizeof(rtk_bvh8_node) */
-    size_t leaf_size; /* sizeof(rtk_triangle4) or sizeof(rtk_triangle4i) */
+    size_t leaf_size; /* sizeof(rtk_triangle4) (= rtk_triangle4v) or sizeof(rtk_triangle4i) */
     int indexed;      /* triangle4i leaves */
+    int vertex_leaves; /* triangle4v leaves (the robust layouts) */
     /* SAH builder, high quality: spatial splits are tried where the halves
      * of the best object split overlap by more than spatial_overlap (a
      * half-area); 0 = none. */

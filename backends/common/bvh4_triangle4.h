@@ -18,6 +18,7 @@
 #ifndef RTK_BVH4_TRIANGLE4_H
 #define RTK_BVH4_TRIANGLE4_H
 
+#include <stddef.h>
 #include <stdint.h>
 
 #include "backend_common.h"
@@ -89,6 +90,44 @@ static inline void rtk_triangle4_set_lane(rtk_triangle4 *t, int lane, const floa
     t->prim[lane] = prim;
 }
 
+/* Layouts "bvh4.triangle4v" and "bvh8.triangle4v" (robust scenes): the
+ * nodes of bvh4/bvh8.triangle4 and leaf blocks holding the three vertices
+ * of each triangle as the application gave them, which the watertight
+ * intersector needs (v0 + (v1 - v0) is not v1).  The same size as a
+ * triangle4 block, with geom and prim at the same offsets, so the code that
+ * reads only the ids (refit, export) takes either through rtk_accel.tris.
+ * Unused and never-hit lanes have NaN vertices. */
+typedef struct rtk_triangle4v {
+    float v0x[4], v0y[4], v0z[4];
+    float v1x[4], v1y[4], v1z[4];
+    float v2x[4], v2y[4], v2z[4];
+    uint32_t geom[4];
+    uint32_t prim[4];
+} rtk_triangle4v;
+_Static_assert(sizeof(rtk_triangle4v) == sizeof(rtk_triangle4), "triangle4v and triangle4 blocks differ in size");
+_Static_assert(offsetof(rtk_triangle4v, geom) == offsetof(rtk_triangle4, geom) &&
+                   offsetof(rtk_triangle4v, prim) == offsetof(rtk_triangle4, prim),
+               "triangle4v and triangle4 keep their ids at different offsets");
+
+static inline void rtk_triangle4v_set_lane(rtk_triangle4v *t, int lane, const float *v0, const float *v1,
+                                           const float *v2, uint32_t geom, uint32_t prim)
+{
+    t->v0x[lane] = v0[0];
+    t->v0y[lane] = v0[1];
+    t->v0z[lane] = v0[2];
+    t->v1x[lane] = v1[0];
+    t->v1y[lane] = v1[1];
+    t->v1z[lane] = v1[2];
+    t->v2x[lane] = v2[0];
+    t->v2y[lane] = v2[1];
+    t->v2z[lane] = v2[2];
+    t->geom[lane] = geom;
+    t->prim[lane] = prim;
+}
+
+/* Layout "bvh4.triangle4i.robust" (scenes both compact and robust) is
+ * bvh4.triangle4i traced with the watertight intersector. */
+
 /* Up to four triangles by vertex index; geom[] indexes rtk_accel.geoms (not
  * the geometry's id).  Unused lanes have prim = RTK_BVH4_EMPTY and all three
  * vertices equal to lane 0's first one, so they have no area and never hit. */
@@ -144,10 +183,11 @@ typedef struct rtk_leaf_geometry {
 } rtk_leaf_geometry;
 
 struct rtk_accel {
-    uint32_t layout; /* RTK_LAYOUT_BVH4_TRIANGLE4, _BVH8_TRIANGLE4, _BVH4_TRIANGLE4I or _BVH4_OBJECT */
+    uint32_t layout; /* RTK_LAYOUT_* */
     uint32_t root;   /* a child reference */
     void *nodes;     /* rtk_bvh4_node or rtk_bvh8_node, by layout */
-    rtk_triangle4 *tris;   /* the leaf blocks of the triangle4 layouts, else NULL */
+    rtk_triangle4 *tris;   /* the leaf blocks of the triangle4 and triangle4v layouts (the latter
+                              rtk_triangle4v, read through this only for the ids), else NULL */
     rtk_triangle4i *trisi; /* those of bvh4.triangle4i, else NULL */
     rtk_leaf_geometry *geoms; /* bvh4.triangle4i: one per geometry in the build input */
     uint64_t node_count, leaf_count;
@@ -164,6 +204,9 @@ struct rtk_accel {
     uint32_t segment;
     rtk_mb_geometry *mb_geoms;
     uint32_t mb_geom_count;
+    /* the largest side of the tree's box: the robust traversal pads every
+     * box by a few ulps of it (traverse_bvhn.h) */
+    float extent;
 };
 
 #endif

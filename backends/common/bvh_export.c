@@ -13,7 +13,7 @@
 /* A node's slot c: box and reference, whatever the node width. */
 static void read_slot(const struct rtk_accel *a, uint64_t node, int c, float lo[3], float hi[3], uint32_t *ref)
 {
-    if (a->layout == RTK_LAYOUT_BVH8_TRIANGLE4) {
+    if (a->layout == RTK_LAYOUT_BVH8_TRIANGLE4 || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4V) {
         const rtk_bvh8_node *n = (const rtk_bvh8_node *)a->nodes + node;
         lo[0] = n->lower_x[c], lo[1] = n->lower_y[c], lo[2] = n->lower_z[c];
         hi[0] = n->upper_x[c], hi[1] = n->upper_y[c], hi[2] = n->upper_z[c];
@@ -43,7 +43,7 @@ static void read_leaf(const struct rtk_accel *a, uint32_t ref, rtk_bvh *t)
 int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *t)
 {
     const struct rtk_accel *a = accel;
-    const int w = a->layout == RTK_LAYOUT_BVH8_TRIANGLE4 ? 8 : 4;
+    const int w = a->layout == RTK_LAYOUT_BVH8_TRIANGLE4 || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4V ? 8 : 4;
     t->width = (uint32_t)w;
     t->node_count = a->node_count;
     t->leaf_count = 0;

@@ -37,4 +37,10 @@ RTK_HIDDEN int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_ou
 RTK_HIDDEN void RTK_SYM(rtk_motion_release)(rtk_accel *accel);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4v_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4v_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8v_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8v_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 #endif

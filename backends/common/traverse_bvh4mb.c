@@ -29,7 +29,7 @@ static inline const rtk_accel *segment_at(const rtk_accel *accel, float time, ra
 void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit)
 {
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray);
+    ray_pre_init(&p, &rayhit->ray, accel);
     const rtk_accel *seg = segment_at(accel, rayhit->ray.time, &p);
     if (!seg)
         return;
@@ -43,7 +43,7 @@ void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit)
 void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray)
 {
     ray_pre p;
-    ray_pre_init(&p, ray);
+    ray_pre_init(&p, ray, accel);
     const rtk_accel *seg = segment_at(accel, ray->time, &p);
     if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar))
         ray->tfar = -INFINITY;

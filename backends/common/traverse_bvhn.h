@@ -96,11 +96,30 @@ typedef vfloat8 vnode;
 #endif
 
 /* RTK_LEAF_INDEXED 1: triangle4i leaves (vertex indices), else triangle4.
- * The kernels are named rtk_bvh<N>[i]_<query><width>. */
+ * RTK_ROBUST 1: the robust layouts (bvhN.triangle4v, or with
+ * RTK_LEAF_INDEXED bvh4.triangle4i.robust): the watertight intersector
+ * (geometry/triangle.h) on the triangles' vertices, and every box padded
+ * (see ray_pre_init).
+ * The kernels are named rtk_bvh<N>[i|mb|v|ir]_<query><width>. */
 #ifndef RTK_LEAF_INDEXED
 #define RTK_LEAF_INDEXED 0
 #endif
-#if RTK_LEAF_INDEXED
+#ifndef RTK_ROBUST
+#define RTK_ROBUST 0
+#endif
+#if RTK_ROBUST && RTK_MOTION
+#error "no robust motion blur layout yet"
+#endif
+#if RTK_ROBUST
+typedef rtk_triangle4v block_t;
+#else
+typedef rtk_triangle4 block_t;
+#endif
+#if RTK_ROBUST && RTK_LEAF_INDEXED
+#define BVHN_TAG RTK_CAT(RTK_BVHN, ir)
+#elif RTK_ROBUST
+#define BVHN_TAG RTK_CAT(RTK_BVHN, v)
+#elif RTK_LEAF_INDEXED
 #define BVHN_TAG RTK_CAT(RTK_BVHN, i)
 #elif RTK_MOTION
 #define BVHN_TAG RTK_CAT(RTK_BVHN, mb)
@@ -118,10 +137,35 @@ typedef vfloat8 vnode;
  * distances round (at most four roundings between them; Ize 2013). */
 #define RTK_BOX_FAR_SCALE (1.0f + 2.0f * (4.0f * 0x1p-24f) / (1.0f - 4.0f * 0x1p-24f))
 
+/* Robust traversal pads every box, on top of the conservative slab test
+ * above, for the rounding of the watertight triangle test: that test
+ * decides inside or outside from vertices taken relative to the ray origin
+ * and sheared, so the point it finds inside may lie outside the triangle,
+ * and so outside its box, by a few ulps of the vertices' distances from the
+ * origin (distances along each axis, and the shear adds the ray's travel
+ * along the major axis scaled by the minor components, the same distances
+ * again) plus a few ulps of the triangle's size from the products of the
+ * edge functions.  The first part is a relative error of the slab distances
+ * themselves: the near distances are scaled down and the far ones up by
+ * RTK_ROBUST_REL (16 ulps, several times the error bound).  The second is
+ * absolute: every box grows by RTK_ROBUST_REL times the tree's largest
+ * side (rtk_accel.extent) on each side, which moves the origin for the
+ * near planes forward and for the far planes back (so it costs nothing per
+ * node). */
+#define RTK_ROBUST_REL 0x1p-20f
+
 /* The ray, broadcast: everything the inner loops need, computed once. */
 typedef struct ray_pre {
     vfloat4 org[3], dir[3];   /* for the triangle tests */
     vnode norg[3], ninv[3], ninv_far[3]; /* for the node tests */
+#if RTK_ROBUST
+    vnode norg_far[3];        /* the origin for the far planes (norg: for the near ones) */
+    /* the watertight test: the permuted origin, the shear, and the offsets
+     * in floats of each permuted axis' coordinates in a block of vertices */
+    vfloat4 worg[3], sx, sy, sz;
+    rtk_watertight_ray w;
+    int axis_off[3];
+#endif
 #if RTK_SIMD_HAS_FMA
     vnode c_near[3], c_far[3]; /* org * inv, moved up and down (see ray_pre_init) */
     int fma;                   /* 0: org * inv is out of range, use the sub-mul test */
@@ -140,19 +184,38 @@ typedef struct ray_pre {
  * ray's instructions on dragon.ply: 176 of 1648, callgrind).  The values
  * are those of per-axis arithmetic bit for bit (the same IEEE operations
  * lane by lane). */
-static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
+static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel)
 {
+    (void)accel;
     static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
     static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
     /* a component below 1e-18 in magnitude becomes +-1e-18, its sign kept */
     const vfloat4 tiny = vf4_set1(1e-18f);
     const vfloat4 d = vf4_select(vf4_lt(vf4_abs(dir), tiny), vf4_xor_sign(tiny, dir), dir);
-    const vfloat4 inv = vf4_div(vf4_set1(1.0f), d), inv_far = vf4_mul(inv, vf4_set1(RTK_BOX_FAR_SCALE));
+    const vfloat4 inv_exact = vf4_div(vf4_set1(1.0f), d);
+#if RTK_ROBUST
+    /* (see RTK_ROBUST_REL) the reciprocals for the near planes scaled
+     * down, for the far ones up, and the origin moved toward the near
+     * planes and away from the far ones by the absolute padding, plus 4 ulps
+     * of the origin so the rounding of the sum cannot undo the move */
+    const vfloat4 inv = vf4_mul(inv_exact, vf4_set1(1.0f - RTK_ROBUST_REL));
+    const vfloat4 inv_far = vf4_mul(inv_exact, vf4_set1(RTK_BOX_FAR_SCALE + RTK_ROBUST_REL));
+    const vfloat4 shift = vf4_add(vf4_set1(accel->extent * RTK_ROBUST_REL), vf4_mul(vf4_abs(org), vf4_set1(0x1p-22f)));
+    const vfloat4 org_near = vf4_add(org, vf4_xor_sign(shift, inv_exact));
+    const vfloat4 org_far = vf4_sub(org, vf4_xor_sign(shift, inv_exact));
+    _Alignas(16) float of[4];
+    vf4_store(of, org_far);
+#else
+    const vfloat4 inv = inv_exact, inv_far = vf4_mul(inv, vf4_set1(RTK_BOX_FAR_SCALE));
+    const vfloat4 org_near = org, org_far = org;
+#endif
+    (void)org_far; /* (unused without FMA or robustness) */
     /* inv is never +-0 (|d| >= 1e-18 and finite), so < 0 is its sign bit */
     const unsigned neg = (unsigned)vb4_mask(vf4_lt(inv, vf4_set1(0.0f)));
-    _Alignas(16) float o[4], dd[4], in[4], inf[4];
+    _Alignas(16) float o[4], on[4], dd[4], in[4], inf[4];
     vf4_store(o, org);
+    vf4_store(on, org_near);
     vf4_store(dd, dir);
     vf4_store(in, inv);
     vf4_store(inf, inv_far);
@@ -167,7 +230,7 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
      * c_far could become infinite or NaN, the slab would drop out of
      * the test, and with all three gone the empty child slots would be
      * entered; such rays take the subtract-then-multiply test. */
-    const vfloat4 c = vf4_mul(org, inv), cf = vf4_mul(org, inv_far);
+    const vfloat4 c = vf4_mul(org_near, inv), cf = vf4_mul(org_far, inv_far);
     const vfloat4 ulp4 = vf4_set1(0x1p-22f), min_normal = vf4_set1(0x1p-126f);
     const vfloat4 e = vf4_add(vf4_mul(vf4_abs(c), ulp4), min_normal);
     const vfloat4 ef = vf4_add(vf4_mul(vf4_abs(cf), ulp4), min_normal);
@@ -186,11 +249,27 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r)
         p->c_far[k] = vn_set1(cfar[k]);
         if (!p->fma)
 #endif
-            p->norg[k] = vn_set1(o[k]);
+        {
+            p->norg[k] = vn_set1(on[k]);
+#if RTK_ROBUST
+            p->norg_far[k] = vn_set1(of[k]);
+#endif
+        }
         const int nk = neg >> k & 1;
         p->near_off[k] = nk ? upper[k] : lower[k];
         p->far_off[k] = nk ? lower[k] : upper[k];
     }
+#if RTK_ROBUST
+    rtk_watertight_ray_init(dd, &p->w);
+    const int axes[3] = {p->w.kx, p->w.ky, p->w.kz};
+    for (int k = 0; k < 3; k++) {
+        p->worg[k] = vf4_set1(o[axes[k]]);
+        p->axis_off[k] = 4 * axes[k];
+    }
+    p->sx = vf4_set1(p->w.sx);
+    p->sy = vf4_set1(p->w.sy);
+    p->sz = vf4_set1(p->w.sz);
+#endif
 }
 
 static inline vnode plane(const node_t *n, size_t off)
@@ -249,9 +328,15 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
         t0x = vn_mul(vn_sub(PLANE(n, p->near_off[0]), p->norg[0]), p->ninv[0]);
         t0y = vn_mul(vn_sub(PLANE(n, p->near_off[1]), p->norg[1]), p->ninv[1]);
         t0z = vn_mul(vn_sub(PLANE(n, p->near_off[2]), p->norg[2]), p->ninv[2]);
-        t1x = vn_mul(vn_sub(PLANE(n, p->far_off[0]), p->norg[0]), p->ninv_far[0]);
-        t1y = vn_mul(vn_sub(PLANE(n, p->far_off[1]), p->norg[1]), p->ninv_far[1]);
-        t1z = vn_mul(vn_sub(PLANE(n, p->far_off[2]), p->norg[2]), p->ninv_far[2]);
+#if RTK_ROBUST
+#define NORG_FAR p->norg_far
+#else
+#define NORG_FAR p->norg
+#endif
+        t1x = vn_mul(vn_sub(PLANE(n, p->far_off[0]), NORG_FAR[0]), p->ninv_far[0]);
+        t1y = vn_mul(vn_sub(PLANE(n, p->far_off[1]), NORG_FAR[1]), p->ninv_far[1]);
+        t1z = vn_mul(vn_sub(PLANE(n, p->far_off[2]), NORG_FAR[2]), p->ninv_far[2]);
+#undef NORG_FAR
 #if RTK_NODE_INT_ORDER
         /* + 0.0 turns the far distances' -0.0 into +0.0, the one value where
          * the integer order and the float order disagree here, and changes
@@ -312,8 +397,8 @@ static inline int push_children(const uint32_t *child, unsigned mask, vnode dist
  * f = 0 and b at f = 1 exactly; not fused, so every backend computes the
  * same floats, FMA or not), then the edges as the triangle4 builder
  * computes them.  An unused lane is NaN: never hit. */
-static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t index, rtk_triangle4 *scratch,
-                                              const ray_pre *p)
+static inline const block_t *leaf_block(const rtk_accel *accel, uint32_t index, block_t *scratch,
+                                        const ray_pre *p)
 {
     const rtk_triangle4i *t = &accel->trisi[index];
     vfloat4 v[3][4]; /* vertex, lane: x, y, z (and a float beyond), then transposed to vertex, axis */
@@ -350,7 +435,7 @@ static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t i
 #define LEAF_BLOCK(accel, index, scratch) leaf_block(accel, index, scratch, p)
 #else
 #define LEAF_BLOCK(accel, index, scratch) leaf_block(accel, index, scratch)
-static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t index, rtk_triangle4 *scratch)
+static inline const block_t *leaf_block(const rtk_accel *accel, uint32_t index, block_t *scratch)
 {
 #if RTK_LEAF_INDEXED
     const rtk_triangle4i *t = &accel->trisi[index];
@@ -359,12 +444,17 @@ static inline const rtk_triangle4 *leaf_block(const rtk_accel *accel, uint32_t i
         const float *v0 = (const float *)(g->vertices + (size_t)t->v0[lane] * g->stride);
         const float *v1 = (const float *)(g->vertices + (size_t)t->v1[lane] * g->stride);
         const float *v2 = (const float *)(g->vertices + (size_t)t->v2[lane] * g->stride);
+#if RTK_ROBUST
+        /* an unused lane's three vertices are one point: det = 0, never hit */
+        rtk_triangle4v_set_lane(scratch, lane, v0, v1, v2, g->geom_id, t->prim[lane]);
+#else
         rtk_triangle4_set_lane(scratch, lane, v0, v1, v2, g->geom_id, t->prim[lane]);
+#endif
     }
     return scratch;
 #else
     (void)scratch;
-    return &accel->tris[index];
+    return (const block_t *)&accel->tris[index];
 #endif
 }
 #endif
@@ -376,7 +466,84 @@ typedef struct tri4_hit {
     vfloat4 U, V, T, absdet;
 } tri4_hit;
 
-static inline unsigned triangle4_intersect(const rtk_triangle4 *t, const ray_pre *p, vfloat4 tnear, vfloat4 tfar,
+#if RTK_ROBUST
+/* The watertight test (rtk_triangle_intersect_watertight) on four
+ * triangles at once, lane by lane the same arithmetic; a lane where an edge
+ * function comes out exactly zero, or |det| below FLT_MIN, is decided again
+ * alone in double precision (rare: a ray exactly through an edge or vertex,
+ * a triangle seen edge-on, or one so small that its products underflow).  U and V are the weights of v1 and v2 times |det|, T the
+ * distance times |det|; a lane decided in double gets |det| = 1. */
+static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, vfloat4 tnear, vfloat4 tfar,
+                                           tri4_hit *h)
+{
+    const float *f = (const float *)t;
+    const int ox = p->axis_off[0], oy = p->axis_off[1], oz = p->axis_off[2];
+    /* vertex k's coordinate along permuted axis j: f[12 * k + axis_off[j]] */
+    const vfloat4 az = vf4_sub(vf4_load(f + oz), p->worg[2]);
+    const vfloat4 bz = vf4_sub(vf4_load(f + 12 + oz), p->worg[2]);
+    const vfloat4 cz = vf4_sub(vf4_load(f + 24 + oz), p->worg[2]);
+    const vfloat4 ax = vf4_sub(vf4_sub(vf4_load(f + ox), p->worg[0]), vf4_mul(p->sx, az));
+    const vfloat4 ay = vf4_sub(vf4_sub(vf4_load(f + oy), p->worg[1]), vf4_mul(p->sy, az));
+    const vfloat4 bx = vf4_sub(vf4_sub(vf4_load(f + 12 + ox), p->worg[0]), vf4_mul(p->sx, bz));
+    const vfloat4 by = vf4_sub(vf4_sub(vf4_load(f + 12 + oy), p->worg[1]), vf4_mul(p->sy, bz));
+    const vfloat4 cx = vf4_sub(vf4_sub(vf4_load(f + 24 + ox), p->worg[0]), vf4_mul(p->sx, cz));
+    const vfloat4 cy = vf4_sub(vf4_sub(vf4_load(f + 24 + oy), p->worg[1]), vf4_mul(p->sy, cz));
+    const vfloat4 U = vf4_sub(vf4_mul(cx, by), vf4_mul(cy, bx));
+    const vfloat4 V = vf4_sub(vf4_mul(ax, cy), vf4_mul(ay, cx));
+    const vfloat4 W = vf4_sub(vf4_mul(bx, ay), vf4_mul(by, ax));
+    const vfloat4 zero = vf4_set1(0.0f);
+    const vbool4 pos = vb4_and(vb4_and(vf4_ge(U, zero), vf4_ge(V, zero)), vf4_ge(W, zero));
+    const vbool4 neg = vb4_and(vb4_and(vf4_le(U, zero), vf4_le(V, zero)), vf4_le(W, zero));
+    const vfloat4 det = vf4_add(vf4_add(U, V), W);
+    const vfloat4 absdet = vf4_abs(det);
+    const vfloat4 T = vf4_xor_sign(
+        vf4_add(vf4_add(vf4_mul(U, vf4_mul(p->sz, az)), vf4_mul(V, vf4_mul(p->sz, bz))), vf4_mul(W, vf4_mul(p->sz, cz))),
+        det);
+    vbool4 ok = vb4_or(pos, neg);
+    ok = vb4_and(ok, vf4_ge(absdet, vf4_set1(FLT_MIN)));
+    ok = vb4_and(ok, vf4_ge(T, vf4_mul(tnear, absdet)));
+    ok = vb4_and(ok, vf4_le(T, vf4_mul(tfar, absdet)));
+    h->U = vf4_xor_sign(V, det);
+    h->V = vf4_xor_sign(W, det);
+    h->T = T;
+    h->absdet = absdet;
+    unsigned mask = (unsigned)vb4_mask(ok);
+    unsigned zeros = (unsigned)vb4_mask(vb4_or(vb4_or(vb4_or(vf4_eq(U, zero), vf4_eq(V, zero)), vf4_eq(W, zero)),
+                                               vf4_lt(absdet, vf4_set1(FLT_MIN))));
+    if (__builtin_expect(zeros != 0, 0)) {
+        _Alignas(16) float lx[3][4], ly[3][4], lz[3][4], hu[4], hv[4], ht[4], hd[4], tn[4], tf[4];
+        vf4_store(lx[0], ax), vf4_store(lx[1], bx), vf4_store(lx[2], cx);
+        vf4_store(ly[0], ay), vf4_store(ly[1], by), vf4_store(ly[2], cy);
+        vf4_store(lz[0], vf4_mul(p->sz, az)), vf4_store(lz[1], vf4_mul(p->sz, bz)), vf4_store(lz[2], vf4_mul(p->sz, cz));
+        vf4_store(hu, h->U), vf4_store(hv, h->V), vf4_store(ht, T), vf4_store(hd, absdet);
+        vf4_store(tn, tnear), vf4_store(tf, tfar);
+        for (; zeros; zeros &= zeros - 1) {
+            const int i = __builtin_ctz(zeros);
+            const float a2[2] = {lx[0][i], ly[0][i]}, b2[2] = {lx[1][i], ly[1][i]}, c2[2] = {lx[2][i], ly[2][i]};
+            double u, v, w;
+            rtk_watertight_edges_double(a2, b2, c2, &u, &v, &w);
+            const double d = u + v + w;
+            const double tt = d != 0.0 ? (u * lz[0][i] + v * lz[1][i] + w * lz[2][i]) / d : NAN;
+            mask &= ~(1u << i);
+            if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0))
+                continue;
+            if (!(tt >= tn[i] && tt <= tf[i]))
+                continue; /* also det = 0 and NaN */
+            mask |= 1u << i;
+            hu[i] = (float)(v / d);
+            hv[i] = (float)(w / d);
+            ht[i] = (float)tt;
+            hd[i] = 1.0f;
+        }
+        h->U = vf4_load(hu);
+        h->V = vf4_load(hv);
+        h->T = vf4_load(ht);
+        h->absdet = vf4_load(hd);
+    }
+    return mask;
+}
+#else
+static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, vfloat4 tnear, vfloat4 tfar,
                                            tri4_hit *h)
 {
     const vfloat4 e1x = vf4_load(t->e1x), e1y = vf4_load(t->e1y), e1z = vf4_load(t->e1z);
@@ -411,8 +578,25 @@ static inline unsigned triangle4_intersect(const rtk_triangle4 *t, const ray_pre
     h->absdet = absdet;
     return (unsigned)vb4_mask(ok);
 }
+#endif
 
-static inline void lane_triangle(const rtk_triangle4 *t, int lane, float v0[3], float e1[3], float e2[3])
+#if RTK_ROBUST
+/* v0 and the edges as the triangle4 builder computes them, so the normal
+ * is the default layouts' to the bit */
+static inline void lane_triangle(const block_t *t, int lane, float v0[3], float e1[3], float e2[3])
+{
+    v0[0] = t->v0x[lane];
+    v0[1] = t->v0y[lane];
+    v0[2] = t->v0z[lane];
+    e1[0] = t->v1x[lane] - v0[0];
+    e1[1] = t->v1y[lane] - v0[1];
+    e1[2] = t->v1z[lane] - v0[2];
+    e2[0] = t->v2x[lane] - v0[0];
+    e2[1] = t->v2y[lane] - v0[1];
+    e2[2] = t->v2z[lane] - v0[2];
+}
+#else
+static inline void lane_triangle(const block_t *t, int lane, float v0[3], float e1[3], float e2[3])
 {
     v0[0] = t->v0x[lane];
     v0[1] = t->v0y[lane];
@@ -424,6 +608,7 @@ static inline void lane_triangle(const rtk_triangle4 *t, int lane, float v0[3], 
     e2[1] = t->e2y[lane];
     e2[2] = t->e2z[lane];
 }
+#endif
 
 /* Pops the nearest pending entry whose entry distance is within tfar into
  * *cur, dropping those beyond it; 0 when the stack runs out. */
@@ -535,8 +720,8 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             break;
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t block = first; block < end; block++) {
-            rtk_triangle4 scratch;
-            const rtk_triangle4 *t = LEAF_BLOCK(accel, block, &scratch);
+            block_t scratch;
+            const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             tri4_hit h;
             unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
             if (mask) {
@@ -593,7 +778,7 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t block = first; block < end; block++) {
             tri4_hit h;
-            rtk_triangle4 scratch;
+            block_t scratch;
             if (triangle4_intersect(LEAF_BLOCK(accel, block, &scratch), p, tnear, tfar, &h))
                 return 1;
         }
@@ -633,8 +818,8 @@ static inline void closest_hit_record(const rtk_accel *accel, const closest_hit 
 {
     (void)p;
     float v0[3], e1[3], e2[3];
-    rtk_triangle4 scratch;
-    const rtk_triangle4 *t = LEAF_BLOCK(accel, best->leaf, &scratch);
+    block_t scratch;
+    const block_t *t = LEAF_BLOCK(accel, best->leaf, &scratch);
     lane_triangle(t, best->lane, v0, e1, e2);
     rtk_triangle_normal(e1, e2, ng);
     *prim = t->prim[best->lane];
@@ -662,7 +847,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray);
+    ray_pre_init(&p, &rayhit->ray, accel);
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best);
@@ -675,7 +860,7 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     ray_pre p;
-    ray_pre_init(&p, ray);
+    ray_pre_init(&p, ray, accel);
     if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar))
         ray->tfar = -INFINITY;
 }

@@ -301,7 +301,7 @@ static inline int PK_(box_intersect)(const node_t *n, int i, const PK_(packet_pr
 
 /* Lane j of a leaf block against the packet, the arithmetic of
  * triangle4_intersect with the ray and triangle roles of the lanes swapped. */
-static inline vkb PK_(triangle_intersect)(const rtk_triangle4 *t, int j, const PK_(packet_pre) *p, vk tfar, vk *U_out,
+static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(packet_pre) *p, vk tfar, vk *U_out,
                                           vk *V_out, vk *T_out, vk *absdet_out)
 {
     const vk e1x = VK(set1)(t->e1x[j]), e1y = VK(set1)(t->e1y[j]), e1z = VK(set1)(t->e1z[j]);
@@ -340,11 +340,11 @@ typedef struct PK_(pstack_entry) {
 } PK_(pstack_entry);
 
 /* A lane as a single ray, for finishing a subtree alone. */
-static inline void PK_(lane_ray_pre)(ray_pre *p, const rayK *r, int i)
+static inline void PK_(lane_ray_pre)(ray_pre *p, const rayK *r, int i, const rtk_accel *accel)
 {
     const rtk_ray one = {.org_x = r->org_x[i], .org_y = r->org_y[i], .org_z = r->org_z[i],
                          .dir_x = r->dir_x[i], .dir_y = r->dir_y[i], .dir_z = r->dir_z[i]};
-    ray_pre_init(p, &one);
+    ray_pre_init(p, &one, accel);
 }
 
 /* The packet traversal both queries share; `closest` selects the query and
@@ -385,7 +385,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             for (unsigned m = want; m; m &= m - 1) {
                 const int i = __builtin_ctz(m);
                 ray_pre rp;
-                PK_(lane_ray_pre)(&rp, ray, i);
+                PK_(lane_ray_pre)(&rp, ray, i, accel);
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
                     closest_from(accel, cur, &rp, ray->tnear[i], &lane_t[i], &best);
@@ -454,8 +454,8 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         int any = 0;
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t leaf = first; leaf < end; leaf++) {
-            rtk_triangle4 scratch;
-            const rtk_triangle4 *t = leaf_block(accel, leaf, &scratch);
+            block_t scratch;
+            const block_t *t = leaf_block(accel, leaf, &scratch);
             for (int j = 0; j < 4 && t->prim[j] != RTK_BVH4_EMPTY; j++) {
                 vk U, V, T, absdet;
                 const vkb ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);

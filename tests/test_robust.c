@@ -1,0 +1,443 @@
+/*
+ * Robust mode (RTK_SCENE_FLAG_ROBUST): the watertight intersector and padded
+ * box tests, on every backend, robust layout and build quality.
+ *
+ * Closed meshes (a UV sphere, a torus and a cube whose faces are grids of
+ * triangles, every vertex shared) and rays aimed exactly at every vertex and
+ * at points on every edge (a third of the way and the midpoint), from random
+ * directions on the outer side and along the axes (the other components +0.0
+ * or -0.0), each from a point outside the solid toward a point inside it.
+ * Each must hit the mesh before the point inside, in intersect1, occluded1
+ * and packets of 8: a ray that does not has leaked through the mesh.
+ * Robust scenes must have no leak at all; the default intersector's leaks
+ * on the same rays are printed beside (it has no such guarantee).
+ *
+ * - watertight_far_from_origin: the meshes of size 1 moved to 10^k,
+ *   k = 0 ... 6.
+ * - watertight_tiny_and_huge: meshes of size 1e-20 (edge functions that
+ *   underflow in float, decided in double: without that fallback every ray
+ *   misses), 1e-8 and 1e8.
+ *
+ * The robust layouts' hits against a brute-force reference running the
+ * same watertight test are in test_build (chosen_builder_and_layout).
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "testlib.h"
+
+/* A closed mesh and the solid it approximates: sphere (radius a), torus
+ * (radii a, b about the z axis) or cube (half side a), around c. */
+enum shape { SPHERE, TORUS, CUBE };
+typedef struct closed_mesh {
+    const char *name;
+    float *v;
+    uint32_t *idx;
+    size_t nv, nt;
+    float (*normal)[3]; /* per vertex: a direction pointing out of the mesh */
+    enum shape shape;
+    double c[3], a, b;
+} closed_mesh;
+
+/* The signed distance-like depth of p inside the solid (> 0 inside), in
+ * double precision. */
+static double solid_depth(const closed_mesh *m, const float p[3])
+{
+    const double x = p[0] - m->c[0], y = p[1] - m->c[1], z = p[2] - m->c[2];
+    switch (m->shape) {
+    case SPHERE: return m->a - sqrt(x * x + y * y + z * z);
+    case TORUS: {
+        const double q = sqrt(x * x + y * y) - m->a;
+        return m->b - sqrt(q * q + z * z);
+    }
+    default: return m->a - fmax(fabs(x), fmax(fabs(y), fabs(z)));
+    }
+}
+
+static void mesh_alloc(closed_mesh *m, size_t nv, size_t nt)
+{
+    m->v = calloc(3 * nv, sizeof *m->v);
+    m->idx = calloc(3 * nt, sizeof *m->idx);
+    m->normal = calloc(nv, sizeof *m->normal);
+    assert_non_null(m->v);
+    assert_non_null(m->idx);
+    assert_non_null(m->normal);
+    m->nv = nv;
+    m->nt = 0;
+}
+
+static void add_tri(closed_mesh *m, uint32_t a, uint32_t b, uint32_t c)
+{
+    uint32_t *t = m->idx + 3 * m->nt++;
+    t[0] = a, t[1] = b, t[2] = c;
+}
+
+static void add_vertex(closed_mesh *m, size_t i, double x, double y, double z, double nx, double ny, double nz)
+{
+    m->v[3 * i] = (float)x, m->v[3 * i + 1] = (float)y, m->v[3 * i + 2] = (float)z;
+    const double l = sqrt(nx * nx + ny * ny + nz * nz);
+    m->normal[i][0] = (float)(nx / l), m->normal[i][1] = (float)(ny / l), m->normal[i][2] = (float)(nz / l);
+}
+
+/* A UV sphere of radius r around c: `rings` rings of `seg` vertices and two
+ * poles. */
+static closed_mesh make_sphere(const double c[3], double r, int seg, int rings)
+{
+    closed_mesh m = {.name = "sphere", .shape = SPHERE, .c = {c[0], c[1], c[2]}, .a = r};
+    mesh_alloc(&m, (size_t)seg * (size_t)rings + 2, 2 * (size_t)seg * (size_t)rings);
+    const double pi = 3.14159265358979323846;
+    for (int i = 0; i < rings; i++)
+        for (int j = 0; j < seg; j++) {
+            const double th = pi * (i + 1) / (rings + 1), ph = 2 * pi * j / seg;
+            const double n[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
+            add_vertex(&m, (size_t)i * seg + j, c[0] + r * n[0], c[1] + r * n[1], c[2] + r * n[2], n[0], n[1], n[2]);
+        }
+    const uint32_t top = (uint32_t)(seg * rings), bottom = top + 1;
+    add_vertex(&m, top, c[0], c[1], c[2] + r, 0, 0, 1);
+    add_vertex(&m, bottom, c[0], c[1], c[2] - r, 0, 0, -1);
+    for (int j = 0; j < seg; j++) {
+        const uint32_t j1 = (uint32_t)((j + 1) % seg);
+        add_tri(&m, top, (uint32_t)j, j1);
+        const uint32_t last = (uint32_t)((rings - 1) * seg);
+        add_tri(&m, bottom, last + j1, last + (uint32_t)j);
+        for (int i = 0; i + 1 < rings; i++) {
+            const uint32_t a = (uint32_t)(i * seg + j), b = (uint32_t)(i * seg) + j1;
+            add_tri(&m, a, a + (uint32_t)seg, b);
+            add_tri(&m, b, a + (uint32_t)seg, b + (uint32_t)seg);
+        }
+    }
+    return m;
+}
+
+/* A torus around c in the xy plane: major radius R, minor r. */
+static closed_mesh make_torus(const double c[3], double R, double r, int nu, int nv)
+{
+    closed_mesh m = {.name = "torus", .shape = TORUS, .c = {c[0], c[1], c[2]}, .a = R, .b = r};
+    mesh_alloc(&m, (size_t)nu * (size_t)nv, 2 * (size_t)nu * (size_t)nv);
+    const double pi = 3.14159265358979323846;
+    for (int i = 0; i < nu; i++)
+        for (int j = 0; j < nv; j++) {
+            const double u = 2 * pi * i / nu, w = 2 * pi * j / nv;
+            const double n[3] = {cos(w) * cos(u), cos(w) * sin(u), sin(w)};
+            add_vertex(&m, (size_t)i * nv + j, c[0] + (R + r * cos(w)) * cos(u), c[1] + (R + r * cos(w)) * sin(u),
+                       c[2] + r * sin(w), n[0], n[1], n[2]);
+        }
+    for (int i = 0; i < nu; i++)
+        for (int j = 0; j < nv; j++) {
+            const uint32_t a = (uint32_t)(i * nv + j), b = (uint32_t)(((i + 1) % nu) * nv + j);
+            const uint32_t a1 = (uint32_t)(i * nv + (j + 1) % nv), b1 = (uint32_t)(((i + 1) % nu) * nv + (j + 1) % nv);
+            add_tri(&m, a, b, a1);
+            add_tri(&m, a1, b, b1);
+        }
+    return m;
+}
+
+/* The cube [c - h, c + h]^3 with each face an n x n grid of quads split
+ * into two triangles; the vertices on the cube's edges and corners are
+ * shared by the faces that meet there. */
+static closed_mesh make_cube(const double c[3], double h, int n)
+{
+    closed_mesh m = {.name = "cube", .shape = CUBE, .c = {c[0], c[1], c[2]}, .a = h};
+    const size_t side = (size_t)n + 1;
+    mesh_alloc(&m, side * side * side, 12 * (size_t)n * (size_t)n);
+    /* every lattice point gets an index; only the surface ones are used */
+    for (size_t i = 0; i < side; i++)
+        for (size_t j = 0; j < side; j++)
+            for (size_t k = 0; k < side; k++) {
+                const double p[3] = {-1 + 2.0 * i / n, -1 + 2.0 * j / n, -1 + 2.0 * k / n};
+                add_vertex(&m, (i * side + j) * side + k, c[0] + h * p[0], c[1] + h * p[1], c[2] + h * p[2], p[0],
+                           p[1], p[2]);
+            }
+#define LAT(i, j, k) ((uint32_t)(((size_t)(i) * side + (size_t)(j)) * side + (size_t)(k)))
+    for (int axis = 0; axis < 3; axis++)
+        for (int s = 0; s < 2; s++)
+            for (int a = 0; a < n; a++)
+                for (int b = 0; b < n; b++) {
+                    uint32_t q[4];
+                    const int corner[4][2] = {{a, b}, {a + 1, b}, {a + 1, b + 1}, {a, b + 1}};
+                    for (int k = 0; k < 4; k++) {
+                        int p[3];
+                        p[axis] = s * n;
+                        p[(axis + 1) % 3] = corner[k][0];
+                        p[(axis + 2) % 3] = corner[k][1];
+                        q[k] = LAT(p[0], p[1], p[2]);
+                    }
+                    /* alternate the diagonal, so vertices have 4 and 8 triangles */
+                    if ((a + b) % 2) {
+                        add_tri(&m, q[0], q[1], q[2]);
+                        add_tri(&m, q[0], q[2], q[3]);
+                    } else {
+                        add_tri(&m, q[0], q[1], q[3]);
+                        add_tri(&m, q[1], q[2], q[3]);
+                    }
+                }
+#undef LAT
+    return m;
+}
+
+static void mesh_free(closed_mesh *m)
+{
+    free(m->v);
+    free(m->idx);
+    free(m->normal);
+}
+
+/* Rays aimed at a mesh's vertices and edge points, each from a point
+ * outside the solid through the aimed-at point P toward a point inside it:
+ * whatever the rounding of P, the ray goes from outside to inside, so it
+ * must cross the closed mesh before it reaches the point inside.
+ * "Outside" and "inside" are by a margin of the faceting (the mesh lies
+ * within `margin` of the solid's surface, its vertices rounded to floats),
+ * checked in double precision against the solid. */
+typedef struct aimed {
+    rtk_ray *rays;
+    float *t_in; /* the distance along the ray to the point inside */
+    size_t count, cap;
+} aimed;
+
+/* The ray from o toward i, its direction of unit length (so that tiny
+ * meshes do not get tiny directions, which the traversal takes as at least
+ * 1e-18), and the distance to i. */
+static void add_ray(aimed *a, const float o[3], const float i[3], int zero_sign)
+{
+    if (a->count == a->cap) {
+        a->cap = a->cap ? 2 * a->cap : 1024;
+        a->rays = realloc(a->rays, a->cap * sizeof *a->rays);
+        a->t_in = realloc(a->t_in, a->cap * sizeof *a->t_in);
+        assert_non_null(a->rays);
+        assert_non_null(a->t_in);
+    }
+    double dd[3], l = 0.0;
+    for (int k = 0; k < 3; k++) {
+        dd[k] = (double)i[k] - o[k];
+        l += dd[k] * dd[k];
+    }
+    l = sqrt(l);
+    float d[3];
+    for (int k = 0; k < 3; k++) {
+        d[k] = (float)(dd[k] / l);
+        if (d[k] == 0.0f)
+            d[k] = zero_sign ? -0.0f : 0.0f;
+    }
+    a->t_in[a->count] = (float)l;
+    a->rays[a->count++] = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+}
+
+static void aim(aimed *a, const closed_mesh *m, const float p[3], const float n[3], double margin, float out,
+                float in, rng *r, int axis_too)
+{
+    /* from a random direction on the outer side */
+    for (int tries = 0; tries < 32; tries++) {
+        float w[3], o[3], i[3];
+        for (int k = 0; k < 3; k++)
+            w[k] = n[k] + 1.6f * (rng_float(r) - 0.5f);
+        const float l = sqrtf(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
+        for (int k = 0; k < 3; k++) {
+            o[k] = p[k] + out * w[k] / l;
+            i[k] = p[k] - in * w[k] / l;
+        }
+        if (solid_depth(m, o) < -margin && solid_depth(m, i) > margin) {
+            add_ray(a, o, i, tries & 1);
+            break;
+        }
+    }
+    if (!axis_too)
+        return;
+    /* along the axis nearest the outward direction, the other components
+     * +0.0 or -0.0 */
+    for (int k = 0; k < 3; k++) {
+        float o[3] = {p[0], p[1], p[2]}, i[3] = {p[0], p[1], p[2]};
+        o[k] = p[k] + (n[k] > 0 ? out : -out);
+        i[k] = p[k] - (n[k] > 0 ? in : -in);
+        if (solid_depth(m, o) < -margin && solid_depth(m, i) > margin)
+            add_ray(a, o, i, (int)(rng_u32(r) & 1));
+    }
+}
+
+static aimed aim_at_mesh(const closed_mesh *m, double margin, float out, float in, uint64_t seed)
+{
+    aimed a = {0};
+    rng r = {seed};
+    unsigned char *used = calloc(m->nv, 1);
+    assert_non_null(used);
+    for (size_t i = 0; i < 3 * m->nt; i++)
+        used[m->idx[i]] = 1;
+    for (size_t i = 0; i < m->nv; i++)
+        if (used[i]) /* (the cube's lattice has points inside) */
+            aim(&a, m, m->v + 3 * i, m->normal[i], margin, out, in, &r, 1);
+    free(used);
+    /* points on every edge (each edge is seen from both triangles: twice) */
+    for (size_t t = 0; t < m->nt; t++)
+        for (int e = 0; e < 3; e++) {
+            const uint32_t i0 = m->idx[3 * t + e], i1 = m->idx[3 * t + (e + 1) % 3];
+            const float *p0 = m->v + 3 * i0, *p1 = m->v + 3 * i1;
+            for (int f = 0; f < 2; f++) {
+                const float s = f ? 0.5f : 1.0f / 3.0f;
+                float p[3], n[3];
+                for (int k = 0; k < 3; k++) {
+                    p[k] = p0[k] + s * (p1[k] - p0[k]);
+                    n[k] = m->normal[i0][k] + m->normal[i1][k];
+                }
+                aim(&a, m, p, n, margin, out, in, &r, f == 0);
+            }
+        }
+    return a;
+}
+
+static void print_ray(const rtk_ray *r)
+{
+    print_message("    ray org (%.9g, %.9g, %.9g) dir (%.9g, %.9g, %.9g)\n", r->org_x, r->org_y, r->org_z, r->dir_x,
+                  r->dir_y, r->dir_z);
+}
+
+/* Leaks of the aimed rays through one scene: no hit before the point
+ * inside; checked through intersect1, occluded1 (tfar at that point), and
+ * packets of 8. */
+static size_t leaks(rtk_scene s, const aimed *a, size_t *first, int packets)
+{
+    size_t n = 0;
+    *first = SIZE_MAX;
+    for (size_t i = 0; i < a->count; i++) {
+        rtk_rayhit rh = {.ray = a->rays[i]};
+        rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+        rtk_ray sh = a->rays[i];
+        sh.tfar = a->t_in[i];
+        assert_int_equal(rtk_occluded1(s, &sh), RTK_OK);
+        const int leak =
+            rh.hit.geomID == RTK_INVALID_GEOMETRY_ID || rh.ray.tfar > a->t_in[i] || sh.tfar != -INFINITY;
+        if (leak && *first == SIZE_MAX) {
+            *first = i;
+        }
+        n += (size_t)leak;
+    }
+    /* packets of 8 (where a backend has no packet kernel for the layout, the
+     * core traces them ray by ray): the same answers as single rays, on a
+     * sample of them (robust scenes only: the default packet kernels may
+     * round t differently for rays through edges) */
+    for (size_t base = 0; packets && base + 8 <= a->count; base += 8 * 37) {
+        rtk_rayhit8 p8;
+        for (unsigned l = 0; l < 8; l++) {
+            rtk_rayhit rh = {.ray = a->rays[base + l]};
+            rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+            test_packet_put(&p8, 8, l, &rh, 0);
+        }
+        assert_int_equal(test_trace_packet(s, 8, 0, NULL, &p8), RTK_OK);
+        for (unsigned l = 0; l < 8; l++) {
+            rtk_rayhit one = {.ray = a->rays[base + l]}, got;
+            one.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+            assert_int_equal(rtk_intersect1(s, &one), RTK_OK);
+            test_packet_get(&p8, 8, l, &got, 0);
+            assert_int_equal(got.hit.geomID, one.hit.geomID);
+            /* the same distance; the triangle may differ where two tie
+             * (the packet kernels of the default layouts visit in another
+             * order) */
+            assert_true(got.ray.tfar == one.ray.tfar);
+        }
+    }
+    return n;
+}
+
+/* The three closed meshes of size `size` around c, through every backend
+ * and robust layout at every build quality (robust leaks added to *rays and
+ * *leaked), and through the default layouts (their leaks printed). */
+static void closed_meshes_at(const double c[3], double size, const char *where, uint64_t seed, size_t *rays,
+                             size_t *leaked)
+{
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    static const rtk_build_quality qualities[] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM,
+                                                  RTK_BUILD_QUALITY_HIGH};
+    closed_mesh meshes[3] = {make_sphere(c, size, 24, 11), make_torus(c, size, 0.4 * size, 24, 12),
+                             make_cube(c, size, 6)};
+    const double mag = fmax(fabs(c[0]), fmax(fabs(c[1]), fabs(c[2]))) + 2.0 * size;
+    for (int mi = 0; mi < 3; mi++) {
+        const closed_mesh *m = &meshes[mi];
+        /* the mesh lies within its faceting and the rounding of its
+         * vertices of the solid's surface */
+        const double margin = 0.04 * size + mag * 0x1p-23;
+        const float out = (float)((mi == 1 ? 0.3 : 1.5) * size), in = (float)((mi == 1 ? 0.25 : 0.5) * size);
+        const aimed a = aim_at_mesh(m, margin, out, in, seed + (uint64_t)mi);
+        assert_true(a.count > 1000);
+        char defaults[256] = "";
+        for (size_t b = 0; b < nb; b++) {
+            rtk_device dev = test_device(names[b]);
+            for (int q = 0; q < 3; q++)
+                for (int compact = 0; compact < 2; compact++) {
+                    rtk_scene s = test_scene_uncommitted(dev, m->v, m->nv, m->idx, m->nt,
+                                                         RTK_SCENE_FLAG_ROBUST | (compact ? RTK_SCENE_FLAG_COMPACT : 0));
+                    assert_int_equal(rtk_scene_set_build_quality(s, qualities[q]), RTK_OK);
+                    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+                    rtk_scene_info info = {.struct_size = sizeof info};
+                    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                    assert_int_equal(info.flags_not_honoured, 0);
+                    assert_int_equal(info.triangles, m->nt); /* none degenerate */
+                    size_t first;
+                    const size_t n = leaks(s, &a, &first, 1);
+                    *rays += a.count;
+                    *leaked += n;
+                    if (n) {
+                        print_message("%s %s, %s, %s, quality %d: %zu of %zu rays leak\n", m->name, where, names[b],
+                                      info.layout, (int)qualities[q], n, a.count);
+                        print_ray(&a.rays[first]);
+                    }
+                    rtk_scene_release(s);
+                }
+            rtk_scene s = test_scene(dev, m->v, m->nv, m->idx, m->nt);
+            size_t first;
+            const size_t n = leaks(s, &a, &first, 0);
+            snprintf(defaults + strlen(defaults), sizeof defaults - strlen(defaults), " %s %zu", names[b], n);
+            rtk_scene_release(s);
+            rtk_device_release(dev);
+        }
+        print_message("%-6s %s: %zu rays; the default mode leaks:%s\n", m->name, where, a.count, defaults);
+        free(a.rays);
+        free(a.t_in);
+    }
+    for (int mi = 0; mi < 3; mi++)
+        mesh_free(&meshes[mi]);
+}
+
+/* Meshes of size 1 moved to 10^k, k = 0 ... 6. */
+static void watertight_far_from_origin(void **state)
+{
+    (void)state;
+    size_t rays = 0, leaked = 0;
+    for (int k = 0; k <= 6; k++) {
+        const double off = pow(10.0, k);
+        const double c[3] = {off, 0.5 * off, -0.25 * off};
+        char where[32];
+        snprintf(where, sizeof where, "at 1e%d", k);
+        closed_meshes_at(c, 1.0, where, 17u + 3u * (uint64_t)k, &rays, &leaked);
+    }
+    print_message("robust: %zu leaks in %zu rays\n", leaked, rays);
+    assert_int_equal(leaked, 0);
+}
+
+/* Meshes of size 1e-20 (whose edge functions underflow in float: the
+ * double-precision fallback decides them), 1e-8 and 1e8, near the origin. */
+static void watertight_tiny_and_huge(void **state)
+{
+    (void)state;
+    size_t rays = 0, leaked = 0;
+    static const double sizes[] = {1e-20, 1e-8, 1e8};
+    for (int k = 0; k < 3; k++) {
+        const double c[3] = {0.3 * sizes[k], -0.2 * sizes[k], 0.1 * sizes[k]};
+        char where[32];
+        snprintf(where, sizeof where, "of size %g", sizes[k]);
+        closed_meshes_at(c, sizes[k], where, 99u + 3u * (uint64_t)k, &rays, &leaked);
+    }
+    print_message("robust: %zu leaks in %zu rays\n", leaked, rays);
+    assert_int_equal(leaked, 0);
+}
+
+int main(void)
+{
+    const struct CMUnitTest tests[] = {
+        cmocka_unit_test(watertight_far_from_origin),
+        cmocka_unit_test(watertight_tiny_and_huge),
+    };
+    return cmocka_run_group_tests(tests, NULL, NULL);
+}
