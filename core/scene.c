@@ -1188,8 +1188,13 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     s->instances = ni;
     s->two_level = 1;
     s->own_stats = *own_total;
-    /* with no triangles of its own, a compact request is served */
-    s->honoured = own_count ? own[0]->layout->scene_flags : s->flags & RTK_SCENE_FLAG_COMPACT;
+    /* the flags every tree of the scene's own triangles honours (a moving
+     * geometry's tree is never robust); with no triangles of its own, a
+     * compact or robust request is served (the instanced scenes' own
+     * flags apply to their triangles) */
+    s->honoured = s->flags & (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST);
+    for (unsigned i = 0; i < own_count; i++)
+        s->honoured = (i ? s->honoured : ~0u) & own[i]->layout->scene_flags;
     rtk_log(dev, 2, "scene: two levels on %s: %u instances and %u trees of the scene's own triangles, %llu top-level "
             "nodes, depth %u, %.3f s", bk->name, ni, own_count, (unsigned long long)out.nodes, out.depth,
             s->build_seconds);

@@ -44,6 +44,10 @@ expect 0 "10000 identical, 0 ties settled differently, 0 different" -- \
     "$tool" build --load "$work/bunny.rtkb" "$data/bunny.ply" --verify 10000
 expect 0 "dump:" -- "$tool" build "$data/bunny.ply" --compact --isa sse41 --dump "$work/compact.rtkb"
 expect 0 "bvh4.triangle4i" -- "$tool" build --load "$work/compact.rtkb" "$data/bunny.ply" --verify 2000
+# robust: vertex leaves; a robust compact dump loads as one again and traces like a build
+expect 0 "triangle4v" -- "$tool" build "$data/bunny.ply" --robust
+expect 0 "dump:" -- "$tool" build "$data/bunny.ply" --robust --compact --dump "$work/robust.rtkb"
+expect 0 "bvh4.triangle4i.robust" -- "$tool" build --load "$work/robust.rtkb" "$data/bunny.ply" --verify 2000
 # a builder and a layout chosen whatever the quality; a dump in a layout the
 # default backend would not pick loads all the same, and only in its layout
 expect 0 '"builder": "morton"' -- "$tool" build "$data/bunny.ply" --json --quality high --builder morton

@@ -126,7 +126,9 @@ static rtk_scene mesh_scene(rtk_device dev, const rtk_mesh *mesh, unsigned flags
  * compact scene's. */
 static unsigned dump_scene_flags(const rtkb_file *file)
 {
-    return strstr(file->info.layout, "triangle4i") ? RTK_SCENE_FLAG_COMPACT : 0;
+    const char *l = file->info.layout;
+    return (strstr(l, "triangle4i") ? RTK_SCENE_FLAG_COMPACT : 0) |
+           (strstr(l, "robust") || strstr(l, "triangle4v") ? RTK_SCENE_FLAG_ROBUST : 0);
 }
 
 /* The device config of build and trace: threads, backend, builder and
@@ -243,7 +245,8 @@ static void trace_usage(FILE *f)
             "  --builder NAME       build with this builder whatever the quality: morton,\n"
             "                       sah-binned, sah-spatial (default: the quality's)\n"
             "  --layout NAME        build into this layout: bvh4.triangle4, bvh8.triangle4 (avx, avx2),\n"
-            "                       bvh4.triangle4i (default: the backend's fastest)\n"
+            "                       bvh4.triangle4i, or the robust bvh4.triangle4v, bvh8.triangle4v,\n"
+            "                       bvh4.triangle4i.robust (default: the backend's fastest)\n"
             "  --frames N           render N times and report the best rate (default: 3)\n"
             "  --seed N             random numbers (default: 1); the image does not depend on\n"
             "                       --threads or --api\n"
@@ -636,11 +639,14 @@ static void build_usage(FILE *f)
             "  --quality low|medium|high  build quality (default: medium)\n"
             "  --isa NAME                 backend (scalar, sse41, avx, avx2; default: the best)\n"
             "  --compact                  a compact scene: index leaves, half the memory\n"
+            "  --robust                   a robust scene: the watertight intersector\n"
             "  --builder NAME             this builder whatever the quality: morton (low),\n"
             "                             sah-binned (medium), sah-spatial (high)\n"
             "  --layout NAME              this layout: bvh4.triangle4, bvh8.triangle4 (avx, avx2),\n"
-            "                             bvh4.triangle4i (default: the backend's fastest, or\n"
-            "                             bvh4.triangle4i with --compact)\n"
+            "                             bvh4.triangle4i, bvh4.triangle4v, bvh8.triangle4v,\n"
+            "                             bvh4.triangle4i.robust (default: the backend's fastest, or\n"
+            "                             bvh4.triangle4i with --compact, bvh8/bvh4.triangle4v\n"
+            "                             with --robust, bvh4.triangle4i.robust with both)\n"
             "  --threads N                threads the device may use (default: all cores)\n"
             "  --json                     the statistics as one JSON object on stdout\n"
             "  --dump FILE.rtkb           write the tree to FILE.rtkb (tools/rtkb.h)\n"
@@ -793,7 +799,7 @@ static int cmd_build(int argc, char **argv)
 {
     const char *mesh_path = NULL, *isa = NULL, *extra = "", *dump = NULL, *load = NULL, *png = NULL;
     const char *builder = NULL, *layout = NULL;
-    int json = 0, compact = 0;
+    int json = 0, compact = 0, robust = 0;
     long threads = 0, verify = 100000;
     rtk_build_quality quality = RTK_BUILD_QUALITY_MEDIUM;
     for (int i = 0; i < argc; i++) {
@@ -809,6 +815,8 @@ static int cmd_build(int argc, char **argv)
             isa = argv[++i];
         else if (!strcmp(a, "--compact"))
             compact = 1;
+        else if (!strcmp(a, "--robust"))
+            robust = 1;
         else if (!strcmp(a, "--builder") && more)
             builder = argv[++i];
         else if (!strcmp(a, "--layout") && more)
@@ -889,7 +897,8 @@ static int cmd_build(int argc, char **argv)
         dev = open_device(config);
         if (!dev)
             goto done;
-        const unsigned flags = load ? dump_scene_flags(&file) : compact ? RTK_SCENE_FLAG_COMPACT : 0;
+        const unsigned flags = load ? dump_scene_flags(&file)
+                                    : (compact ? RTK_SCENE_FLAG_COMPACT : 0) | (robust ? RTK_SCENE_FLAG_ROBUST : 0);
         scene = mesh_scene(dev, &mesh, flags, quality, load ? &file.tree : NULL);
         if (!scene)
             goto done;
