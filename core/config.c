@@ -59,11 +59,8 @@ static int valid_table_name(const char *s, size_t n)
 
 #define KNOWN_KEYS "isa, max_isa, threads, verbose, backend_path, builder, layout"
 
-rtk_error rtk_config_parse(const char *text, rtk_config *cfg, char *msg, size_t msg_size)
+static rtk_error parse_items(const char *text, rtk_config *cfg, char *msg, size_t msg_size)
 {
-    memset(cfg, 0, sizeof *cfg);
-    if (!text)
-        return RTK_OK;
     const char *p = text;
     while (*p) {
         const char *end = strchr(p, ',');
@@ -128,13 +125,23 @@ rtk_error rtk_config_parse(const char *text, rtk_config *cfg, char *msg, size_t 
             }
         } else {
             snprintf(msg, msg_size, "unknown config key '%.*s' (known keys: " KNOWN_KEYS ")", (int)klen, p);
-            rtk_config_free(cfg);
             return RTK_ERROR_INVALID_CONFIG;
         }
 #undef KEY
         p = *end ? end + 1 : end;
     }
     return RTK_OK;
+}
+
+rtk_error rtk_config_parse(const char *text, rtk_config *cfg, char *msg, size_t msg_size)
+{
+    memset(cfg, 0, sizeof *cfg);
+    if (!text)
+        return RTK_OK;
+    const rtk_error e = parse_items(text, cfg, msg, msg_size);
+    if (e != RTK_OK)
+        rtk_config_free(cfg); /* (a backend_path before the bad item; found by fuzz_config) */
+    return e;
 }
 
 void rtk_config_free(rtk_config *cfg)

@@ -91,6 +91,11 @@ struct rtk_geometry_s {
      * inverse. */
     rtk_scene instanced;
     float xfm[12], inv[12];
+    /* The scenes the geometry is attached to (not retained; one entry per
+     * attachment), so that setting an instance's scene can refuse a cycle
+     * of references, which would never be freed. */
+    rtk_scene *owners;
+    uint32_t owner_count, owner_cap;
 };
 
 static const float identity_3x4[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
@@ -221,6 +226,7 @@ void rtk_geometry_release(rtk_geometry g)
         buffer_free(&g->steps[k - 1]);
     free(g->steps);
     rtk_scene_release(g->instanced);
+    free(g->owners);
     rtk_device dev = g->device;
     free(g);
     rtk_device_release(dev);
@@ -417,6 +423,8 @@ void *rtk_geometry_get_user_data(rtk_geometry g)
     return g->user;
 }
 
+static int scene_reaches(rtk_scene from, rtk_scene target);
+
 rtk_error rtk_geometry_set_instanced_scene(rtk_geometry g, rtk_scene scene)
 {
     CHECK_HANDLE(g, "rtk_geometry_set_instanced_scene");
@@ -426,6 +434,11 @@ rtk_error rtk_geometry_set_instanced_scene(rtk_geometry g, rtk_scene scene)
     if (scene && scene->device != g->device)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_geometry_set_instanced_scene: the scene belongs to another device");
+    for (uint32_t i = 0; scene && i < g->owner_count; i++)
+        if (scene_reaches(scene, g->owners[i]))
+            return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                            "rtk_geometry_set_instanced_scene: the instance is attached to a scene that the scene "
+                            "it would place is or contains: a cycle");
     rtk_scene_retain(scene);
     rtk_scene_release(g->instanced);
     g->instanced = scene;
@@ -563,13 +576,65 @@ static void scene_drop_accel(rtk_scene s)
     s->occluded1 = NULL;
 }
 
+/* Whether `target` is `from` or is placed, through instances attached to
+ * it, by `from` (the scenes' current attachments, not their trees).  1 also
+ * when out of memory (a caller then refuses). */
+static int scene_reaches(rtk_scene from, rtk_scene target)
+{
+    rtk_scene *seen = NULL;
+    size_t n = 0, cap = 0, next = 0;
+    int found = 0;
+    for (rtk_scene at = from; at && !found;) {
+        if (at == target) {
+            found = 1;
+            break;
+        }
+        for (uint32_t i = 0; i < at->geom_count && !found; i++) {
+            const rtk_geometry g = at->geoms[i];
+            if (!g || g->type != RTK_GEOMETRY_TYPE_INSTANCE || !g->instanced)
+                continue;
+            size_t k = 0;
+            while (k < n && seen[k] != g->instanced)
+                k++;
+            if (k < n)
+                continue; /* already queued */
+            if (n == cap) {
+                cap = cap ? 2 * cap : 16;
+                rtk_scene *m = realloc(seen, cap * sizeof *m);
+                if (!m) {
+                    found = 1;
+                    break;
+                }
+                seen = m;
+            }
+            seen[n++] = g->instanced;
+        }
+        at = next < n ? seen[next++] : NULL;
+    }
+    free(seen);
+    return found;
+}
+
+/* Removes one attachment of g to s from g's owners. */
+static void owner_remove(rtk_geometry g, rtk_scene s)
+{
+    for (uint32_t i = 0; i < g->owner_count; i++)
+        if (g->owners[i] == s) {
+            g->owners[i] = g->owners[--g->owner_count];
+            return;
+        }
+}
+
 void rtk_scene_release(rtk_scene s)
 {
     if (!s || atomic_fetch_sub(&s->refs, 1) != 1)
         return;
     scene_drop_accel(s);
-    for (uint32_t i = 0; i < s->geom_count; i++)
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        if (s->geoms[i])
+            owner_remove(s->geoms[i], s);
         rtk_geometry_release(s->geoms[i]);
+    }
     free(s->geoms);
     rtk_device dev = s->device;
     free(s);
@@ -606,6 +671,18 @@ rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_
     if (g->device != s->device)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_scene_attach_geometry: the geometry belongs to another device");
+    if (g->type == RTK_GEOMETRY_TYPE_INSTANCE && g->instanced && scene_reaches(g->instanced, s))
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION,
+                        "rtk_scene_attach_geometry: the instance places this scene, or a scene that contains it: a "
+                        "cycle");
+    if (g->owner_count == g->owner_cap) {
+        const uint32_t cap = g->owner_cap ? 2 * g->owner_cap : 4;
+        rtk_scene *o = cap > g->owner_cap ? realloc(g->owners, cap * sizeof *o) : NULL;
+        if (!o)
+            return rtk_fail(s->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_attach_geometry: out of memory");
+        g->owners = o;
+        g->owner_cap = cap;
+    }
     uint32_t id = 0;
     while (id < s->geom_count && s->geoms[id])
         id++;
@@ -620,6 +697,7 @@ rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_
     }
     rtk_geometry_retain(g);
     s->geoms[id] = g;
+    g->owners[g->owner_count++] = s;
     if (geom_id)
         *geom_id = id;
     return RTK_OK;
@@ -630,6 +708,7 @@ rtk_error rtk_scene_detach_geometry(rtk_scene s, uint32_t id)
     CHECK_HANDLE(s, "rtk_scene_detach_geometry");
     if (id >= s->geom_count || !s->geoms[id])
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_detach_geometry: no geometry %u", id);
+    owner_remove(s->geoms[id], s);
     rtk_geometry_release(s->geoms[id]);
     s->geoms[id] = NULL;
     return RTK_OK;

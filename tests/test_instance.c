@@ -399,6 +399,33 @@ static void instance_errors(void **state)
     const float cm[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0}, m4[16] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1};
     assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_COLUMN_MAJOR, cm), RTK_OK);
     assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT4X4_COLUMN_MAJOR, m4), RTK_OK);
+    /* cycles of instances are refused when they would form (their
+     * references would never be freed; fuzz_api found the leak): top
+     * places fresh through inst */
+    {
+        rtk_geometry self = NULL, deep = NULL;
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &self), RTK_OK);
+        assert_int_equal(rtk_geometry_set_instanced_scene(self, top), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(self), RTK_OK);
+        assert_int_equal(rtk_scene_attach_geometry(top, self, NULL), RTK_ERROR_INVALID_OPERATION);
+        assert_non_null(strstr(rtk_device_get_error_message(dev), "cycle"));
+        assert_int_equal(rtk_scene_attach_geometry(fresh, self, NULL), RTK_ERROR_INVALID_OPERATION); /* via inst */
+        /* the other order: attached first, then pointed at a scene that holds it */
+        assert_int_equal(rtk_geometry_set_instanced_scene(inst, top), RTK_ERROR_INVALID_OPERATION);
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &deep), RTK_OK);
+        assert_int_equal(rtk_geometry_set_instanced_scene(deep, child), RTK_OK);
+        assert_int_equal(rtk_scene_attach_geometry(fresh, deep, NULL), RTK_OK);
+        assert_int_equal(rtk_geometry_set_instanced_scene(deep, top), RTK_ERROR_INVALID_OPERATION);
+        /* not a cycle: an instance attached twice, once detached */
+        uint32_t id = 0;
+        assert_int_equal(rtk_scene_attach_geometry(top, inst, &id), RTK_OK);
+        assert_int_equal(rtk_scene_detach_geometry(top, id), RTK_OK);
+        assert_int_equal(rtk_scene_detach_geometry(fresh, 0), RTK_OK);
+        assert_int_equal(rtk_geometry_set_instanced_scene(deep, top), RTK_OK); /* fresh no longer holds it */
+        rtk_geometry_release(self);
+        rtk_geometry_release(deep);
+        assert_int_equal(rtk_scene_commit(fresh), RTK_OK);
+    }
     /* nesting deeper than RTK_MAX_INSTANCE_DEPTH */
     rtk_scene level = child;
     rtk_scene_retain(level);

@@ -200,7 +200,203 @@ bool off_header_ok(const char *path, std::string &why)
             return false;
         }
     }
+    // OpenMesh reads as many vertices and faces as the header says, past
+    // the end of the file (millions of empty ones for a bad count, found by
+    // fuzz/fuzz_mesh): they must fit in the file, at least "0 0 0" and
+    // "3 0 0 0" with a separator each.
+    f = std::fopen(path, "rb");
+    if (!f) {
+        why = std::strerror(errno);
+        return false;
+    }
+    std::fseek(f, 0, SEEK_END);
+    const double size = (double)std::ftell(f);
+    std::fclose(f);
+    const double need = 6.0 * (double)counts[0] + 8.0 * (double)counts[1];
+    if (need > size) {
+        why = "malformed OFF: " + std::to_string(counts[0]) + " vertices and " + std::to_string(counts[1]) +
+              " faces need at least " + std::to_string((long long)need) + " bytes, the file has " +
+              std::to_string((long long)size);
+        return false;
+    }
     return true;
+}
+
+// OpenMesh's PLY reader loops forever on a header without end_header (it
+// reads keywords until it sees that one, past the end of the file; found by
+// fuzz/fuzz_mesh) and reserves whatever counts the header declares, so the
+// header is checked here first: "ply", a format line, then only comment,
+// obj_info, element NAME COUNT, property TYPE NAME and property list TYPE
+// TYPE NAME lines with the types PLY defines, up to end_header; and the
+// elements must fit in the rest of the file (at least two bytes per ascii
+// value, each binary value's size).
+bool ply_header_ok(const char *path, std::string &why)
+{
+    FILE *f = std::fopen(path, "rb");
+    if (!f) {
+        why = std::strerror(errno);
+        return false;
+    }
+    // up to a line that is exactly end_header (OpenMesh looks for the word:
+    // "xend_header" on a line does not end its header)
+    std::string header;
+    int c;
+    auto ends = [&header](const char *tail) {
+        const size_t n = std::strlen(tail);
+        return header.size() >= n && header.compare(header.size() - n, n, tail) == 0;
+    };
+    while (header.size() < (1u << 20) && (c = std::fgetc(f)) != EOF) {
+        header.push_back(char(c));
+        if (ends("\nend_header\n") || ends("\nend_header\r\n"))
+            break;
+    }
+    std::fseek(f, 0, SEEK_END);
+    const long file_size = std::ftell(f);
+    std::fclose(f);
+    auto bad = [&why](const std::string &what) {
+        why = "malformed PLY header: " + what;
+        return false;
+    };
+    if (!ends("\nend_header\n") && !ends("\nend_header\r\n"))
+        return bad("no end_header line");
+    static const std::pair<const char *, int> types[] = {
+        {"char", 1},  {"uchar", 1},  {"short", 2},   {"ushort", 2},  {"int", 4},     {"uint", 4},
+        {"float", 4}, {"double", 8}, {"int8", 1},    {"uint8", 1},   {"int16", 2},   {"uint16", 2},
+        {"int32", 4}, {"uint32", 4}, {"float32", 4}, {"float64", 8}};
+    auto type_size = [](const std::string &t) {
+        for (const auto &k : types)
+            if (t == k.first)
+                return k.second;
+        return 0;
+    };
+    std::istringstream in(header);
+    std::string line;
+    std::getline(in, line);
+    if (line != "ply" && line != "ply\r")
+        return bad("the file does not start with ply");
+    bool ascii = false, have_format = false;
+    double need = 0.0;    // bytes the declared elements take at least
+    double count = 0.0;   // items of the current element
+    double per_item = 0.0; // bytes per item of the current element, at least
+    bool in_element = false;
+    while (std::getline(in, line)) {
+        std::istringstream w(line);
+        std::string key, extra;
+        w >> key;
+        // OpenMesh reads the header word by word, not line by line: a word
+        // too many on a line would be taken for the next keyword
+        auto done = [&w, &extra]() { return !(w >> extra); };
+        if (line.find('\0') != std::string::npos)
+            return bad("a NUL byte in the header");
+        if (key == "end_header") {
+            break;
+        } else if (key == "comment" || key == "obj_info" || key.empty()) {
+            continue;
+        } else if (key == "format") {
+            std::string kind, version;
+            w >> kind >> version;
+            if (kind != "ascii" && kind != "binary_little_endian" && kind != "binary_big_endian")
+                return bad("unknown format '" + kind + "'");
+            if (version != "1.0" || !done())
+                return bad("expected format TYPE 1.0, got '" + line + "'");
+            ascii = kind == "ascii";
+            have_format = true;
+        } else if (key == "element") {
+            std::string name;
+            long long n = -1;
+            if (!(w >> name >> n) || n < 0 || !done())
+                return bad("expected element NAME COUNT, got '" + line + "'");
+            need += count * per_item;
+            count = (double)n;
+            per_item = 0.0;
+            in_element = true;
+        } else if (key == "property") {
+            std::string type, name;
+            if (!in_element || !(w >> type))
+                return bad("a property outside an element: '" + line + "'");
+            if (type == "list") {
+                std::string count_type, item_type;
+                if (!(w >> count_type >> item_type >> name) || !type_size(count_type) || !type_size(item_type) ||
+                    !done())
+                    return bad("expected property list TYPE TYPE NAME, got '" + line + "'");
+                per_item += ascii ? 2 : type_size(count_type);
+            } else {
+                if (!(w >> name) || !type_size(type) || !done())
+                    return bad("expected property TYPE NAME, got '" + line + "'");
+                per_item += ascii ? 2 : type_size(type);
+            }
+        } else {
+            return bad("unknown line '" + line + "'");
+        }
+    }
+    if (!have_format)
+        return bad("no format line");
+    need += count * per_item;
+    const double rest = (double)file_size - (double)header.size();
+    if (need > rest + 1.0) // (an ascii file's last value needs no separator)
+        return bad("its elements need at least " + std::to_string((long long)need) + " bytes, the file has " +
+                   std::to_string((long long)rest) + " after the header");
+    return true;
+}
+
+// OpenMesh's OBJ reader asserts (aborting the process, as Debian builds
+// it) on a face line none of whose words reads as a vertex (found by
+// fuzz/fuzz_mesh), so face lines are checked here first: "f" then at least
+// three words v, v/t, v//n or v/t/n of non-zero integers.
+bool obj_faces_ok(const char *path, std::string &why)
+{
+    FILE *f = std::fopen(path, "rb");
+    if (!f) {
+        why = std::strerror(errno);
+        return false;
+    }
+    std::string line;
+    long number = 0;
+    bool ok = true;
+    auto word_ok = [](const std::string &w) {
+        // up to three '/'-separated integers, the first one present and non-zero
+        size_t i = 0, part = 0;
+        while (true) {
+            const size_t start = i;
+            if (i < w.size() && (w[i] == '-' || w[i] == '+'))
+                i++;
+            const size_t digits = i;
+            long long v = 0;
+            while (i < w.size() && std::isdigit((unsigned char)w[i]) && v < (1ll << 40))
+                v = 10 * v + (w[i++] - '0');
+            if (i == digits && !(part > 0 && i == start)) // a number, or an empty t or n
+                return false;
+            if (part == 0 && v == 0)
+                return false;
+            if (i == w.size())
+                return true;
+            if (w[i] != '/' || ++part > 2)
+                return false;
+            i++;
+        }
+    };
+    for (int c = 0; ok && c != EOF;) {
+        line.clear();
+        while ((c = std::fgetc(f)) != EOF && c != '\n')
+            line.push_back(char(c));
+        number++;
+        if (line.size() < 2 || line[0] != 'f' || !std::isspace((unsigned char)line[1]))
+            continue;
+        std::istringstream w(line.substr(1));
+        std::string word;
+        int words = 0;
+        while (ok && w >> word) {
+            ok = word_ok(word);
+            words++;
+        }
+        if (!ok || words < 3) {
+            why = "malformed OBJ: line " + std::to_string(number) + ": expected f and three or more vertex references, got '" +
+                  line.substr(0, 60) + "'";
+            ok = false;
+        }
+    }
+    std::fclose(f);
+    return ok;
 }
 
 void set_err(char *err, size_t size, const std::string &text)
@@ -289,6 +485,10 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
         if (!readable) {
             failure = "unknown mesh format (rtk reads .rtkm, .obj, .ply, .off, .stl, .om)";
         } else if (ext == "off" && !off_header_ok(path, failure)) {
+            // failure says why
+        } else if (ext == "ply" && !ply_header_ok(path, failure)) {
+            // failure says why
+        } else if (ext == "obj" && !obj_faces_ok(path, failure)) {
             // failure says why
         } else {
             ok = ext == "om" ? read_om(path, soup) : IO::IOManager().read(path, soup, opt);

@@ -511,7 +511,12 @@ RTK_API rtk_error rtk_geometry_set_new_buffer_slot(rtk_geometry geometry, rtk_bu
  * instancing scene again to see the instanced scene's changes.  As with
  * any scene, a commit must not overlap another call on the same scene, and
  * the commit of a scene must not overlap the commit of a scene that
- * instances it.  A ray that the transform takes out of the finite floats
+ * instances it.  An instance cannot place a scene that contains it, itself
+ * or through other instances: rtk_scene_attach_geometry and
+ * rtk_geometry_set_instanced_scene refuse such a cycle
+ * (RTK_ERROR_INVALID_OPERATION), looking at the scenes' attached
+ * geometries, so they must not overlap attaching or detaching in the
+ * scenes the instance reaches.  A ray that the transform takes out of the finite floats
  * misses that instance. */
 #define RTK_MAX_INSTANCE_DEPTH 8
 
