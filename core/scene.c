@@ -1025,14 +1025,29 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
         if (!RTK_DESC_HAS(bk, motion_builders) || !bk->motion_builders[0].name)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
                             "%s: backend %s cannot trace motion blur (it predates it)", fn, bk->name);
-        for (const rtk_builder_entry *b = bk->motion_builders; b->name && !builder; b++)
-            if (want_builder && !strcmp(b->name, want_builder))
-                builder = b;
-        for (const rtk_builder_entry *b = bk->motion_builders; b->name && !builder; b++)
-            if (b->qualities & (1u << quality))
-                builder = b;
-        builder = builder ? builder : bk->motion_builders;
-        layout = rtk_backend_find_layout(bk, builder->layout);
+        /* among those of the quality (or named), the one whose layout
+         * honours the most of the scene's flags and nothing it did not ask
+         * for (robust: the watertight test) */
+        int best = -1;
+        for (int pass = 0; pass < 2 && !builder; pass++)
+            for (const rtk_builder_entry *b = bk->motion_builders; b->name; b++) {
+                if (pass == 0 ? (want_builder ? strcmp(b->name, want_builder) != 0 : !(b->qualities & (1u << quality)))
+                              : 0)
+                    continue;
+                const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
+                if (!l || (l->scene_flags & ~s->flags))
+                    continue;
+                const int score = __builtin_popcount(l->scene_flags & s->flags);
+                if (score > best) {
+                    best = score;
+                    builder = b;
+                    layout = l;
+                }
+            }
+        if (!builder) {
+            builder = bk->motion_builders;
+            layout = rtk_backend_find_layout(bk, builder->layout);
+        }
     }
     for (int any_quality = want_builder != NULL; steps == 1 && any_quality < 2 && !builder; any_quality++) {
         int best = -1;
@@ -1267,8 +1282,9 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     s->instances = ni;
     s->two_level = 1;
     s->own_stats = *own_total;
-    /* the flags every tree of the scene's own triangles honours (a moving
-     * geometry's tree is never robust); with no triangles of its own, a
+    /* the flags every tree of the scene's own triangles honours (a backend
+     * older than robust motion blur has a moving geometry's tree honour
+     * none); with no triangles of its own, a
      * compact or robust request is served (the instanced scenes' own
      * flags apply to their triangles) */
     s->honoured = s->flags & (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST);
@@ -1288,7 +1304,7 @@ static void add_output(rtk_build_output *total, uint64_t *motion, const rtk_buil
     total->prims_degenerate += o->prims_degenerate;
     total->refs += o->refs ? o->refs : o->prims;
     total->bytes += o->bytes;
-    if (tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB)
+    if (tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB || tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST)
         *motion += o->prims;
 }
 

@@ -101,6 +101,8 @@ static const rtk_layout_entry layouts[] = {
     /* motion blur (build_motion.c): built by the motion builders below */
     {.id = RTK_LAYOUT_BVH4_TRIANGLE4MB, .scene_flags = 0, .name = "bvh4.triangle4mb",
      .release = RTK_SYM(rtk_motion_release)},
+    {.id = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, .scene_flags = RTK_SCENE_FLAG_ROBUST, .name = "bvh4.triangle4mb.robust",
+     .release = RTK_SYM(rtk_motion_release)},
     {0},
 };
 
@@ -177,6 +179,10 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersect1 = RTK_SYM(rtk_bvh4mb_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB, .query = RTK_QUERY_OCCLUDED, .width = 1,
      .fn.occluded1 = RTK_SYM(rtk_bvh4mb_occluded1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, .query = RTK_QUERY_INTERSECT, .width = 1,
+     .fn.intersect1 = RTK_SYM(rtk_bvh4mbr_intersect1)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, .query = RTK_QUERY_OCCLUDED, .width = 1,
+     .fn.occluded1 = RTK_SYM(rtk_bvh4mbr_occluded1)},
     {0},
 };
 
@@ -225,6 +231,11 @@ static const rtk_builder_entry motion_builders[] = {
      .build = RTK_SYM(rtk_build_motion)},
     {.name = "sah-binned", .qualities = SAH_QUALITIES | SPATIAL_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4MB,
      .build = RTK_SYM(rtk_build_motion)},
+    /* robust scenes: the same trees, traced with the watertight test */
+    {.name = "morton", .qualities = MORTON_QUALITIES, .layout = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST,
+     .build = RTK_SYM(rtk_build_motion)},
+    {.name = "sah-binned", .qualities = SAH_QUALITIES | SPATIAL_QUALITIES,
+     .layout = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, .build = RTK_SYM(rtk_build_motion)},
     {0},
 };
 

@@ -222,8 +222,9 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     if (in->struct_size < offsetof(rtk_build_input, time_vertices) + sizeof in->time_vertices || in->time_steps < 2 ||
         !in->time_vertices)
         return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the motion builder needs at least two time steps");
-    if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB)
-        return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the motion builder produces bvh4.triangle4mb only");
+    if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB && in->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST)
+        return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT,
+                       "the motion builder produces bvh4.triangle4mb and bvh4.triangle4mb.robust only");
     mb m = {.in = in, .steps = in->time_steps};
     size_t vertex_bytes = 0;
     const uint32_t segments = in->time_steps - 1;
@@ -244,7 +245,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
         goto done;
     }
-    accel->layout = RTK_LAYOUT_BVH4_TRIANGLE4MB;
+    accel->layout = in->layout;
     accel->segment_count = segments;
     for (uint32_t g = 0; g < in->geometry_count; g++) {
         const size_t nv = in->geometries[g].vertex_count;
@@ -296,7 +297,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         }
         struct rtk_accel *topo = topo_out.accel;
         struct rtk_accel *seg = &accel->segments[s];
-        seg->layout = RTK_LAYOUT_BVH4_TRIANGLE4MB;
+        seg->layout = in->layout;
         seg->root = topo->root;
         seg->node_count = topo->node_count;
         seg->leaf_count = topo->leaf_count;
@@ -370,7 +371,12 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     for (int a = 0; a < 3; a++) {
         out->lower[a] = prims ? lo[a] : INFINITY;
         out->upper[a] = prims ? hi[a] : -INFINITY;
+        /* the robust traversal's padding (traverse_bvhn.h), over all times */
+        const float side = prims ? hi[a] - lo[a] : 0.0f;
+        accel->extent = side > accel->extent ? side : accel->extent;
     }
+    for (uint32_t s = 0; s < segments; s++)
+        accel->segments[s].extent = accel->extent;
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
         out->threads = threads;
     if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)

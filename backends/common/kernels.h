@@ -43,4 +43,6 @@ RTK_HIDDEN void RTK_SYM(rtk_bvh8v_intersect1)(const rtk_accel *accel, rtk_rayhit
 RTK_HIDDEN void RTK_SYM(rtk_bvh8v_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 #endif

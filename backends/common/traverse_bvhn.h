@@ -107,15 +107,14 @@ typedef vfloat8 vnode;
 #ifndef RTK_ROBUST
 #define RTK_ROBUST 0
 #endif
-#if RTK_ROBUST && RTK_MOTION
-#error "no robust motion blur layout yet"
-#endif
 #if RTK_ROBUST
 typedef rtk_triangle4v block_t;
 #else
 typedef rtk_triangle4 block_t;
 #endif
-#if RTK_ROBUST && RTK_LEAF_INDEXED
+#if RTK_ROBUST && RTK_MOTION
+#define BVHN_TAG RTK_CAT(RTK_BVHN, mbr)
+#elif RTK_ROBUST && RTK_LEAF_INDEXED
 #define BVHN_TAG RTK_CAT(RTK_BVHN, ir)
 #elif RTK_ROBUST
 #define BVHN_TAG RTK_CAT(RTK_BVHN, v)
@@ -420,6 +419,13 @@ static inline const block_t *leaf_block(const rtk_accel *accel, uint32_t index, 
     }
     for (int k = 0; k < 3; k++)
         vf4_transpose(&v[k][0], &v[k][1], &v[k][2], &v[k][3]);
+#if RTK_ROBUST
+    /* the vertices themselves, for the watertight test */
+    float *f = (float *)scratch;
+    for (int k = 0; k < 3; k++)
+        for (int a = 0; a < 3; a++)
+            vf4_store(f + 12 * k + 4 * a, v[k][a]);
+#else
     vf4_store(scratch->v0x, v[0][0]);
     vf4_store(scratch->v0y, v[0][1]);
     vf4_store(scratch->v0z, v[0][2]);
@@ -429,6 +435,7 @@ static inline const block_t *leaf_block(const rtk_accel *accel, uint32_t index, 
     vf4_store(scratch->e2x, vf4_sub(v[2][0], v[0][0]));
     vf4_store(scratch->e2y, vf4_sub(v[2][1], v[0][1]));
     vf4_store(scratch->e2z, vf4_sub(v[2][2], v[0][2]));
+#endif
     memcpy(scratch->prim, t->prim, sizeof t->prim);
     return scratch;
 }

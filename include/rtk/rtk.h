@@ -233,8 +233,9 @@ typedef enum rtk_scene_flags {
      * edge function is exactly zero or underflows; boxes are padded.
      * Tested on closed meshes from 1e-20 to 1e8 in size and up to 1e6 from
      * the origin (tests/test_robust.c).  Costs 6-10% of the default's
-     * diffuse-ray rate.  Packets are traced ray by ray, and moving geometry
-     * (time steps) is not robust yet (rtk_scene_info.flags_not_honoured). */
+     * diffuse-ray rate.  Moving geometry gets bvh4.triangle4mb.robust (the
+     * vertices interpolated to the ray's time, then the same test).
+     * Packets are traced ray by ray. */
     RTK_SCENE_FLAG_ROBUST = 1 << 1,
     /* Geometry changes often: two levels, a tree per triangle geometry
      * (built with the geometry's own quality: low the Morton builder,

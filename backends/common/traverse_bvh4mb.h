@@ -1,0 +1,51 @@
+/* Traversal of bvh4.triangle4mb and bvh4.triangle4mb.robust (motion
+ * blur, build_motion.c), included by traverse_bvh4mb.c and
+ * traverse_bvh4mbr.c: the single-ray template at width 4 with planes and
+ * vertices interpolated to the ray's time, through the tree of the time
+ * segment the time falls in.  A ray whose time is outside [0, 1] (or NaN)
+ * hits nothing here: the motion is defined over that range only.  No
+ * packet kernels: the core traces packets ray by ray. */
+#define RTK_BVHN 4
+#define RTK_MOTION 1
+#include "traverse_bvhn.h"
+
+/* The segment of the ray's time and the time within it into p; the
+ * segment's tree, or NULL when the time is outside [0, 1]. */
+static inline const rtk_accel *segment_at(const rtk_accel *accel, float time, ray_pre *p)
+{
+    if (!(time >= 0.0f && time <= 1.0f))
+        return NULL;
+    const uint32_t n = accel->segment_count;
+    const float ts = time * (float)n;
+    uint32_t s = (uint32_t)ts;
+    s = s < n ? s : n - 1;
+    const float f = ts - (float)s; /* exact: ts and s are within a factor of two or s is 0 */
+    p->ftime = vn_set1(f);
+    p->f4 = vf4_set1(f);
+    p->one_f4 = vf4_set1(1.0f - f);
+    const rtk_accel *seg = &accel->segments[s];
+    return seg->root == RTK_BVH4_EMPTY ? NULL : seg;
+}
+
+void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
+{
+    ray_pre p;
+    ray_pre_init(&p, &rayhit->ray, accel);
+    const rtk_accel *seg = segment_at(accel, rayhit->ray.time, &p);
+    if (!seg)
+        return;
+    closest_hit best = CLOSEST_HIT_NONE;
+    float tfar = rayhit->ray.tfar;
+    closest_from(seg, seg->root, &p, rayhit->ray.tnear, &tfar, &best);
+    if (best.lane >= 0)
+        closest_hit_store(seg, &best, &p, tfar, rayhit);
+}
+
+void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
+{
+    ray_pre p;
+    ray_pre_init(&p, ray, accel);
+    const rtk_accel *seg = segment_at(accel, ray->time, &p);
+    if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar))
+        ray->tfar = -INFINITY;
+}
