@@ -156,21 +156,31 @@ static const rtk_kernel_entry kernels[] = {
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I, .query = RTK_QUERY_OCCLUDED, .width = 8,
      .fn.occludedN = RTK_SYM(rtk_bvh4i_occluded8)},
 #endif
-    /* robust layouts: single rays only so far (packets go ray by ray) */
+    /* robust layouts: the same kernels with the watertight test (packet
+     * kernels as for the default layouts) */
+#define KERNEL1(id, tag)                                                                                               \
+    {.layout = id, .query = RTK_QUERY_INTERSECT, .width = 1, .fn.intersect1 = RTK_SYM(rtk_bvh##tag##_intersect1)},    \
+        {.layout = id, .query = RTK_QUERY_OCCLUDED, .width = 1, .fn.occluded1 = RTK_SYM(rtk_bvh##tag##_occluded1)}
+#define KERNELN(id, tag, k)                                                                                            \
+    {.layout = id, .query = RTK_QUERY_INTERSECT, .width = k, .fn.intersectN = RTK_SYM(rtk_bvh##tag##_intersect##k)},  \
+        {.layout = id, .query = RTK_QUERY_OCCLUDED, .width = k, .fn.occludedN = RTK_SYM(rtk_bvh##tag##_occluded##k)}
 #ifdef RTK_SIMD_HAS_8
-    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4V, .query = RTK_QUERY_INTERSECT, .width = 1,
-     .fn.intersect1 = RTK_SYM(rtk_bvh8v_intersect1)},
-    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4V, .query = RTK_QUERY_OCCLUDED, .width = 1,
-     .fn.occluded1 = RTK_SYM(rtk_bvh8v_occluded1)},
+    KERNEL1(RTK_LAYOUT_BVH8_TRIANGLE4V, 8v),
+    KERNELN(RTK_LAYOUT_BVH8_TRIANGLE4V, 8v, 4),
+    KERNELN(RTK_LAYOUT_BVH8_TRIANGLE4V, 8v, 8),
 #endif
-    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4V, .query = RTK_QUERY_INTERSECT, .width = 1,
-     .fn.intersect1 = RTK_SYM(rtk_bvh4v_intersect1)},
-    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4V, .query = RTK_QUERY_OCCLUDED, .width = 1,
-     .fn.occluded1 = RTK_SYM(rtk_bvh4v_occluded1)},
-    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .query = RTK_QUERY_INTERSECT, .width = 1,
-     .fn.intersect1 = RTK_SYM(rtk_bvh4ir_intersect1)},
-    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, .query = RTK_QUERY_OCCLUDED, .width = 1,
-     .fn.occluded1 = RTK_SYM(rtk_bvh4ir_occluded1)},
+    KERNEL1(RTK_LAYOUT_BVH4_TRIANGLE4V, 4v),
+    KERNEL1(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, 4ir),
+#ifdef __SSE4_1__
+    KERNELN(RTK_LAYOUT_BVH4_TRIANGLE4V, 4v, 4),
+    KERNELN(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, 4ir, 4),
+#endif
+#ifdef RTK_SIMD_HAS_8
+    KERNELN(RTK_LAYOUT_BVH4_TRIANGLE4V, 4v, 8),
+    KERNELN(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, 4ir, 8),
+#endif
+#undef KERNEL1
+#undef KERNELN
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_INTERSECT, .width = 1,
      .fn.intersect1 = RTK_SYM(rtk_objects_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = 1,

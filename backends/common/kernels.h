@@ -43,6 +43,16 @@ RTK_HIDDEN void RTK_SYM(rtk_bvh8v_intersect1)(const rtk_accel *accel, rtk_rayhit
 RTK_HIDDEN void RTK_SYM(rtk_bvh8v_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+#define RTK_PACKET_DECL_(tag, k)                                                                                      \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_intersect##k)(const rtk_accel *accel, const int32_t *active, void *packet); \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_occluded##k)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_PACKET_DECL_(4v, 4)
+RTK_PACKET_DECL_(4v, 8)
+RTK_PACKET_DECL_(8v, 4)
+RTK_PACKET_DECL_(8v, 8)
+RTK_PACKET_DECL_(4ir, 4)
+RTK_PACKET_DECL_(4ir, 8)
+#undef RTK_PACKET_DECL_
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray);
 #endif

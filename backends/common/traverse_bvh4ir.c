@@ -1,8 +1,14 @@
 /* Traversal of bvh4.triangle4i.robust (scenes both compact and robust):
  * the single-ray template at width 4 with index leaves and the watertight
- * intersector.  No packet kernels yet: the core traces packets through it
- * ray by ray. */
+ * intersector, and the packet template for 4-ray packets (and 8-ray ones
+ * where the SIMD layer has 8-wide vectors). */
 #define RTK_BVHN 4
 #define RTK_LEAF_INDEXED 1
 #define RTK_ROBUST 1
 #include "traverse_bvhn.h"
+#define RTK_PACKET 4
+#include "traverse_packet.h"
+#ifdef RTK_SIMD_HAS_8
+#define RTK_PACKET 8
+#include "traverse_packet.h"
+#endif

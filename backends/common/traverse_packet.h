@@ -1,5 +1,7 @@
 /*
- * Packet traversal of the bvhN.triangle4 layouts and bvh4.triangle4i: K rays (K = 4 or 8) through
+ * Packet traversal of the bvhN.triangle4 layouts, bvh4.triangle4i and the
+ * robust ones (bvhN.triangle4v, bvh4.triangle4i.robust: the watertight test
+ * and padded boxes of traverse_bvhn.h's RTK_ROBUST): K rays (K = 4 or 8) through
  * N-wide nodes, closest hit and any hit, in the hybrid scheme of Embree
  * (Benthin, Wald, Woop, Ernst, Mark: "Combining Single and Packet-Ray
  * Tracing for Arbitrary Ray Distributions on the Intel MIC Architecture",
@@ -71,6 +73,17 @@
  * the direction) scaled by RTK_BOX_FAR_SCALE, as inv_far in ray_pre. */
 typedef struct PK_(packet_pre) {
     vk org[3], dir[3], rinv_lo[3], rinv_hi[3];
+    /* the origins for the lower and upper planes: org, or in robust layouts
+     * org moved by the padding (ray_pre_init): + for the lower, - for the
+     * upper */
+    vk org_lo[3], org_hi[3];
+#if RTK_ROBUST
+    /* the watertight test per ray: the permuted axes as selection masks
+     * (axis k of permuted axis j is x where is_x[j], y where is_y[j], else
+     * z), the permuted origin and the shear */
+    vkb is_x[3], is_y[3];
+    vk worg[3], sx, sy, sz;
+#endif
 #if RTK_SIMD_HAS_FMA
     vk c_lo[3], c_hi[3]; /* org * rinv moved toward the near side, as c_near / c_far in ray_pre */
 #endif
@@ -88,6 +101,7 @@ typedef struct PK_(packet_pre) {
     vk cn[3], cf[3]; /* per ray: c_near and c_far of ray_pre */
     vnode fr_cn_max[3], fr_cf_min[3];
 #else
+    vk on[3], of[3];          /* per ray: the near and far planes' origins */
     vnode fr_on[3], fr_of[3]; /* the origins giving the least near and greatest far distance */
 #endif
     vnode fr_rn_min[3], fr_rn_max[3], fr_rf_min[3], fr_rf_max[3];
@@ -139,6 +153,11 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, unsigned all)
 #if RTK_SIMD_HAS_FMA
         p->cn[k] = n ? p->c_hi[k] : p->c_lo[k];
         p->cf[k] = n ? p->c_lo[k] : p->c_hi[k];
+#else
+        p->on[k] = n ? p->org_hi[k] : p->org_lo[k];
+        p->of[k] = n ? p->org_lo[k] : p->org_hi[k];
+#endif
+#if RTK_SIMD_HAS_FMA
         /* out of range products: the single-ray kernel would not use FMA */
         const vk big = VK(set1)(0x1p126f);
         const unsigned ok = (unsigned)VKB(mask)(VKB(and)(VK(le)(VK(abs)(p->cn[k]), big), VK(le)(VK(abs)(p->cf[k]), big)));
@@ -154,11 +173,11 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, unsigned all)
         VK(store)(a, p->cn[k]);
         VK(store)(b, p->cf[k]);
 #else
-        VK(store)(a, p->org[k]);
-        VK(store)(b, p->org[k]);
+        VK(store)(a, p->on[k]);
+        VK(store)(b, p->of[k]);
 #endif
         float rn_min = INFINITY, rn_max = -INFINITY, rf_min = INFINITY, rf_max = -INFINITY;
-        float a_max = -INFINITY, b_min = INFINITY;
+        float a_max = -INFINITY, b_min = INFINITY, a_min = INFINITY, b_max = -INFINITY;
         for (unsigned m = all; m; m &= m - 1) {
             const int i = __builtin_ctz(m);
             rn_min = rn[i] < rn_min ? rn[i] : rn_min;
@@ -166,8 +185,11 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, unsigned all)
             rf_min = rf[i] < rf_min ? rf[i] : rf_min;
             rf_max = rf[i] > rf_max ? rf[i] : rf_max;
             a_max = a[i] > a_max ? a[i] : a_max;
+            a_min = a[i] < a_min ? a[i] : a_min;
             b_min = b[i] < b_min ? b[i] : b_min;
+            b_max = b[i] > b_max ? b[i] : b_max;
         }
+        (void)a_min, (void)b_max;
         p->fr_rn_min[k] = vn_set1(rn_min);
         p->fr_rn_max[k] = vn_set1(rn_max);
         p->fr_rf_min[k] = vn_set1(rf_min);
@@ -180,8 +202,8 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, unsigned all)
         /* near = (plane - org) * rn: least with the origin farthest along the
          * direction (the greatest where it is positive); far the other way */
         const int n = p->near_off[k] == upper[k];
-        p->fr_on[k] = vn_set1(n ? b_min : a_max);
-        p->fr_of[k] = vn_set1(n ? a_max : b_min);
+        p->fr_on[k] = vn_set1(n ? a_min : a_max);
+        p->fr_of[k] = vn_set1(n ? b_max : b_min);
 #endif
     }
     p->fr_tnear = vn_set1(tnear_min);
@@ -227,8 +249,8 @@ static inline int PK_(box_intersect_octant)(const node_t *n, int i, const PK_(pa
         t0[k] = VK(msub)(pn, p->rn[k], p->cn[k]);
         t1[k] = VK(msub)(pf, p->rf[k], p->cf[k]);
 #else
-        t0[k] = VK(mul)(VK(sub)(pn, p->org[k]), p->rn[k]);
-        t1[k] = VK(mul)(VK(sub)(pf, p->org[k]), p->rf[k]);
+        t0[k] = VK(mul)(VK(sub)(pn, p->on[k]), p->rn[k]);
+        t1[k] = VK(mul)(VK(sub)(pf, p->of[k]), p->rf[k]);
 #endif
     }
     const vk tmin = VK(max)(VK(max)(t0[0], t0[1]), VK(max)(t0[2], p->tnear));
@@ -238,17 +260,31 @@ static inline int PK_(box_intersect_octant)(const node_t *n, int i, const PK_(pa
     return VKB(mask)(hit);
 }
 
-static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb active)
+static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb active, const rtk_accel *accel)
 {
+    (void)accel;
     const float *org[3] = {r->org_x, r->org_y, r->org_z}, *dir[3] = {r->dir_x, r->dir_y, r->dir_z};
     const vk tiny = VK(set1)(1e-18f), one = VK(set1)(1.0f), zero = VK(set1)(0.0f);
-    const vk scale = VK(set1)(RTK_BOX_FAR_SCALE);
+#if RTK_ROBUST
+    const vk scale = VK(set1)(RTK_BOX_FAR_SCALE + RTK_ROBUST_REL), near_scale = VK(set1)(1.0f - RTK_ROBUST_REL);
+#else
+    const vk scale = VK(set1)(RTK_BOX_FAR_SCALE), near_scale = one;
+#endif
     for (int k = 0; k < 3; k++) {
         p->org[k] = VK(load)(org[k]);
         p->dir[k] = VK(load)(dir[k]);
+#if RTK_ROBUST
+        /* as in ray_pre_init */
+        const vk shift = VK(add)(VK(set1)(accel->extent * RTK_ROBUST_REL), VK(mul)(VK(abs)(p->org[k]), VK(set1)(0x1p-22f)));
+        p->org_lo[k] = VK(add)(p->org[k], shift);
+        p->org_hi[k] = VK(sub)(p->org[k], shift);
+#else
+        p->org_lo[k] = p->org_hi[k] = p->org[k];
+#endif
         /* as in ray_pre_init: components below 1e-18 in magnitude become +-1e-18 */
         const vk d = VK(select)(VK(lt)(VK(abs)(p->dir[k]), tiny), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
-        const vk rinv = VK(div)(one, d), rinv_far = VK(mul)(rinv, scale);
+        const vk rinv_exact = VK(div)(one, d);
+        const vk rinv = VK(mul)(rinv_exact, near_scale), rinv_far = VK(mul)(rinv_exact, scale);
         const vkb neg = VK(lt)(rinv, zero);
         p->rinv_lo[k] = VK(select)(neg, rinv_far, rinv);
         p->rinv_hi[k] = VK(select)(neg, rinv, rinv_far);
@@ -259,7 +295,7 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
          * min/max of box_intersect, which ends with tnear and tfar, never
          * NaN); unlike the single-ray test that is harmless here, as the
          * packet loop never visits empty child slots. */
-        const vk c_lo = VK(mul)(p->org[k], p->rinv_lo[k]), c_hi = VK(mul)(p->org[k], p->rinv_hi[k]);
+        const vk c_lo = VK(mul)(p->org_lo[k], p->rinv_lo[k]), c_hi = VK(mul)(p->org_hi[k], p->rinv_hi[k]);
         const vk e_lo = VK(add)(VK(mul)(VK(abs)(c_lo), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f));
         const vk e_hi = VK(add)(VK(mul)(VK(abs)(c_hi), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f));
         p->c_lo[k] = VK(add)(c_lo, VK(xor_sign)(e_lo, rinv)); /* lower is near where rinv > 0 */
@@ -268,6 +304,35 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
     }
     /* inactive lanes start beyond everything: they never enter a box */
     p->tnear = VK(select)(active, VK(load)(r->tnear), VK(set1)(INFINITY));
+#if RTK_ROBUST
+    /* the axes as rtk_watertight_ray_init picks them, lane by lane */
+    _Alignas(64) float dd[3][RTK_PACKET], o[3][RTK_PACKET], wo[3][RTK_PACKET], sh[3][RTK_PACKET];
+    _Alignas(64) int32_t isx[3][RTK_PACKET], isy[3][RTK_PACKET];
+    for (int k = 0; k < 3; k++) {
+        VK(store)(dd[k], p->dir[k]);
+        VK(store)(o[k], p->org[k]);
+    }
+    for (int i = 0; i < RTK_PACKET; i++) {
+        const float d3[3] = {dd[0][i], dd[1][i], dd[2][i]};
+        rtk_watertight_ray w;
+        rtk_watertight_ray_init(d3, &w);
+        const int axes[3] = {w.kx, w.ky, w.kz};
+        for (int j = 0; j < 3; j++) {
+            isx[j][i] = axes[j] == 0 ? -1 : 0;
+            isy[j][i] = axes[j] == 1 ? -1 : 0;
+            wo[j][i] = o[axes[j]][i];
+        }
+        sh[0][i] = w.sx, sh[1][i] = w.sy, sh[2][i] = w.sz;
+    }
+    for (int j = 0; j < 3; j++) {
+        p->is_x[j] = VKB(load)(isx[j]);
+        p->is_y[j] = VKB(load)(isy[j]);
+        p->worg[j] = VK(load)(wo[j]);
+    }
+    p->sx = VK(load)(sh[0]);
+    p->sy = VK(load)(sh[1]);
+    p->sz = VK(load)(sh[2]);
+#endif
 }
 
 /* One child box against the packet: the entry distance where entered within
@@ -285,12 +350,12 @@ static inline int PK_(box_intersect)(const node_t *n, int i, const PK_(packet_pr
     const vk t0z = VK(msub)(VK(set1)(n->lower_z[i]), p->rinv_lo[2], p->c_lo[2]);
     const vk t1z = VK(msub)(VK(set1)(n->upper_z[i]), p->rinv_hi[2], p->c_hi[2]);
 #else
-    const vk t0x = VK(mul)(VK(sub)(VK(set1)(n->lower_x[i]), p->org[0]), p->rinv_lo[0]);
-    const vk t1x = VK(mul)(VK(sub)(VK(set1)(n->upper_x[i]), p->org[0]), p->rinv_hi[0]);
-    const vk t0y = VK(mul)(VK(sub)(VK(set1)(n->lower_y[i]), p->org[1]), p->rinv_lo[1]);
-    const vk t1y = VK(mul)(VK(sub)(VK(set1)(n->upper_y[i]), p->org[1]), p->rinv_hi[1]);
-    const vk t0z = VK(mul)(VK(sub)(VK(set1)(n->lower_z[i]), p->org[2]), p->rinv_lo[2]);
-    const vk t1z = VK(mul)(VK(sub)(VK(set1)(n->upper_z[i]), p->org[2]), p->rinv_hi[2]);
+    const vk t0x = VK(mul)(VK(sub)(VK(set1)(n->lower_x[i]), p->org_lo[0]), p->rinv_lo[0]);
+    const vk t1x = VK(mul)(VK(sub)(VK(set1)(n->upper_x[i]), p->org_hi[0]), p->rinv_hi[0]);
+    const vk t0y = VK(mul)(VK(sub)(VK(set1)(n->lower_y[i]), p->org_lo[1]), p->rinv_lo[1]);
+    const vk t1y = VK(mul)(VK(sub)(VK(set1)(n->upper_y[i]), p->org_hi[1]), p->rinv_hi[1]);
+    const vk t0z = VK(mul)(VK(sub)(VK(set1)(n->lower_z[i]), p->org_lo[2]), p->rinv_lo[2]);
+    const vk t1z = VK(mul)(VK(sub)(VK(set1)(n->upper_z[i]), p->org_hi[2]), p->rinv_hi[2]);
 #endif
     const vk tmin = VK(max)(VK(max)(VK(min)(t0x, t1x), VK(min)(t0y, t1y)), VK(max)(VK(min)(t0z, t1z), p->tnear));
     const vk tmax = VK(min)(VK(min)(VK(max)(t0x, t1x), VK(max)(t0y, t1y)), VK(min)(VK(max)(t0z, t1z), tfar));
@@ -299,6 +364,89 @@ static inline int PK_(box_intersect)(const node_t *n, int i, const PK_(packet_pr
     return VKB(mask)(hit);
 }
 
+#if RTK_ROBUST
+/* Lane j of a leaf block against the packet with the watertight test, the
+ * arithmetic of the single-ray triangle4_intersect with the ray and
+ * triangle roles of the lanes swapped: each ray's permuted coordinates are
+ * picked by selection, and a ray whose edge function comes out exactly zero
+ * (or |det| below FLT_MIN) is decided again alone in double precision. */
+static inline vk PK_(permuted)(const PK_(packet_pre) *p, int axis, float x, float y, float z)
+{
+    return VK(select)(p->is_x[axis], VK(set1)(x), VK(select)(p->is_y[axis], VK(set1)(y), VK(set1)(z)));
+}
+
+static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(packet_pre) *p, vk tfar, vk *U_out,
+                                          vk *V_out, vk *T_out, vk *absdet_out)
+{
+    vk tx[3], ty[3], tz[3]; /* per vertex: permuted x and y sheared, and z, relative to the origin */
+    const float *f = (const float *)t;
+    for (int v = 0; v < 3; v++) {
+        const float vx = f[12 * v + j], vy = f[12 * v + 4 + j], vz = f[12 * v + 8 + j];
+        const vk z = VK(sub)(PK_(permuted)(p, 2, vx, vy, vz), p->worg[2]);
+        tx[v] = VK(sub)(VK(sub)(PK_(permuted)(p, 0, vx, vy, vz), p->worg[0]), VK(mul)(p->sx, z));
+        ty[v] = VK(sub)(VK(sub)(PK_(permuted)(p, 1, vx, vy, vz), p->worg[1]), VK(mul)(p->sy, z));
+        tz[v] = VK(mul)(p->sz, z);
+    }
+    const vk U = VK(sub)(VK(mul)(tx[2], ty[1]), VK(mul)(ty[2], tx[1]));
+    const vk V = VK(sub)(VK(mul)(tx[0], ty[2]), VK(mul)(ty[0], tx[2]));
+    const vk W = VK(sub)(VK(mul)(tx[1], ty[0]), VK(mul)(ty[1], tx[0]));
+    const vk zero = VK(set1)(0.0f);
+    const vkb pos = VKB(and)(VKB(and)(VK(ge)(U, zero), VK(ge)(V, zero)), VK(ge)(W, zero));
+    const vkb neg = VKB(and)(VKB(and)(VK(le)(U, zero), VK(le)(V, zero)), VK(le)(W, zero));
+    const vk det = VK(add)(VK(add)(U, V), W);
+    const vk absdet = VK(abs)(det);
+    const vk T = VK(xor_sign)(VK(add)(VK(add)(VK(mul)(U, tz[0]), VK(mul)(V, tz[1])), VK(mul)(W, tz[2])), det);
+    vkb ok = VKB(or)(pos, neg);
+    ok = VKB(and)(ok, VK(ge)(absdet, VK(set1)(FLT_MIN)));
+    ok = VKB(and)(ok, VK(ge)(T, VK(mul)(p->tnear, absdet)));
+    ok = VKB(and)(ok, VK(le)(T, VK(mul)(tfar, absdet)));
+    *U_out = VK(xor_sign)(V, det);
+    *V_out = VK(xor_sign)(W, det);
+    *T_out = T;
+    *absdet_out = absdet;
+    unsigned zeros = (unsigned)VKB(mask)(VKB(or)(VKB(or)(VKB(or)(VK(eq)(U, zero), VK(eq)(V, zero)), VK(eq)(W, zero)),
+                                                 VK(lt)(absdet, VK(set1)(FLT_MIN))));
+    if (__builtin_expect(zeros == 0, 1))
+        return ok;
+    _Alignas(64) float lx[3][RTK_PACKET], ly[3][RTK_PACKET], lz[3][RTK_PACKET];
+    _Alignas(64) float hu[RTK_PACKET], hv[RTK_PACKET], ht[RTK_PACKET], hd[RTK_PACKET], tn[RTK_PACKET],
+        tf[RTK_PACKET];
+    _Alignas(64) int32_t okl[RTK_PACKET];
+    for (int v = 0; v < 3; v++) {
+        VK(store)(lx[v], tx[v]);
+        VK(store)(ly[v], ty[v]);
+        VK(store)(lz[v], tz[v]);
+    }
+    VK(store)(hu, *U_out), VK(store)(hv, *V_out), VK(store)(ht, T), VK(store)(hd, absdet);
+    VK(store)(tn, p->tnear), VK(store)(tf, tfar);
+    const unsigned okm = (unsigned)VKB(mask)(ok);
+    for (int i = 0; i < RTK_PACKET; i++)
+        okl[i] = okm >> i & 1 ? -1 : 0;
+    for (; zeros; zeros &= zeros - 1) {
+        const int i = __builtin_ctz(zeros);
+        const float a2[2] = {lx[0][i], ly[0][i]}, b2[2] = {lx[1][i], ly[1][i]}, c2[2] = {lx[2][i], ly[2][i]};
+        double u, v, w;
+        rtk_watertight_edges_double(a2, b2, c2, &u, &v, &w);
+        const double d = u + v + w;
+        const double tt = d != 0.0 ? (u * lz[0][i] + v * lz[1][i] + w * lz[2][i]) / d : NAN;
+        okl[i] = 0;
+        if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0))
+            continue;
+        if (!(tt >= tn[i] && tt <= tf[i]))
+            continue;
+        okl[i] = -1;
+        hu[i] = (float)(v / d);
+        hv[i] = (float)(w / d);
+        ht[i] = (float)tt;
+        hd[i] = 1.0f;
+    }
+    *U_out = VK(load)(hu);
+    *V_out = VK(load)(hv);
+    *T_out = VK(load)(ht);
+    *absdet_out = VK(load)(hd);
+    return VKB(load)(okl);
+}
+#else
 /* Lane j of a leaf block against the packet, the arithmetic of
  * triangle4_intersect with the ray and triangle roles of the lanes swapped. */
 static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(packet_pre) *p, vk tfar, vk *U_out,
@@ -333,6 +481,7 @@ static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(pac
     *absdet_out = absdet;
     return ok;
 }
+#endif
 
 typedef struct PK_(pstack_entry) {
     vk dist; /* per ray: entry distance, NaN for rays that do not enter */
@@ -358,7 +507,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
 {
     const vkb active = VKB(load)(valid);
     PK_(packet_pre) p;
-    PK_(packet_pre_init)(&p, ray, active);
+    PK_(packet_pre_init)(&p, ray, active, accel);
     vk tfar = VK(select)(active, VK(load)(ray->tfar), VK(set1)(-INFINITY));
     PK_(frustum_init)(&p, (unsigned)VKB(mask)(active));
     vnode fr_tfar = vn_set1(p.frustum ? PK_(reduce_max)(tfar) : 0.0f);

@@ -40,6 +40,7 @@ RTK_INLINE vfloat8 vf8_min(vfloat8 a, vfloat8 b) { return _mm256_min_ps(a, b); }
 RTK_INLINE vfloat8 vf8_max(vfloat8 a, vfloat8 b) { return _mm256_max_ps(a, b); }
 RTK_INLINE vbool8 vf8_lt(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_LT_OQ); }
 RTK_INLINE vbool8 vf8_le(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_LE_OQ); }
+RTK_INLINE vbool8 vf8_eq(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_EQ_OQ); }
 RTK_INLINE vbool8 vf8_gt(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_GT_OQ); }
 RTK_INLINE vbool8 vf8_ge(vfloat8 a, vfloat8 b) { return _mm256_cmp_ps(a, b, _CMP_GE_OQ); }
 RTK_INLINE vfloat8 vf8_select(vbool8 m, vfloat8 a, vfloat8 b) { return _mm256_blendv_ps(b, a, m); } /* m ? a : b */
