@@ -655,6 +655,7 @@ typedef struct bench_opts {
     int api_on[4];
     int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy;
     int render_w, render_h, render_spp;
+    int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
 } bench_opts;
 
 static int parse_list(const char *s, char items[][16], int max)
@@ -696,6 +697,7 @@ static void bench_usage(FILE *f)
             "  --builds N        best of N builds per start time (default: 3)\n"
             "  --edge-rays N     rays aimed at edges per mesh (default: 200000)\n"
             "  --render WxHxS    path tracer image and samples per pixel (default: 512x384x1)\n"
+            "  --robust          trace and render with every library's scene in robust mode (watertight)\n"
             "  --quick           a smoke run: 256x192 rays, 1 pass, 1 build, 1 thread, 20000 edge rays,\n"
             "                    128x96x1 render\n"
             "examples:\n"
@@ -771,10 +773,10 @@ static int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     const rayset *sets = c->sets;
-    printf("\ntrace: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow; best of %d passes; Mrays/s (ratio to "
-           "%s)\n",
-           sets[0].n, 100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, o->repeat,
-           c->libs[0].name);
+    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow; best of %d passes; Mrays/s (ratio "
+           "to %s)\n",
+           o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", sets[0].n,
+           100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, o->repeat, c->libs[0].name);
     printf("  packets of primary rays are 2x2, 4x2, 4x4 pixel blocks, given Embree's coherent flag; packets of\n"
            "  diffuse and shadow rays are those of neighbouring pixels, traced without it\n");
     unsigned char *hits = malloc(sets[0].n), *ref_hits[NSETS];
@@ -791,7 +793,7 @@ static int section_trace(ctx *c, char *err, size_t err_size)
     int done = 0;
     for (int l = 0; l < c->nlibs; l++) {
         scene sc;
-        if (scene_build(&sc, &c->libs[l], c->m, c->padded, MODE_DEFAULT, 1, err, err_size))
+        if (scene_build(&sc, &c->libs[l], c->m, c->padded, o->trace_mode, 1, err, err_size))
             return 1;
         for (int ti = 0; ti < o->nthreads; ti++)
             for (int s = 0; s < NSETS; s++)
@@ -822,7 +824,8 @@ static int section_trace(ctx *c, char *err, size_t err_size)
                 for (int l = 0; l < c->nlibs; l++) {
                     const double v = rate[l][ti][s][a], r = rate[0][ti][s][a];
                     print_cell(v, r, l == 0);
-                    csv_row(&c->csv, "trace", c->libs[l].name, "default", set_names[s], render_api_name(apis[a]),
+                    csv_row(&c->csv, "trace", c->libs[l].name, mode_names[o->trace_mode], set_names[s],
+                            render_api_name(apis[a]),
                             o->threads[ti], v, "Mrays/s", l ? ratio(v, r) : 1.0);
                 }
                 printf("\n");
@@ -889,14 +892,15 @@ static int section_render(ctx *c, char *err, size_t err_size)
         snprintf(err, err_size, "out of memory");
         return 1;
     }
-    printf("\nrender (Tables 2/3 of the Embree paper): rtktool trace's diffuse path tracer, %dx%d, %d spp, up to %d "
+    printf("\nrender (Tables 2/3 of the Embree paper)%s: rtktool trace's diffuse path tracer, %dx%d, %d spp, up to %d "
            "bounces, shading and sampling included; Mrays/s of all rays traced, best of %d (ratio to %s)\n",
-           o->render_w, o->render_h, rs.spp, rs.max_bounces, o->repeat, c->libs[0].name);
+           o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", o->render_w, o->render_h, rs.spp,
+           rs.max_bounces, o->repeat, c->libs[0].name);
     double best[MAXLIBS][4][4] = {{{0}}}; /* lib, threads index, api */
     render_stats first = {0};
     for (int l = 0; l < c->nlibs; l++) {
         scene sc;
-        if (scene_build(&sc, &c->libs[l], c->m, c->padded, MODE_DEFAULT, 1, err, err_size)) {
+        if (scene_build(&sc, &c->libs[l], c->m, c->padded, o->trace_mode, 1, err, err_size)) {
             free(rgb);
             return 1;
         }
@@ -933,7 +937,8 @@ static int section_render(ctx *c, char *err, size_t err_size)
             for (int l = 0; l < c->nlibs; l++) {
                 const double v = best[l][ti][a], r = best[0][ti][a];
                 print_cell(v, r, l == 0);
-                csv_row(&c->csv, "render", c->libs[l].name, "default", "diffuse path tracer", render_api_name(apis[a]),
+                csv_row(&c->csv, "render", c->libs[l].name, mode_names[o->trace_mode], "diffuse path tracer",
+                        render_api_name(apis[a]),
                         o->threads[ti], v, "Mrays/s", ratio(v, r));
             }
             printf("\n");
@@ -1795,6 +1800,8 @@ int cmd_bench(int argc, char **argv)
                 return 2;
             }
             *(!strcmp(a, "--repeat") ? &o.repeat : !strcmp(a, "--builds") ? &o.builds : &o.edge_rays) = (int)v;
+        } else if (!strcmp(a, "--robust")) {
+            o.trace_mode = MODE_ROBUST;
         } else if (!strcmp(a, "--quick")) {
             o.w = 256, o.h = 192, o.repeat = 1, o.builds = 1, o.nthreads = 1, o.threads[0] = 1;
             o.edge_rays = 20000, o.render_w = 128, o.render_h = 96;
