@@ -157,15 +157,31 @@ static inline void rtk_watertight_ray_init(const float d[3], rtk_watertight_ray 
     w->sz = 1.0f / d[kz];
 }
 
-/* The edge functions of the transformed 2D vertices a, b, c (x then y) in
- * double precision: every product of two floats is exact there, so each
- * difference has the exact sign. */
-static inline void rtk_watertight_edges_double(const float a[2], const float b[2], const float c[2], double *u,
-                                               double *v, double *w)
+/* The watertight test decided in double precision, from the transformed
+ * vertices a, b, c (x and y, sheared) and their scaled z (z[k] = sz times
+ * vertex k's z): every product of two floats is exact there, so each edge
+ * function has the exact sign.  Returns 1 and fills *hit (t not clamped to
+ * [tnear, tfar] after its rounding to float: the caller's) on a hit within
+ * [tnear, tfar].  The fallback of every watertight kernel, single rays and
+ * packets, so all decide such rays alike. */
+static inline int rtk_watertight_double(const float a[2], const float b[2], const float c[2], const float z[3],
+                                        float tnear, float tfar, rtk_tri_hit *hit)
 {
-    *u = (double)c[0] * b[1] - (double)c[1] * b[0];
-    *v = (double)a[0] * c[1] - (double)a[1] * c[0];
-    *w = (double)b[0] * a[1] - (double)b[1] * a[0];
+    const double u = (double)c[0] * b[1] - (double)c[1] * b[0];
+    const double v = (double)a[0] * c[1] - (double)a[1] * c[0];
+    const double w = (double)b[0] * a[1] - (double)b[1] * a[0];
+    if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0))
+        return 0;
+    const double det = u + v + w;
+    if (det == 0.0)
+        return 0;
+    const double t = (u * z[0] + v * z[1] + w * z[2]) / det;
+    if (!(t >= tnear && t <= tfar))
+        return 0;
+    hit->t = (float)t;
+    hit->u = (float)(v / det);
+    hit->v = (float)(w / det);
+    return 1;
 }
 
 /*
@@ -187,19 +203,9 @@ static inline int rtk_triangle_intersect_watertight(const float o[3], const rtk_
     const float det = U + V + W;
     const float absdet = fabsf(det);
     if (U == 0.0f || V == 0.0f || W == 0.0f || absdet < FLT_MIN) {
-        double ud, vd, wd;
-        rtk_watertight_edges_double(a, b, c, &ud, &vd, &wd);
-        if ((ud < 0.0 || vd < 0.0 || wd < 0.0) && (ud > 0.0 || vd > 0.0 || wd > 0.0))
+        const float z[3] = {w->sz * az, w->sz * bz, w->sz * cz};
+        if (!rtk_watertight_double(a, b, c, z, tnear, tfar, hit))
             return 0;
-        const double det = ud + vd + wd;
-        if (det == 0.0)
-            return 0;
-        const double t = (ud * (w->sz * az) + vd * (w->sz * bz) + wd * (w->sz * cz)) / det;
-        if (!(t >= tnear && t <= tfar))
-            return 0;
-        hit->t = (float)t;
-        hit->u = (float)(vd / det);
-        hit->v = (float)(wd / det);
         if (hit->t < tnear)
             hit->t = tnear;
         if (hit->t > tfar)

@@ -527,19 +527,15 @@ static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, v
         for (; zeros; zeros &= zeros - 1) {
             const int i = __builtin_ctz(zeros);
             const float a2[2] = {lx[0][i], ly[0][i]}, b2[2] = {lx[1][i], ly[1][i]}, c2[2] = {lx[2][i], ly[2][i]};
-            double u, v, w;
-            rtk_watertight_edges_double(a2, b2, c2, &u, &v, &w);
-            const double d = u + v + w;
-            const double tt = d != 0.0 ? (u * lz[0][i] + v * lz[1][i] + w * lz[2][i]) / d : NAN;
+            const float z[3] = {lz[0][i], lz[1][i], lz[2][i]};
+            rtk_tri_hit hit;
             mask &= ~(1u << i);
-            if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0))
+            if (!rtk_watertight_double(a2, b2, c2, z, tn[i], tf[i], &hit))
                 continue;
-            if (!(tt >= tn[i] && tt <= tf[i]))
-                continue; /* also det = 0 and NaN */
             mask |= 1u << i;
-            hu[i] = (float)(v / d);
-            hv[i] = (float)(w / d);
-            ht[i] = (float)tt;
+            hu[i] = hit.u;
+            hv[i] = hit.v;
+            ht[i] = hit.t;
             hd[i] = 1.0f;
         }
         h->U = vf4_load(hu);
