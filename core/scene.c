@@ -998,6 +998,33 @@ static void install(rtk_scene s, accel_ref *ref, const rtk_build_output *out, co
     remember_built(s);
 }
 
+/* From a builder table: the builder named want_builder (else those serving
+ * `quality`, or with any_quality all of them) whose layout is want_layout
+ * (else honours the most of `flags` and nothing outside them), the first
+ * of equals; NULL if none.  Its layout in *layout_out. */
+static const rtk_builder_entry *pick_builder(const rtk_backend_desc *bk, const rtk_builder_entry *table,
+                                             const char *want_builder, const char *want_layout,
+                                             rtk_build_quality quality, int any_quality, unsigned flags,
+                                             const rtk_layout_entry **layout_out)
+{
+    const rtk_builder_entry *builder = NULL;
+    int best = -1;
+    for (const rtk_builder_entry *b = table; b->name; b++) {
+        if (want_builder ? strcmp(b->name, want_builder) : !any_quality && !(b->qualities & (1u << quality)))
+            continue;
+        const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
+        if (!l || (want_layout ? strcmp(l->name, want_layout) : (l->scene_flags & ~flags) != 0))
+            continue;
+        const int score = __builtin_popcount(l->scene_flags & flags);
+        if (score > best) {
+            best = score;
+            builder = b;
+            *layout_out = l;
+        }
+    }
+    return builder;
+}
+
 /* Builds (or, with `tree`, imports) a tree over the triangles of geoms[0, n)
  * with the builder and layout the scene calls for: *ref_out, with the
  * build's output, the builder's name and the time taken. */
@@ -1025,45 +1052,18 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
         if (!RTK_DESC_HAS(bk, motion_builders) || !bk->motion_builders[0].name)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
                             "%s: backend %s cannot trace motion blur (it predates it)", fn, bk->name);
-        /* among those of the quality (or named), the one whose layout
-         * honours the most of the scene's flags and nothing it did not ask
-         * for (robust: the watertight test) */
-        int best = -1;
-        for (int pass = 0; pass < 2 && !builder; pass++)
-            for (const rtk_builder_entry *b = bk->motion_builders; b->name; b++) {
-                if (pass == 0 ? (want_builder ? strcmp(b->name, want_builder) != 0 : !(b->qualities & (1u << quality)))
-                              : 0)
-                    continue;
-                const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
-                if (!l || (l->scene_flags & ~s->flags))
-                    continue;
-                const int score = __builtin_popcount(l->scene_flags & s->flags);
-                if (score > best) {
-                    best = score;
-                    builder = b;
-                    layout = l;
-                }
-            }
+        /* as for static triangles, by the flags (robust: the watertight
+         * test): the named builder or those of the quality, else any */
+        for (int any = 0; any < 2 && !builder; any++)
+            builder = pick_builder(bk, bk->motion_builders, any ? NULL : want_builder, NULL, quality, any, s->flags,
+                                   &layout);
         if (!builder) {
             builder = bk->motion_builders;
             layout = rtk_backend_find_layout(bk, builder->layout);
         }
     }
     for (int any_quality = want_builder != NULL; steps == 1 && any_quality < 2 && !builder; any_quality++) {
-        int best = -1;
-        for (const rtk_builder_entry *b = bk->builders; b->name; b++) {
-            if (want_builder ? strcmp(b->name, want_builder) : !any_quality && !(b->qualities & (1u << quality)))
-                continue;
-            const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
-            if (!l || (want_layout ? strcmp(l->name, want_layout) : (l->scene_flags & ~s->flags) != 0))
-                continue;
-            const int score = __builtin_popcount(l->scene_flags & s->flags);
-            if (score > best) {
-                best = score;
-                builder = b;
-                layout = l;
-            }
-        }
+        builder = pick_builder(bk, bk->builders, want_builder, want_layout, quality, any_quality, s->flags, &layout);
         if (builder && any_quality && !want_builder)
             rtk_log(dev, 1, "scene: no builder for quality %d in backend %s; using %s", (int)quality, bk->name,
                     builder->name);
