@@ -10,6 +10,8 @@
 #include <string.h>
 #include <unistd.h>
 
+#include "mesh_import.h"
+
 /* Writes data to a file in /dev/shm (or TMPDIR) named with `suffix`, and
  * returns its path in buf; NULL if it cannot. */
 static inline const char *fuzz_file(const uint8_t *data, size_t size, const char *suffix, char *buf, size_t buf_size)
@@ -23,6 +25,21 @@ static inline const char *fuzz_file(const uint8_t *data, size_t size, const char
     if (fclose(f) != 0 || n != size)
         return NULL;
     return buf;
+}
+
+/* What a mesh reader (rtk_mesh_load, rtkm_load) must give for any bytes:
+ * a mesh whose every index is in range (freed here), or an error that says
+ * why; abort() otherwise, for libFuzzer to report. */
+static inline void fuzz_check_mesh(int rc, rtk_mesh *mesh, const char *err)
+{
+    if (rc == 0) {
+        for (size_t i = 0; i < 3 * mesh->triangle_count; i++)
+            if (mesh->indices[i] >= mesh->vertex_count)
+                abort();
+        rtk_mesh_free(mesh);
+    } else if (!err[0]) {
+        abort();
+    }
 }
 
 #endif

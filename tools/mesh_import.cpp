@@ -176,6 +176,8 @@ bool off_header_ok(const char *path, std::string &why)
     }
     char buf[4096];
     size_t n = std::fread(buf, 1, sizeof buf - 1, f);
+    std::fseek(f, 0, SEEK_END);
+    const double size = (double)std::ftell(f);
     std::fclose(f);
     buf[n] = '\0';
     std::istringstream in(std::string(buf, n));
@@ -204,14 +206,6 @@ bool off_header_ok(const char *path, std::string &why)
     // the end of the file (millions of empty ones for a bad count, found by
     // fuzz/fuzz_mesh): they must fit in the file, at least "0 0 0" and
     // "3 0 0 0" with a separator each.
-    f = std::fopen(path, "rb");
-    if (!f) {
-        why = std::strerror(errno);
-        return false;
-    }
-    std::fseek(f, 0, SEEK_END);
-    const double size = (double)std::ftell(f);
-    std::fclose(f);
     const double need = 6.0 * (double)counts[0] + 8.0 * (double)counts[1];
     if (need > size) {
         why = "malformed OFF: " + std::to_string(counts[0]) + " vertices and " + std::to_string(counts[1]) +
