@@ -30,14 +30,14 @@ const char *rtk_error_name(rtk_error code)
 /* Errors of calls that have no device (a failed rtk_device_new, a NULL
  * handle) are kept per thread. */
 static _Thread_local rtk_error tls_error;
-static _Thread_local char tls_message[1024];
+static _Thread_local char tls_message[RTK_MESSAGE_MAX];
 /* What rtk_device_get_error_message returns: a per-thread copy, so another
  * thread's error cannot change it under the caller. */
-static _Thread_local char tls_copy[1024];
+static _Thread_local char tls_copy[RTK_MESSAGE_MAX];
 
 rtk_error rtk_fail(rtk_device device, rtk_error code, const char *fmt, ...)
 {
-    char text[1024];
+    char text[RTK_MESSAGE_MAX];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(text, sizeof text, fmt, ap);

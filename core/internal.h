@@ -12,6 +12,8 @@
 #include "rtk/rtk_backend.h"
 
 #define RTK_INTERNAL __attribute__((visibility("hidden")))
+/* Error messages, with room for one line per backend file the device looked at. */
+#define RTK_MESSAGE_MAX 4096
 
 /* ---- config ---- */
 typedef struct rtk_config {
@@ -42,6 +44,7 @@ typedef struct rtk_backend_entry {
     char reason[512];
     uint32_t interface_version;
     uint32_t level;
+    uint32_t header_version; /* the header's interface_version: the newest the backend speaks (0: unknown) */
     uint64_t cpu_requires;
     void *handle;                /* dlopen handle, kept only for the active backend */
     const rtk_backend_desc *desc;
@@ -88,7 +91,7 @@ struct rtk_device_s {
 
     pthread_mutex_t lock; /* guards the error state */
     rtk_error error;      /* sticky: first since the last get */
-    char message[1024];   /* of the most recent error */
+    char message[RTK_MESSAGE_MAX]; /* of the most recent error */
     rtk_error_callback callback;
     void *callback_user;
 

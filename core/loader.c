@@ -29,8 +29,9 @@
 #define FILE_PREFIX "librtk_backend_"
 #define FILE_SUFFIX ".so"
 
-/* The oldest and newest backend interface versions this core speaks. */
-#define CORE_INTERFACE_MIN 1
+/* The oldest and newest backend interface versions this core speaks: 2
+ * only, since version 2 changed the kernels' signature (rtk_query). */
+#define CORE_INTERFACE_MIN 2
 #define CORE_INTERFACE_MAX RTK_BACKEND_INTERFACE_VERSION
 
 /* The smallest descriptor/header a version-1 backend may declare. */
@@ -265,6 +266,7 @@ static void load_one(rtk_backend_entry *e, uint64_t cpu)
         return;
     }
     e->level = h->level;
+    e->header_version = h->interface_version;
     e->cpu_requires = h->cpu_requires;
     uint64_t missing = h->cpu_requires & ~cpu;
     if (missing) {
@@ -290,8 +292,15 @@ static void load_one(rtk_backend_entry *e, uint64_t cpu)
     };
     rtk_backend_answer answer = {.struct_size = sizeof answer};
     if (negotiate(&offer, &answer) != 0) {
-        reject(e, "refused to negotiate: the core speaks backend interface versions %d to %d", CORE_INTERFACE_MIN,
-               CORE_INTERFACE_MAX);
+        /* (the header's interface_version only names the backend's side) */
+        const uint32_t v = e->header_version;
+        if (v)
+            reject(e, "refused to negotiate: the backend speaks backend interface version %u, this core (rtk %s) "
+                   "versions %d to %d", v, RTK_VERSION_STRING, CORE_INTERFACE_MIN, CORE_INTERFACE_MAX);
+        else
+            reject(e, "refused to negotiate: the backend predates rtk 0.2.0 (backend interface version 1), this "
+                   "core (rtk %s) speaks versions %d to %d", RTK_VERSION_STRING, CORE_INTERFACE_MIN,
+                   CORE_INTERFACE_MAX);
         return;
     }
     if (answer.version < CORE_INTERFACE_MIN || answer.version > CORE_INTERFACE_MAX) {

@@ -86,6 +86,9 @@ struct rtk_geometry_s {
     int enabled;
     int committed;
     void *user;
+    /* Read at the scene's commit into its tree (rtk_geometry_attrs). */
+    uint32_t mask;
+    rtk_filter_fn intersect_filter, occluded_filter;
     /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained), the
      * transform from its space (row-major 3x4) and, once committed, the
      * inverse. */
@@ -199,6 +202,7 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     g->quality = RTK_BUILD_QUALITY_MEDIUM;
     g->enabled = 1;
     g->time_steps = 1;
+    g->mask = ~0u;
     rtk_device_retain(device);
     *out = g;
     return RTK_OK;
@@ -407,11 +411,55 @@ rtk_error rtk_geometry_disable(rtk_geometry g)
     return RTK_OK;
 }
 
+/* The attributes a scene's tree copies (mask, filters, the user data the
+ * filters see) changed: like the triangles, they need the geometry
+ * committed again and the tree built afresh, so they count as a new index
+ * buffer (refit and a dynamic scene's kept trees compare its version). */
+static void attrs_changed(rtk_geometry g)
+{
+    buffer_changed(g, RTK_BUFFER_TYPE_INDEX);
+}
+
 rtk_error rtk_geometry_set_user_data(rtk_geometry g, void *user)
 {
     CHECK_HANDLE(g, "rtk_geometry_set_user_data");
+    if (user != g->user && (g->intersect_filter || g->occluded_filter))
+        attrs_changed(g);
     g->user = user;
     return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_mask(rtk_geometry g, uint32_t mask)
+{
+    CHECK_HANDLE(g, "rtk_geometry_set_mask");
+    if (mask != g->mask)
+        attrs_changed(g);
+    g->mask = mask;
+    return RTK_OK;
+}
+
+static rtk_error set_filter(rtk_geometry g, int occluded, rtk_filter_fn filter, const char *fn)
+{
+    if (!g)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: geometry is NULL", fn);
+    if (g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                        "%s: only triangle geometry has filters (set them on the instanced scene's geometries)", fn);
+    rtk_filter_fn *slot = occluded ? &g->occluded_filter : &g->intersect_filter;
+    if (*slot != filter)
+        attrs_changed(g);
+    *slot = filter;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_intersect_filter(rtk_geometry g, rtk_filter_fn filter)
+{
+    return set_filter(g, 0, filter, "rtk_geometry_set_intersect_filter");
+}
+
+rtk_error rtk_geometry_set_occluded_filter(rtk_geometry g, rtk_filter_fn filter)
+{
+    return set_filter(g, 1, filter, "rtk_geometry_set_occluded_filter");
 }
 
 void *rtk_geometry_get_user_data(rtk_geometry g)
@@ -1081,11 +1129,31 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
 
     rtk_task_system task_copy;
     rtk_build_input in = build_input(quality, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
+    /* masks and filters: passed only when some geometry has one, so a
+     * scene without any builds a tree whose kernels test nothing more */
+    rtk_geometry_attrs *attrs = NULL;
+    for (size_t k = 0; k < n; k++) {
+        const rtk_geometry g = s->geoms[in_geoms[k].geom_id];
+        if (g->mask != ~0u || g->intersect_filter || g->occluded_filter) {
+            attrs = calloc(n, sizeof *attrs);
+            if (!attrs)
+                return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+            for (size_t j = 0; j < n; j++) {
+                const rtk_geometry h = s->geoms[in_geoms[j].geom_id];
+                attrs[j] = (rtk_geometry_attrs){.mask = h->mask, .intersect_filter = h->intersect_filter,
+                                                .occluded_filter = h->occluded_filter, .user = h->user};
+            }
+            in.attrs = attrs;
+            break;
+        }
+    }
     rtk_build_vertices *time_vertices = NULL;
     if (steps > 1) {
         time_vertices = calloc(n * steps, sizeof *time_vertices);
-        if (!time_vertices)
+        if (!time_vertices) {
+            free(attrs);
             return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+        }
         for (size_t k = 0; k < n; k++)
             for (unsigned t = 0; t < steps; t++) {
                 const rtk_geometry g = s->geoms[in_geoms[k].geom_id];
@@ -1102,15 +1170,19 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
         /* Everything the backend will trust is checked here first. */
         const rtk_layout_io_entry *io = find_layout_io(bk, layout->id);
         char why[256];
-        if (!io)
-            return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot import a tree into layout %s", fn,
-                            bk->name, layout->name);
         uint64_t non_finite = 0, degenerate = 0, in_tree = 0;
-        rtk_error err = rtk_bvh_check(tree, why, sizeof why);
-        if (!err)
-            err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, &in_tree, why, sizeof why);
-        if (err)
-            return rtk_fail(dev, err, "%s: %s", fn, why);
+        rtk_error err = RTK_OK;
+        if (!io)
+            err = rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot import a tree into layout %s", fn,
+                           bk->name, layout->name);
+        else if ((err = rtk_bvh_check(tree, why, sizeof why)) ||
+                 (err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, &in_tree, why,
+                                          sizeof why)))
+            rtk_fail(dev, err, "%s: %s", fn, why);
+        if (err) {
+            free(attrs);
+            return err;
+        }
         rc = io->import_tree(&in, tree, &out);
         /* the tree may hold a triangle more than once (spatial splits) */
         out.refs = tree->prim_count;
@@ -1122,6 +1194,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     }
     double t1 = now_seconds();
     free(time_vertices);
+    free(attrs);
     if (rc != 0)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
@@ -1238,7 +1311,8 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     for (uint32_t o = 0; o < own_count; o++) {
         const accel_ref *t = own[o];
         objs[k] = (rtk_build_object){.accel = t->accel, .intersect1 = t->intersect1, .occluded1 = t->occluded1,
-                                     .inst_id = RTK_INVALID_GEOMETRY_ID, .flags = RTK_BUILD_OBJECT_IDENTITY};
+                                     .inst_id = RTK_INVALID_GEOMETRY_ID, .flags = RTK_BUILD_OBJECT_IDENTITY,
+                                     .mask = ~0u};
         memcpy(objs[k].world_to_object, identity_3x4, sizeof identity_3x4);
         memcpy(objs[k].lower, t->lower, sizeof t->lower);
         memcpy(objs[k].upper, t->upper, sizeof t->upper);
@@ -1251,7 +1325,7 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         accel_ref *c = g->instanced->ref;
         atomic_fetch_add(&c->refs, 1);
         objs[k] = (rtk_build_object){.accel = c->accel, .intersect1 = c->intersect1, .occluded1 = c->occluded1,
-                                     .inst_id = i};
+                                     .inst_id = i, .mask = g->mask};
         memcpy(objs[k].world_to_object, g->inv, sizeof g->inv);
         world_box(g->xfm, c->lower, c->upper, objs[k].lower, objs[k].upper);
         children[k++] = c;
@@ -1655,33 +1729,55 @@ static inline int ray_valid(const rtk_ray *r)
     /* 0 * x is 0 for finite x and NaN for NaN or infinity. */
     float f = 0.0f * r->org_x + 0.0f * r->org_y + 0.0f * r->org_z + 0.0f * r->dir_x + 0.0f * r->dir_y +
               0.0f * r->dir_z + 0.0f * r->tnear;
-    return f == 0.0f && r->tnear >= 0.0f && r->tnear <= r->tfar;
+    return f == 0.0f && r->tnear >= 0.0f && r->tnear <= r->tfar && r->mask != 0;
+}
+
+static inline rtk_error intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query_context *ctx, const char *fn)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (!rh)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: rayhit is NULL", fn);
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+    const rtk_query q = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
+    if (ray_valid(&rh->ray))
+        s->intersect1(s->accel, rh, &q);
+    return RTK_OK;
+}
+
+static inline rtk_error occluded1(rtk_scene s, rtk_ray *ray, const rtk_query_context *ctx, const char *fn)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (!ray)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: ray is NULL", fn);
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+    const rtk_query q = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
+    if (ray_valid(ray))
+        s->occluded1(s->accel, ray, &q);
+    return RTK_OK;
 }
 
 rtk_error rtk_intersect1(rtk_scene s, rtk_rayhit *rh)
 {
-    if (!s)
-        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_intersect1: scene is NULL");
-    if (!rh)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_intersect1: rayhit is NULL");
-    if (!s->accel)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_intersect1: the scene was never committed");
-    if (ray_valid(&rh->ray))
-        s->intersect1(s->accel, rh);
-    return RTK_OK;
+    return intersect1(s, rh, NULL, "rtk_intersect1");
 }
 
 rtk_error rtk_occluded1(rtk_scene s, rtk_ray *ray)
 {
-    if (!s)
-        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_occluded1: scene is NULL");
-    if (!ray)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_occluded1: ray is NULL");
-    if (!s->accel)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_occluded1: the scene was never committed");
-    if (ray_valid(ray))
-        s->occluded1(s->accel, ray);
-    return RTK_OK;
+    return occluded1(s, ray, NULL, "rtk_occluded1");
+}
+
+rtk_error rtk_intersect1_ctx(rtk_scene s, rtk_rayhit *rh, const rtk_query_context *ctx)
+{
+    return intersect1(s, rh, ctx, "rtk_intersect1_ctx");
+}
+
+rtk_error rtk_occluded1_ctx(rtk_scene s, rtk_ray *ray, const rtk_query_context *ctx)
+{
+    return occluded1(s, ray, ctx, "rtk_occluded1_ctx");
 }
 
 /* ---- packets ----
@@ -1703,7 +1799,8 @@ static void copy_lanes(void *dst, size_t dst_n, size_t dst_lane, const void *src
         memcpy((uint32_t *)dst + f * dst_n + dst_lane, (const uint32_t *)src + f * src_n + src_lane, lanes * 4);
 }
 
-static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint32_t n, int occluded)
+static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint32_t n, int occluded,
+                              const rtk_query_context *ctx)
 {
     /* The name for messages, e.g. "rtk_intersect8": formatted by rtk_fail only on an error. */
     const char *q = occluded ? "occluded" : "intersect";
@@ -1727,10 +1824,12 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
     }
     if (!any)
         return RTK_OK;
+    const rtk_query query = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
+    const rtk_query *qp = &query;
     const struct packet_kernel *k = &s->packet[occluded][n == 4 ? 0 : n == 8 ? 1 : 2];
     const size_t fields = occluded ? RAY_FIELDS : RAYHIT_FIELDS;
     if (k->width == n) {
-        k->fn(s->accel, active, packet);
+        k->fn(s->accel, active, packet, qp);
     } else if (k->width > 1) { /* narrower packets: through an aligned copy */
         _Alignas(64) uint32_t sub[RAYHIT_FIELDS * 16];
         for (uint32_t base = 0; base < n; base += k->width) {
@@ -1740,7 +1839,7 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
             if (!sub_any)
                 continue;
             copy_lanes(sub, k->width, 0, packet, n, base, k->width, fields);
-            k->fn(s->accel, active + base, sub);
+            k->fn(s->accel, active + base, sub, qp);
             for (uint32_t i = 0; i < k->width; i++)
                 if (active[base + i])
                     copy_lanes(packet, n, base + i, sub, k->width, i, 1, fields);
@@ -1752,9 +1851,9 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
             rtk_rayhit rh;
             copy_lanes(&rh, 1, 0, packet, n, i, 1, fields);
             if (occluded)
-                s->occluded1(s->accel, &rh.ray);
+                s->occluded1(s->accel, &rh.ray, qp);
             else
-                s->intersect1(s->accel, &rh);
+                s->intersect1(s->accel, &rh, qp);
             copy_lanes(packet, n, i, &rh, 1, 0, 1, fields);
         }
     }
@@ -1764,11 +1863,20 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
 #define RTK_PACKET_ENTRY_POINTS_(N)                                                                                    \
     rtk_error rtk_intersect##N(rtk_scene s, const int *valid, rtk_rayhit##N *rayhit)                                  \
     {                                                                                                                  \
-        return trace_packet(s, valid, rayhit, N, 0);                                                                   \
+        return trace_packet(s, valid, rayhit, N, 0, NULL);                                                             \
     }                                                                                                                  \
     rtk_error rtk_occluded##N(rtk_scene s, const int *valid, rtk_ray##N *ray)                                         \
     {                                                                                                                  \
-        return trace_packet(s, valid, ray, N, 1);                                                                      \
+        return trace_packet(s, valid, ray, N, 1, NULL);                                                                \
+    }                                                                                                                  \
+    rtk_error rtk_intersect##N##_ctx(rtk_scene s, const int *valid, rtk_rayhit##N *rayhit,                            \
+                                     const rtk_query_context *ctx)                                                     \
+    {                                                                                                                  \
+        return trace_packet(s, valid, rayhit, N, 0, ctx);                                                              \
+    }                                                                                                                  \
+    rtk_error rtk_occluded##N##_ctx(rtk_scene s, const int *valid, rtk_ray##N *ray, const rtk_query_context *ctx)     \
+    {                                                                                                                  \
+        return trace_packet(s, valid, ray, N, 1, ctx);                                                                 \
     }
 RTK_PACKET_ENTRY_POINTS_(4)
 RTK_PACKET_ENTRY_POINTS_(8)

@@ -242,7 +242,7 @@ static void instances_vs_reference(void **state)
                     single[l].hit.geomID = RTK_INVALID_GEOMETRY_ID;
                     p16.ray.org_x[l] = o[0], p16.ray.org_y[l] = o[1], p16.ray.org_z[l] = o[2];
                     p16.ray.dir_x[l] = d[0], p16.ray.dir_y[l] = d[1], p16.ray.dir_z[l] = d[2];
-                    p16.ray.tnear[l] = 0.0f, p16.ray.tfar[l] = INFINITY;
+                    p16.ray.tnear[l] = 0.0f, p16.ray.tfar[l] = INFINITY, p16.ray.mask[l] = ~0u;
                     p16.hit.geomID[l] = RTK_INVALID_GEOMETRY_ID;
                     assert_int_equal(rtk_intersect1(top, &single[l]), RTK_OK);
                 }

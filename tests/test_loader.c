@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "rtk/rtk_backend.h"
 #include "testlib.h"
 
 static const rtk_backend_info *find(rtk_device dev, const char *name, rtk_backend_info *bi)
@@ -34,8 +35,12 @@ static void test_fixtures_rejected_good_ones_load(void **state)
     rtk_error err = rtk_device_new("backend_path=" RTK_TEST_FIXTURES ":" RTK_TEST_BACKENDS, &dev);
     if (err)
         fail_msg("%s", rtk_device_get_error_message(NULL));
-    expect_rejected(dev, "future", "refused to negotiate: the core speaks backend interface versions 1 to 1");
-    expect_rejected(dev, "ancient", "answered backend interface version 0; the core speaks versions 1 to 1");
+    /* a version mismatch names both sides' versions */
+    expect_rejected(dev, "future", "refused to negotiate: the backend speaks backend interface version 99, this core "
+                                   "(rtk " RTK_VERSION_STRING ") versions 2 to 2");
+    expect_rejected(dev, "old", "refused to negotiate: the backend predates rtk 0.2.0 (backend interface version 1), "
+                                "this core (rtk " RTK_VERSION_STRING ") speaks versions 2 to 2");
+    expect_rejected(dev, "ancient", "answered backend interface version 0; the core speaks versions 2 to 2");
     expect_rejected(dev, "noentry", "missing entry point rtk_backend_noentry_negotiate");
     expect_rejected(dev, "smalldesc", "descriptor too small: 8 bytes");
     expect_rejected(dev, "nocpu", "this CPU lacks unknown(0x8000000000000000)");
@@ -47,7 +52,7 @@ static void test_fixtures_rejected_good_ones_load(void **state)
     /* The real backends load, and the best the CPU runs is active. */
     find(dev, "scalar", &bi);
     assert_true(bi.status != RTK_BACKEND_STATUS_REJECTED);
-    assert_int_equal(bi.interface_version, 1);
+    assert_int_equal(bi.interface_version, RTK_BACKEND_INTERFACE_VERSION);
     const uint64_t cpu = rtk_cpu_features();
     const char *best = (cpu & RTK_CPU_AVX2) && (cpu & RTK_CPU_FMA) ? "avx2" : (cpu & RTK_CPU_AVX) ? "avx"
                        : (cpu & RTK_CPU_SSE41)                      ? "sse41"

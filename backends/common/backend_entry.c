@@ -270,6 +270,7 @@ const rtk_backend_header HEADER_SYM = {
     .struct_size = sizeof(rtk_backend_header),
     .name = RTK_STR(RTK_BACKEND_NAME),
     .level = RTK_BACKEND_LEVEL,
+    .interface_version = RTK_BACKEND_INTERFACE_VERSION,
     .cpu_requires = RTK_BACKEND_CPU_REQUIRES,
 };
 

@@ -202,10 +202,11 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
     bd->leaves = build_reserve_huge(accel->tris_mapped);
     if (bd->indexed)
         accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
-    if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms)) {
+    if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms) || !rtk_accel_copy_attrs(accel, in)) {
         build_unreserve(bd->nodes, accel->nodes_mapped);
         build_unreserve(bd->leaves, accel->tris_mapped);
         free(accel->geoms);
+        free(accel->attrs);
         free(accel);
         return NULL;
     }
@@ -231,7 +232,8 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
     out->prims = prims;
     out->nodes = accel->node_count;
     out->leaves = accel->leaf_count;
-    out->bytes = accel->node_count * bd->node_size + accel->leaf_count * bd->leaf_size + geom_bytes;
+    out->bytes = accel->node_count * bd->node_size + accel->leaf_count * bd->leaf_size + geom_bytes +
+                 accel->attr_count * sizeof *accel->attrs;
     out->depth = prims ? depth : 0;
     const float root_area = box_half_area(bounds);
     out->sah_cost = root_area > 0.0f ? tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
@@ -341,5 +343,6 @@ void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
     build_unreserve(accel->nodes, accel->nodes_mapped);
     build_unreserve(accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped);
     free(accel->geoms);
+    free(accel->attrs);
     free(accel);
 }

@@ -182,6 +182,7 @@ static void release_segments(struct rtk_accel *accel)
     for (uint32_t g = 0; accel->mb_geoms && g < accel->mb_geom_count; g++)
         free(accel->mb_geoms[g].vertices);
     free(accel->mb_geoms);
+    free(accel->attrs);
 }
 
 void RTK_SYM(rtk_motion_release)(rtk_accel *accel)
@@ -241,7 +242,8 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         accel->mb_geom_count = in->geometry_count;
     }
     m.out = accel;
-    if (!accel || !accel->segments || !accel->mb_geoms || !mid || !bad || !geoms || !index_of) {
+    if (!accel || !accel->segments || !accel->mb_geoms || !mid || !bad || !geoms || !index_of ||
+        !rtk_accel_copy_attrs(accel, in)) {
         rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
         goto done;
     }

@@ -20,6 +20,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 #include "backend_common.h"
 #include "rtk/rtk_backend.h"
@@ -207,6 +208,33 @@ struct rtk_accel {
     /* the largest side of the tree's box: the robust traversal pads every
      * box by a few ulps of it (traverse_bvhn.h) */
     float extent;
+    /* masks and filters by geometry id (attr_count entries), copied from
+     * rtk_build_input.attrs; NULL when the build had none, and then the
+     * kernels never look (traverse_bvhn.h, ray_pre.feat) */
+    rtk_geometry_attrs *attrs;
+    uint32_t attr_count;
 };
+
+/* Copies in->attrs into accel->attrs, by geometry id; 0 when out of memory. */
+static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_input *in)
+{
+    accel->attrs = NULL;
+    accel->attr_count = 0;
+    if (in->struct_size < offsetof(rtk_build_input, attrs) + sizeof in->attrs || !in->attrs)
+        return 1;
+    uint32_t count = 0;
+    for (uint32_t g = 0; g < in->geometry_count; g++)
+        count = in->geometries[g].geom_id + 1 > count ? in->geometries[g].geom_id + 1 : count;
+    rtk_geometry_attrs *a = malloc((count ? count : 1) * sizeof *a);
+    if (!a)
+        return 0;
+    for (uint32_t i = 0; i < count; i++)
+        a[i] = (rtk_geometry_attrs){.mask = ~0u};
+    for (uint32_t g = 0; g < in->geometry_count; g++)
+        a[in->geometries[g].geom_id] = in->attrs[g];
+    accel->attrs = a;
+    accel->attr_count = count;
+    return 1;
+}
 
 #endif

@@ -11,41 +11,41 @@ RTK_HIDDEN void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel);
 RTK_HIDDEN int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *tree);
 RTK_HIDDEN int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *tree, rtk_build_output *out);
 RTK_HIDDEN int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded1)(const rtk_accel *accel, rtk_ray *ray);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded1)(const rtk_accel *accel, rtk_ray *ray);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded1)(const rtk_accel *accel, rtk_ray *ray);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect4)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded4)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect8)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
 RTK_HIDDEN int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_objects_release)(rtk_accel *accel);
-RTK_HIDDEN void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 RTK_HIDDEN int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_motion_release)(rtk_accel *accel);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4v_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4v_occluded1)(const rtk_accel *accel, rtk_ray *ray);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8v_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh8v_occluded1)(const rtk_accel *accel, rtk_ray *ray);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4v_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4v_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8v_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8v_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4ir_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 #define RTK_PACKET_DECL_(tag, k)                                                                                      \
-    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_intersect##k)(const rtk_accel *accel, const int32_t *active, void *packet); \
-    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_occluded##k)(const rtk_accel *accel, const int32_t *active, void *packet);
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_intersect##k)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q); \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_occluded##k)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
 RTK_PACKET_DECL_(4v, 4)
 RTK_PACKET_DECL_(4v, 8)
 RTK_PACKET_DECL_(8v, 4)
@@ -53,6 +53,6 @@ RTK_PACKET_DECL_(8v, 8)
 RTK_PACKET_DECL_(4ir, 4)
 RTK_PACKET_DECL_(4ir, 8)
 #undef RTK_PACKET_DECL_
-RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit);
-RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 #endif

@@ -403,7 +403,16 @@ static int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local
 
 #define OBJ_STACK (3 * RTK_BVH4_MAX_DEPTH + 4)
 
-void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh)
+/* The query an object's tree gets: the outermost instance's id. */
+static inline rtk_query object_query(const rtk_build_object *o, const rtk_query *q)
+{
+    rtk_query cq = *q;
+    if (cq.inst_id == RTK_INVALID_GEOMETRY_ID)
+        cq.inst_id = o->inst_id;
+    return cq;
+}
+
+void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
@@ -425,10 +434,11 @@ void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh)
             for (uint32_t i = first; i < end; i++) {
                 const rtk_build_object *o = &accel->objects[i];
                 rtk_rayhit local;
-                if (!to_object(o, &rh->ray, &local.ray))
+                if (!(o->mask & rh->ray.mask) || !to_object(o, &rh->ray, &local.ray))
                     continue;
                 local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
-                o->intersect1(o->accel, &local);
+                const rtk_query cq = object_query(o, q);
+                o->intersect1(o->accel, &local, &cq);
                 if (local.hit.geomID == RTK_INVALID_GEOMETRY_ID)
                     continue;
                 rh->ray.tfar = local.ray.tfar;
@@ -448,7 +458,7 @@ void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh)
     }
 }
 
-void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray)
+void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
@@ -465,9 +475,10 @@ void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray)
             for (uint32_t i = first; i < end; i++) {
                 const rtk_build_object *o = &accel->objects[i];
                 rtk_ray local;
-                if (!to_object(o, ray, &local))
+                if (!(o->mask & ray->mask) || !to_object(o, ray, &local))
                     continue;
-                o->occluded1(o->accel, &local);
+                const rtk_query cq = object_query(o, q);
+                o->occluded1(o->accel, &local, &cq);
                 if (local.tfar == -INFINITY) {
                     ray->tfar = -INFINITY;
                     return;

@@ -27,10 +27,10 @@ static inline const rtk_accel *segment_at(const rtk_accel *accel, float time, ra
     return seg->root == RTK_BVH4_EMPTY ? NULL : seg;
 }
 
-void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
+void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
 {
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel);
+    ray_pre_init(&p, &rayhit->ray, accel, q);
     const rtk_accel *seg = segment_at(accel, rayhit->ray.time, &p);
     if (!seg)
         return;
@@ -41,10 +41,10 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
         closest_hit_store(seg, &best, &p, tfar, rayhit);
 }
 
-void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
+void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     ray_pre p;
-    ray_pre_init(&p, ray, accel);
+    ray_pre_init(&p, ray, accel, q);
     const rtk_accel *seg = segment_at(accel, ray->time, &p);
     if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar))
         ray->tfar = -INFINITY;

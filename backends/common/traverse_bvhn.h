@@ -174,7 +174,18 @@ typedef struct ray_pre {
     vnode ftime;          /* the ray's time in its segment, for the planes */
     vfloat4 f4, one_f4;   /* the same and 1 - it, for the vertices */
 #endif
+    /* Masks, culling and filters (rtk.h): feat is non-zero when the ray
+     * asks for culling or the tree holds geometry attributes, and only
+     * then are candidate hits handed to accept_lane, one by one; the
+     * usual path pays one test of feat per leaf block hit. */
+    unsigned feat;
+    const rtk_geometry_attrs *attrs;
+    const rtk_ray *ray;
+    const rtk_query *q;
 } ray_pre;
+
+#define RTK_FEAT_CULL (RTK_RAY_FLAG_CULL_BACK | RTK_RAY_FLAG_CULL_FRONT)
+#define RTK_FEAT_ATTRS (1u << 8)
 
 /* Everything per axis is computed for x, y, z at once in lanes 0..2 of
  * 4-wide vectors (lane 3 carries tnear or time and is never used), then
@@ -183,9 +194,12 @@ typedef struct ray_pre {
  * ray's instructions on dragon.ply: 176 of 1648, callgrind).  The values
  * are those of per-axis arithmetic bit for bit (the same IEEE operations
  * lane by lane). */
-static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel)
+static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel, const rtk_query *q)
 {
-    (void)accel;
+    p->feat = (r->flags & RTK_FEAT_CULL) | (accel->attrs ? RTK_FEAT_ATTRS : 0u);
+    p->attrs = accel->attrs;
+    p->ray = r;
+    p->q = q;
     static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
     static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
@@ -613,6 +627,89 @@ static inline void lane_triangle(const block_t *t, int lane, float v0[3], float 
 }
 #endif
 
+/* Whether a candidate hit counts (rtk.h: masks, culling, filters): lane
+ * `lane` of block t at distance tt with barycentrics u, v, for a ray whose
+ * closest hit so far is at tfar; occluded selects the filter. */
+static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, const ray_pre *p, float tt, float u,
+                                                 float v, float tfar, int occluded)
+{
+    float v0[3], e1[3], e2[3], ng[3];
+    lane_triangle(t, lane, v0, e1, e2);
+    rtk_triangle_normal(e1, e2, ng);
+    const rtk_ray *r = p->ray;
+    if (p->feat & RTK_FEAT_CULL) {
+        const float dn = r->dir_x * ng[0] + r->dir_y * ng[1] + r->dir_z * ng[2];
+        if (((r->flags & RTK_RAY_FLAG_CULL_BACK) && dn > 0.0f) || ((r->flags & RTK_RAY_FLAG_CULL_FRONT) && dn < 0.0f))
+            return 0;
+    }
+    if (!p->attrs)
+        return 1;
+    const rtk_geometry_attrs *a = &p->attrs[t->geom[lane]];
+    if (!(a->mask & r->mask))
+        return 0;
+    const rtk_filter_fn filter = occluded ? a->occluded_filter : a->intersect_filter;
+    if (!filter)
+        return 1;
+    rtk_ray ray = *r;
+    ray.tfar = tfar;
+    const rtk_hit hit = {.Ng_x = ng[0], .Ng_y = ng[1], .Ng_z = ng[2], .u = u, .v = v, .primID = t->prim[lane],
+                         .geomID = t->geom[lane], .instID = p->q->inst_id};
+    const rtk_filter_args args = {.geometry_user = a->user, .context = p->q->context, .ray = &ray, .hit = &hit,
+                                  .t = tt};
+    return filter(&args) != 0;
+}
+
+/* The closest-hit query's candidates of one block (mask, the lanes hit
+ * within [tnear, tfar]) through accept_lane, nearest first: the mask of
+ * the nearest accepted, or 0. */
+static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const ray_pre *p, const tri4_hit *h,
+                                                         unsigned mask, float tnear_s, float tfar_s)
+{
+    _Alignas(16) float T[4], absdet[4], U[4], V[4];
+    vf4_store(T, h->T);
+    vf4_store(absdet, h->absdet);
+    vf4_store(U, h->U);
+    vf4_store(V, h->V);
+    while (mask) {
+        int lane = -1;
+        float tl = 0.0f;
+        for (unsigned m = mask; m; m &= m - 1) {
+            const int i = __builtin_ctz(m);
+            const float ti = T[i] * (1.0f / absdet[i]);
+            if (lane < 0 || ti < tl) {
+                lane = i;
+                tl = ti;
+            }
+        }
+        tl = tl <= tnear_s ? tnear_s : (tl >= tfar_s ? tfar_s : tl); /* as closest_from_ clamps */
+        const float inv = 1.0f / absdet[lane];
+        if (accept_lane(t, lane, p, tl, U[lane] * inv, V[lane] * inv, tfar_s, 0))
+            return 1u << lane;
+        mask &= ~(1u << lane);
+    }
+    return 0;
+}
+
+/* The any-hit query's: 1 when one is accepted. */
+static __attribute__((noinline)) int accept_any(const block_t *t, const ray_pre *p, const tri4_hit *h, unsigned mask,
+                                                float tnear_s, float tfar_s)
+{
+    _Alignas(16) float T[4], absdet[4], U[4], V[4];
+    vf4_store(T, h->T);
+    vf4_store(absdet, h->absdet);
+    vf4_store(U, h->U);
+    vf4_store(V, h->V);
+    for (; mask; mask &= mask - 1) {
+        const int i = __builtin_ctz(mask);
+        float ti = T[i] * (1.0f / absdet[i]);
+        ti = ti <= tnear_s ? tnear_s : (ti >= tfar_s ? tfar_s : ti);
+        const float inv = 1.0f / absdet[i];
+        if (accept_lane(t, i, p, ti, U[i] * inv, V[i] * inv, tfar_s, 1))
+            return 1;
+    }
+    return 0;
+}
+
 /* Pops the nearest pending entry whose entry distance is within tfar into
  * *cur, dropping those beyond it; 0 when the stack runs out. */
 static inline int pop_in_range(const stack_entry *stack, int *sp, float tfar_s, uint32_t *cur)
@@ -727,6 +824,8 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             tri4_hit h;
             unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
+            if (mask && __builtin_expect(p->feat != 0, 0))
+                mask = accept_closest(t, p, &h, mask, tnear_s, tfar_s);
             if (mask) {
                 /* the nearest of the lanes hit */
                 _Alignas(16) float T[4], absdet[4], U[4], V[4];
@@ -782,7 +881,9 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
         for (uint32_t block = first; block < end; block++) {
             tri4_hit h;
             block_t scratch;
-            if (triangle4_intersect(LEAF_BLOCK(accel, block, &scratch), p, tnear, tfar, &h))
+            const block_t *t = LEAF_BLOCK(accel, block, &scratch);
+            const unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
+            if (mask && (__builtin_expect(p->feat == 0, 1) || accept_any(t, p, &h, mask, tnear_s, tfar_s)))
                 return 1;
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
@@ -845,12 +946,12 @@ static inline void closest_hit_store(const rtk_accel *accel, const closest_hit *
 }
 
 #if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
-void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
+void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel);
+    ray_pre_init(&p, &rayhit->ray, accel, q);
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best);
@@ -858,12 +959,12 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit)
         closest_hit_store(accel, &best, &p, tfar, rayhit);
 }
 
-void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray)
+void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     ray_pre p;
-    ray_pre_init(&p, ray, accel);
+    ray_pre_init(&p, ray, accel, q);
     if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar))
         ray->tfar = -INFINITY;
 }

@@ -484,12 +484,56 @@ typedef struct PK_(pstack_entry) {
     uint32_t ref;
 } PK_(pstack_entry);
 
-/* A lane as a single ray, for finishing a subtree alone. */
-static inline void PK_(lane_ray_pre)(ray_pre *p, const rayK *r, int i, const rtk_accel *accel)
+/* Lane i of the packet as a single ray. */
+static inline rtk_ray PK_(lane_ray)(const rayK *r, int i)
 {
-    const rtk_ray one = {.org_x = r->org_x[i], .org_y = r->org_y[i], .org_z = r->org_z[i],
-                         .dir_x = r->dir_x[i], .dir_y = r->dir_y[i], .dir_z = r->dir_z[i]};
-    ray_pre_init(p, &one, accel);
+    return (rtk_ray){.org_x = r->org_x[i], .org_y = r->org_y[i], .org_z = r->org_z[i], .tnear = r->tnear[i],
+                     .dir_x = r->dir_x[i], .dir_y = r->dir_y[i], .dir_z = r->dir_z[i], .time = r->time[i],
+                     .tfar = r->tfar[i], .mask = r->mask[i], .id = r->id[i], .flags = r->flags[i]};
+}
+
+/* A lane as a single ray, for finishing a subtree alone (*one holds the
+ * ray, which p points to). */
+static inline void PK_(lane_ray_pre)(ray_pre *p, rtk_ray *one, const rayK *r, int i, const rtk_accel *accel,
+                                     const rtk_query *q)
+{
+    *one = PK_(lane_ray)(r, i);
+    ray_pre_init(p, one, accel, q);
+}
+
+/* The candidates `hit` (lanes: rays) of triangle j of block t through
+ * accept_lane (masks, culling, filters); the lanes accepted. */
+static __attribute__((noinline)) unsigned PK_(accept)(const rtk_accel *accel, const block_t *t, int j, const rayK *r,
+                                                      unsigned hit, vk U, vk V, vk T, vk absdet, vk tnear, vk tfar,
+                                                      int occluded, const rtk_query *q)
+{
+    _Alignas(64) float u[RTK_PACKET], v[RTK_PACKET], tt[RTK_PACKET], tf[RTK_PACKET];
+    const vk rcp = VK(div)(VK(set1)(1.0f), absdet);
+    VK(store)(u, VK(mul)(U, rcp));
+    VK(store)(v, VK(mul)(V, rcp));
+    VK(store)(tt, VK(min)(VK(max)(VK(mul)(T, rcp), tnear), tfar));
+    VK(store)(tf, tfar);
+    unsigned accepted = 0;
+    for (unsigned m = hit; m; m &= m - 1) {
+        const int i = __builtin_ctz(m);
+        const rtk_ray one = PK_(lane_ray)(r, i);
+        ray_pre p; /* only what accept_lane reads */
+        p.feat = (one.flags & RTK_FEAT_CULL) | (accel->attrs ? RTK_FEAT_ATTRS : 0u);
+        p.attrs = accel->attrs;
+        p.ray = &one;
+        p.q = q;
+        if (accept_lane(t, j, &p, tt[i], u[i], v[i], tf[i], occluded))
+            accepted |= 1u << i;
+    }
+    return accepted;
+}
+
+static inline vkb PK_(lanes_mask)(unsigned bits)
+{
+    _Alignas(64) int32_t m[RTK_PACKET];
+    for (int i = 0; i < RTK_PACKET; i++)
+        m[i] = bits >> i & 1 ? -1 : 0;
+    return VKB(load)(m);
 }
 
 /* The packet traversal both queries share; `closest` selects the query and
@@ -499,9 +543,15 @@ static inline void PK_(lane_ray_pre)(ray_pre *p, const rayK *r, int i, const rtk
  * of rays that found any hit (occluded). */
 static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel *accel, const int32_t *valid,
                                                                 const rayK *ray, int closest, float *tfar_out,
-                                                                float *u_out, float *v_out, uint32_t *ref_out)
+                                                                float *u_out, float *v_out, uint32_t *ref_out,
+                                                                const rtk_query *q)
 {
     const vkb active = VKB(load)(valid);
+    /* masks, culling, filters (ray_pre.feat): some ray asks for culling or
+     * the tree holds attributes */
+    unsigned feat = accel->attrs != NULL;
+    for (int i = 0; i < RTK_PACKET; i++)
+        feat |= valid[i] ? ray->flags[i] & RTK_FEAT_CULL : 0u;
     PK_(packet_pre) p;
     PK_(packet_pre_init)(&p, ray, active, accel);
     vk tfar = VK(select)(active, VK(load)(ray->tfar), VK(set1)(-INFINITY));
@@ -530,7 +580,8 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             for (unsigned m = want; m; m &= m - 1) {
                 const int i = __builtin_ctz(m);
                 ray_pre rp;
-                PK_(lane_ray_pre)(&rp, ray, i, accel);
+                rtk_ray one;
+                PK_(lane_ray_pre)(&rp, &one, ray, i, accel, q);
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
                     closest_from(accel, cur, &rp, ray->tnear[i], &lane_t[i], &best);
@@ -603,8 +654,15 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             const block_t *t = leaf_block(accel, leaf, &scratch);
             for (int j = 0; j < 4 && t->prim[j] != RTK_BVH4_EMPTY; j++) {
                 vk U, V, T, absdet;
-                const vkb ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);
-                const unsigned hit = (unsigned)VKB(mask)(ok);
+                vkb ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);
+                unsigned hit = (unsigned)VKB(mask)(ok);
+                if (hit && __builtin_expect(feat != 0, 0)) {
+                    const unsigned acc = PK_(accept)(accel, t, j, ray, hit, U, V, T, absdet, p.tnear, tfar, !closest, q);
+                    if (acc != hit) {
+                        hit = acc;
+                        ok = VKB(and)(ok, PK_(lanes_mask)(acc));
+                    }
+                }
                 if (!hit)
                     continue;
                 any = 1;
@@ -637,7 +695,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         *ref_out = done;
 }
 
-void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet)
+void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
@@ -646,7 +704,7 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet)
     uint32_t ref[RTK_PACKET];
     for (int i = 0; i < RTK_PACKET; i++)
         ref[i] = UINT32_MAX;
-    PK_(traverse)(accel, valid, &rh->ray, 1, t, u, v, ref);
+    PK_(traverse)(accel, valid, &rh->ray, 1, t, u, v, ref, q);
     for (int i = 0; i < RTK_PACKET; i++) {
         if (ref[i] == UINT32_MAX)
             continue;
@@ -663,14 +721,14 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet)
     }
 }
 
-void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet)
+void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     rayK *r = packet;
     _Alignas(64) float t[RTK_PACKET], u[RTK_PACKET], v[RTK_PACKET];
     uint32_t done = 0;
-    PK_(traverse)(accel, valid, r, 0, t, u, v, &done);
+    PK_(traverse)(accel, valid, r, 0, t, u, v, &done, q);
     for (unsigned m = done; m; m &= m - 1)
         r->tfar[__builtin_ctz(m)] = -INFINITY;
 }

@@ -25,9 +25,9 @@
  * ray.time is the ray's time, in [0, 1], read only by geometry with motion
  * blur (rtk_geometry_set_time_step_count): such geometry is hit only by
  * rays whose time lies in [0, 1] (a NaN or other time misses it; the rest
- * of the scene is hit as usual).  ray.mask and ray.flags are carried for
- * forward compatibility: this version has no geometry masks, so it ignores
- * them.
+ * of the scene is hit as usual).  ray.mask is tested against the
+ * geometries' masks (all ones unless set; a ray of mask 0 hits nothing) and
+ * ray.flags asks for face culling: see "masks, face culling and filters".
  */
 #ifndef RTK_RTK_H
 #define RTK_RTK_H
@@ -40,11 +40,11 @@ extern "C" {
 #endif
 
 #define RTK_VERSION_MAJOR 0
-#define RTK_VERSION_MINOR 1
+#define RTK_VERSION_MINOR 2
 #define RTK_VERSION_PATCH 0
 /* MAJOR*10000 + MINOR*100 + PATCH, comparable with rtk_version(). */
 #define RTK_VERSION (RTK_VERSION_MAJOR * 10000 + RTK_VERSION_MINOR * 100 + RTK_VERSION_PATCH)
-#define RTK_VERSION_STRING "0.1.0"
+#define RTK_VERSION_STRING "0.2.0"
 
 #if defined(_WIN32)
 #define RTK_API
@@ -543,9 +543,9 @@ typedef struct rtk_ray {
     float dir_x, dir_y, dir_z;
     float time;  /* in [0, 1]: for geometry with motion blur */
     float tfar;
-    uint32_t mask;  /* reserved: no geometry masks yet */
+    uint32_t mask;  /* hits only geometry whose mask shares a bit with it: use ~0u for all */
     uint32_t id;    /* the application's */
-    uint32_t flags; /* reserved, set to 0 */
+    uint32_t flags; /* RTK_RAY_FLAG_* (0: none) */
 } rtk_ray;
 
 typedef struct rtk_hit {
@@ -561,11 +561,79 @@ typedef struct rtk_rayhit {
     rtk_hit hit;
 } rtk_rayhit;
 
+/* ---- masks, face culling and filters (added after rtk 0.1.0) ----------------
+ * Masks.  Every geometry, triangles and instances alike, has a 32-bit mask
+ * (all ones unless set); a ray hits it only when ray.mask & mask != 0.  An
+ * instance's mask is tested before the ray enters it, then the masks of
+ * the instanced scene's geometries.
+ *
+ * Face culling, per ray in ray.flags: RTK_RAY_FLAG_CULL_BACK skips the
+ * triangles whose geometric normal Ng (rtk_hit's: cross(v1-v0, v2-v0))
+ * faces away from the ray, dot(dir, Ng) > 0; RTK_RAY_FLAG_CULL_FRONT those
+ * facing it, dot(dir, Ng) < 0.  Inside an instance both are taken in the
+ * instanced scene's space (so a mirroring transform swaps the faces, as in
+ * Embree).
+ *
+ * Filters.  A triangle geometry may have an intersection filter, called by
+ * rtk_intersect* queries, and an occlusion filter, called by rtk_occluded*:
+ * each candidate hit (one that passed the masks and culling, within the
+ * ray's [tnear, tfar]) is handed to the filter, which returns non-zero to
+ * accept it or 0 to reject it, and the ray goes on as if the triangle were
+ * not there (alpha-tested leaves; or every hit along a ray collected by a
+ * filter that records each and rejects it).  A closest-hit query calls the
+ * filter for candidates closer than the closest hit accepted so far, in
+ * order of distance among the triangles of one leaf but not across leaves,
+ * so it may see candidates farther than the hit finally reported; an
+ * any-hit query stops at the first accepted.  A filter may be called more
+ * than once for the same triangle (spatial splits put a triangle in several
+ * leaves), always with a single ray, also during packet queries, on the
+ * thread of the query.  It must not change or commit the scene.
+ *
+ * Scenes pay for these only when they use them: a ray of all-ones mask
+ * and no flags in a scene whose geometries have the default mask and no
+ * filter runs the kernels' usual path (docs/BENCHMARKS.md measures it).
+ * A geometry's mask, filters and user data (as the filters see it) are
+ * read at the scene's commit: set them, commit the geometry, then the
+ * scene (which then builds its tree afresh). */
+enum {
+    RTK_RAY_FLAG_CULL_BACK = 1u << 0,
+    RTK_RAY_FLAG_CULL_FRONT = 1u << 1,
+};
+
+/* Per query, passed to the filters: the application's pointer.  A
+ * renderer that needs more can put this struct first in one of its own. */
+typedef struct rtk_query_context {
+    void *user;
+} rtk_query_context;
+
+typedef struct rtk_filter_args {
+    void *geometry_user;              /* the geometry's user data (rtk_geometry_set_user_data) */
+    const rtk_query_context *context; /* the query's (rtk_intersect1_ctx, ...), or NULL */
+    /* The ray in the geometry's space (inside an instance: the instanced
+     * scene's); its tfar is the distance to the closest hit accepted so far
+     * (the ray's own tfar before any). */
+    const rtk_ray *ray;
+    /* The candidate, as the query would report it (instID included), and
+     * its distance along the ray. */
+    const rtk_hit *hit;
+    float t;
+} rtk_filter_args;
+typedef int (*rtk_filter_fn)(const rtk_filter_args *args);
+
+/* RTK_ERROR_INVALID_OPERATION: a filter on an instance (set them on the
+ * instanced scene's triangle geometries). */
+RTK_API rtk_error rtk_geometry_set_mask(rtk_geometry geometry, uint32_t mask);
+RTK_API rtk_error rtk_geometry_set_intersect_filter(rtk_geometry geometry, rtk_filter_fn filter);
+RTK_API rtk_error rtk_geometry_set_occluded_filter(rtk_geometry geometry, rtk_filter_fn filter);
+
 /* Closest hit.  RTK_ERROR_INVALID_ARGUMENT for NULL arguments,
  * RTK_ERROR_INVALID_OPERATION for a scene that was never committed. */
 RTK_API rtk_error rtk_intersect1(rtk_scene scene, rtk_rayhit *rayhit);
 /* Any hit. */
 RTK_API rtk_error rtk_occluded1(rtk_scene scene, rtk_ray *ray);
+/* The same with a context for the filters (NULL: as without). */
+RTK_API rtk_error rtk_intersect1_ctx(rtk_scene scene, rtk_rayhit *rayhit, const rtk_query_context *context);
+RTK_API rtk_error rtk_occluded1_ctx(rtk_scene scene, rtk_ray *ray, const rtk_query_context *context);
 
 /* ---- ray packets -----------------------------------------------------------
  * Packets of 4, 8 or 16 rays as structures of arrays: the fields of rtk_ray
@@ -611,7 +679,11 @@ RTK_API rtk_error rtk_occluded1(rtk_scene scene, rtk_ray *ray);
         rtk_hit##N hit;                                                                                                \
     } rtk_rayhit##N;                                                                                                   \
     RTK_API rtk_error rtk_intersect##N(rtk_scene scene, const int *valid, rtk_rayhit##N *rayhit);                     \
-    RTK_API rtk_error rtk_occluded##N(rtk_scene scene, const int *valid, rtk_ray##N *ray);
+    RTK_API rtk_error rtk_occluded##N(rtk_scene scene, const int *valid, rtk_ray##N *ray);                            \
+    RTK_API rtk_error rtk_intersect##N##_ctx(rtk_scene scene, const int *valid, rtk_rayhit##N *rayhit,                \
+                                             const rtk_query_context *context);                                        \
+    RTK_API rtk_error rtk_occluded##N##_ctx(rtk_scene scene, const int *valid, rtk_ray##N *ray,                       \
+                                            const rtk_query_context *context);
 RTK_PACKET_TYPES_(4)
 RTK_PACKET_TYPES_(8)
 RTK_PACKET_TYPES_(16)

@@ -33,8 +33,12 @@
 extern "C" {
 #endif
 
-/* The interface versions this header describes. */
-#define RTK_BACKEND_INTERFACE_VERSION 1
+/* The interface version this header describes.  Version 2 (rtk 0.2.0)
+ * gave every kernel the query argument (rtk_query) and the builders the
+ * geometries' attributes (rtk_build_input.attrs): masks and filters.  A
+ * version-1 backend's kernels have another signature, so a core of
+ * version 2 refuses it. */
+#define RTK_BACKEND_INTERFACE_VERSION 2
 #define RTK_BACKEND_MAGIC 0x424b5452u /* "RTKB" little-endian */
 #define RTK_BACKEND_NAME_MAX 32
 
@@ -44,7 +48,9 @@ typedef struct rtk_backend_header {
     uint32_t struct_size; /* sizeof(rtk_backend_header) as the backend knows it */
     char name[RTK_BACKEND_NAME_MAX]; /* must match the file name */
     uint32_t level;       /* preference: higher wins among usable backends */
-    uint32_t reserved;
+    /* The newest interface version the backend speaks, for the core's
+     * message when negotiation fails (0 before rtk 0.2.0: version 1). */
+    uint32_t interface_version;
     uint64_t cpu_requires; /* RTK_CPU_* bits, cumulative, OS state included */
 } rtk_backend_header;
 
@@ -87,8 +93,16 @@ typedef struct rtk_build_geometry {
     uint32_t flags; /* RTK_BUILD_GEOMETRY_* (was reserved, 0, before rtk 0.1.0's refit) */
 } rtk_build_geometry;
 
-RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit));
-RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray));
+/* What a query carries beside its rays, from the core to the kernels (and
+ * from a top level to the trees of its objects).  Never NULL. */
+typedef struct rtk_query {
+    const rtk_query_context *context; /* the application's (rtk_intersect1_ctx ...), or NULL */
+    uint32_t inst_id; /* the outermost instance the ray is inside, else RTK_INVALID_GEOMETRY_ID */
+    uint32_t reserved;
+} rtk_query;
+
+RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *query));
+RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray, const rtk_query *query));
 
 /* One object of a two-level scene (a scene with instances): an accel this
  * backend built before (another scene's, or the scene's own triangles'),
@@ -106,6 +120,8 @@ typedef struct rtk_build_object {
     float world_to_object[12]; /* row-major 3x4 [M | t] */
     uint32_t inst_id;
     uint32_t flags;            /* RTK_BUILD_OBJECT_* */
+    uint32_t mask;             /* the instance's mask (rtk_geometry_set_mask): a ray enters only if ray.mask & mask */
+    uint32_t reserved;
 } rtk_build_object;
 
 /* world_to_object is the identity: the ray goes in unchanged. */
@@ -144,7 +160,23 @@ typedef struct rtk_build_input {
     uint32_t time_steps;
     uint32_t reserved3;
     const struct rtk_build_vertices *time_vertices;
+    /* Interface version 2: geometry_count attributes, parallel to
+     * geometries; NULL when no geometry has any (every mask all ones, no
+     * filter), and then the kernels test nothing beyond the ray's flags. */
+    const struct rtk_geometry_attrs *attrs;
 } rtk_build_input;
+
+/* What a triangle geometry asks of the kernels beyond its triangles
+ * (rtk.h: masks, filters), one per rtk_build_input.geometries entry.  The
+ * builder copies them into the accel (an accel lives on in the scenes that
+ * instance it): they are the accel's until it is released. */
+typedef struct rtk_geometry_attrs {
+    uint32_t mask;
+    uint32_t reserved;
+    rtk_filter_fn intersect_filter; /* NULL: none */
+    rtk_filter_fn occluded_filter;
+    void *user;                     /* rtk_geometry_set_user_data's, for the filters */
+} rtk_geometry_attrs;
 
 /* One vertex buffer of a time step: already offset to the first vertex. */
 typedef struct rtk_build_vertices {
@@ -182,8 +214,10 @@ RTK_BACKEND_FN(void, rtk_accel_release, (rtk_accel *accel));
  * checked validity, as for the single-ray kernels), 0 elsewhere, aligned like
  * the packet.  At least one lane is active.  Inactive lanes must not be
  * written. */
-RTK_BACKEND_FN(void, rtk_intersectN, (const rtk_accel *accel, const int32_t *active, void *packet));
-RTK_BACKEND_FN(void, rtk_occludedN, (const rtk_accel *accel, const int32_t *active, void *packet));
+RTK_BACKEND_FN(void, rtk_intersectN, (const rtk_accel *accel, const int32_t *active, void *packet,
+                                       const rtk_query *query));
+RTK_BACKEND_FN(void, rtk_occludedN, (const rtk_accel *accel, const int32_t *active, void *packet,
+                                      const rtk_query *query));
 
 enum rtk_query_kind {
     RTK_QUERY_NONE = 0, /* ends a table */
