@@ -804,7 +804,7 @@ typedef struct closest_hit {
  * finish alone. */
 static inline __attribute__((always_inline)) void closest_from_(const rtk_accel *accel, uint32_t root,
                                                                   const ray_pre *p, float tnear_s, float *tfar_io,
-                                                                  closest_hit *best, int fused)
+                                                                  closest_hit *best, int fused, int feat)
 {
     const vfloat4 tnear = vf4_set1(tnear_s);
     const vnode ntnear = vn_set1(tnear_s + 0.0f); /* -0.0 -> +0.0 for node_intersect */
@@ -824,7 +824,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             tri4_hit h;
             unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
-            if (mask && __builtin_expect(p->feat != 0, 0))
+            if (feat && mask)
                 mask = accept_closest(t, p, &h, mask, tnear_s, tfar_s);
             if (mask) {
                 /* the nearest of the lanes hit */
@@ -866,7 +866,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
 
 /* Any hit below `root` within [tnear, tfar]: 1 when there is one. */
 static inline __attribute__((always_inline)) int any_from_(const rtk_accel *accel, uint32_t root, const ray_pre *p,
-                                                             float tnear_s, float tfar_s, int fused)
+                                                             float tnear_s, float tfar_s, int fused, int feat)
 {
     const vfloat4 tnear = vf4_set1(tnear_s), tfar = vf4_set1(tfar_s);
     const vnode ntnear = vn_set1(tnear_s + 0.0f), ntfar = vn_set1(tfar_s + 0.0f); /* no -0.0 */
@@ -883,7 +883,7 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
             block_t scratch;
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             const unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
-            if (mask && (__builtin_expect(p->feat == 0, 1) || accept_any(t, p, &h, mask, tnear_s, tfar_s)))
+            if (mask && (!feat || accept_any(t, p, &h, mask, tnear_s, tfar_s)))
                 return 1;
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
@@ -893,26 +893,56 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
 
 /* The traversals, specialised once for the fused node test and once for
  * the subtract-then-multiply one (ray_pre.fma), so the choice is made once
- * per ray, not at every node. */
+ * per ray, not at every node; and once more for rays that test their
+ * candidates against masks, culling and filters (ray_pre.feat), so the
+ * usual path holds no call that would make the compiler keep the ray's
+ * vectors in memory (with the call in it, occluded1 lost 7% on dragon's
+ * shadow rays, rtktool bench). */
+static __attribute__((noinline)) void closest_from_feat(const rtk_accel *accel, uint32_t root, const ray_pre *p,
+                                                        float tnear_s, float *tfar_io, closest_hit *best)
+{
+#if RTK_SIMD_HAS_FMA
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, p->fma, 1);
+#else
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, 1);
+#endif
+}
+
+static __attribute__((noinline)) int any_from_feat(const rtk_accel *accel, uint32_t root, const ray_pre *p,
+                                                   float tnear_s, float tfar_s)
+{
+#if RTK_SIMD_HAS_FMA
+    return any_from_(accel, root, p, tnear_s, tfar_s, p->fma, 1);
+#else
+    return any_from_(accel, root, p, tnear_s, tfar_s, 0, 1);
+#endif
+}
+
 static void closest_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float *tfar_io,
                          closest_hit *best)
 {
+    if (__builtin_expect(p->feat != 0, 0)) {
+        closest_from_feat(accel, root, p, tnear_s, tfar_io, best);
+        return;
+    }
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(p->fma, 1)) {
-        closest_from_(accel, root, p, tnear_s, tfar_io, best, 1);
+        closest_from_(accel, root, p, tnear_s, tfar_io, best, 1, 0);
         return;
     }
 #endif
-    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0);
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, 0);
 }
 
 static int any_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float tfar_s)
 {
+    if (__builtin_expect(p->feat != 0, 0))
+        return any_from_feat(accel, root, p, tnear_s, tfar_s);
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(p->fma, 1))
-        return any_from_(accel, root, p, tnear_s, tfar_s, 1);
+        return any_from_(accel, root, p, tnear_s, tfar_s, 1, 0);
 #endif
-    return any_from_(accel, root, p, tnear_s, tfar_s, 0);
+    return any_from_(accel, root, p, tnear_s, tfar_s, 0, 0);
 }
 
 /* The geometric normal and ids of a closest hit (p: the ray's, for the
