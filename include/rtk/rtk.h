@@ -581,17 +581,18 @@ typedef struct rtk_rayhit {
  * accept it or 0 to reject it, and the ray goes on as if the triangle were
  * not there (alpha-tested leaves; or every hit along a ray collected by a
  * filter that records each and rejects it).  A closest-hit query calls the
- * filter for candidates closer than the closest hit accepted so far, in
- * order of distance among the triangles of one leaf but not across leaves,
- * so it may see candidates farther than the hit finally reported; an
- * any-hit query stops at the first accepted.  A filter may be called more
+ * filter for candidates closer than the closest hit accepted so far, not
+ * in order of distance (single rays take a leaf's triangles nearest first,
+ * packets in leaf order), so it may see candidates farther than the hit
+ * finally reported; an any-hit query stops at the first accepted.  A filter may be called more
  * than once for the same triangle (spatial splits put a triangle in several
  * leaves), always with a single ray, also during packet queries, on the
  * thread of the query.  It must not change or commit the scene.
  *
- * Scenes pay for these only when they use them: a ray of all-ones mask
- * and no flags in a scene whose geometries have the default mask and no
- * filter runs the kernels' usual path (docs/BENCHMARKS.md measures it).
+ * Scenes pay for these only when they use them: a ray without flags in a
+ * scene whose geometries have the default mask and no filter runs the
+ * kernels' usual path (docs/BENCHMARKS.md measures it); otherwise the
+ * single-ray kernels take a path of their own that tests each candidate.
  * A geometry's mask, filters and user data (as the filters see it) are
  * read at the scene's commit: set them, commit the geometry, then the
  * scene (which then builds its tree afresh). */
