@@ -49,6 +49,8 @@ typedef struct accel_ref {
     uint32_t child_count;
     uint32_t depth; /* levels of instances below: 0 for a tree of triangles */
     float lower[3], upper[3];
+    /* A top level: the user primitives its objects point to. */
+    struct user_prim *user_prims;
 } accel_ref;
 
 static void accel_ref_release(accel_ref *r)
@@ -61,6 +63,7 @@ static void accel_ref_release(accel_ref *r)
     for (uint32_t i = 0; i < r->child_count; i++)
         accel_ref_release(r->children[i]);
     free(r->children);
+    free(r->user_prims);
     free(r);
 }
 
@@ -89,6 +92,10 @@ struct rtk_geometry_s {
     /* Read at the scene's commit into its tree (rtk_geometry_attrs). */
     uint32_t mask;
     rtk_filter_fn intersect_filter, occluded_filter;
+    /* RTK_GEOMETRY_TYPE_USER */
+    uint32_t user_count;
+    rtk_bounds_fn bounds;
+    rtk_user_query_fn user_intersect, user_occluded;
     /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained), the
      * transform from its space (row-major 3x4) and, once committed, the
      * inverse. */
@@ -149,6 +156,7 @@ struct rtk_scene_s {
     rtk_build_output own_stats;
     int two_level;     /* the tree is a top level (bvh4.object) */
     uint64_t motion_prims; /* triangles with motion blur in the scene's own trees */
+    uint64_t user_prims, user_skipped; /* user primitives in the top level, and left out */
     unsigned honoured; /* the flags the scene's trees honour */
     /* RTK_SCENE_FLAG_DYNAMIC: a tree per triangle geometry, by slot, kept
      * from commit to commit while its geometry is unchanged, refitted when
@@ -189,7 +197,7 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     if (!out)
         return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: out is NULL");
     *out = NULL;
-    if (type != RTK_GEOMETRY_TYPE_TRIANGLE && type != RTK_GEOMETRY_TYPE_INSTANCE)
+    if (type != RTK_GEOMETRY_TYPE_TRIANGLE && type != RTK_GEOMETRY_TYPE_INSTANCE && type != RTK_GEOMETRY_TYPE_USER)
         return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: unknown geometry type %d", (int)type);
     rtk_geometry g = calloc(1, sizeof *g);
     if (!g)
@@ -452,6 +460,130 @@ static rtk_error set_filter(rtk_geometry g, int occluded, rtk_filter_fn filter, 
     return RTK_OK;
 }
 
+/* ---- user geometry ---- */
+
+static rtk_error user_only(rtk_geometry g, const char *fn)
+{
+    if (!g)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: geometry is NULL", fn);
+    if (g->type != RTK_GEOMETRY_TYPE_USER)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "%s: the geometry is not of type RTK_GEOMETRY_TYPE_USER",
+                        fn);
+    g->committed = 0;
+    return RTK_OK;
+}
+
+rtk_error rtk_geometry_set_user_primitive_count(rtk_geometry g, uint32_t count)
+{
+    rtk_error err = user_only(g, "rtk_geometry_set_user_primitive_count");
+    if (!err)
+        g->user_count = count;
+    return err;
+}
+
+rtk_error rtk_geometry_set_bounds_function(rtk_geometry g, rtk_bounds_fn bounds)
+{
+    rtk_error err = user_only(g, "rtk_geometry_set_bounds_function");
+    if (!err)
+        g->bounds = bounds;
+    return err;
+}
+
+rtk_error rtk_geometry_set_intersect_function(rtk_geometry g, rtk_user_query_fn intersect)
+{
+    rtk_error err = user_only(g, "rtk_geometry_set_intersect_function");
+    if (!err)
+        g->user_intersect = intersect;
+    return err;
+}
+
+rtk_error rtk_geometry_set_occluded_function(rtk_geometry g, rtk_user_query_fn occluded)
+{
+    rtk_error err = user_only(g, "rtk_geometry_set_occluded_function");
+    if (!err)
+        g->user_occluded = occluded;
+    return err;
+}
+
+/* One user primitive in a top level: the accel its object points to. */
+typedef struct user_prim {
+    rtk_user_query_fn intersect, occluded;
+    void *user;
+    uint32_t geom_id, prim_id;
+} user_prim;
+
+/* The callback's answer for lane i of a K-packet (K = 1: an rtk_rayhit or
+ * rtk_ray) kept if it is a hit within the lane's interval (then rtk's ids
+ * are written), else the lane restored from `before`. */
+static void user_settle(void *rays, const void *before, uint32_t k, uint32_t i, int occluded, const user_prim *u)
+{
+    /* (4-byte words moved with memcpy: the fields are floats and uint32s) */
+#define WORD_AT(p, f) ((char *)(p) + 4 * ((size_t)(f) * k + i))
+    float t, tnear, old;
+    memcpy(&t, WORD_AT(rays, 8), 4);
+    memcpy(&tnear, WORD_AT(before, 3), 4);
+    memcpy(&old, WORD_AT(before, 8), 4);
+    const int hit = occluded ? t == -INFINITY : t != old && t >= tnear && t <= old;
+    /* a miss restores everything; a hit keeps tfar (and the hit's u, v,
+     * Ng) but not changes to the rest of the ray */
+    const int fields = hit ? 12 : occluded ? 12 : 20;
+    for (int f = 0; f < fields; f++)
+        if (!hit || f != 8)
+            memcpy(WORD_AT(rays, f), WORD_AT(before, f), 4);
+    if (hit && !occluded) {
+        const uint32_t ids[3] = {u->prim_id, u->geom_id, RTK_INVALID_GEOMETRY_ID}; /* an instance above writes its own instID */
+        for (int f = 0; f < 3; f++)
+            memcpy(WORD_AT(rays, 17 + f), &ids[f], 4);
+    }
+#undef WORD_AT
+}
+
+static void user_call(const user_prim *u, const int32_t *active, void *rays, uint32_t k, const rtk_query *q,
+                      int occluded)
+{
+    const size_t bytes = (occluded ? 12u : 20u) * 4u * k;
+    uint32_t before[20 * 16];
+    memcpy(before, rays, bytes);
+    int valid[16];
+    for (uint32_t i = 0; i < k; i++)
+        valid[i] = active[i] != 0;
+    const rtk_user_query_args args = {.valid = valid, .geometry_user = u->user, .geom_id = u->geom_id,
+                                      .prim_id = u->prim_id, .context = q->context, .rays = rays, .N = k};
+    (occluded ? u->occluded : u->intersect)(&args);
+    for (uint32_t i = 0; i < k; i++) {
+        if (active[i]) {
+            user_settle(rays, before, k, i, occluded, u);
+        } else { /* not the callback's to touch */
+            for (int f = 0; f < (occluded ? 12 : 20); f++)
+                memcpy((char *)rays + 4 * ((size_t)f * k + i), (const char *)before + 4 * ((size_t)f * k + i), 4);
+        }
+    }
+}
+
+static void user_intersect1(const rtk_accel *a, rtk_rayhit *rh, const rtk_query *q)
+{
+    const int32_t one = -1;
+    user_call((const user_prim *)(const void *)a, &one, rh, 1, q, 0);
+}
+
+static void user_occluded1(const rtk_accel *a, rtk_ray *ray, const rtk_query *q)
+{
+    const int32_t one = -1;
+    user_call((const user_prim *)(const void *)a, &one, ray, 1, q, 1);
+}
+
+static void user_intersect_packet(const rtk_accel *a, const int32_t *active, void *packet, uint32_t width,
+                                  const rtk_query *q)
+{
+    user_call((const user_prim *)(const void *)a, active, packet, width, q, 0);
+}
+
+static void user_occluded_packet(const rtk_accel *a, const int32_t *active, void *packet, uint32_t width,
+                                 const rtk_query *q)
+{
+    user_call((const user_prim *)(const void *)a, active, packet, width, q, 1);
+}
+
 rtk_error rtk_geometry_set_intersect_filter(rtk_geometry g, rtk_filter_fn filter)
 {
     return set_filter(g, 0, filter, "rtk_geometry_set_intersect_filter");
@@ -560,6 +692,13 @@ rtk_error rtk_geometry_commit(rtk_geometry g)
         g->committed = 1;
         return RTK_OK;
     }
+    if (g->type == RTK_GEOMETRY_TYPE_USER) {
+        if (!g->bounds || !g->user_intersect || !g->user_occluded)
+            return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                            "rtk_geometry_commit: user geometry needs its bounds, intersect and occluded functions");
+        g->committed = 1;
+        return RTK_OK;
+    }
     if (!g->vertex.stride)
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: no vertex buffer set");
     if (!g->index.stride)
@@ -610,6 +749,7 @@ static void scene_drop_accel(rtk_scene s)
     s->instances = 0;
     s->two_level = 0;
     s->motion_prims = 0;
+    s->user_prims = s->user_skipped = 0;
     for (uint32_t i = 0; i < s->dyn_count; i++)
         accel_ref_release(s->dyn[i].ref);
     free(s->dyn);
@@ -1298,12 +1438,26 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot trace instances (it predates them)",
                         fn, bk->name);
     }
-    const uint32_t count = ni + own_count;
-    rtk_build_object *objs = calloc(count, sizeof *objs);
-    accel_ref **children = calloc(count, sizeof *children);
-    if (!objs || !children) {
+    /* user primitives: every one whose box the bounds callback gives finite
+     * and ordered */
+    uint64_t nu = 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (g && g->enabled && g->type == RTK_GEOMETRY_TYPE_USER)
+            nu += g->user_count;
+    }
+    if (nu > UINT32_MAX - (uint64_t)ni - own_count) {
+        release_refs(own, own_count);
+        return rtk_fail(dev, RTK_ERROR_INVALID_ARGUMENT, "%s: more than 2^32 objects in the top level", fn);
+    }
+    const uint32_t count = ni + own_count + (uint32_t)nu;
+    rtk_build_object *objs = calloc(count ? count : 1, sizeof *objs);
+    accel_ref **children = calloc(count ? count : 1, sizeof *children);
+    user_prim *prims = calloc(nu ? nu : 1, sizeof *prims);
+    if (!objs || !children || !prims) {
         free(objs);
         free(children);
+        free(prims);
         release_refs(own, own_count);
         return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
@@ -1331,8 +1485,38 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         children[k++] = c;
         depth = c->depth + 1 > depth ? c->depth + 1 : depth;
     }
+    const uint32_t nchildren = k;
+    uint64_t used = 0, skipped = 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        rtk_geometry g = s->geoms[i];
+        if (!g || !g->enabled || g->type != RTK_GEOMETRY_TYPE_USER)
+            continue;
+        for (uint32_t p = 0; p < g->user_count; p++) {
+            float lo[3] = {NAN, NAN, NAN}, hi[3] = {NAN, NAN, NAN};
+            g->bounds(&(rtk_bounds_args){.geometry_user = g->user, .prim_id = p, .lower = lo, .upper = hi});
+            int ok = 1;
+            for (int a = 0; a < 3; a++)
+                ok &= isfinite(lo[a]) && isfinite(hi[a]) && lo[a] <= hi[a];
+            if (!ok) {
+                skipped++;
+                continue;
+            }
+            user_prim *u = &prims[used++];
+            *u = (user_prim){.intersect = g->user_intersect, .occluded = g->user_occluded, .user = g->user,
+                             .geom_id = i, .prim_id = p};
+            objs[k] = (rtk_build_object){.accel = (const rtk_accel *)(const void *)u,
+                                         .intersect1 = user_intersect1, .occluded1 = user_occluded1,
+                                         .inst_id = RTK_INVALID_GEOMETRY_ID, .flags = RTK_BUILD_OBJECT_IDENTITY,
+                                         .mask = g->mask, .intersect_packet = user_intersect_packet,
+                                         .occluded_packet = user_occluded_packet};
+            memcpy(objs[k].world_to_object, identity_3x4, sizeof identity_3x4);
+            memcpy(objs[k].lower, lo, sizeof lo);
+            memcpy(objs[k].upper, hi, sizeof hi);
+            k++;
+        }
+    }
     rtk_build_input in = build_input(s->quality, NULL, 0, layout->id, NULL);
-    in.object_count = count;
+    in.object_count = k;
     in.objects = objs;
     rtk_build_output out = {.struct_size = sizeof out};
     const double t0 = now_seconds();
@@ -1343,16 +1527,23 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     if (!top) {
         if (!rc)
             layout->release(out.accel);
-        release_refs(children, k);
+        release_refs(children, nchildren);
         free(children);
+        free(prims);
         return rc ? rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                              "%s: the top level's build failed: %s", fn, out.message[0] ? out.message : "no reason given")
                   : rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
     top->children = children;
-    top->child_count = k;
+    top->child_count = nchildren;
     top->depth = depth;
+    top->user_prims = prims;
     install(s, top, &out, "objects", own_seconds + (t1 - t0));
+    if (!used) /* the objects' packet kernels serve user primitives' callbacks; other top levels go ray by ray */
+        for (int w = 0; w < 3; w++)
+            s->packet[0][w] = s->packet[1][w] = (struct packet_kernel){.width = 1};
+    s->user_prims = used;
+    s->user_skipped = skipped;
     s->instances = ni;
     s->two_level = 1;
     s->own_stats = *own_total;
@@ -1515,7 +1706,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
      * unless the vertex buffer shrank. */
     const int refit = !tree && refit_serves(s);
     size_t n = 0;
-    uint32_t ni = 0;
+    uint32_t ni = 0, nug = 0; /* instances, user geometries */
     for (uint32_t i = 0; i < s->geom_count; i++) {
         rtk_geometry g = s->geoms[i];
         if (!g)
@@ -1537,6 +1728,10 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             ni++;
             continue;
         }
+        if (g->type == RTK_GEOMETRY_TYPE_USER) {
+            nug++;
+            continue;
+        }
         /* indices unchanged since the tree that is kept (a refit's, or a
          * dynamic scene's geometry's) are in range still, unless the
          * vertex buffer shrank */
@@ -1552,8 +1747,9 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
                             "%s: geometry %u has motion blur: a loaded tree holds no motion", fn, i);
         n++;
     }
-    if (ni && tree)
-        return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: a scene with instances cannot take a loaded tree", fn);
+    if ((ni || nug) && tree)
+        return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
+                        "%s: a scene with instances or user geometry cannot take a loaded tree", fn);
     rtk_build_geometry *in_geoms = calloc(n ? n : 1, sizeof *in_geoms);
     if (!in_geoms)
         return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
@@ -1598,7 +1794,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     uint64_t motion = 0;
     double seconds = 0.0;
     err = RTK_OK;
-    for (size_t k = 0; (k < n || (!n && !ni && !own_count)) && !err; own_count++) {
+    for (size_t k = 0; (k < n || (!n && !ni && !nug && !own_count)) && !err; own_count++) {
         size_t end = k;
         while (end < n && s->geoms[in_geoms[end].geom_id]->time_steps == s->geoms[in_geoms[k].geom_id]->time_steps)
             end++;
@@ -1617,7 +1813,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         release_refs(own, own_count);
         return err;
     }
-    if (ni || own_count > 1) {
+    if (ni || nug || own_count > 1) {
         err = commit_objects(s, own, own_count, &total, seconds, ni, fn);
     } else {
         install(s, own[0], &own_out[0], own_builder[0], seconds);
@@ -1719,6 +1915,10 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
         info->trees_built = s->dyn || !s->refits ? s->trees_built : 0;
     if (keep >= offsetof(rtk_scene_info, triangles_motion) + sizeof info->triangles_motion)
         info->triangles_motion = s->motion_prims;
+    if (keep >= offsetof(rtk_scene_info, user_primitives_skipped) + sizeof info->user_primitives_skipped) {
+        info->user_primitives = s->user_prims;
+        info->user_primitives_skipped = s->user_skipped;
+    }
     return RTK_OK;
 }
 

@@ -33,6 +33,15 @@ RTK_HIDDEN int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_o
 RTK_HIDDEN void RTK_SYM(rtk_objects_release)(rtk_accel *accel);
 RTK_HIDDEN void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+#define RTK_OBJECTS_PACKET_DECL_(k)                                                                                    \
+    RTK_HIDDEN void RTK_SYM(rtk_objects_intersect##k)(const rtk_accel *accel, const int32_t *active, void *packet,    \
+                                                      const rtk_query *q);                                             \
+    RTK_HIDDEN void RTK_SYM(rtk_objects_occluded##k)(const rtk_accel *accel, const int32_t *active, void *packet,     \
+                                                     const rtk_query *q);
+RTK_OBJECTS_PACKET_DECL_(4)
+RTK_OBJECTS_PACKET_DECL_(8)
+RTK_OBJECTS_PACKET_DECL_(16)
+#undef RTK_OBJECTS_PACKET_DECL_
 RTK_HIDDEN int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_motion_release)(rtk_accel *accel);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);

@@ -493,3 +493,165 @@ void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const 
             stack[sp++] = ref[c];
     }
 }
+
+/* ---- packets ----
+ * The top level traced with a whole packet of K rays (4, 8 or 16): so that
+ * user primitives (rtk_build_object.intersect_packet) get packets, as the
+ * application's callbacks are written for.  Boxes are tested lane by lane
+ * (the top level is small); an object that takes packets gets the lanes
+ * that entered its leaf's box, the others are traced lane by lane. */
+
+/* Field f of lane i of a K-packet is word f * K + i (rtk.h). */
+static inline float *lane_f(void *packet, uint32_t k, int field, uint32_t i)
+{
+    return (float *)packet + (size_t)field * k + i;
+}
+static inline uint32_t lane_u32(const void *packet, uint32_t k, int field, uint32_t i)
+{
+    uint32_t w;
+    memcpy(&w, (const char *)packet + 4 * ((size_t)field * k + i), 4);
+    return w;
+}
+enum { F_TNEAR = 3, F_TFAR = 8, F_MASK = 9, RAY_FIELDS = 12, RAYHIT_FIELDS = 20 };
+
+/* (memcpy: the packet's and rtk_rayhit's fields are floats and uint32s,
+ * moved here as 4-byte words without breaking type-based aliasing) */
+static void lane_get(const void *packet, uint32_t k, uint32_t i, void *words, int fields)
+{
+    for (int f = 0; f < fields; f++)
+        memcpy((char *)words + 4 * f, (const char *)packet + 4 * ((size_t)f * k + i), 4);
+}
+
+static void lane_put(void *packet, uint32_t k, uint32_t i, const void *words, int fields)
+{
+    for (int f = 0; f < fields; f++)
+        memcpy((char *)packet + 4 * ((size_t)f * k + i), (const char *)words + 4 * f, 4);
+}
+
+static void objects_packet(const rtk_accel *accel, const int32_t *active, void *packet, uint32_t k,
+                           const rtk_query *q, int occluded)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    obj_ray pr[16];
+    unsigned live = 0;
+    for (uint32_t i = 0; i < k; i++) {
+        if (!active[i])
+            continue;
+        rtk_ray r = {0};
+        lane_get(packet, k, i, &r, RAY_FIELDS);
+        obj_ray_init(&pr[i], &r);
+        live |= 1u << i;
+    }
+    const rtk_bvh4_node *nodes = accel->nodes;
+    uint32_t stack[OBJ_STACK];
+    int sp = 0;
+    stack[sp++] = accel->root;
+    while (sp && live) {
+        const uint32_t cur = stack[--sp];
+        if (!(cur & RTK_BVH4_LEAF_BIT)) {
+            unsigned want[4] = {0, 0, 0, 0};
+            const rtk_bvh4_node *n = &nodes[cur];
+            for (unsigned m = live; m; m &= m - 1) {
+                const int i = __builtin_ctz(m);
+                uint32_t ref[4];
+                float dist[4];
+                const int nc = node_children(n, &pr[i], *lane_f(packet, k, F_TNEAR, (uint32_t)i),
+                                             *lane_f(packet, k, F_TFAR, (uint32_t)i), ref, dist);
+                for (int c = 0; c < nc; c++)
+                    for (int slot = 0; slot < 4; slot++)
+                        if (n->child[slot] == ref[c])
+                            want[slot] |= 1u << i;
+            }
+            for (int slot = 3; slot >= 0; slot--)
+                if (want[slot])
+                    stack[sp++] = n->child[slot];
+            continue;
+        }
+        /* the lanes that reach this leaf are those still live whose
+         * tfar the leaf's objects can shorten; each object re-tests */
+        const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+        for (uint32_t o_i = first; o_i < end; o_i++) {
+            const rtk_build_object *o = &accel->objects[o_i];
+            _Alignas(64) int32_t lanes[16];
+            unsigned any = 0;
+            for (uint32_t i = 0; i < k; i++) {
+                lanes[i] = 0;
+                if (!(live >> i & 1) || !(o->mask & lane_u32(packet, k, F_MASK, i)))
+                    continue;
+                /* the object's own box: a user primitive's callback is
+                 * called only for the lanes that enter it */
+                const float tn = *lane_f(packet, k, F_TNEAR, i), tf = *lane_f(packet, k, F_TFAR, i);
+                float t0 = tn, t1 = tf;
+                const obj_ray *p = &pr[i];
+                for (int a = 0; a < 3; a++) {
+                    const float org = vf4_lane0(p->org[a]), inv = vf4_lane0(p->inv[a]);
+                    const float inv_far = vf4_lane0(p->inv_far[a]);
+                    const float n0 = (o->lower[a] - org) * inv, n1 = (o->upper[a] - org) * inv;
+                    const float f0 = (o->lower[a] - org) * inv_far, f1 = (o->upper[a] - org) * inv_far;
+                    const float near_a = n0 < n1 ? n0 : n1, far_a = f0 < f1 ? f1 : f0;
+                    t0 = near_a > t0 ? near_a : t0;
+                    t1 = far_a < t1 ? far_a : t1;
+                }
+                if (t0 <= t1) {
+                    lanes[i] = -1;
+                    any = 1;
+                }
+            }
+            if (!any)
+                continue;
+            rtk_object_packet_fn whole = occluded ? o->occluded_packet : o->intersect_packet;
+            const rtk_query cq = object_query(o, q);
+            if (whole) {
+                whole(o->accel, lanes, packet, k, &cq);
+            } else {
+                for (uint32_t i = 0; i < k; i++) {
+                    if (!lanes[i])
+                        continue;
+                    rtk_rayhit rh = {0};
+                    lane_get(packet, k, i, &rh, occluded ? RAY_FIELDS : RAYHIT_FIELDS);
+                    if (occluded) {
+                        rtk_ray local;
+                        if (!to_object(o, &rh.ray, &local))
+                            continue;
+                        o->occluded1(o->accel, &local, &cq);
+                        if (local.tfar == -INFINITY)
+                            *lane_f(packet, k, F_TFAR, i) = -INFINITY;
+                        continue;
+                    }
+                    rtk_rayhit local;
+                    if (!to_object(o, &rh.ray, &local.ray))
+                        continue;
+                    local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                    o->intersect1(o->accel, &local, &cq);
+                    if (local.hit.geomID == RTK_INVALID_GEOMETRY_ID)
+                        continue;
+                    rh.ray.tfar = local.ray.tfar;
+                    rh.hit = local.hit;
+                    if (o->inst_id != RTK_INVALID_GEOMETRY_ID)
+                        rh.hit.instID = o->inst_id;
+                    lane_put(packet, k, i, &rh, RAYHIT_FIELDS);
+                }
+            }
+            if (occluded)
+                for (uint32_t i = 0; i < k; i++)
+                    if (*lane_f(packet, k, F_TFAR, i) == -INFINITY)
+                        live &= ~(1u << i);
+        }
+    }
+}
+
+#define OBJECTS_PACKET_ENTRIES_(K)                                                                                     \
+    void RTK_SYM(rtk_objects_intersect##K)(const rtk_accel *accel, const int32_t *active, void *packet,              \
+                                           const rtk_query *q)                                                         \
+    {                                                                                                                  \
+        objects_packet(accel, active, packet, K, q, 0);                                                                \
+    }                                                                                                                  \
+    void RTK_SYM(rtk_objects_occluded##K)(const rtk_accel *accel, const int32_t *active, void *packet,               \
+                                          const rtk_query *q)                                                          \
+    {                                                                                                                  \
+        objects_packet(accel, active, packet, K, q, 1);                                                                \
+    }
+OBJECTS_PACKET_ENTRIES_(4)
+OBJECTS_PACKET_ENTRIES_(8)
+OBJECTS_PACKET_ENTRIES_(16)

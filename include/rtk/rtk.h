@@ -350,6 +350,10 @@ typedef struct rtk_scene_info {
      * own (layout "bvh4.triangle4mb", one tree per time segment, in bytes),
      * below a top level when the scene has other triangles or instances. */
     uint64_t triangles_motion;
+    /* Added in rtk 0.2.0: primitives of user geometry in the top level,
+     * and those left out (a box not finite or not ordered). */
+    uint64_t user_primitives;
+    uint64_t user_primitives_skipped;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -419,6 +423,9 @@ typedef enum rtk_geometry_type {
     /* Added after rtk 0.1.0: another committed scene, placed by an affine
      * transform (rtk_geometry_set_instanced_scene, _set_transform). */
     RTK_GEOMETRY_TYPE_INSTANCE = 1,
+    /* Added in rtk 0.2.0: primitives the application defines by callbacks
+     * (see "user geometry" below). */
+    RTK_GEOMETRY_TYPE_USER = 2,
 } rtk_geometry_type;
 
 typedef enum rtk_buffer_type {
@@ -626,6 +633,55 @@ typedef int (*rtk_filter_fn)(const rtk_filter_args *args);
 RTK_API rtk_error rtk_geometry_set_mask(rtk_geometry geometry, uint32_t mask);
 RTK_API rtk_error rtk_geometry_set_intersect_filter(rtk_geometry geometry, rtk_filter_fn filter);
 RTK_API rtk_error rtk_geometry_set_occluded_filter(rtk_geometry geometry, rtk_filter_fn filter);
+
+/* ---- user geometry (added in rtk 0.2.0) ------------------------------------
+ * A geometry of RTK_GEOMETRY_TYPE_USER has a primitive count, a bounds
+ * callback and intersect and occluded callbacks.  At the scene's commit rtk
+ * asks each primitive's box and builds over the boxes (the scene becomes
+ * two levels, as with instances: the primitives and the scene's other trees
+ * below one top level); a primitive whose box is not finite and ordered is
+ * left out (counted in rtk_scene_info.user_primitives_skipped).  During a
+ * query rtk calls the intersect or occluded callback for each primitive
+ * whose box the ray enters and whose mask passes (with the ray in the
+ * geometry's space), and hits from user geometry, triangles and instances
+ * mix: the closest is reported.
+ *
+ * The callbacks get `N` rays: 1 from rtk_intersect1 / rtk_occluded1 (and
+ * from rays a packet query finishes alone), or the packet's width from
+ * rtk_intersect4/8/16 on a scene whose top level holds the primitive, with
+ * valid[i] != 0 for the lanes to test (the others must not be touched).
+ * `rays` is then an rtk_rayhit / rtk_ray for N = 1, else an rtk_rayhitN /
+ * rtk_rayN.  On a hit within [tnear, tfar], intersect writes the lane's
+ * tfar, u, v and Ng (geomID, primID and instID are rtk's to write), and
+ * occluded sets the lane's tfar to -inf.  A lane whose tfar the callback
+ * leaves NaN, below tnear or above the old tfar is taken as a miss and
+ * restored.  Filters are not called for user geometry (its callbacks
+ * decide, with the query's context at hand).  The callbacks run on the
+ * query's thread and must not change or commit the scene. */
+typedef struct rtk_bounds_args {
+    void *geometry_user;
+    uint32_t prim_id;
+    float *lower, *upper; /* 3 floats each, for the callback to fill */
+} rtk_bounds_args;
+typedef void (*rtk_bounds_fn)(const rtk_bounds_args *args);
+
+typedef struct rtk_user_query_args {
+    const int *valid;                 /* N lanes */
+    void *geometry_user;
+    uint32_t geom_id, prim_id;
+    const rtk_query_context *context; /* the query's, or NULL */
+    void *rays;                       /* see above */
+    uint32_t N;
+} rtk_user_query_args;
+typedef void (*rtk_user_query_fn)(const rtk_user_query_args *args);
+
+/* RTK_ERROR_INVALID_OPERATION on a geometry that is not of the user type.
+ * The count and callbacks are read at the geometry's commit (which fails
+ * while any is missing) and the boxes at the scene's. */
+RTK_API rtk_error rtk_geometry_set_user_primitive_count(rtk_geometry geometry, uint32_t count);
+RTK_API rtk_error rtk_geometry_set_bounds_function(rtk_geometry geometry, rtk_bounds_fn bounds);
+RTK_API rtk_error rtk_geometry_set_intersect_function(rtk_geometry geometry, rtk_user_query_fn intersect);
+RTK_API rtk_error rtk_geometry_set_occluded_function(rtk_geometry geometry, rtk_user_query_fn occluded);
 
 /* Closest hit.  RTK_ERROR_INVALID_ARGUMENT for NULL arguments,
  * RTK_ERROR_INVALID_OPERATION for a scene that was never committed. */

@@ -112,6 +112,12 @@ RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray, const
  * A hit inside gets hit.instID = inst_id unless that is
  * RTK_INVALID_GEOMETRY_ID (the scene's own triangles); the normal stays in
  * the object's space, as Embree reports it. */
+/* A packet of `width` rays (4, 8 or 16) through one object of a top
+ * level, as rtk_intersectN_fn with the width given: for the core's user
+ * primitives, which take the packet whole. */
+RTK_BACKEND_FN(void, rtk_object_packet, (const rtk_accel *object, const int32_t *active, void *packet,
+                                         uint32_t width, const rtk_query *query));
+
 typedef struct rtk_build_object {
     const rtk_accel *accel;
     rtk_intersect1_fn intersect1;
@@ -122,6 +128,11 @@ typedef struct rtk_build_object {
     uint32_t flags;            /* RTK_BUILD_OBJECT_* */
     uint32_t mask;             /* the instance's mask (rtk_geometry_set_mask): a ray enters only if ray.mask & mask */
     uint32_t reserved;
+    /* Interface version 2: where not NULL (a user primitive, always
+     * RTK_BUILD_OBJECT_IDENTITY), the top level's packet kernels hand it
+     * their packets whole, with the lanes that enter its box active;
+     * else they trace the object lane by lane with intersect1 / occluded1. */
+    rtk_object_packet_fn intersect_packet, occluded_packet;
 } rtk_build_object;
 
 /* world_to_object is the identity: the ray goes in unchanged. */
