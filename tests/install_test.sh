@@ -24,6 +24,11 @@ cmake --build "$work/cmake" >/dev/null
 out=$(env -u RTK_ISA -u RTK_BACKEND_PATH "$work/cmake/minimal")
 echo "find_package: $out"
 grep -q "backend scalar: hit primitive 0 at t = 1" <<<"$out"
+# docs/GUIDE.md's program, with the counts of its picture (the same on
+# every backend)
+out=$(env -u RTK_ISA -u RTK_BACKEND_PATH "$work/cmake/guide")
+echo "guide: $(tail -1 <<<"$out")"
+grep -q "guide: backend scalar, 1536 rays, 790 hits (ground 596, fence 85, spheres 109), 42 in shadow" <<<"$out"
 # 2. pkg-config
 export PKG_CONFIG_PATH=$libdir/pkgconfig
 cc ${san[@]+"${san[@]}"} "$src/examples/minimal.c" -o "$work/minimal_pc" $(pkg-config --cflags --libs rtk) -lm \
