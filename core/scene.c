@@ -129,6 +129,7 @@ typedef struct dyn_tree {
 struct rtk_scene_s {
     atomic_int refs;
     rtk_device device;
+    void *user; /* rtk_scene_set_user_data */
     unsigned flags;
     rtk_build_quality quality;
     rtk_geometry *geoms; /* by geomID; NULL for free slots */
@@ -849,6 +850,22 @@ rtk_error rtk_scene_set_build_quality(rtk_scene s, rtk_build_quality q)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_set_build_quality: unknown quality %d", (int)q);
     s->quality = q;
     return RTK_OK;
+}
+
+rtk_error rtk_scene_set_user_data(rtk_scene s, void *user)
+{
+    CHECK_HANDLE(s, "rtk_scene_set_user_data");
+    s->user = user;
+    return RTK_OK;
+}
+
+void *rtk_scene_get_user_data(rtk_scene s)
+{
+    if (!s) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_get_user_data: scene is NULL");
+        return NULL;
+    }
+    return s->user;
 }
 
 rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_id)

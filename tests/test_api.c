@@ -264,6 +264,11 @@ static void test_geometry_lifecycle(void **state)
     int tag = 42;
     assert_int_equal(rtk_geometry_set_user_data(a, &tag), RTK_OK);
     assert_ptr_equal(rtk_geometry_get_user_data(a), &tag);
+    assert_ptr_equal(rtk_scene_get_user_data(scene), NULL);
+    assert_int_equal(rtk_scene_set_user_data(scene, &tag), RTK_OK);
+    assert_ptr_equal(rtk_scene_get_user_data(scene), &tag);
+    assert_int_equal(rtk_scene_set_user_data(NULL, &tag), RTK_ERROR_INVALID_ARGUMENT);
+    assert_ptr_equal(rtk_scene_get_user_data(NULL), NULL);
     assert_int_equal(rtk_geometry_commit(a), RTK_OK);
     assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &b), RTK_OK);
     assert_int_equal(rtk_geometry_set_shared_buffer(b, RTK_BUFFER_TYPE_VERTEX, quad_v, 0, 12, 7), RTK_OK);

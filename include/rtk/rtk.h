@@ -157,7 +157,23 @@ RTK_API const char *rtk_device_get_error_message(rtk_device device);
 typedef void (*rtk_error_callback)(void *user, rtk_error code, const char *message);
 RTK_API rtk_error rtk_device_set_error_callback(rtk_device device, rtk_error_callback cb, void *user);
 
-/* ---- threads ----------------------------------------------------------------
+/* ---- thread safety ------------------------------------------------------------
+ * - Queries (rtk_intersect*, rtk_occluded*, with or without _ctx) on a
+ *   committed scene may run from any number of threads at once, also while
+ *   other scenes are committed.
+ * - A scene must not be committed, have geometry attached or detached, or
+ *   have its flags, quality or user data set while any other call uses it
+ *   (queries included); different scenes may be committed from different
+ *   threads at once (their builds share the device's threads).
+ * - A geometry must not be changed (buffers, masks, filters, callbacks,
+ *   user data, commit) while a scene that holds it is being committed.
+ * - Retain and release may be called from any thread; the last release
+ *   must not overlap other calls on the object.
+ * - rtk_device_get_error_message is per thread; error callbacks run on the
+ *   thread of the failing call; filters and user-geometry callbacks run on
+ *   the querying thread.
+ *
+ * ---- threads ----------------------------------------------------------------
  * Builds run on the device's own pool of worker threads (pthreads), sized by
  * threads= (0: one per CPU the process may run on), created at the first
  * build that can use them and joined by rtk_device_release.  Scenes may be
@@ -283,6 +299,9 @@ RTK_API void rtk_scene_release(rtk_scene scene);
  * rtk_scene_info.flags_not_honoured, and announced with verbose=1. */
 RTK_API rtk_error rtk_scene_set_flags(rtk_scene scene, unsigned flags);
 RTK_API rtk_error rtk_scene_set_build_quality(rtk_scene scene, rtk_build_quality quality);
+/* The application's pointer, kept with the scene (added in rtk 0.2.0). */
+RTK_API rtk_error rtk_scene_set_user_data(rtk_scene scene, void *user);
+RTK_API void *rtk_scene_get_user_data(rtk_scene scene);
 
 /* Attaches (and retains) a geometry; its geomID is written to *geom_id. */
 RTK_API rtk_error rtk_scene_attach_geometry(rtk_scene scene, rtk_geometry geometry, uint32_t *geom_id);
