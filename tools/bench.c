@@ -125,8 +125,21 @@ static render_tracer embree_tracer(embree_target *e)
 /* MODE_REFIT: a geometry that deforms (quality REFIT): rtk's scene at the
  * given quality, Embree's at low quality and flagged dynamic, the two-level
  * mode in which alone Embree refits. */
-enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST, MODE_REFIT };
-static const char *const mode_names[] = {"default", "compact", "robust", "refit"};
+enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST, MODE_REFIT, MODE_MASK, MODE_FILTER };
+/* MODE_MASK: the geometry's mask set to 1 (the rays' is all ones, so every
+ * hit passes); MODE_FILTER: intersection and occlusion filters that accept
+ * every candidate.  The same hits as the default, so what they cost. */
+static const char *const mode_names[] = {"default", "compact", "robust", "refit", "mask", "filter"};
+
+static void e_accept(const struct RTCFilterFunctionNArguments *args)
+{
+    (void)args; /* valid[] left as it is: accepted */
+}
+static int rtk_accept(const rtk_filter_args *args)
+{
+    (void)args;
+    return 1;
+}
 
 typedef struct lib {
     char name[40];   /* "embree isa=avx2", "embree default", "rtk avx2" */
@@ -277,6 +290,12 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtcSetSceneBuildQuality(s, q[quality]);
         RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_TRIANGLE);
         rtcSetGeometryBuildQuality(g, q[quality]);
+        if (mode == MODE_MASK)
+            rtcSetGeometryMask(g, 1);
+        if (mode == MODE_FILTER) {
+            rtcSetGeometryIntersectFilterFunction(g, e_accept);
+            rtcSetGeometryOccludedFilterFunction(g, e_accept);
+        }
         if (mode == MODE_REFIT) {
             rtcSetSceneFlags(s, RTC_SCENE_FLAG_DYNAMIC);
             rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_LOW);
@@ -304,7 +323,10 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
                                                      : RTK_SCENE_FLAG_NONE) ||
         rtk_scene_set_build_quality(s, q[quality]) || rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
         rtk_geometry_set_build_quality(g, mode == MODE_REFIT ? RTK_BUILD_QUALITY_REFIT : q[quality]) ||
-        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count);
+        rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
+        (mode == MODE_MASK && rtk_geometry_set_mask(g, 1)) ||
+        (mode == MODE_FILTER &&
+         (rtk_geometry_set_intersect_filter(g, rtk_accept) || rtk_geometry_set_occluded_filter(g, rtk_accept)));
     return rtk_mesh_commit(sc, s, g, m, bad, t0, err, err_size);
 }
 
@@ -653,7 +675,7 @@ typedef struct bench_opts {
     char isa[4][16];
     int nisa;
     int api_on[4];
-    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy;
+    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features;
     int render_w, render_h, render_spp;
     int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
 } bench_opts;
@@ -691,7 +713,7 @@ static void bench_usage(FILE *f)
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
-            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy (default: all)\n"
+            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
             "  --repeat N        best of N passes per measurement (default: 3)\n"
             "  --builds N        best of N builds per start time (default: 3)\n"
@@ -1700,11 +1722,75 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
     return 0;
 }
 
+/* What masks and filters cost when a scene uses them: the default scene,
+ * one whose geometry has a mask, and one with filters that accept every
+ * candidate (the same hits), each library against its own default and
+ * rtk against Embree in the same mode; 1 thread. */
+static int section_features(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    if (!o->repeat)
+        return 0;
+    static const int modes[3] = {MODE_DEFAULT, MODE_MASK, MODE_FILTER};
+    static const int sets[2] = {SET_DIFFUSE, SET_SHADOW};
+    printf("\nfeatures: a geometry mask, and filters accepting every hit (the same hits as default); Mrays/s, "
+           "1 thread (ratio to the same library's default) [ratio to %s in the same mode]\n",
+           c->libs[0].name);
+    printf("  %-20s %-8s %-28s %-28s %-28s %-28s\n", "library", "mode", "diffuse single", "diffuse packet8",
+           "shadow single", "shadow packet8");
+    /* Every scene built first, then the passes interleaved (one pass of
+     * every cell per round, the best of the rounds kept), so that drift in
+     * the machine's speed falls on all cells alike. */
+    enum { MAXL = 8 };
+    const int nl = c->nlibs < MAXL ? c->nlibs : MAXL;
+    scene sc[MAXL][3];
+    memset(sc, 0, sizeof sc);
+    double rate[MAXL][3][2][2] = {{{{0}}}}; /* lib, mode, set, api */
+    unsigned char *hits = malloc(c->sets[SET_DIFFUSE].n + c->sets[SET_SHADOW].n + 1);
+    int bad = !hits;
+    for (int l = 0; l < nl && !bad; l++)
+        for (int mi = 0; mi < 3 && !bad; mi++)
+            bad = scene_build(&sc[l][mi], &c->libs[l], c->m, c->padded, modes[mi], 1, err, err_size);
+    for (int round = 0; round < o->repeat && !bad; round++)
+        for (int l = 0; l < nl; l++)
+            for (int mi = 0; mi < 3; mi++)
+                for (int k = 0; k < 2; k++)
+                    for (int a = 0; a < 2; a++) {
+                        const render_tracer t = scene_tracer(&sc[l][mi], 0);
+                        const double r =
+                            trace_set(&t, &c->sets[sets[k]], a ? 8 : 1, sets[k] == SET_SHADOW, 1, 1, hits);
+                        rate[l][mi][k][a] = r > rate[l][mi][k][a] ? r : rate[l][mi][k][a];
+                    }
+    for (int l = 0; l < nl && !bad; l++)
+        for (int mi = 0; mi < 3; mi++) {
+            printf("  %-20s %-8s", c->libs[l].name, mode_names[modes[mi]]);
+            for (int k = 0; k < 2; k++)
+                for (int a = 0; a < 2; a++) {
+                    const double r = rate[l][mi][k][a];
+                    char cell[64];
+                    snprintf(cell, sizeof cell, "%.2f (%.2fx)", r, ratio(r, rate[l][0][k][a]));
+                    if (l > 0)
+                        snprintf(cell + strlen(cell), sizeof cell - strlen(cell), " [%.2fx]",
+                                 ratio(r, rate[0][mi][k][a]));
+                    printf(" %-28s", cell);
+                    csv_row(&c->csv, "features", c->libs[l].name, mode_names[modes[mi]], set_names[sets[k]],
+                            a ? "packet8" : "single", 1, r, "Mrays/s", 0);
+                }
+            printf("\n");
+        }
+    for (int l = 0; l < nl; l++)
+        for (int mi = 0; mi < 3; mi++)
+            if (sc[l][mi].lib)
+                scene_release(&sc[l][mi]);
+    free(hits);
+    return bad;
+}
+
 int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
                     .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .do_trace = 1, .do_render = 1,
-                    .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1, .do_accuracy = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
+                    .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1, .do_accuracy = 1, .do_features = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
     const char *meshes[64];
     int nmeshes = 0;
     for (int i = 0; i < argc; i++) {
@@ -1753,7 +1839,8 @@ int cmd_bench(int argc, char **argv)
             }
         } else if (!strcmp(a, "--only") && more) {
             n = parse_list(argv[++i], items, 8);
-            o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_twolevel = o.do_motion = o.do_accuracy = 0;
+            o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_twolevel = o.do_motion = o.do_accuracy =
+                o.do_features = 0;
             for (int k = 0; k < n; k++) {
                 int *flag = !strcmp(items[k], "trace")      ? &o.do_trace
                             : !strcmp(items[k], "render")   ? &o.do_render
@@ -1762,6 +1849,7 @@ int cmd_bench(int argc, char **argv)
                             : !strcmp(items[k], "twolevel") ? &o.do_twolevel
                             : !strcmp(items[k], "motion")   ? &o.do_motion
                             : !strcmp(items[k], "accuracy") ? &o.do_accuracy
+                            : !strcmp(items[k], "features") ? &o.do_features
                                                             : NULL;
                 if (!flag)
                     n = -1;
@@ -1771,7 +1859,7 @@ int cmd_bench(int argc, char **argv)
             if (n < 1) {
                 fprintf(stderr,
                         "rtktool bench: --only wants a list of trace, render, build, refit, twolevel, motion, "
-                        "accuracy (got '%s')\n",
+                        "accuracy, features (got '%s')\n",
                         argv[i]);
                 return 2;
             }
@@ -1915,7 +2003,7 @@ int cmd_bench(int argc, char **argv)
             csv_row(&c.csv, "memory", c.libs[l].name, sc.layout, "", "", 1, sc.bytes_per_tri, "bytes per triangle", 0);
             scene_release(&sc);
         }
-        int bad = ((o.do_trace || o.do_build || o.do_refit || o.do_motion || o.do_accuracy) &&
+        int bad = ((o.do_trace || o.do_build || o.do_refit || o.do_motion || o.do_accuracy || o.do_features) &&
                    make_sets(&c, err, sizeof err)) ||
                   (o.do_trace && section_trace(&c, err, sizeof err)) ||
                   (o.do_render && section_render(&c, err, sizeof err)) ||
@@ -1923,7 +2011,8 @@ int cmd_bench(int argc, char **argv)
                   (o.do_refit && section_refit(&c, err, sizeof err)) ||
                   (o.do_twolevel && section_twolevel(&c, err, sizeof err)) ||
                   (o.do_motion && section_motion(&c, err, sizeof err)) ||
-                  (o.do_accuracy && section_accuracy(&c, err, sizeof err));
+                  (o.do_accuracy && section_accuracy(&c, err, sizeof err)) ||
+                  (o.do_features && section_features(&c, err, sizeof err));
         free_sets(&c);
         free(padded);
         rtk_mesh_free(&m);
