@@ -552,6 +552,90 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
 }
 #endif
 
+/* Masks, culling and filters (rtk.h): the geometry's mask is 2 and a
+ * filter rejects every fifth triangle (by primID: the same in every
+ * backend); the rays take masks 1 (which sees nothing), 2 and all ones and
+ * flags none, CULL_BACK and CULL_FRONT in turn.  Every backend and layout,
+ * single rays and packets, against the scalar backend's answers, on an
+ * eighth of the rays.  (Embree has no runtime culling, so it sits out.) */
+static int reject_fifth(const rtk_filter_args *a)
+{
+    return a->hit->primID % 5 != 0;
+}
+
+static int check_features(const scene_data *s, const rtk_ray *all, size_t n_all, char names[][32], size_t nb)
+{
+    const size_t n = (n_all / 8 + 15) / 16 * 16; /* whole packets of 16 (trace_packets) */
+    rtk_ray *rays = malloc(n * sizeof *rays);
+    answer *base[2] = {malloc(n * sizeof(answer)), malloc(n * sizeof(answer))};
+    answer *got = malloc(n * sizeof(answer));
+    assert_true(rays && base[0] && base[1] && got);
+    static const uint32_t masks[3] = {1u, 2u, ~0u};
+    static const uint32_t flags[3] = {0u, RTK_RAY_FLAG_CULL_BACK, RTK_RAY_FLAG_CULL_FRONT};
+    for (size_t i = 0; i < n; i++) {
+        rays[i] = all[i * 8 % n_all];
+        rays[i].mask = masks[i % 3];
+        rays[i].flags = flags[(i / 3) % 3];
+    }
+    int failures = 0;
+    size_t ties = 0, hits = 0;
+    for (size_t bc = 0; bc < 2 * nb; bc++) {
+        const size_t b = bc % nb;
+        const int compact = bc >= nb;
+        rtk_device dev = test_device(names[b]);
+        rtk_scene scene = test_scene_uncommitted(dev, s->v, s->nv, s->idx, s->nt,
+                                                 compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
+        rtk_geometry g = rtk_scene_get_geometry(scene, 0);
+        if (s->v1) {
+            assert_int_equal(rtk_geometry_set_time_step_count(g, 2), RTK_OK);
+            assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 1, s->v1, 0, 12, s->nv),
+                             RTK_OK);
+        }
+        assert_int_equal(rtk_geometry_set_mask(g, 2u), RTK_OK);
+        assert_int_equal(rtk_geometry_set_intersect_filter(g, reject_fifth), RTK_OK);
+        assert_int_equal(rtk_geometry_set_occluded_filter(g, reject_fifth), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+        if (rtk_scene_commit(scene) != RTK_OK)
+            fail_msg("commit: %s", rtk_device_get_error_message(dev));
+        if (bc == 0) {
+            trace1(scene, rays, n, 0, base[0]);
+            trace1(scene, rays, n, 1, base[1]);
+            for (size_t i = 0; i < n; i++) {
+                const int hit = base[0][i].prim != RTK_INVALID_GEOMETRY_ID;
+                hits += (size_t)hit;
+                if ((hit && (rays[i].mask == 1u || base[0][i].prim % 5 == 0)) ||
+                    hit != base[1][i].occluded) {
+                    if (failures++ < MAX_REPORTS)
+                        print_ray("features: a masked-out or filtered hit, or intersect and occluded differ, on", s,
+                                  i, &rays[i]);
+                }
+            }
+        }
+        static const unsigned widths[4] = {1, 4, 8, 16};
+        for (int wi = (bc == 0); wi < 4; wi++)
+            for (int occluded = 0; occluded < 2; occluded++) {
+                char what[64];
+                snprintf(what, sizeof what, "[%s%s features] %s%u", names[b], compact ? " compact" : "",
+                         occluded ? "occluded" : "intersect", widths[wi]);
+                if (widths[wi] == 1)
+                    trace1(scene, rays, n, occluded, got);
+                else
+                    failures += trace_packets(scene, rays, n, widths[wi], occluded, got, s, names[b]);
+                failures += compare(s, rays, n, occluded, base[occluded], got, what, &ties);
+            }
+        rtk_scene_release(scene);
+        rtk_device_release(dev);
+    }
+    print_message("%s, with masks, culling and a filter: %zu rays x %zu backends x 2 layouts x 8 calls: %zu hits, "
+                  "%zu ties adjudicated, %d failures\n",
+                  s->name, n, nb, hits, ties, failures);
+    free(rays);
+    free(base[0]);
+    free(base[1]);
+    free(got);
+    return failures;
+}
+
 static int check_scene(scene_data *s, char names[][32], size_t nb)
 {
     const size_t n = ray_count();
@@ -615,6 +699,7 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
     print_message("%s: %zu triangles, %zu rays x %zu backends x (2 layouts x 8 calls + Morton x 6 calls): %zu hits, "
                   "%zu occluded, %zu ties adjudicated, %d failures\n",
                   s->name, s->nt, n, nb, hits, occl, ties, failures);
+    failures += check_features(s, rays, n, names, nb);
 #ifdef RTK_HAVE_EMBREE
     failures += versus_embree(s, rays, n, base[0], base[1]);
 #endif

@@ -162,7 +162,7 @@ static int counts(const world *w, uint32_t p, const rtk_ray *ray, const rtk_tri_
         return 0;
     const float *t = w->ref.tri[p]; /* v0, e1, e2 */
     const float ng[3] = {t[4] * t[8] - t[5] * t[7], t[5] * t[6] - t[3] * t[8], t[3] * t[7] - t[4] * t[6]};
-    const float dn = ray->dir_x * ng[0] + ray->dir_y * ng[1] + ray->dir_z * ng[2];
+    const double dn = (double)ray->dir_x * ng[0] + (double)ray->dir_y * ng[1] + (double)ray->dir_z * ng[2];
     if ((ray->flags & RTK_RAY_FLAG_CULL_BACK) && dn > 0.0f)
         return 0;
     if ((ray->flags & RTK_RAY_FLAG_CULL_FRONT) && dn < 0.0f)

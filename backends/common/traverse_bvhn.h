@@ -638,7 +638,9 @@ static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, con
     rtk_triangle_normal(e1, e2, ng);
     const rtk_ray *r = p->ray;
     if (p->feat & RTK_FEAT_CULL) {
-        const float dn = r->dir_x * ng[0] + r->dir_y * ng[1] + r->dir_z * ng[2];
+        /* in double, where the products of floats are exact: the same sign
+         * in every backend, FMA or not */
+        const double dn = (double)r->dir_x * ng[0] + (double)r->dir_y * ng[1] + (double)r->dir_z * ng[2];
         if (((r->flags & RTK_RAY_FLAG_CULL_BACK) && dn > 0.0f) || ((r->flags & RTK_RAY_FLAG_CULL_FRONT) && dn < 0.0f))
             return 0;
     }
