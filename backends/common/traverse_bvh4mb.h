@@ -30,13 +30,15 @@ static inline const rtk_accel *segment_at(const rtk_accel *accel, float time, ra
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
 {
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel, q);
+    ray_pre_init(&p, &rayhit->ray, accel);
     const rtk_accel *seg = segment_at(accel, rayhit->ray.time, &p);
     if (!seg)
         return;
+    feat_ctx fc; /* (the attributes are the top accel's: the segments share them) */
+    const feat_ctx *f = feat_init(&fc, &rayhit->ray, accel, q);
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
-    closest_from(seg, seg->root, &p, rayhit->ray.tnear, &tfar, &best);
+    closest_from(seg, seg->root, &p, rayhit->ray.tnear, &tfar, &best, f);
     if (best.lane >= 0)
         closest_hit_store(seg, &best, &p, tfar, rayhit);
 }
@@ -44,8 +46,9 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     ray_pre p;
-    ray_pre_init(&p, ray, accel, q);
+    ray_pre_init(&p, ray, accel);
     const rtk_accel *seg = segment_at(accel, ray->time, &p);
-    if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar))
+    feat_ctx fc;
+    if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar, feat_init(&fc, ray, accel, q)))
         ray->tfar = -INFINITY;
 }

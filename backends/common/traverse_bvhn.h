@@ -174,18 +174,31 @@ typedef struct ray_pre {
     vnode ftime;          /* the ray's time in its segment, for the planes */
     vfloat4 f4, one_f4;   /* the same and 1 - it, for the vertices */
 #endif
-    /* Masks, culling and filters (rtk.h): feat is non-zero when the ray
-     * asks for culling or the tree holds geometry attributes, and only
-     * then are candidate hits handed to accept_lane, one by one; the
-     * usual path pays one test of feat per leaf block hit. */
-    unsigned feat;
+} ray_pre;
+
+/* Masks, culling and filters (rtk.h), for a ray that asks for culling in
+ * a tree that holds geometry attributes: its candidate hits go through
+ * accept_lane one by one, in traversals of their own (closest_from_feat,
+ * any_from_feat).  Kept out of ray_pre, so the usual path's ray and code
+ * are those of a library without these features. */
+typedef struct feat_ctx {
+    unsigned feat; /* RTK_FEAT_* */
     const rtk_geometry_attrs *attrs;
     const rtk_ray *ray;
     const rtk_query *q;
-} ray_pre;
-
+} feat_ctx;
 #define RTK_FEAT_CULL (RTK_RAY_FLAG_CULL_BACK | RTK_RAY_FLAG_CULL_FRONT)
 #define RTK_FEAT_ATTRS (1u << 8)
+
+/* f filled for the ray, or NULL when it needs none of the features. */
+static inline const feat_ctx *feat_init(feat_ctx *f, const rtk_ray *r, const rtk_accel *accel, const rtk_query *q)
+{
+    const unsigned feat = (r->flags & RTK_FEAT_CULL) | (accel->attrs ? RTK_FEAT_ATTRS : 0u);
+    if (__builtin_expect(!feat, 1))
+        return NULL;
+    *f = (feat_ctx){feat, accel->attrs, r, q};
+    return f;
+}
 
 /* Everything per axis is computed for x, y, z at once in lanes 0..2 of
  * 4-wide vectors (lane 3 carries tnear or time and is never used), then
@@ -194,12 +207,9 @@ typedef struct ray_pre {
  * ray's instructions on dragon.ply: 176 of 1648, callgrind).  The values
  * are those of per-axis arithmetic bit for bit (the same IEEE operations
  * lane by lane). */
-static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel, const rtk_query *q)
+static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel)
 {
-    p->feat = (r->flags & RTK_FEAT_CULL) | (accel->attrs ? RTK_FEAT_ATTRS : 0u);
-    p->attrs = accel->attrs;
-    p->ray = r;
-    p->q = q;
+    (void)accel;
     static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
     static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
@@ -630,7 +640,7 @@ static inline void lane_triangle(const block_t *t, int lane, float v0[3], float 
 /* Whether a candidate hit counts (rtk.h: masks, culling, filters): lane
  * `lane` of block t at distance tt with barycentrics u, v, for a ray whose
  * closest hit so far is at tfar; occluded selects the filter. */
-static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, const ray_pre *p, float tt, float u,
+static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, const feat_ctx *p, float tt, float u,
                                                  float v, float tfar, int occluded)
 {
     float v0[3], e1[3], e2[3], ng[3];
@@ -664,7 +674,7 @@ static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, con
 /* The closest-hit query's candidates of one block (mask, the lanes hit
  * within [tnear, tfar]) through accept_lane, nearest first: the mask of
  * the nearest accepted, or 0. */
-static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const ray_pre *p, const tri4_hit *h,
+static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const feat_ctx *p, const tri4_hit *h,
                                                          unsigned mask, float tnear_s, float tfar_s)
 {
     _Alignas(16) float T[4], absdet[4], U[4], V[4];
@@ -693,7 +703,7 @@ static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const
 }
 
 /* The any-hit query's: 1 when one is accepted. */
-static __attribute__((noinline)) int accept_any(const block_t *t, const ray_pre *p, const tri4_hit *h, unsigned mask,
+static __attribute__((noinline)) int accept_any(const block_t *t, const feat_ctx *p, const tri4_hit *h, unsigned mask,
                                                 float tnear_s, float tfar_s)
 {
     _Alignas(16) float T[4], absdet[4], U[4], V[4];
@@ -806,7 +816,7 @@ typedef struct closest_hit {
  * finish alone. */
 static inline __attribute__((always_inline)) void closest_from_(const rtk_accel *accel, uint32_t root,
                                                                   const ray_pre *p, float tnear_s, float *tfar_io,
-                                                                  closest_hit *best, int fused, int feat)
+                                                                  closest_hit *best, int fused, const feat_ctx *f)
 {
     const vfloat4 tnear = vf4_set1(tnear_s);
     const vnode ntnear = vn_set1(tnear_s + 0.0f); /* -0.0 -> +0.0 for node_intersect */
@@ -826,8 +836,8 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             tri4_hit h;
             unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
-            if (feat && mask)
-                mask = accept_closest(t, p, &h, mask, tnear_s, tfar_s);
+            if (f && mask)
+                mask = accept_closest(t, f, &h, mask, tnear_s, tfar_s);
             if (mask) {
                 /* the nearest of the lanes hit */
                 _Alignas(16) float T[4], absdet[4], U[4], V[4];
@@ -868,7 +878,8 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
 
 /* Any hit below `root` within [tnear, tfar]: 1 when there is one. */
 static inline __attribute__((always_inline)) int any_from_(const rtk_accel *accel, uint32_t root, const ray_pre *p,
-                                                             float tnear_s, float tfar_s, int fused, int feat)
+                                                             float tnear_s, float tfar_s, int fused,
+                                                             const feat_ctx *f)
 {
     const vfloat4 tnear = vf4_set1(tnear_s), tfar = vf4_set1(tfar_s);
     const vnode ntnear = vn_set1(tnear_s + 0.0f), ntfar = vn_set1(tfar_s + 0.0f); /* no -0.0 */
@@ -883,9 +894,14 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
         for (uint32_t block = first; block < end; block++) {
             tri4_hit h;
             block_t scratch;
+            if (!f) { /* (the usual path, written as it was before the features) */
+                if (triangle4_intersect(LEAF_BLOCK(accel, block, &scratch), p, tnear, tfar, &h))
+                    return 1;
+                continue;
+            }
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             const unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
-            if (mask && (!feat || accept_any(t, p, &h, mask, tnear_s, tfar_s)))
+            if (mask && accept_any(t, f, &h, mask, tnear_s, tfar_s))
                 return 1;
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
@@ -901,50 +917,65 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
  * vectors in memory (with the call in it, occluded1 lost 7% on dragon's
  * shadow rays, rtktool bench). */
 static __attribute__((noinline)) void closest_from_feat(const rtk_accel *accel, uint32_t root, const ray_pre *p,
-                                                        float tnear_s, float *tfar_io, closest_hit *best)
+                                                        float tnear_s, float *tfar_io, closest_hit *best,
+                                                        const feat_ctx *f)
 {
 #if RTK_SIMD_HAS_FMA
-    closest_from_(accel, root, p, tnear_s, tfar_io, best, p->fma, 1);
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, p->fma, f);
 #else
-    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, 1);
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, f);
 #endif
 }
 
 static __attribute__((noinline)) int any_from_feat(const rtk_accel *accel, uint32_t root, const ray_pre *p,
-                                                   float tnear_s, float tfar_s)
+                                                   float tnear_s, float tfar_s, const feat_ctx *f)
 {
 #if RTK_SIMD_HAS_FMA
-    return any_from_(accel, root, p, tnear_s, tfar_s, p->fma, 1);
+    return any_from_(accel, root, p, tnear_s, tfar_s, p->fma, f);
 #else
-    return any_from_(accel, root, p, tnear_s, tfar_s, 0, 1);
+    return any_from_(accel, root, p, tnear_s, tfar_s, 0, f);
 #endif
 }
 
-static void closest_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float *tfar_io,
-                         closest_hit *best)
+static void closest_from_plain(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s,
+                               float *tfar_io, closest_hit *best)
 {
-    if (__builtin_expect(p->feat != 0, 0)) {
-        closest_from_feat(accel, root, p, tnear_s, tfar_io, best);
-        return;
-    }
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(p->fma, 1)) {
-        closest_from_(accel, root, p, tnear_s, tfar_io, best, 1, 0);
+        closest_from_(accel, root, p, tnear_s, tfar_io, best, 1, NULL);
         return;
     }
 #endif
-    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, 0);
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, NULL);
 }
 
-static int any_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float tfar_s)
+static int any_from_plain(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float tfar_s)
 {
-    if (__builtin_expect(p->feat != 0, 0))
-        return any_from_feat(accel, root, p, tnear_s, tfar_s);
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(p->fma, 1))
-        return any_from_(accel, root, p, tnear_s, tfar_s, 1, 0);
+        return any_from_(accel, root, p, tnear_s, tfar_s, 1, NULL);
 #endif
-    return any_from_(accel, root, p, tnear_s, tfar_s, 0, 0);
+    return any_from_(accel, root, p, tnear_s, tfar_s, 0, NULL);
+}
+
+/* The traversals for a ray with feat_init's f: the usual ones when it is
+ * NULL.  (The choice is made here, outside them: with the branch to the
+ * features' traversal inside, GCC kept more of the usual loop's vectors
+ * in memory, 36 instructions more per shadow ray on dragon.ply.) */
+static inline void closest_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s,
+                                float *tfar_io, closest_hit *best, const feat_ctx *f)
+{
+    if (__builtin_expect(f != NULL, 0))
+        closest_from_feat(accel, root, p, tnear_s, tfar_io, best, f);
+    else
+        closest_from_plain(accel, root, p, tnear_s, tfar_io, best);
+}
+
+static inline int any_from(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float tfar_s,
+                           const feat_ctx *f)
+{
+    return __builtin_expect(f != NULL, 0) ? any_from_feat(accel, root, p, tnear_s, tfar_s, f)
+                                          : any_from_plain(accel, root, p, tnear_s, tfar_s);
 }
 
 /* The geometric normal and ids of a closest hit (p: the ray's, for the
@@ -983,10 +1014,12 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel, q);
+    ray_pre_init(&p, &rayhit->ray, accel);
+    feat_ctx fc;
+    const feat_ctx *f = feat_init(&fc, &rayhit->ray, accel, q);
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
-    closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best);
+    closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, f);
     if (best.lane >= 0)
         closest_hit_store(accel, &best, &p, tfar, rayhit);
 }
@@ -996,8 +1029,9 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     ray_pre p;
-    ray_pre_init(&p, ray, accel, q);
-    if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar))
+    ray_pre_init(&p, ray, accel);
+    feat_ctx fc;
+    if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar, feat_init(&fc, ray, accel, q)))
         ray->tfar = -INFINITY;
 }
 #endif

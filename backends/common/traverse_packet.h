@@ -492,13 +492,14 @@ static inline rtk_ray PK_(lane_ray)(const rayK *r, int i)
                      .tfar = r->tfar[i], .mask = r->mask[i], .id = r->id[i], .flags = r->flags[i]};
 }
 
-/* A lane as a single ray, for finishing a subtree alone (*one holds the
- * ray, which p points to). */
-static inline void PK_(lane_ray_pre)(ray_pre *p, rtk_ray *one, const rayK *r, int i, const rtk_accel *accel,
-                                     const rtk_query *q)
+/* A lane as a single ray, for finishing a subtree alone: *one holds the
+ * ray, and the features' context (if it needs them) is made in *fc. */
+static inline const feat_ctx *PK_(lane_ray_pre)(ray_pre *p, rtk_ray *one, feat_ctx *fc, const rayK *r, int i,
+                                                const rtk_accel *accel, const rtk_query *q)
 {
     *one = PK_(lane_ray)(r, i);
-    ray_pre_init(p, one, accel, q);
+    ray_pre_init(p, one, accel);
+    return feat_init(fc, one, accel, q);
 }
 
 /* The candidates `hit` (lanes: rays) of triangle j of block t through
@@ -517,12 +518,9 @@ static __attribute__((noinline)) unsigned PK_(accept)(const rtk_accel *accel, co
     for (unsigned m = hit; m; m &= m - 1) {
         const int i = __builtin_ctz(m);
         const rtk_ray one = PK_(lane_ray)(r, i);
-        ray_pre p; /* only what accept_lane reads */
-        p.feat = (one.flags & RTK_FEAT_CULL) | (accel->attrs ? RTK_FEAT_ATTRS : 0u);
-        p.attrs = accel->attrs;
-        p.ray = &one;
-        p.q = q;
-        if (accept_lane(t, j, &p, tt[i], u[i], v[i], tf[i], occluded))
+        feat_ctx fc;
+        const feat_ctx *f = feat_init(&fc, &one, accel, q);
+        if (!f || accept_lane(t, j, f, tt[i], u[i], v[i], tf[i], occluded))
             accepted |= 1u << i;
     }
     return accepted;
@@ -581,16 +579,17 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 const int i = __builtin_ctz(m);
                 ray_pre rp;
                 rtk_ray one;
-                PK_(lane_ray_pre)(&rp, &one, ray, i, accel, q);
+                feat_ctx fc;
+                const feat_ctx *f = PK_(lane_ray_pre)(&rp, &one, &fc, ray, i, accel, q);
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
-                    closest_from(accel, cur, &rp, ray->tnear[i], &lane_t[i], &best);
+                    closest_from(accel, cur, &rp, ray->tnear[i], &lane_t[i], &best, f);
                     if (best.lane >= 0) {
                         lane_u[i] = best.u;
                         lane_v[i] = best.v;
                         ref_out[i] = best.leaf * 4u + (uint32_t)best.lane;
                     }
-                } else if (any_from(accel, cur, &rp, ray->tnear[i], lane_t[i])) {
+                } else if (any_from(accel, cur, &rp, ray->tnear[i], lane_t[i], f)) {
                     lane_t[i] = -INFINITY;
                     done |= 1u << i;
                 }
