@@ -2,8 +2,10 @@
  * triangle geometry with vertex and index data taken from the input — NaN,
  * infinite and huge values, indices out of range —, time steps, instances,
  * attach and detach, flags and qualities, vertex updates, commits, single
- * rays and packets).  Every call must return an error code or succeed,
+ * rays and packets, masks, culling, filters and user geometry whose
+ * callbacks answer in and out of range).  Every call must return an error code or succeed,
  * never crash, hang or leak; an error must come with a message. */
+#include <math.h>
 #include <string.h>
 
 #include "fuzz_device.h"
@@ -75,15 +77,55 @@ static void fill_geometry(rtk_device dev, rtk_geometry g, input *in)
         idx[i] = u8(in) % (uint32_t)(nv + 2); /* some out of range */
 }
 
+/* Filters and user geometry driven by the input too: a filter's answer
+ * by the primitive, and user primitives' boxes and hit distances from
+ * `user_box` (filled from the input at the start of each run). */
+static int fuzz_filter(const rtk_filter_args *a)
+{
+    return (a->hit->primID + a->ray->id) % 3 != 0;
+}
+
+static float user_box[16][7]; /* lower, upper, and the t a callback answers (from the input as it goes) */
+
+static void fuzz_bounds(const rtk_bounds_args *a)
+{
+    for (int k = 0; k < 3; k++) {
+        a->lower[k] = user_box[a->prim_id % 16][k];
+        a->upper[k] = user_box[a->prim_id % 16][3 + k];
+    }
+}
+
+static void fuzz_user_query(const rtk_user_query_args *a, int occluded)
+{
+    for (uint32_t i = 0; i < a->N; i++) {
+        if (!a->valid[i])
+            continue;
+        float *tfar = (float *)a->rays + 8 * a->N + i;
+        const float t = user_box[a->prim_id % 16][6];
+        *tfar = occluded && t > 0.0f ? -INFINITY : t; /* anything: NaN, beyond tfar, before tnear */
+        if (!occluded) /* (occluded rays have no hit fields) */
+            ((float *)a->rays)[15 * a->N + i] = t; /* u */
+    }
+}
+static void fuzz_user_intersect(const rtk_user_query_args *a) { fuzz_user_query(a, 0); }
+static void fuzz_user_occluded(const rtk_user_query_args *a) { fuzz_user_query(a, 1); }
+
 static void trace(rtk_device dev, rtk_scene s, input *in)
 {
     rtk_rayhit rh = {.ray = {.org_x = f32(in), .org_y = f32(in), .org_z = f32(in), .tnear = u8(in) & 1 ? 0.0f : f32(in),
                              .dir_x = f32(in), .dir_y = f32(in), .dir_z = f32(in), .time = (float)u8(in) / 200.0f,
                              .tfar = u8(in) & 1 ? 1e30f : f32(in), .mask = ~0u}};
+    if (u8(in) & 1) {
+        rh.ray.mask = u8(in);
+        rh.ray.flags = u8(in);
+        rh.ray.id = u8(in);
+    }
     rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
     rtk_ray shadow = rh.ray;
-    checked(dev, rtk_intersect1(s, &rh));
-    checked(dev, rtk_occluded1(s, &shadow));
+    rtk_query_context ctx = {.user = NULL};
+    const rtk_query_context *c = u8(in) & 1 ? &ctx : NULL;
+    checked(dev, rtk_intersect1_ctx(s, &rh, c));
+    checked(dev, rtk_occluded1_ctx(s, &shadow, c));
     rtk_rayhit8 p8;
     memset(&p8, 0, sizeof p8);
     int valid[8];
@@ -98,11 +140,12 @@ static void trace(rtk_device dev, rtk_scene s, input *in)
         p8.ray.tnear[l] = shadow.tnear;
         p8.ray.tfar[l] = shadow.tfar;
         p8.ray.time[l] = shadow.time;
-        p8.ray.mask[l] = ~0u;
+        p8.ray.mask[l] = shadow.mask;
+        p8.ray.flags[l] = shadow.flags;
         p8.hit.geomID[l] = RTK_INVALID_GEOMETRY_ID;
     }
-    checked(dev, rtk_intersect8(s, valid, &p8));
-    checked(dev, rtk_occluded8(s, valid, &p8.ray));
+    checked(dev, rtk_intersect8_ctx(s, valid, &p8, c));
+    checked(dev, rtk_occluded8_ctx(s, valid, &p8.ray, c));
 }
 
 int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size);
@@ -112,11 +155,13 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     input in = {data, size};
     rtk_scene scenes[SCENES] = {0};
     rtk_geometry geoms[GEOMS] = {0};
+    memset(user_box, 0, sizeof user_box);
+    unsigned boxes = 0;
     for (int op = 0; in.n && op < 64; op++) {
         const uint8_t code = u8(&in);
         rtk_scene *s = &scenes[u8(&in) % SCENES];
         rtk_geometry *g = &geoms[u8(&in) % GEOMS];
-        switch (code % 12) {
+        switch (code % 14) {
         case 0: /* a new scene */
             rtk_scene_release(*s);
             *s = NULL;
@@ -185,6 +230,26 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         case 10:
             rtk_scene_release(*s);
             *s = NULL;
+            break;
+        case 12: /* a mask and filters (refused on instances and user geometry) */
+            checked(dev, rtk_geometry_set_mask(*g, u8(&in)));
+            checked(dev, rtk_geometry_set_intersect_filter(*g, u8(&in) & 1 ? fuzz_filter : NULL));
+            checked(dev, rtk_geometry_set_occluded_filter(*g, u8(&in) & 1 ? fuzz_filter : NULL));
+            checked(dev, rtk_geometry_commit(*g));
+            break;
+        case 13: /* a new user geometry; some callbacks missing */
+            rtk_geometry_release(*g);
+            *g = NULL;
+            checked(dev, rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, g));
+            for (int k = 0; k < 7; k++, boxes++) /* one more primitive's box and answer */
+                user_box[boxes / 7 % 16][k] = f32(&in);
+            checked(dev, rtk_geometry_set_user_primitive_count(*g, u8(&in) % 40));
+            if (u8(&in) % 8)
+                checked(dev, rtk_geometry_set_bounds_function(*g, fuzz_bounds));
+            checked(dev, rtk_geometry_set_intersect_function(*g, fuzz_user_intersect));
+            if (u8(&in) % 8)
+                checked(dev, rtk_geometry_set_occluded_function(*g, fuzz_user_occluded));
+            checked(dev, rtk_geometry_commit(*g));
             break;
         default:
             rtk_geometry_release(*g);
