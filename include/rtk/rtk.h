@@ -587,6 +587,21 @@ typedef struct rtk_rayhit {
     rtk_hit hit;
 } rtk_rayhit;
 
+/* ---- secondary rays (added in rtk 0.2.0) --------------------------------------
+ * Where a ray that leaves a surface should start so that it does not hit
+ * that surface again (self-intersection) nor skip geometry just beyond it:
+ * the method of Waechter and Binder ("A Fast and Robust Method for
+ * Avoiding Self-Intersection", Ray Tracing Gems, 2019).  p is the hit
+ * point as computed from the ray (org + t * dir) or from the triangle
+ * (barycentrics), n the geometric normal, unit length, pointing to the
+ * side the new ray leaves on (flip Ng for rays that go through, as
+ * refraction does).  Each coordinate moves along n by 256 ulps of itself
+ * times that component of n (integer arithmetic on the float's bits), or,
+ * within 1/32 of zero where ulps vanish, by 2^-16 times the component.
+ * Start the new ray there with tnear = 0.  tests/test_offset.c measures
+ * self-intersections and lost geometry against a fixed epsilon. */
+RTK_API void rtk_offset_ray_origin(const float p[3], const float n[3], float out[3]);
+
 /* ---- masks, face culling and filters (added after rtk 0.1.0) ----------------
  * Masks.  Every geometry, triangles and instances alike, has a 32-bit mask
  * (all ones unless set); a ray hits it only when ray.mask & mask != 0.  An
