@@ -29,22 +29,24 @@ typedef struct backend_scene {
     rtk_scene scene;
 } backend_scene;
 
-/* every backend, with its default layout and compact */
-static backend_scene scenes[2 * TEST_MAX_BACKENDS];
+/* every backend, with its default layout, compact, robust and both: the
+ * defined answers hold in every mode */
+static backend_scene scenes[4 * TEST_MAX_BACKENDS];
 static size_t nscenes;
 
-/* scenes[] over the given triangles, on every backend in both layouts */
+/* scenes[] over the given triangles, on every backend in every layout */
 static void build_scenes(const float *v, size_t nv, const uint32_t *idx, size_t nt)
 {
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
-    nscenes = 2 * nb;
+    static const unsigned flags[4] = {RTK_SCENE_FLAG_NONE, RTK_SCENE_FLAG_COMPACT, RTK_SCENE_FLAG_ROBUST,
+                                      RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_COMPACT};
+    static const char *const suffix[4] = {"", " compact", " robust", " robust compact"};
+    nscenes = 4 * nb;
     for (size_t i = 0; i < nscenes; i++) {
-        const int compact = i >= nb;
-        snprintf(scenes[i].name, sizeof scenes[i].name, "%s%s", names[i % nb], compact ? " compact" : "");
+        snprintf(scenes[i].name, sizeof scenes[i].name, "%s%s", names[i % nb], suffix[i / nb]);
         scenes[i].dev = test_device(names[i % nb]);
-        scenes[i].scene = test_scene_flags(scenes[i].dev, v, nv, idx, nt,
-                                           compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
+        scenes[i].scene = test_scene_flags(scenes[i].dev, v, nv, idx, nt, flags[i / nb]);
     }
 }
 
