@@ -29,7 +29,7 @@ out=$(report "$prefix/include" "$libdir")
 echo "$out"
 grep -q "^active: $best$" <<<"$out"
 [ "$(grep -c '^backend ' <<<"$out")" = 2 ]
-! grep -q "rejected" <<<"$out"
+! grep -q "rejected" <<<"$out" || { echo "a backend was rejected"; exit 1; }
 # no backend at all: a clear error naming the directory searched
 rm "$libdir"/rtk/librtk_backend_*.so
 out=$(report "$prefix/include" "$libdir")
@@ -50,7 +50,7 @@ done
 # dpkg-deb with SIGPIPE, which pipefail reports)
 core=$(dpkg-deb -c librtk_*.deb) dev=$(dpkg-deb -c librtk-dev_*.deb) avx2=$(dpkg-deb -c librtk-backend-avx2_*.deb)
 grep -q 'lib/librtk.so.0 -> librtk.so.0' <<<"$core"
-! grep -q 'include/' <<<"$core"
+! grep -q 'include/' <<<"$core" || { echo "librtk ships headers"; exit 1; }
 grep -q 'include/rtk/rtk.h' <<<"$dev"
 grep -q 'lib/librtk.so -> librtk.so.0' <<<"$dev"
 grep -q 'rtk/librtk_backend_avx2.so$' <<<"$avx2"

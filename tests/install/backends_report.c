@@ -13,6 +13,7 @@ int main(void)
         return 2;
     }
     printf("active: %s\n", rtk_device_get_backend_name(dev));
+    printf("searched: %s\n", rtk_device_get_search_path(dev));
     const size_t n = rtk_device_get_backend_count(dev);
     for (size_t i = 0; i < n; i++) {
         rtk_backend_info bi = {.struct_size = sizeof bi};
