@@ -2042,11 +2042,10 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
     if (!any)
         return RTK_OK;
     const rtk_query query = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
-    const rtk_query *qp = &query;
     const struct packet_kernel *k = &s->packet[occluded][n == 4 ? 0 : n == 8 ? 1 : 2];
     const size_t fields = occluded ? RAY_FIELDS : RAYHIT_FIELDS;
     if (k->width == n) {
-        k->fn(s->accel, active, packet, qp);
+        k->fn(s->accel, active, packet, &query);
     } else if (k->width > 1) { /* narrower packets: through an aligned copy */
         _Alignas(64) uint32_t sub[RAYHIT_FIELDS * 16];
         for (uint32_t base = 0; base < n; base += k->width) {
@@ -2056,7 +2055,7 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
             if (!sub_any)
                 continue;
             copy_lanes(sub, k->width, 0, packet, n, base, k->width, fields);
-            k->fn(s->accel, active + base, sub, qp);
+            k->fn(s->accel, active + base, sub, &query);
             for (uint32_t i = 0; i < k->width; i++)
                 if (active[base + i])
                     copy_lanes(packet, n, base + i, sub, k->width, i, 1, fields);
@@ -2068,9 +2067,9 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
             rtk_rayhit rh;
             copy_lanes(&rh, 1, 0, packet, n, i, 1, fields);
             if (occluded)
-                s->occluded1(s->accel, &rh.ray, qp);
+                s->occluded1(s->accel, &rh.ray, &query);
             else
-                s->intersect1(s->accel, &rh, qp);
+                s->intersect1(s->accel, &rh, &query);
             copy_lanes(packet, n, i, &rh, 1, 0, 1, fields);
         }
     }

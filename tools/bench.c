@@ -1729,8 +1729,6 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
 static int section_features(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
-    if (!o->repeat)
-        return 0;
     static const int modes[3] = {MODE_DEFAULT, MODE_MASK, MODE_FILTER};
     static const int sets[2] = {SET_DIFFUSE, SET_SHADOW};
     printf("\nfeatures: a geometry mask, and filters accepting every hit (the same hits as default); Mrays/s, "

@@ -354,20 +354,27 @@ static inline vfloat4 obj_plane(const rtk_bvh4_node *n, size_t off)
     return vf4_load((const float *)((const char *)n + off));
 }
 
-/* The children of n the ray enters within [tnear, tfar], nearest first, in
- * ref[] and dist[]; returns how many.  The four boxes at once (an empty
- * slot's inverted box is never entered). */
-static int node_children(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, uint32_t ref[4],
-                         float dist[4])
+/* The mask of n's child slots the ray enters within [tnear, tfar], their
+ * entry distances in t[].  The four boxes at once (an empty slot's
+ * inverted box is never entered). */
+static unsigned node_entered(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, float t[4])
 {
     vfloat4 tmin = vf4_set1(tnear), tmax = vf4_set1(tfar);
     for (int k = 0; k < 3; k++) {
         tmin = vf4_max(tmin, vf4_mul(vf4_sub(obj_plane(n, p->near_off[k]), p->org[k]), p->inv[k]));
         tmax = vf4_min(tmax, vf4_mul(vf4_sub(obj_plane(n, p->far_off[k]), p->org[k]), p->inv_far[k]));
     }
-    unsigned mask = (unsigned)vb4_mask(vf4_le(tmin, tmax));
-    _Alignas(16) float t[4];
     vf4_store(t, tmin);
+    return (unsigned)vb4_mask(vf4_le(tmin, tmax));
+}
+
+/* The children of n the ray enters within [tnear, tfar], nearest first, in
+ * ref[] and dist[]; returns how many. */
+static int node_children(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, uint32_t ref[4],
+                         float dist[4])
+{
+    _Alignas(16) float t[4];
+    unsigned mask = node_entered(n, p, tnear, tfar, t);
     int count = 0;
     for (; mask; mask &= mask - 1) {
         const int c = __builtin_ctz(mask);
@@ -554,14 +561,11 @@ static void objects_packet(const rtk_accel *accel, const int32_t *active, void *
             const rtk_bvh4_node *n = &nodes[cur];
             for (unsigned m = live; m; m &= m - 1) {
                 const int i = __builtin_ctz(m);
-                uint32_t ref[4];
-                float dist[4];
-                const int nc = node_children(n, &pr[i], *lane_f(packet, k, F_TNEAR, (uint32_t)i),
-                                             *lane_f(packet, k, F_TFAR, (uint32_t)i), ref, dist);
-                for (int c = 0; c < nc; c++)
-                    for (int slot = 0; slot < 4; slot++)
-                        if (n->child[slot] == ref[c])
-                            want[slot] |= 1u << i;
+                _Alignas(16) float dist[4];
+                for (unsigned e = node_entered(n, &pr[i], *lane_f(packet, k, F_TNEAR, (uint32_t)i),
+                                               *lane_f(packet, k, F_TFAR, (uint32_t)i), dist);
+                     e; e &= e - 1)
+                    want[__builtin_ctz(e)] |= 1u << i;
             }
             for (int slot = 3; slot >= 0; slot--)
                 if (want[slot])

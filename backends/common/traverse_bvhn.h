@@ -894,14 +894,9 @@ static inline __attribute__((always_inline)) int any_from_(const rtk_accel *acce
         for (uint32_t block = first; block < end; block++) {
             tri4_hit h;
             block_t scratch;
-            if (!f) { /* (the usual path, written as it was before the features) */
-                if (triangle4_intersect(LEAF_BLOCK(accel, block, &scratch), p, tnear, tfar, &h))
-                    return 1;
-                continue;
-            }
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             const unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
-            if (mask && accept_any(t, f, &h, mask, tnear_s, tfar_s))
+            if (mask && (!f || accept_any(t, f, &h, mask, tnear_s, tfar_s)))
                 return 1;
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
