@@ -552,6 +552,43 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
 }
 #endif
 
+/* s's scene on dev (flags: the scene's), not yet committed; a moving s
+ * with its second time step.  *g: its one geometry, committed. */
+static rtk_scene conformance_scene(rtk_device dev, const scene_data *s, unsigned flags, rtk_geometry *g)
+{
+    rtk_scene scene = test_scene_uncommitted(dev, s->v, s->nv, s->idx, s->nt, flags);
+    *g = rtk_scene_get_geometry(scene, 0);
+    if (s->v1) {
+        assert_int_equal(rtk_geometry_set_time_step_count(*g, 2), RTK_OK);
+        assert_int_equal(rtk_geometry_set_shared_buffer_slot(*g, RTK_BUFFER_TYPE_VERTEX, 1, s->v1, 0, 12, s->nv),
+                         RTK_OK);
+        assert_int_equal(rtk_geometry_commit(*g), RTK_OK);
+    }
+    return scene;
+}
+
+/* Rays [0, n) through the calls of widths[first .. end) (1, 4, 8, 16),
+ * intersect and occluded, compared with base; label names the backend and
+ * layout in messages.  Returns the failures. */
+static int check_calls(rtk_scene scene, const scene_data *s, const rtk_ray *rays, size_t n, int first, int end,
+                       answer *const base[2], answer *got, const char *backend, const char *label, size_t *ties)
+{
+    static const unsigned widths[4] = {1, 4, 8, 16};
+    int failures = 0;
+    for (int wi = first; wi < end; wi++)
+        for (int occluded = 0; occluded < 2; occluded++) {
+            char what[96];
+            snprintf(what, sizeof what, "[%s%s] %s%u", backend, label, occluded ? "occluded" : "intersect",
+                     widths[wi]);
+            if (widths[wi] == 1)
+                trace1(scene, rays, n, occluded, got);
+            else
+                failures += trace_packets(scene, rays, n, widths[wi], occluded, got, s, backend);
+            failures += compare(s, rays, n, occluded, base[occluded], got, what, ties);
+        }
+    return failures;
+}
+
 /* Masks, culling and filters (rtk.h): the geometry's mask is 2 and a
  * filter rejects every fifth triangle (by primID: the same in every
  * backend); the rays take masks 1 (which sees nothing), 2 and all ones and
@@ -584,14 +621,9 @@ static int check_features(const scene_data *s, const rtk_ray *all, size_t n_all,
         const size_t b = bc % nb;
         const int compact = bc >= nb;
         rtk_device dev = test_device(names[b]);
-        rtk_scene scene = test_scene_uncommitted(dev, s->v, s->nv, s->idx, s->nt,
-                                                 compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
-        rtk_geometry g = rtk_scene_get_geometry(scene, 0);
-        if (s->v1) {
-            assert_int_equal(rtk_geometry_set_time_step_count(g, 2), RTK_OK);
-            assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 1, s->v1, 0, 12, s->nv),
-                             RTK_OK);
-        }
+        rtk_geometry g;
+        rtk_scene scene =
+            conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g);
         assert_int_equal(rtk_geometry_set_mask(g, 2u), RTK_OK);
         assert_int_equal(rtk_geometry_set_intersect_filter(g, reject_fifth), RTK_OK);
         assert_int_equal(rtk_geometry_set_occluded_filter(g, reject_fifth), RTK_OK);
@@ -612,18 +644,8 @@ static int check_features(const scene_data *s, const rtk_ray *all, size_t n_all,
                 }
             }
         }
-        static const unsigned widths[4] = {1, 4, 8, 16};
-        for (int wi = (bc == 0); wi < 4; wi++)
-            for (int occluded = 0; occluded < 2; occluded++) {
-                char what[64];
-                snprintf(what, sizeof what, "[%s%s features] %s%u", names[b], compact ? " compact" : "",
-                         occluded ? "occluded" : "intersect", widths[wi]);
-                if (widths[wi] == 1)
-                    trace1(scene, rays, n, occluded, got);
-                else
-                    failures += trace_packets(scene, rays, n, widths[wi], occluded, got, s, names[b]);
-                failures += compare(s, rays, n, occluded, base[occluded], got, what, &ties);
-            }
+        failures += check_calls(scene, s, rays, n, bc == 0, 4, base, got, names[b],
+                                compact ? " compact features" : " features", &ties);
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }
@@ -655,15 +677,9 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
         const size_t b = bc % nb;
         const int compact = bc >= nb && bc < 2 * nb, morton = bc >= 2 * nb;
         rtk_device dev = test_device(names[b]);
-        rtk_scene scene = test_scene_uncommitted(dev, s->v, s->nv, s->idx, s->nt,
-                                                 compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE);
-        if (s->v1) { /* the geometry's second time step */
-            rtk_geometry g = rtk_scene_get_geometry(scene, 0);
-            assert_int_equal(rtk_geometry_set_time_step_count(g, 2), RTK_OK);
-            assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 1, s->v1, 0, 12, s->nv),
-                             RTK_OK);
-            assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-        }
+        rtk_geometry g;
+        rtk_scene scene =
+            conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g);
         assert_int_equal(rtk_scene_set_build_quality(scene, morton ? RTK_BUILD_QUALITY_LOW : RTK_BUILD_QUALITY_MEDIUM),
                          RTK_OK);
         if (rtk_scene_commit(scene) != RTK_OK)
@@ -684,19 +700,8 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
          * rays and the 4- and 8-wide packet kernels (16 is two 8s), on the
          * first quarter of the rays (the kernels are the SAH tree's, which
          * get them all; this keeps CI within its time) */
-        static const unsigned widths[4] = {1, 4, 8, 16};
-        const size_t nr = morton ? n / 4 / 48 * 48 : n;
-        for (int wi = (bc == 0); wi < (morton ? 3 : 4); wi++)
-            for (int occluded = 0; occluded < 2; occluded++) {
-                char what[64];
-                snprintf(what, sizeof what, "[%s%s] %s%u", names[b], compact ? " compact" : morton ? " morton" : "",
-                         occluded ? "occluded" : "intersect", widths[wi]);
-                if (widths[wi] == 1)
-                    trace1(scene, rays, nr, occluded, got);
-                else
-                    failures += trace_packets(scene, rays, nr, widths[wi], occluded, got, s, names[b]);
-                failures += compare(s, rays, nr, occluded, base[occluded], got, what, &ties);
-            }
+        failures += check_calls(scene, s, rays, morton ? n / 4 / 48 * 48 : n, bc == 0, morton ? 3 : 4, base, got,
+                                names[b], compact ? " compact" : morton ? " morton" : "", &ties);
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }
