@@ -94,18 +94,8 @@ typedef struct world {
 static void world_make(world *w, uint64_t seed)
 {
     rng r = {seed};
-    const size_t nt = GEOMS * PER_GEOM;
-    w->v = malloc(nt * 9 * sizeof *w->v);
-    w->idx = malloc(nt * 3 * sizeof *w->idx);
-    for (size_t t = 0; t < nt; t++) {
-        float c[3] = {rng_float(&r), rng_float(&r), rng_float(&r)};
-        for (int k = 0; k < 3; k++) {
-            for (int a = 0; a < 3; a++)
-                w->v[9 * t + 3 * k + a] = c[a] + 0.15f * (rng_float(&r) - 0.5f);
-            w->idx[3 * t + k] = (uint32_t)(3 * t + k);
-        }
-    }
-    w->ref = ref_prepare(w->v, w->idx, nt);
+    test_soup_mesh(&r, GEOMS * PER_GEOM, 0.15f, &w->v, &w->idx);
+    w->ref = ref_prepare(w->v, w->idx, GEOMS * PER_GEOM);
     for (uint32_t g = 0; g < GEOMS; g++)
         w->users[g].geom = g;
 }
@@ -195,9 +185,7 @@ static int ref_query(const world *w, const rtk_ray *ray, rtk_tri_hit *best, uint
 
 static rtk_ray random_ray(rng *r, uint32_t id)
 {
-    const float o[3] = {rng_float(r) * 1.4f - 0.2f, rng_float(r) * 1.4f - 0.2f, -0.5f};
-    const float target[3] = {rng_float(r), rng_float(r), rng_float(r) * 1.4f};
-    rtk_ray ray = test_ray(o[0], o[1], o[2], target[0] - o[0], target[1] - o[1], target[2] - o[2], 0.0f, INFINITY);
+    rtk_ray ray = test_ray_through_cube(r);
     if (id % 5 == 0)
         ray.tfar = 1.0f;
     ray.mask = ray_masks[rng_u32(r) % (sizeof ray_masks / sizeof ray_masks[0])];

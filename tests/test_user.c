@@ -112,16 +112,7 @@ static void world_make(world *w)
             w->sp.c[p][k] = rng_float(&r);
         w->sp.r[p] = 0.01f + 0.04f * rng_float(&r);
     }
-    w->v = malloc(TRIS * 9 * sizeof *w->v);
-    w->idx = malloc(TRIS * 3 * sizeof *w->idx);
-    for (int t = 0; t < TRIS; t++) {
-        float c[3] = {rng_float(&r), rng_float(&r), rng_float(&r)};
-        for (int k = 0; k < 3; k++) {
-            for (int a = 0; a < 3; a++)
-                w->v[9 * t + 3 * k + a] = c[a] + 0.1f * (rng_float(&r) - 0.5f);
-            w->idx[3 * t + k] = (uint32_t)(3 * t + k);
-        }
-    }
+    test_soup_mesh(&r, TRIS, 0.1f, &w->v, &w->idx);
     w->ref = ref_prepare(w->v, w->idx, TRIS);
 }
 
@@ -220,9 +211,7 @@ static void check(const world *w, const rtk_ray *ray, const rtk_rayhit *got, int
 
 static rtk_ray random_ray(rng *r, uint32_t id, int masks)
 {
-    const float o[3] = {rng_float(r) * 1.4f - 0.2f, rng_float(r) * 1.4f - 0.2f, -0.5f};
-    const float target[3] = {rng_float(r), rng_float(r), rng_float(r) * 1.4f};
-    rtk_ray ray = test_ray(o[0], o[1], o[2], target[0] - o[0], target[1] - o[1], target[2] - o[2], 0.0f, INFINITY);
+    rtk_ray ray = test_ray_through_cube(r);
     if (id % 7 == 0)
         ray.tfar = 0.8f;
     ray.id = id;

@@ -190,6 +190,28 @@ float rng_float(rng *r)
     return (float)(rng_u32(r) >> 8) * 0x1p-24f;
 }
 
+void test_soup_mesh(rng *r, size_t nt, float size, float **v, uint32_t **idx)
+{
+    *v = malloc((nt ? nt : 1) * 9 * sizeof(float));
+    *idx = malloc((nt ? nt : 1) * 3 * sizeof(uint32_t));
+    assert_true(*v && *idx);
+    for (size_t t = 0; t < nt; t++) {
+        const float c[3] = {rng_float(r), rng_float(r), rng_float(r)};
+        for (int k = 0; k < 3; k++) {
+            for (int a = 0; a < 3; a++)
+                (*v)[9 * t + 3 * k + a] = c[a] + size * (rng_float(r) - 0.5f);
+            (*idx)[3 * t + k] = (uint32_t)(3 * t + k);
+        }
+    }
+}
+
+rtk_ray test_ray_through_cube(rng *r)
+{
+    const float o[3] = {rng_float(r) * 1.4f - 0.2f, rng_float(r) * 1.4f - 0.2f, -0.5f};
+    const float target[3] = {rng_float(r), rng_float(r), rng_float(r) * 1.4f};
+    return test_ray(o[0], o[1], o[2], target[0] - o[0], target[1] - o[1], target[2] - o[2], 0.0f, INFINITY);
+}
+
 void test_sticks_mesh(rng *r, size_t nt, float scale, float offset, float **v, uint32_t **idx)
 {
     *v = malloc((nt ? nt : 1) * 9 * sizeof(float));

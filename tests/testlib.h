@@ -119,4 +119,13 @@ float rng_float(rng *r); /* [0, 1) */
  * malloc'd arrays of 3 * nt vertices and nt triangles. */
 void test_sticks_mesh(rng *r, size_t nt, float scale, float offset, float **v, uint32_t **idx);
 
+/* nt separate triangles facing every way: each a random centre in the unit
+ * cube with its three vertices within size / 2 of it on every axis.
+ * malloc'd arrays of 3 * nt vertices and nt triangles. */
+void test_soup_mesh(rng *r, size_t nt, float size, float **v, uint32_t **idx);
+/* A ray from a random point of the plane z = -0.5 (x, y in [-0.2, 1.2))
+ * through a random point of [0, 1) x [0, 1) x [0, 1.4), over [0, inf):
+ * through test_soup_mesh's cube from below. */
+rtk_ray test_ray_through_cube(rng *r);
+
 #endif
