@@ -377,11 +377,77 @@ static void test_wrong_answers_are_misses(void **state)
     }
 }
 
+/* Boxes across the whole float range (the fuzzer's find: the top level's
+ * binning took centres that overflowed to infinity and binned NaN):
+ * primitive p's box is [-3e38, 3e38]^3 when p % 3 == 0, else reaches
+ * from 1e38 or -3.4e38 to 3.4e38 or -1e38 in x only; the callback hits
+ * at t = 1 + p, so the ray along z through the origin hits primitive 0. */
+static void huge_bounds(const rtk_bounds_args *a)
+{
+    const uint32_t p = a->prim_id;
+    for (int k = 0; k < 3; k++) {
+        a->lower[k] = -3e38f;
+        a->upper[k] = 3e38f;
+    }
+    if (p % 3 == 1)
+        a->lower[0] = 1e38f, a->upper[0] = 3.4e38f;
+    if (p % 3 == 2)
+        a->lower[0] = -3.4e38f, a->upper[0] = -1e38f;
+}
+
+static void huge_query(const rtk_user_query_args *a)
+{
+    for (uint32_t i = 0; i < a->N; i++) {
+        float *tfar = &LANE(a->rays, a->N, 8, i);
+        const float t = 1.0f + (float)a->prim_id;
+        if (a->valid[i] && t >= LANE(a->rays, a->N, 3, i) && t <= *tfar)
+            *tfar = t;
+    }
+}
+
+static void test_boxes_across_the_float_range(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s;
+        rtk_geometry g;
+        assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
+        assert_int_equal(rtk_geometry_set_user_primitive_count(g, 40), RTK_OK);
+        assert_int_equal(rtk_geometry_set_bounds_function(g, huge_bounds), RTK_OK);
+        assert_int_equal(rtk_geometry_set_intersect_function(g, huge_query), RTK_OK);
+        assert_int_equal(rtk_geometry_set_occluded_function(g, huge_query), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+        assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
+        assert_int_equal(rtk_scene_commit(s), RTK_OK);
+        rtk_scene_info info = {.struct_size = sizeof info};
+        assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+        assert_int_equal(info.user_primitives, 40);
+        rtk_rayhit rh = {.ray = test_ray(0, 0, -5, 0, 0, 1, 0, INFINITY)};
+        rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+        assert_int_equal(rh.hit.primID, 0);
+        assert_float_equal(rh.ray.tfar, 1.0f, 0.0);
+        /* from x = 2e38 the primitives 1, 4, ... are in the way too: the first is 1 */
+        rh = (rtk_rayhit){.ray = test_ray(2e38f, 0, -5, 0, 0, 1, 1.5f, INFINITY)};
+        rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+        assert_int_equal(rh.hit.primID, 1);
+        rtk_geometry_release(g);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_spheres_and_triangles),
         cmocka_unit_test(test_wrong_answers_are_misses),
+        cmocka_unit_test(test_boxes_across_the_float_range),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -29,7 +29,7 @@
 #define OBJ_SAH_DEPTH 32
 
 typedef struct obj_ref {
-    float lo[3], hi[3], c[3]; /* box and twice its centre */
+    float lo[3], hi[3], c[3]; /* box and its centre */
     uint32_t index;           /* into in->objects */
 } obj_ref;
 
@@ -81,8 +81,8 @@ static int by_centre_z(const void *a, const void *b) { return by_centre(a, b, 2)
 
 static int obj_bin(const obj_ref *r, int axis, float lo, float scale)
 {
-    const int b = (int)((r->c[axis] - lo) * scale);
-    return b < 0 ? 0 : b >= OBJ_BINS ? OBJ_BINS - 1 : b;
+    const float f = (r->c[axis] - lo) * scale;
+    return f >= (float)OBJ_BINS ? OBJ_BINS - 1 : f > 0.0f ? (int)f : 0; /* (NaN: 0) */
 }
 
 /* Splits r[0, n) in two non-empty parts; returns the size of the first. */
@@ -101,7 +101,7 @@ static size_t split(obj_ref *r, size_t n, uint32_t depth)
         int best_axis = -1, best_bin = 0;
         for (int a = 0; a < 3; a++) {
             const float ext = chi[a] - clo[a];
-            if (!(ext > 0.0f))
+            if (!(ext > 0.0f) || ext == INFINITY) /* (centres across the whole float range: no bins) */
                 continue;
             const float scale = (float)OBJ_BINS / ext * 0.99999f;
             size_t count[OBJ_BINS] = {0};
@@ -265,7 +265,7 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
         for (int k = 0; k < 3; k++) {
             r->lo[k] = o->lower[k];
             r->hi[k] = o->upper[k];
-            r->c[k] = o->lower[k] + o->upper[k];
+            r->c[k] = 0.5f * o->lower[k] + 0.5f * o->upper[k]; /* finite for any finite box */
         }
         r->index = i;
     }
