@@ -110,6 +110,13 @@ struct rtk_geometry_s {
 
 static const float identity_3x4[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
 
+/* Triangles and quads: a mesh of vertex and index buffers (a quad is two
+ * triangles to the builders, rtk.h). */
+static int is_mesh(const struct rtk_geometry_s *g)
+{
+    return g->type == RTK_GEOMETRY_TYPE_TRIANGLE || g->type == RTK_GEOMETRY_TYPE_QUAD;
+}
+
 /* What a scene's tree was built over, per geometry slot, to tell at the
  * next commit whether a refit serves. */
 typedef struct built_geom {
@@ -157,6 +164,7 @@ struct rtk_scene_s {
     rtk_build_output own_stats;
     int two_level;     /* the tree is a top level (bvh4.object) */
     uint64_t motion_prims; /* triangles with motion blur in the scene's own trees */
+    uint64_t quads;        /* of quad geometries, at the last commit (rtk_scene_info.quads) */
     uint64_t user_prims, user_skipped; /* user primitives in the top level, and left out */
     unsigned honoured; /* the flags the scene's trees honour */
     /* RTK_SCENE_FLAG_DYNAMIC: a tree per triangle geometry, by slot, kept
@@ -198,7 +206,8 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     if (!out)
         return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: out is NULL");
     *out = NULL;
-    if (type != RTK_GEOMETRY_TYPE_TRIANGLE && type != RTK_GEOMETRY_TYPE_INSTANCE && type != RTK_GEOMETRY_TYPE_USER)
+    if (type != RTK_GEOMETRY_TYPE_TRIANGLE && type != RTK_GEOMETRY_TYPE_INSTANCE && type != RTK_GEOMETRY_TYPE_USER &&
+        type != RTK_GEOMETRY_TYPE_QUAD)
         return rtk_fail(device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_new: unknown geometry type %d", (int)type);
     rtk_geometry g = calloc(1, sizeof *g);
     if (!g)
@@ -256,8 +265,8 @@ static buffer *slot_buffer(rtk_geometry g, rtk_buffer_type type, unsigned slot)
 static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, unsigned slot, size_t stride, size_t count,
                                    const char *fn)
 {
-    if (g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
-        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "%s: an instance geometry has no buffers", fn);
+    if (!is_mesh(g))
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "%s: only triangle and quad geometry has buffers", fn);
     if (type != RTK_BUFFER_TYPE_VERTEX && type != RTK_BUFFER_TYPE_INDEX)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: unknown buffer type %d", fn, (int)type);
     if (type == RTK_BUFFER_TYPE_INDEX && slot)
@@ -267,9 +276,10 @@ static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, unsigne
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
                         "%s: vertex slot %u: the geometry has %u time step%s (rtk_geometry_set_time_step_count)", fn,
                         slot, g->time_steps, g->time_steps == 1 ? "" : "s");
-    if (stride < 12 || stride % 4)
+    const size_t least = type == RTK_BUFFER_TYPE_INDEX && g->type == RTK_GEOMETRY_TYPE_QUAD ? 16 : 12;
+    if (stride < least || stride % 4)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
-                        "%s: byte_stride %zu: must be at least 12 and a multiple of 4", fn, stride);
+                        "%s: byte_stride %zu: must be at least %zu and a multiple of 4", fn, stride, least);
     if (count > ((size_t)1 << 32) - 1)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: count %zu exceeds 2^32 - 1", fn, count);
     if (count && stride > SIZE_MAX / count)
@@ -355,9 +365,9 @@ rtk_error rtk_geometry_set_new_buffer_slot(rtk_geometry g, rtk_buffer_type type,
 rtk_error rtk_geometry_set_time_step_count(rtk_geometry g, unsigned count)
 {
     CHECK_HANDLE(g, "rtk_geometry_set_time_step_count");
-    if (g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
+    if (!is_mesh(g))
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
-                        "rtk_geometry_set_time_step_count: only triangle geometry has time steps");
+                        "rtk_geometry_set_time_step_count: only triangle and quad geometry has time steps");
     if (count < 1 || count > RTK_MAX_TIME_STEPS)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_geometry_set_time_step_count: %u time steps: must be 1 to %d", count, RTK_MAX_TIME_STEPS);
@@ -451,9 +461,10 @@ static rtk_error set_filter(rtk_geometry g, int occluded, rtk_filter_fn filter, 
 {
     if (!g)
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: geometry is NULL", fn);
-    if (g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
+    if (!is_mesh(g))
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
-                        "%s: only triangle geometry has filters (set them on the instanced scene's geometries)", fn);
+                        "%s: only triangle and quad geometry has filters (set them on the instanced scene's "
+                        "geometries)", fn);
     rtk_filter_fn *slot = occluded ? &g->occluded_filter : &g->intersect_filter;
     if (*slot != filter)
         attrs_changed(g);
@@ -750,6 +761,7 @@ static void scene_drop_accel(rtk_scene s)
     s->instances = 0;
     s->two_level = 0;
     s->motion_prims = 0;
+    s->quads = 0;
     s->user_prims = s->user_skipped = 0;
     for (uint32_t i = 0; i < s->dyn_count; i++)
         accel_ref_release(s->dyn[i].ref);
@@ -939,20 +951,34 @@ static double now_seconds(void)
     return (double)ts.tv_sec + 1e-9 * (double)ts.tv_nsec;
 }
 
-/* Index validation: every vertex index of every triangle in range. */
+/* Index validation: every vertex index of every triangle (quad) in range. */
 static rtk_error check_indices(rtk_scene s, uint32_t id, const rtk_geometry g, const char *fn)
 {
     const size_t nv = g->vertex.count;
+    const int corners = g->type == RTK_GEOMETRY_TYPE_QUAD ? 4 : 3;
     for (size_t t = 0; t < g->index.count; t++) {
-        const uint32_t *tri = (const uint32_t *)(g->index.data + t * g->index.stride);
-        uint32_t worst = tri[0] > tri[1] ? tri[0] : tri[1];
-        worst = tri[2] > worst ? tri[2] : worst;
+        const uint32_t *idx = (const uint32_t *)(g->index.data + t * g->index.stride);
+        uint32_t worst = 0;
+        for (int c = 0; c < corners; c++)
+            worst = idx[c] > worst ? idx[c] : worst;
         if (worst >= nv)
             return rtk_fail(s->device, RTK_ERROR_INVALID_GEOMETRY,
-                            "%s: geometry %u, triangle %zu: vertex index %u out of range (%zu vertices)", fn, id,
-                            t, worst, nv);
+                            "%s: geometry %u, %s %zu: vertex index %u out of range (%zu vertices)", fn, id,
+                            corners == 4 ? "quad" : "triangle", t, worst, nv);
     }
     return RTK_OK;
+}
+
+/* A quad geometry's quads as the builders' triangles (rtk_backend.h,
+ * RTK_GEOMETRY_ATTR_QUAD): 2q = (v0, v1, v3), 2q + 1 = (v2, v3, v1), into
+ * tris (6 per quad). */
+static void quads_to_triangles(const rtk_geometry g, uint32_t *tris)
+{
+    for (size_t q = 0; q < g->index.count; q++, tris += 6) {
+        const uint32_t *v = (const uint32_t *)(g->index.data + q * g->index.stride);
+        tris[0] = v[0], tris[1] = v[1], tris[2] = v[3];
+        tris[3] = v[2], tris[4] = v[3], tris[5] = v[1];
+    }
 }
 
 static const char *flag_names(unsigned flags, char *buf, size_t size)
@@ -1286,19 +1312,23 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
 
     rtk_task_system task_copy;
     rtk_build_input in = build_input(quality, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
-    /* masks and filters: passed only when some geometry has one, so a
-     * scene without any builds a tree whose kernels test nothing more */
+    /* masks, filters and quads: passed only when some geometry has one, so
+     * a scene without any builds a tree whose kernels test nothing more */
     rtk_geometry_attrs *attrs = NULL;
     for (size_t k = 0; k < n; k++) {
         const rtk_geometry g = s->geoms[in_geoms[k].geom_id];
-        if (g->mask != ~0u || g->intersect_filter || g->occluded_filter) {
+        if (g->mask != ~0u || g->intersect_filter || g->occluded_filter || g->type == RTK_GEOMETRY_TYPE_QUAD) {
             attrs = calloc(n, sizeof *attrs);
             if (!attrs)
                 return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
             for (size_t j = 0; j < n; j++) {
                 const rtk_geometry h = s->geoms[in_geoms[j].geom_id];
-                attrs[j] = (rtk_geometry_attrs){.mask = h->mask, .intersect_filter = h->intersect_filter,
-                                                .occluded_filter = h->occluded_filter, .user = h->user};
+                attrs[j] = (rtk_geometry_attrs){
+                    .mask = h->mask,
+                    .flags = h->type == RTK_GEOMETRY_TYPE_QUAD ? RTK_GEOMETRY_ATTR_QUAD : 0u,
+                    .intersect_filter = h->intersect_filter,
+                    .occluded_filter = h->occluded_filter,
+                    .user = h->user};
             }
             in.attrs = attrs;
             break;
@@ -1767,13 +1797,25 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     if ((ni || nug) && tree)
         return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
                         "%s: a scene with instances or user geometry cannot take a loaded tree", fn);
-    rtk_build_geometry *in_geoms = calloc(n ? n : 1, sizeof *in_geoms);
+    /* Quads go to the builders as their triangles, written for this commit
+     * after the geometries (one allocation, freed with them: the layouts
+     * keep no pointer to the indices). */
+    uint64_t quads = 0;
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        const rtk_geometry g = s->geoms[i];
+        if (g && g->enabled && g->type == RTK_GEOMETRY_TYPE_QUAD)
+            quads += g->index.count;
+    }
+    const size_t head = ((n ? n : 1) * sizeof(rtk_build_geometry) + 15) & ~(size_t)15;
+    rtk_build_geometry *in_geoms =
+        quads > (SIZE_MAX - head) / 24 ? NULL : calloc(1, head + (size_t)quads * 6 * sizeof(uint32_t));
     if (!in_geoms)
         return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+    uint32_t *quad_tris = (uint32_t *)((char *)in_geoms + head);
     n = 0;
     for (uint32_t i = 0; i < s->geom_count; i++) {
         rtk_geometry g = s->geoms[i];
-        if (!g || !g->enabled || g->type != RTK_GEOMETRY_TYPE_TRIANGLE)
+        if (!g || !g->enabled || !is_mesh(g))
             continue;
         in_geoms[n++] = (rtk_build_geometry){
             .vertices = g->vertex.data,
@@ -1785,6 +1827,13 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             .geom_id = i,
             .flags = g->quality == RTK_BUILD_QUALITY_REFIT ? RTK_BUILD_GEOMETRY_DEFORMS : 0,
         };
+        if (g->type == RTK_GEOMETRY_TYPE_QUAD) {
+            quads_to_triangles(g, quad_tris);
+            in_geoms[n - 1].indices = quad_tris;
+            in_geoms[n - 1].index_stride = 3 * sizeof(uint32_t);
+            in_geoms[n - 1].prim_count = 2 * g->index.count;
+            quad_tris += 6 * g->index.count;
+        }
     }
     rtk_error err;
     if (refit && try_refit(s, in_geoms, n, fn, &err)) {
@@ -1794,6 +1843,8 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     if ((s->flags & RTK_SCENE_FLAG_DYNAMIC) && !tree) {
         err = commit_dynamic(s, in_geoms, n, ni, fn);
         free(in_geoms);
+        if (!err)
+            s->quads = quads;
         return err;
     }
     /* The scene's own triangles: those without motion blur in one tree,
@@ -1839,6 +1890,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     if (!err) {
         s->motion_prims = motion;
         s->trees_built = own_count;
+        s->quads = quads;
     }
     return err;
 }
@@ -1936,6 +1988,8 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
         info->user_primitives = s->user_prims;
         info->user_primitives_skipped = s->user_skipped;
     }
+    if (keep >= offsetof(rtk_scene_info, quads) + sizeof info->quads)
+        info->quads = s->quads;
     return RTK_OK;
 }
 

@@ -1,5 +1,5 @@
 /* libFuzzer target: sequences of API calls read from the input (scenes,
- * triangle geometry with vertex and index data taken from the input — NaN,
+ * triangle and quad geometry with vertex and index data taken from the input — NaN,
  * infinite and huge values, indices out of range —, time steps, instances,
  * attach and detach, flags and qualities, vertex updates, commits, single
  * rays and packets, masks, culling, filters and user geometry whose
@@ -57,7 +57,7 @@ static void checked_(rtk_device dev, rtk_error e, int line)
 }
 #define checked(dev, e) checked_(dev, e, __LINE__)
 
-static void fill_geometry(rtk_device dev, rtk_geometry g, input *in)
+static void fill_geometry(rtk_device dev, rtk_geometry g, int quads, input *in)
 {
     const unsigned steps = 1 + u8(in) % 3;
     if (steps > 1)
@@ -71,9 +71,10 @@ static void fill_geometry(rtk_device dev, rtk_geometry g, input *in)
             v[i] = f32(in);
     }
     uint32_t *idx = NULL;
-    const rtk_error e = rtk_geometry_set_new_buffer(g, RTK_BUFFER_TYPE_INDEX, 12, nt, (void **)&idx);
+    const size_t corners = quads ? 4 : 3;
+    const rtk_error e = rtk_geometry_set_new_buffer(g, RTK_BUFFER_TYPE_INDEX, 4 * corners, nt, (void **)&idx);
     checked(dev, e);
-    for (size_t i = 0; e == RTK_OK && idx && i < 3 * nt; i++)
+    for (size_t i = 0; e == RTK_OK && idx && i < corners * nt; i++)
         idx[i] = u8(in) % (uint32_t)(nv + 2); /* some out of range */
 }
 
@@ -169,14 +170,16 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             checked(dev, rtk_scene_set_flags(*s, u8(&in) % 9));
             checked(dev, rtk_scene_set_build_quality(*s, (rtk_build_quality)(u8(&in) % 5)));
             break;
-        case 1: /* a new triangle geometry */
+        case 1: { /* a new triangle geometry, or (code 15, 43, ...) quads */
+            const int quads = (code / 14) % 2;
             rtk_geometry_release(*g);
             *g = NULL;
-            checked(dev, rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, g));
-            fill_geometry(dev, *g, &in);
+            checked(dev, rtk_geometry_new(dev, quads ? RTK_GEOMETRY_TYPE_QUAD : RTK_GEOMETRY_TYPE_TRIANGLE, g));
+            fill_geometry(dev, *g, quads, &in);
             checked(dev, rtk_geometry_set_build_quality(*g, (rtk_build_quality)(u8(&in) % 5)));
             checked(dev, rtk_geometry_commit(*g));
             break;
+        }
         case 2: { /* a new instance of another scene (perhaps this one) */
             rtk_geometry_release(*g);
             *g = NULL;

@@ -213,6 +213,11 @@ struct rtk_accel {
      * kernels never look (traverse_bvhn.h, ray_pre.feat) */
     rtk_geometry_attrs *attrs;
     uint32_t attr_count;
+    /* some geometry has a mask or a filter: the rays take the features'
+     * traversal (attrs may be there for quads alone, which need none) */
+    uint32_t attr_feat;
+    /* some geometry is quads (RTK_GEOMETRY_ATTR_QUAD): hits are translated */
+    uint32_t quads;
 };
 
 /* Copies in->attrs into accel->attrs, by geometry id; 0 when out of memory. */
@@ -220,6 +225,8 @@ static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_
 {
     accel->attrs = NULL;
     accel->attr_count = 0;
+    accel->attr_feat = 0;
+    accel->quads = 0;
     if (in->struct_size < offsetof(rtk_build_input, attrs) + sizeof in->attrs || !in->attrs)
         return 1;
     uint32_t count = 0;
@@ -230,11 +237,29 @@ static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_
         return 0;
     for (uint32_t i = 0; i < count; i++)
         a[i] = (rtk_geometry_attrs){.mask = ~0u};
-    for (uint32_t g = 0; g < in->geometry_count; g++)
-        a[in->geometries[g].geom_id] = in->attrs[g];
+    for (uint32_t g = 0; g < in->geometry_count; g++) {
+        const rtk_geometry_attrs *x = &in->attrs[g];
+        a[in->geometries[g].geom_id] = *x;
+        accel->attr_feat |= x->mask != ~0u || x->intersect_filter || x->occluded_filter;
+        accel->quads |= x->flags & RTK_GEOMETRY_ATTR_QUAD;
+    }
     accel->attrs = a;
     accel->attr_count = count;
     return 1;
+}
+
+/* A hit on triangle *prim of geometry geom, in an accel whose attributes
+ * are attrs (quads set), as the application sees it: a quad's half
+ * becomes the quad, with u, v over the quad (rtk_backend.h). */
+static inline void rtk_quad_hit(const rtk_geometry_attrs *attrs, uint32_t geom, uint32_t *prim, float *u, float *v)
+{
+    if (!(attrs[geom].flags & RTK_GEOMETRY_ATTR_QUAD))
+        return;
+    if (*prim & 1u) {
+        *u = 1.0f - *u;
+        *v = 1.0f - *v;
+    }
+    *prim >>= 1;
 }
 
 #endif

@@ -193,7 +193,7 @@ typedef struct feat_ctx {
 /* f filled for the ray, or NULL when it needs none of the features. */
 static inline const feat_ctx *feat_init(feat_ctx *f, const rtk_ray *r, const rtk_accel *accel, const rtk_query *q)
 {
-    const unsigned feat = (r->flags & RTK_FEAT_CULL) | (accel->attrs ? RTK_FEAT_ATTRS : 0u);
+    const unsigned feat = (r->flags & RTK_FEAT_CULL) | (accel->attr_feat ? RTK_FEAT_ATTRS : 0u);
     if (__builtin_expect(!feat, 1))
         return NULL;
     *f = (feat_ctx){feat, accel->attrs, r, q};
@@ -664,8 +664,9 @@ static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, con
         return 1;
     rtk_ray ray = *r;
     ray.tfar = tfar;
-    const rtk_hit hit = {.Ng_x = ng[0], .Ng_y = ng[1], .Ng_z = ng[2], .u = u, .v = v, .primID = t->prim[lane],
-                         .geomID = t->geom[lane], .instID = p->q->inst_id};
+    rtk_hit hit = {.Ng_x = ng[0], .Ng_y = ng[1], .Ng_z = ng[2], .u = u, .v = v, .primID = t->prim[lane],
+                   .geomID = t->geom[lane], .instID = p->q->inst_id};
+    rtk_quad_hit(p->attrs, hit.geomID, &hit.primID, &hit.u, &hit.v);
     const rtk_filter_args args = {.geometry_user = a->user, .context = p->q->context, .ray = &ray, .hit = &hit,
                                   .t = tt};
     return filter(&args) != 0;
@@ -1003,6 +1004,14 @@ static inline void closest_hit_store(const rtk_accel *accel, const closest_hit *
     rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
 }
 
+/* After closest_hit_store: the hit on a quad's half as on the quad (attrs:
+ * the accel that holds the attributes, the top one of a moving tree). */
+static inline void closest_hit_quad(const rtk_accel *attrs, rtk_hit *hit)
+{
+    if (__builtin_expect(attrs->quads != 0, 0))
+        rtk_quad_hit(attrs->attrs, hit->geomID, &hit->primID, &hit->u, &hit->v);
+}
+
 #if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
 {
@@ -1015,8 +1024,10 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, f);
-    if (best.lane >= 0)
+    if (best.lane >= 0) {
         closest_hit_store(accel, &best, &p, tfar, rayhit);
+        closest_hit_quad(accel, &rayhit->hit);
+    }
 }
 
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)

@@ -547,7 +547,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
     const vkb active = VKB(load)(valid);
     /* masks, culling, filters (ray_pre.feat): some ray asks for culling or
      * the tree holds attributes */
-    unsigned feat = accel->attrs != NULL;
+    unsigned feat = accel->attr_feat != 0;
     for (int i = 0; i < RTK_PACKET; i++)
         feat |= valid[i] ? ray->flags[i] & RTK_FEAT_CULL : 0u;
     PK_(packet_pre) p;
@@ -717,6 +717,8 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
         rh->hit.u[i] = u[i];
         rh->hit.v[i] = v[i];
         rh->hit.instID[i] = RTK_INVALID_GEOMETRY_ID;
+        if (__builtin_expect(accel->quads != 0, 0))
+            rtk_quad_hit(accel->attrs, rh->hit.geomID[i], &rh->hit.primID[i], &rh->hit.u[i], &rh->hit.v[i]);
     }
 }
 

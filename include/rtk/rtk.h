@@ -373,6 +373,9 @@ typedef struct rtk_scene_info {
      * and those left out (a box not finite or not ordered). */
     uint64_t user_primitives;
     uint64_t user_primitives_skipped;
+    /* Added in rtk 0.2.0: the quads of quad geometries (each two of
+     * triangles, those of zero area in triangles_degenerate). */
+    uint64_t quads;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -445,12 +448,33 @@ typedef enum rtk_geometry_type {
     /* Added in rtk 0.2.0: primitives the application defines by callbacks
      * (see "user geometry" below). */
     RTK_GEOMETRY_TYPE_USER = 2,
+    /* Added in rtk 0.2.0: quads, as triangles but four indices per
+     * primitive (see "quads" below). */
+    RTK_GEOMETRY_TYPE_QUAD = 3,
 } rtk_geometry_type;
 
 typedef enum rtk_buffer_type {
     RTK_BUFFER_TYPE_VERTEX = 0, /* float x, y, z per vertex, byte_stride >= 12, multiple of 4 */
-    RTK_BUFFER_TYPE_INDEX = 1,  /* uint32 v0, v1, v2 per triangle, byte_stride >= 12, multiple of 4 */
+    /* uint32 v0, v1, v2 per triangle, byte_stride >= 12, multiple of 4;
+     * quads: v0, v1, v2, v3, byte_stride >= 16 */
+    RTK_BUFFER_TYPE_INDEX = 1,
 } rtk_buffer_type;
+
+/* ---- quads (added in rtk 0.2.0) ---------------------------------------------
+ * A geometry of RTK_GEOMETRY_TYPE_QUAD is a triangle geometry in every
+ * respect (buffers, time steps, masks, filters, refit; every call that
+ * takes a triangle geometry takes it) except that its index buffer holds
+ * quads v0 v1 v2 v3, in order around the quad.  rtk traces quad q as the
+ * two triangles (v0, v1, v3) and (v2, v3, v1), as Embree does, so a quad
+ * need not be planar, and a triangle can be given as a quad with v3 == v2
+ * (its second half has no area and is never hit).  A hit reports
+ * primID = q and u, v over the quad: (0, 0) at v0, (1, 0) at v1, (1, 1) at
+ * v2, (0, 1) at v3 (Embree's convention); Ng is the normal of the half hit,
+ * cross(v1 - v0, v3 - v0) or cross(v3 - v2, v1 - v2), which agree for a
+ * planar quad.  Filters see the hit so.  In rtk_scene_info, triangles,
+ * triangles_degenerate and bytes_per_triangle count the halves, quads the
+ * quads; in a tree rtk_scene_get_bvh exports (and rtk_scene_commit_bvh
+ * reads) the halves are prim_id 2q and 2q + 1. */
 
 RTK_API rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geometry *out);
 RTK_API void rtk_geometry_retain(rtk_geometry geometry);

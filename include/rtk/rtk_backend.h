@@ -173,7 +173,8 @@ typedef struct rtk_build_input {
     const struct rtk_build_vertices *time_vertices;
     /* Interface version 2: geometry_count attributes, parallel to
      * geometries; NULL when no geometry has any (every mask all ones, no
-     * filter), and then the kernels test nothing beyond the ray's flags. */
+     * filter, no quads), and then the kernels test nothing beyond the
+     * ray's flags. */
     const struct rtk_geometry_attrs *attrs;
 } rtk_build_input;
 
@@ -183,11 +184,17 @@ typedef struct rtk_build_input {
  * instance it): they are the accel's until it is released. */
 typedef struct rtk_geometry_attrs {
     uint32_t mask;
-    uint32_t reserved;
+    uint32_t flags; /* RTK_GEOMETRY_ATTR_* */
     rtk_filter_fn intersect_filter; /* NULL: none */
     rtk_filter_fn occluded_filter;
     void *user;                     /* rtk_geometry_set_user_data's, for the filters */
 } rtk_geometry_attrs;
+
+/* The geometry's triangles are the halves of quads (rtk.h: quads): its
+ * triangle 2q is (v0, v1, v3) of quad q, 2q + 1 is (v2, v3, v1).  The
+ * kernels report a hit on either as primID q with u, v over the quad
+ * (for the second half, 1 - u and 1 - v), to the filters as well. */
+#define RTK_GEOMETRY_ATTR_QUAD 1u
 
 /* One vertex buffer of a time step: already offset to the first vertex. */
 typedef struct rtk_build_vertices {
