@@ -125,11 +125,82 @@ static render_tracer embree_tracer(embree_target *e)
 /* MODE_REFIT: a geometry that deforms (quality REFIT): rtk's scene at the
  * given quality, Embree's at low quality and flagged dynamic, the two-level
  * mode in which alone Embree refits. */
-enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST, MODE_REFIT, MODE_MASK, MODE_FILTER };
+enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST, MODE_REFIT, MODE_MASK, MODE_FILTER, MODE_QUAD };
 /* MODE_MASK: the geometry's mask set to 1 (the rays' is all ones, so every
  * hit passes); MODE_FILTER: intersection and occlusion filters that accept
  * every candidate.  The same hits as the default, so what they cost. */
-static const char *const mode_names[] = {"default", "compact", "robust", "refit", "mask", "filter"};
+static const char *const mode_names[] = {"default", "compact", "robust", "refit", "mask", "filter", "quad"};
+
+/* MODE_QUAD: the mesh's triangles as quads, each paired with a neighbour
+ * across an edge where one is free (the shared edge the diagonal), the
+ * rest as quads with v3 == v2 (Embree's way of giving a triangle as a
+ * quad): the same triangles, as quad geometry. */
+typedef struct quad_list {
+    uint32_t *q; /* 4 per quad */
+    size_t n;
+    size_t paired; /* quads made of two triangles */
+} quad_list;
+
+static int key_cmp(const void *x, const void *y)
+{
+    const uint64_t a = ((const uint64_t *)x)[0], b = ((const uint64_t *)y)[0];
+    return a < b ? -1 : a > b;
+}
+
+static int quads_make(const rtk_mesh *m, quad_list *out)
+{
+    const size_t nt = m->triangle_count;
+    uint64_t(*edge)[2] = malloc((nt ? 3 * nt : 1) * sizeof *edge); /* (min << 32 | max), 3 t + e */
+    uint64_t *across = malloc((nt ? 3 * nt : 1) * sizeof *across);  /* the half-edge across, or ~0 */
+    unsigned char *used = calloc(nt ? nt : 1, 1);
+    out->q = malloc((nt ? nt : 1) * 4 * sizeof *out->q);
+    out->n = out->paired = 0;
+    if (!edge || !across || !used || !out->q) {
+        free(edge), free(across), free(used), free(out->q);
+        out->q = NULL;
+        return 1;
+    }
+    for (size_t h = 0; h < 3 * nt; h++) {
+        const uint32_t a = m->indices[h], b = m->indices[h - h % 3 + (h % 3 + 1) % 3];
+        edge[h][0] = a < b ? (uint64_t)a << 32 | b : (uint64_t)b << 32 | a;
+        edge[h][1] = h;
+        across[h] = ~0ull;
+    }
+    qsort(edge, 3 * nt, sizeof *edge, key_cmp);
+    for (size_t i = 0; i + 1 < 3 * nt; i++) /* an edge of exactly two triangles */
+        if (edge[i][0] == edge[i + 1][0] && (i + 2 == 3 * nt || edge[i + 2][0] != edge[i][0]) &&
+            (i == 0 || edge[i - 1][0] != edge[i][0])) {
+            across[edge[i][1]] = edge[i + 1][1];
+            across[edge[i + 1][1]] = edge[i][1];
+        }
+    for (size_t t = 0; t < nt; t++) {
+        if (used[t])
+            continue;
+        const uint32_t *x = &m->indices[3 * t];
+        uint32_t *q = &out->q[4 * out->n++];
+        used[t] = 1;
+        q[0] = x[0], q[1] = x[1], q[2] = x[2], q[3] = x[2];
+        for (int e = 0; e < 3; e++) {
+            const uint64_t o = across[3 * t + (size_t)e];
+            if (o == ~0ull || used[o / 3])
+                continue;
+            /* the edge x[e] -> x[e+1] is the other's x[e+1] -> x[e] (if
+             * the two face the same way): the quad x[e+2] x[e] y x[e+1] */
+            const uint32_t *y = &m->indices[o - o % 3];
+            const uint32_t oe = (uint32_t)(o % 3);
+            if (y[oe] != x[(e + 1) % 3])
+                continue;
+            q[0] = x[(e + 2) % 3], q[1] = x[e], q[2] = y[(oe + 2) % 3], q[3] = x[(e + 1) % 3];
+            used[o / 3] = 1;
+            out->paired++;
+            break;
+        }
+    }
+    free(edge), free(across), free(used);
+    return 0;
+}
+
+static quad_list bench_quads; /* of the mesh section_features measures */
 
 static void e_accept(const struct RTCFilterFunctionNArguments *args)
 {
@@ -239,12 +310,17 @@ static int rtk_commit(scene *sc, rtk_scene s, int bad, double t0, char *err, siz
 }
 
 /* What a one-mesh scene of either library ends with, once g has its
- * vertex buffers: the mesh's indices, g committed and attached to s, s
- * committed into sc (timed from t0), and the memory it took. */
-static int embree_mesh_commit(scene *sc, RTCScene s, RTCGeometry g, const rtk_mesh *m, double t0, long long bytes0,
-                              const char *what, char *err, size_t err_size)
+ * vertex buffers: the mesh's indices (quads: bench_quads'), g committed
+ * and attached to s, s committed into sc (timed from t0), and the memory
+ * it took. */
+static int embree_mesh_commit(scene *sc, RTCScene s, RTCGeometry g, const rtk_mesh *m, int quads, double t0,
+                              long long bytes0, const char *what, char *err, size_t err_size)
 {
-    rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12, m->triangle_count);
+    if (quads)
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT4, bench_quads.q, 0, 16, bench_quads.n);
+    else
+        rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices, 0, 12,
+                                   m->triangle_count);
     rtcCommitGeometry(g);
     rtcAttachGeometry(s, g);
     rtcReleaseGeometry(g);
@@ -256,10 +332,12 @@ static int embree_mesh_commit(scene *sc, RTCScene s, RTCGeometry g, const rtk_me
 
 /* The same for rtk, unless `bad` (an earlier call failed); also the
  * layout and builder it chose. */
-static int rtk_mesh_commit(scene *sc, rtk_scene s, rtk_geometry g, const rtk_mesh *m, int bad, double t0, char *err,
-                           size_t err_size)
+static int rtk_mesh_commit(scene *sc, rtk_scene s, rtk_geometry g, const rtk_mesh *m, int quads, int bad, double t0,
+                           char *err, size_t err_size)
 {
-    bad = bad || rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count) ||
+    bad = bad ||
+          (quads ? rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, bench_quads.q, 0, 16, bench_quads.n)
+                 : rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->indices, 0, 12, m->triangle_count)) ||
           rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
     rtk_geometry_release(g);
     if (rtk_commit(sc, s, bad, t0, err, err_size))
@@ -288,7 +366,7 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
                             : mode == MODE_ROBUST ? RTC_SCENE_FLAG_ROBUST
                                                   : RTC_SCENE_FLAG_NONE);
         rtcSetSceneBuildQuality(s, q[quality]);
-        RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_TRIANGLE);
+        RTCGeometry g = rtcNewGeometry(l->edev, mode == MODE_QUAD ? RTC_GEOMETRY_TYPE_QUAD : RTC_GEOMETRY_TYPE_TRIANGLE);
         rtcSetGeometryBuildQuality(g, q[quality]);
         if (mode == MODE_MASK)
             rtcSetGeometryMask(g, 1);
@@ -302,7 +380,7 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
             rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_REFIT);
         }
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded, 0, 12, m->vertex_count);
-        if (embree_mesh_commit(sc, s, g, m, t0, bytes0, "the scene", err, err_size))
+        if (embree_mesh_commit(sc, s, g, m, mode == MODE_QUAD, t0, bytes0, "the scene", err, err_size))
             return 1;
         snprintf(sc->layout, sizeof sc->layout, "embree %s", mode_names[mode]);
         /* Embree 3 (rtcSetSceneBuildQuality(3)): low builds a two-level
@@ -321,13 +399,14 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtk_scene_set_flags(s, mode == MODE_COMPACT ? RTK_SCENE_FLAG_COMPACT
                                : mode == MODE_ROBUST ? RTK_SCENE_FLAG_ROBUST
                                                      : RTK_SCENE_FLAG_NONE) ||
-        rtk_scene_set_build_quality(s, q[quality]) || rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
+        rtk_scene_set_build_quality(s, q[quality]) ||
+        rtk_geometry_new(l->rdev, mode == MODE_QUAD ? RTK_GEOMETRY_TYPE_QUAD : RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
         rtk_geometry_set_build_quality(g, mode == MODE_REFIT ? RTK_BUILD_QUALITY_REFIT : q[quality]) ||
         rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
         (mode == MODE_MASK && rtk_geometry_set_mask(g, 1)) ||
         (mode == MODE_FILTER &&
          (rtk_geometry_set_intersect_filter(g, rtk_accept) || rtk_geometry_set_occluded_filter(g, rtk_accept)));
-    return rtk_mesh_commit(sc, s, g, m, bad, t0, err, err_size);
+    return rtk_mesh_commit(sc, s, g, m, mode == MODE_QUAD, bad, t0, err, err_size);
 }
 
 static void scene_release(scene *sc)
@@ -1541,7 +1620,7 @@ static int motion_scene(scene *sc, lib *l, const rtk_mesh *m, float *const *v, i
         for (int k = 0; k < steps; k++)
             rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, (unsigned)k, RTC_FORMAT_FLOAT3, v[k], 0, 12,
                                        m->vertex_count);
-        if (embree_mesh_commit(sc, s, g, m, t0, bytes0, "the motion-blur scene", err, err_size))
+        if (embree_mesh_commit(sc, s, g, m, 0, t0, bytes0, "the motion-blur scene", err, err_size))
             return 1;
         snprintf(sc->layout, sizeof sc->layout, "embree motion blur");
         return 0;
@@ -1554,7 +1633,7 @@ static int motion_scene(scene *sc, lib *l, const rtk_mesh *m, float *const *v, i
     for (int k = 0; k < steps && !bad; k++)
         bad = rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, (unsigned)k, v[k], 0, 12,
                                                   m->vertex_count) != RTK_OK;
-    return rtk_mesh_commit(sc, s, g, m, bad, t0, err, err_size);
+    return rtk_mesh_commit(sc, s, g, m, 0, bad, t0, err, err_size);
 }
 
 /* Linear motion blur: the mesh at 2 and at 5 time steps; build (best of
@@ -1722,18 +1801,25 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
     return 0;
 }
 
-/* What masks and filters cost when a scene uses them: the default scene,
- * one whose geometry has a mask, and one with filters that accept every
- * candidate (the same hits), each library against its own default and
- * rtk against Embree in the same mode; 1 thread. */
+/* What masks, filters and quads cost when a scene uses them: the default
+ * scene, one whose geometry has a mask, one with filters that accept every
+ * candidate (the same hits), and the same triangles as quads (MODE_QUAD),
+ * each library against its own default and rtk against Embree in the same
+ * mode; 1 thread. */
+enum { NFEAT = 4 };
 static int section_features(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
-    static const int modes[3] = {MODE_DEFAULT, MODE_MASK, MODE_FILTER};
+    static const int modes[NFEAT] = {MODE_DEFAULT, MODE_MASK, MODE_FILTER, MODE_QUAD};
     static const int sets[2] = {SET_DIFFUSE, SET_SHADOW};
-    printf("\nfeatures: a geometry mask, and filters accepting every hit (the same hits as default); Mrays/s, "
-           "1 thread (ratio to the same library's default) [ratio to %s in the same mode]\n",
-           c->libs[0].name);
+    if (quads_make(c->m, &bench_quads)) {
+        snprintf(err, err_size, "out of memory for the quads");
+        return 1;
+    }
+    printf("\nfeatures: a geometry mask, filters accepting every hit, and the triangles as quads (%zu, %zu of them "
+           "two triangles; the same surfaces as default); Mrays/s, 1 thread (ratio to the same library's default) "
+           "[ratio to %s in the same mode]\n",
+           bench_quads.n, bench_quads.paired, c->libs[0].name);
     printf("  %-20s %-8s %-28s %-28s %-28s %-28s\n", "library", "mode", "diffuse single", "diffuse packet8",
            "shadow single", "shadow packet8");
     /* Every scene built first, then the passes interleaved (one pass of
@@ -1741,17 +1827,17 @@ static int section_features(ctx *c, char *err, size_t err_size)
      * the machine's speed falls on all cells alike. */
     enum { MAXL = 8 };
     const int nl = c->nlibs < MAXL ? c->nlibs : MAXL;
-    scene sc[MAXL][3];
+    scene sc[MAXL][NFEAT];
     memset(sc, 0, sizeof sc);
-    double rate[MAXL][3][2][2] = {{{{0}}}}; /* lib, mode, set, api */
+    double rate[MAXL][NFEAT][2][2] = {{{{0}}}}; /* lib, mode, set, api */
     unsigned char *hits = malloc(c->sets[SET_DIFFUSE].n + c->sets[SET_SHADOW].n + 1);
     int bad = !hits;
     for (int l = 0; l < nl && !bad; l++)
-        for (int mi = 0; mi < 3 && !bad; mi++)
+        for (int mi = 0; mi < NFEAT && !bad; mi++)
             bad = scene_build(&sc[l][mi], &c->libs[l], c->m, c->padded, modes[mi], 1, err, err_size);
     for (int round = 0; round < o->repeat && !bad; round++)
         for (int l = 0; l < nl; l++)
-            for (int mi = 0; mi < 3; mi++)
+            for (int mi = 0; mi < NFEAT; mi++)
                 for (int k = 0; k < 2; k++)
                     for (int a = 0; a < 2; a++) {
                         const render_tracer t = scene_tracer(&sc[l][mi], 0);
@@ -1760,7 +1846,7 @@ static int section_features(ctx *c, char *err, size_t err_size)
                         rate[l][mi][k][a] = r > rate[l][mi][k][a] ? r : rate[l][mi][k][a];
                     }
     for (int l = 0; l < nl && !bad; l++)
-        for (int mi = 0; mi < 3; mi++) {
+        for (int mi = 0; mi < NFEAT; mi++) {
             printf("  %-20s %-8s", c->libs[l].name, mode_names[modes[mi]]);
             for (int k = 0; k < 2; k++)
                 for (int a = 0; a < 2; a++) {
@@ -1777,10 +1863,12 @@ static int section_features(ctx *c, char *err, size_t err_size)
             printf("\n");
         }
     for (int l = 0; l < nl; l++)
-        for (int mi = 0; mi < 3; mi++)
+        for (int mi = 0; mi < NFEAT; mi++)
             if (sc[l][mi].lib)
                 scene_release(&sc[l][mi]);
     free(hits);
+    free(bench_quads.q);
+    bench_quads = (quad_list){0};
     return bad;
 }
 
