@@ -877,33 +877,41 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
     *tfar_io = tfar_s;
 }
 
-/* Any hit below `root` within [tnear, tfar]: 1 when there is one. */
-static inline __attribute__((always_inline)) int any_from_(const rtk_accel *accel, uint32_t root, const ray_pre *p,
-                                                             float tnear_s, float tfar_s, int fused,
-                                                             const feat_ctx *f)
-{
-    const vfloat4 tnear = vf4_set1(tnear_s), tfar = vf4_set1(tfar_s);
-    const vnode ntnear = vn_set1(tnear_s + 0.0f), ntfar = vn_set1(tfar_s + 0.0f); /* no -0.0 */
-
-    stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
-    int sp = 0;
-    uint32_t cur = root;
-    for (;;) {
-        if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur, 1, fused))
-            return 0;
-        const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
-        for (uint32_t block = first; block < end; block++) {
-            tri4_hit h;
-            block_t scratch;
-            const block_t *t = LEAF_BLOCK(accel, block, &scratch);
-            const unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
-            if (mask && (!f || accept_any(t, f, &h, mask, tnear_s, tfar_s)))
-                return 1;
-        }
-        if (!pop_in_range(stack, &sp, tfar_s, &cur))
-            return 0;
+/* Any hit below `root` within [tnear, tfar]: 1 when there is one.  Spelled
+ * once and made twice by the preprocessor, ACCEPT deciding a block's lanes
+ * hit (mask, h): 1 in the usual traversal, accept_any in the features'.
+ * (With the features' test in its source, even under a constant-NULL f
+ * that removes it, GCC 12 kept three more vectors of the usual loop in
+ * memory: a 96-byte bigger frame and 31 more instructions per shadow ray
+ * on dragon.ply, bench/occluded_instructions.c.) */
+#define RTK_ANY_FROM(name, ACCEPT)                                                                                    \
+    static inline __attribute__((always_inline)) int name(const rtk_accel *accel, uint32_t root, const ray_pre *p,  \
+                                                          float tnear_s, float tfar_s, int fused, const feat_ctx *f) \
+    {                                                                                                                \
+        const vfloat4 tnear = vf4_set1(tnear_s), tfar = vf4_set1(tfar_s);                                            \
+        const vnode ntnear = vn_set1(tnear_s + 0.0f), ntfar = vn_set1(tfar_s + 0.0f); /* no -0.0 */                  \
+        stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];                                                            \
+        int sp = 0;                                                                                                  \
+        uint32_t cur = root;                                                                                         \
+        (void)f;                                                                                                     \
+        for (;;) {                                                                                                   \
+            if (!next_leaf(accel, p, ntnear, tfar_s, ntfar, stack, &sp, &cur, 1, fused))                             \
+                return 0;                                                                                            \
+            const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);                          \
+            for (uint32_t block = first; block < end; block++) {                                                     \
+                tri4_hit h;                                                                                          \
+                block_t scratch;                                                                                     \
+                const block_t *t = LEAF_BLOCK(accel, block, &scratch);                                               \
+                const unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);                                    \
+                if (mask && (ACCEPT))                                                                                \
+                    return 1;                                                                                        \
+            }                                                                                                        \
+            if (!pop_in_range(stack, &sp, tfar_s, &cur))                                                             \
+                return 0;                                                                                            \
+        }                                                                                                            \
     }
-}
+RTK_ANY_FROM(any_from_usual_, 1)
+RTK_ANY_FROM(any_from_features_, accept_any(t, f, &h, mask, tnear_s, tfar_s))
 
 /* The traversals, specialised once for the fused node test and once for
  * the subtract-then-multiply one (ray_pre.fma), so the choice is made once
@@ -927,9 +935,9 @@ static __attribute__((noinline)) int any_from_feat(const rtk_accel *accel, uint3
                                                    float tnear_s, float tfar_s, const feat_ctx *f)
 {
 #if RTK_SIMD_HAS_FMA
-    return any_from_(accel, root, p, tnear_s, tfar_s, p->fma, f);
+    return any_from_features_(accel, root, p, tnear_s, tfar_s, p->fma, f);
 #else
-    return any_from_(accel, root, p, tnear_s, tfar_s, 0, f);
+    return any_from_features_(accel, root, p, tnear_s, tfar_s, 0, f);
 #endif
 }
 
@@ -949,9 +957,9 @@ static int any_from_plain(const rtk_accel *accel, uint32_t root, const ray_pre *
 {
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(p->fma, 1))
-        return any_from_(accel, root, p, tnear_s, tfar_s, 1, NULL);
+        return any_from_usual_(accel, root, p, tnear_s, tfar_s, 1, NULL);
 #endif
-    return any_from_(accel, root, p, tnear_s, tfar_s, 0, NULL);
+    return any_from_usual_(accel, root, p, tnear_s, tfar_s, 0, NULL);
 }
 
 /* The traversals for a ray with feat_init's f: the usual ones when it is
