@@ -553,11 +553,28 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
 #endif
 
 /* s's scene on dev (flags: the scene's), not yet committed; a moving s
- * with its second time step.  *g: its one geometry, committed. */
-static rtk_scene conformance_scene(rtk_device dev, const scene_data *s, unsigned flags, rtk_geometry *g)
+ * with its second time step.  *g: its one geometry, committed.  quads: s's
+ * triangles as a quad geometry (quads[4 i ..] = v0 v1 v2 v2, a triangle
+ * given as a quad, so the hits are the triangles' with the same ids), or
+ * NULL. */
+static rtk_scene conformance_scene(rtk_device dev, const scene_data *s, unsigned flags, rtk_geometry *g,
+                                   const uint32_t *quads)
 {
     rtk_scene scene = test_scene_uncommitted(dev, s->v, s->nv, s->idx, s->nt, flags);
     *g = rtk_scene_get_geometry(scene, 0);
+    if (quads) {
+        rtk_geometry q;
+        assert_int_equal(rtk_scene_detach_geometry(scene, 0), RTK_OK);
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_QUAD, &q), RTK_OK);
+        assert_int_equal(rtk_geometry_set_shared_buffer(q, RTK_BUFFER_TYPE_VERTEX, s->v, 0, 12, s->nv), RTK_OK);
+        assert_int_equal(rtk_geometry_set_shared_buffer(q, RTK_BUFFER_TYPE_INDEX, quads, 0, 16, s->nt), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(q), RTK_OK);
+        uint32_t id;
+        assert_int_equal(rtk_scene_attach_geometry(scene, q, &id), RTK_OK);
+        assert_int_equal(id, 0);
+        rtk_geometry_release(q);
+        *g = q;
+    }
     if (s->v1) {
         assert_int_equal(rtk_geometry_set_time_step_count(*g, 2), RTK_OK);
         assert_int_equal(rtk_geometry_set_shared_buffer_slot(*g, RTK_BUFFER_TYPE_VERTEX, 1, s->v1, 0, 12, s->nv),
@@ -593,6 +610,7 @@ static int check_calls(rtk_scene scene, const scene_data *s, const rtk_ray *rays
  * filter rejects every fifth triangle (by primID: the same in every
  * backend); the rays take masks 1 (which sees nothing), 2 and all ones and
  * flags none, CULL_BACK and CULL_FRONT in turn.  Every backend and layout,
+ * and the triangles given as quads (v3 == v2: the same hits and ids),
  * single rays and packets, against the scalar backend's answers, on a
  * 32nd of the rays (the features' path tests candidates in scalar code,
  * slower per ray).  (Embree has no runtime culling, so it sits out.) */
@@ -615,15 +633,21 @@ static int check_features(const scene_data *s, const rtk_ray *all, size_t n_all,
         rays[i].mask = masks[i % 3];
         rays[i].flags = flags[(i / 3) % 3];
     }
+    uint32_t *quads = malloc((s->nt ? s->nt : 1) * 4 * sizeof *quads);
+    assert_non_null(quads);
+    for (size_t t = 0; t < s->nt; t++) {
+        memcpy(&quads[4 * t], &s->idx[3 * t], 3 * sizeof *quads);
+        quads[4 * t + 3] = s->idx[3 * t + 2];
+    }
     int failures = 0;
     size_t ties = 0, hits = 0;
-    for (size_t bc = 0; bc < 2 * nb; bc++) {
+    for (size_t bc = 0; bc < 3 * nb; bc++) {
         const size_t b = bc % nb;
-        const int compact = bc >= nb;
+        const int compact = bc / nb == 1, as_quads = bc / nb == 2;
         rtk_device dev = test_device(names[b]);
         rtk_geometry g;
-        rtk_scene scene =
-            conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g);
+        rtk_scene scene = conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g,
+                                            as_quads ? quads : NULL);
         assert_int_equal(rtk_geometry_set_mask(g, 2u), RTK_OK);
         assert_int_equal(rtk_geometry_set_intersect_filter(g, reject_fifth), RTK_OK);
         assert_int_equal(rtk_geometry_set_occluded_filter(g, reject_fifth), RTK_OK);
@@ -645,13 +669,14 @@ static int check_features(const scene_data *s, const rtk_ray *all, size_t n_all,
             }
         }
         failures += check_calls(scene, s, rays, n, bc == 0, 4, base, got, names[b],
-                                compact ? " compact features" : " features", &ties);
+                                compact ? " compact features" : as_quads ? " quads features" : " features", &ties);
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }
-    print_message("%s, with masks, culling and a filter: %zu rays x %zu backends x 2 layouts x 8 calls: %zu hits, "
-                  "%zu ties adjudicated, %d failures\n",
+    print_message("%s, with masks, culling and a filter: %zu rays x %zu backends x 3 (default, compact, quads) x 8 "
+                  "calls: %zu hits, %zu ties adjudicated, %d failures\n",
                   s->name, n, nb, hits, ties, failures);
+    free(quads);
     free(rays);
     free(base[0]);
     free(base[1]);
@@ -679,7 +704,7 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
         rtk_device dev = test_device(names[b]);
         rtk_geometry g;
         rtk_scene scene =
-            conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g);
+            conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g, NULL);
         assert_int_equal(rtk_scene_set_build_quality(scene, morton ? RTK_BUILD_QUALITY_LOW : RTK_BUILD_QUALITY_MEDIUM),
                          RTK_OK);
         if (rtk_scene_commit(scene) != RTK_OK)
