@@ -282,6 +282,9 @@ static rtk_error check_buffer_args(rtk_geometry g, rtk_buffer_type type, unsigne
                         "%s: byte_stride %zu: must be at least %zu and a multiple of 4", fn, stride, least);
     if (count > ((size_t)1 << 32) - 1)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: count %zu exceeds 2^32 - 1", fn, count);
+    /* a quad's halves are triangles 2q and 2q + 1 to the kernels */
+    if (type == RTK_BUFFER_TYPE_INDEX && g->type == RTK_GEOMETRY_TYPE_QUAD && count > ((size_t)1 << 31) - 1)
+        return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu quads exceed 2^31 - 1", fn, count);
     if (count && stride > SIZE_MAX / count)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "%s: count * byte_stride overflows", fn);
     return RTK_OK;

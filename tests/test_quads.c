@@ -569,6 +569,10 @@ static void test_errors(void **state)
     assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, good, 0, 12, 1),
                      RTK_ERROR_INVALID_ARGUMENT);
     assert_non_null(strstr(rtk_device_get_error_message(dev), "at least 16"));
+    /* more quads than 32-bit ids of their halves can number (not read here) */
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, good, 0, 16, (size_t)1 << 31),
+                     RTK_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "exceed 2^31 - 1"));
     assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, 4), RTK_OK);
     assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, bad, 0, 16, 1), RTK_OK);
     assert_int_equal(rtk_geometry_commit(g), RTK_OK);

@@ -456,7 +456,7 @@ typedef enum rtk_geometry_type {
 typedef enum rtk_buffer_type {
     RTK_BUFFER_TYPE_VERTEX = 0, /* float x, y, z per vertex, byte_stride >= 12, multiple of 4 */
     /* uint32 v0, v1, v2 per triangle, byte_stride >= 12, multiple of 4;
-     * quads: v0, v1, v2, v3, byte_stride >= 16 */
+     * quads: v0, v1, v2, v3, byte_stride >= 16, at most 2^31 - 1 quads */
     RTK_BUFFER_TYPE_INDEX = 1,
 } rtk_buffer_type;
 
