@@ -141,65 +141,6 @@ typedef struct quad_list {
     size_t paired; /* quads made of two triangles */
 } quad_list;
 
-static int key_cmp(const void *x, const void *y)
-{
-    const uint64_t a = ((const uint64_t *)x)[0], b = ((const uint64_t *)y)[0];
-    return a < b ? -1 : a > b;
-}
-
-static int quads_make(const rtk_mesh *m, quad_list *out)
-{
-    const size_t nt = m->triangle_count;
-    uint64_t(*edge)[2] = malloc((nt ? 3 * nt : 1) * sizeof *edge); /* (min << 32 | max), 3 t + e */
-    uint64_t *across = malloc((nt ? 3 * nt : 1) * sizeof *across);  /* the half-edge across, or ~0 */
-    unsigned char *used = calloc(nt ? nt : 1, 1);
-    out->q = malloc((nt ? nt : 1) * 4 * sizeof *out->q);
-    out->n = out->paired = 0;
-    if (!edge || !across || !used || !out->q) {
-        free(edge), free(across), free(used), free(out->q);
-        out->q = NULL;
-        return 1;
-    }
-    for (size_t h = 0; h < 3 * nt; h++) {
-        const uint32_t a = m->indices[h], b = m->indices[h - h % 3 + (h % 3 + 1) % 3];
-        edge[h][0] = a < b ? (uint64_t)a << 32 | b : (uint64_t)b << 32 | a;
-        edge[h][1] = h;
-        across[h] = ~0ull;
-    }
-    qsort(edge, 3 * nt, sizeof *edge, key_cmp);
-    for (size_t i = 0; i + 1 < 3 * nt; i++) /* an edge of exactly two triangles */
-        if (edge[i][0] == edge[i + 1][0] && (i + 2 == 3 * nt || edge[i + 2][0] != edge[i][0]) &&
-            (i == 0 || edge[i - 1][0] != edge[i][0])) {
-            across[edge[i][1]] = edge[i + 1][1];
-            across[edge[i + 1][1]] = edge[i][1];
-        }
-    for (size_t t = 0; t < nt; t++) {
-        if (used[t])
-            continue;
-        const uint32_t *x = &m->indices[3 * t];
-        uint32_t *q = &out->q[4 * out->n++];
-        used[t] = 1;
-        q[0] = x[0], q[1] = x[1], q[2] = x[2], q[3] = x[2];
-        for (int e = 0; e < 3; e++) {
-            const uint64_t o = across[3 * t + (size_t)e];
-            if (o == ~0ull || used[o / 3])
-                continue;
-            /* the edge x[e] -> x[e+1] is the other's x[e+1] -> x[e] (if
-             * the two face the same way): the quad x[e+2] x[e] y x[e+1] */
-            const uint32_t *y = &m->indices[o - o % 3];
-            const uint32_t oe = (uint32_t)(o % 3);
-            if (y[oe] != x[(e + 1) % 3])
-                continue;
-            q[0] = x[(e + 2) % 3], q[1] = x[e], q[2] = y[(oe + 2) % 3], q[3] = x[(e + 1) % 3];
-            used[o / 3] = 1;
-            out->paired++;
-            break;
-        }
-    }
-    free(edge), free(across), free(used);
-    return 0;
-}
-
 static quad_list bench_quads; /* of the mesh section_features measures */
 
 static void e_accept(const struct RTCFilterFunctionNArguments *args)
@@ -601,6 +542,95 @@ static void tri_normal(const rtk_mesh *m, uint32_t t, double n[3])
         n[k] = l > 0 ? n[k] / l : 0.0;
 }
 
+/* The edges of exactly two triangles (distinct: only those of two distinct
+ * vertices), sorted: entries 2k and 2k + 1 of *out are edge k in its two
+ * triangles; returns the number of entries.  *out is malloc'd (NULL when
+ * out of memory). */
+static size_t shared_edges(const rtk_mesh *m, int distinct, edge **out)
+{
+    const size_t nt = m->triangle_count;
+    edge *e = *out = malloc(3 * nt * sizeof *e + 1);
+    if (!e)
+        return 0;
+    for (size_t t = 0; t < nt; t++)
+        for (int k = 0; k < 3; k++) {
+            const uint32_t a = m->indices[3 * t + (size_t)k], b = m->indices[3 * t + (size_t)(k + 1) % 3];
+            e[3 * t + (size_t)k] = (edge){a < b ? a : b, a < b ? b : a, (uint32_t)t};
+        }
+    qsort(e, 3 * nt, sizeof *e, edge_cmp);
+    size_t pairs = 0;
+    for (size_t i = 0; i + 1 < 3 * nt; i++) {
+        const int starts = i == 0 || e[i - 1].a != e[i].a || e[i - 1].b != e[i].b;
+        const int two = e[i + 1].a == e[i].a && e[i + 1].b == e[i].b &&
+                        (i + 2 >= 3 * nt || e[i + 2].a != e[i].a || e[i + 2].b != e[i].b);
+        if (starts && two && (!distinct || e[i].a != e[i].b))
+            e[pairs++] = e[i], e[pairs++] = e[i + 1];
+    }
+    return pairs;
+}
+
+/* The corner k of triangle t whose edge to corner k + 1 joins a and b
+ * (either way round), or -1. */
+static int edge_corner(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
+{
+    for (int k = 0; k < 3; k++) {
+        const uint32_t x = m->indices[3 * t + k], y = m->indices[3 * t + (k + 1) % 3];
+        if ((x == a && y == b) || (x == b && y == a))
+            return k;
+    }
+    return -1;
+}
+
+static int quads_make(const rtk_mesh *m, quad_list *out)
+{
+    const size_t nt = m->triangle_count;
+    edge *e;
+    const size_t pairs = shared_edges(m, 0, &e);
+    uint64_t *across = malloc((nt ? 3 * nt : 1) * sizeof *across); /* the edge 3 t + k's other side, or ~0 */
+    unsigned char *used = calloc(nt ? nt : 1, 1);
+    out->q = malloc((nt ? nt : 1) * 4 * sizeof *out->q);
+    out->n = out->paired = 0;
+    if (!e || !across || !used || !out->q) {
+        free(e), free(across), free(used), free(out->q);
+        out->q = NULL;
+        return 1;
+    }
+    for (size_t h = 0; h < 3 * nt; h++)
+        across[h] = ~0ull;
+    for (size_t i = 0; i < pairs; i += 2) {
+        const uint32_t t1 = e[i].tri, t2 = e[i + 1].tri;
+        const uint64_t h1 = 3ull * t1 + (uint64_t)edge_corner(m, t1, e[i].a, e[i].b),
+                       h2 = 3ull * t2 + (uint64_t)edge_corner(m, t2, e[i].a, e[i].b);
+        across[h1] = h2;
+        across[h2] = h1;
+    }
+    for (size_t t = 0; t < nt; t++) {
+        if (used[t])
+            continue;
+        const uint32_t *x = &m->indices[3 * t];
+        uint32_t *q = &out->q[4 * out->n++];
+        used[t] = 1;
+        q[0] = x[0], q[1] = x[1], q[2] = x[2], q[3] = x[2];
+        for (int k = 0; k < 3; k++) {
+            const uint64_t o = across[3 * t + (size_t)k];
+            if (o == ~0ull || used[o / 3])
+                continue;
+            /* the edge x[k] -> x[k+1] is the other's x[k+1] -> x[k] (if
+             * the two face the same way): the quad x[k+2] x[k] y x[k+1] */
+            const uint32_t *y = &m->indices[o - o % 3];
+            const uint32_t ok = (uint32_t)(o % 3);
+            if (y[ok] != x[(k + 1) % 3])
+                continue;
+            q[0] = x[(k + 2) % 3], q[1] = x[k], q[2] = y[(ok + 2) % 3], q[3] = x[(k + 1) % 3];
+            used[o / 3] = 1;
+            out->paired++;
+            break;
+        }
+    }
+    free(e), free(across), free(used);
+    return 0;
+}
+
 /* Whether triangle t runs along its edge a -> b (else b -> a). */
 static int runs_forward(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
 {
@@ -618,26 +648,12 @@ static int runs_forward(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
  * the point is at t = 1. */
 static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set)
 {
-    const size_t nt = m->triangle_count;
     set->rays = NULL;
     set->n = 0;
-    edge *e = malloc(3 * nt * sizeof *e + 1);
+    edge *e;
+    const size_t pairs = shared_edges(m, 1, &e);
     if (!e)
         return 0;
-    for (size_t t = 0; t < nt; t++)
-        for (int k = 0; k < 3; k++) {
-            const uint32_t a = m->indices[3 * t + (size_t)k], b = m->indices[3 * t + (size_t)(k + 1) % 3];
-            e[3 * t + (size_t)k] = (edge){a < b ? a : b, a < b ? b : a, (uint32_t)t};
-        }
-    qsort(e, 3 * nt, sizeof *e, edge_cmp);
-    size_t pairs = 0;
-    for (size_t i = 0; i + 1 < 3 * nt; i++) {
-        const int starts = i == 0 || e[i - 1].a != e[i].a || e[i - 1].b != e[i].b;
-        const int two = e[i + 1].a == e[i].a && e[i + 1].b == e[i].b &&
-                        (i + 2 >= 3 * nt || e[i + 2].a != e[i].a || e[i + 2].b != e[i].b);
-        if (starts && two && e[i].a != e[i].b)
-            e[pairs++] = e[i], e[pairs++] = e[i + 1];
-    }
     float lo[3], hi[3];
     const float diag = rtk_mesh_bounds(m, lo, hi);
     set->rays = calloc(want, sizeof(rtk_ray));
