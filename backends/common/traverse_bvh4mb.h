@@ -41,7 +41,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
     closest_from(seg, seg->root, &p, rayhit->ray.tnear, &tfar, &best, f);
     if (best.lane >= 0) {
         closest_hit_store(seg, &best, &p, tfar, rayhit);
-        closest_hit_quad(accel, &rayhit->hit);
+        closest_hit_quad(accel, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
     }
 }
 

@@ -1012,12 +1012,13 @@ static inline void closest_hit_store(const rtk_accel *accel, const closest_hit *
     rayhit->hit.instID = RTK_INVALID_GEOMETRY_ID;
 }
 
-/* After closest_hit_store: the hit on a quad's half as on the quad (attrs:
- * the accel that holds the attributes, the top one of a moving tree). */
-static inline void closest_hit_quad(const rtk_accel *attrs, rtk_hit *hit)
+/* After a closest hit is stored: the hit on a quad's half as on the quad
+ * (attrs: the accel that holds the attributes, the top one of a moving
+ * tree); for single rays and packet lanes alike. */
+static inline void closest_hit_quad(const rtk_accel *attrs, uint32_t geom, uint32_t *prim, float *u, float *v)
 {
     if (__builtin_expect(attrs->quads != 0, 0))
-        rtk_quad_hit(attrs->attrs, hit->geomID, &hit->primID, &hit->u, &hit->v);
+        rtk_quad_hit(attrs->attrs, geom, prim, u, v);
 }
 
 #if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
@@ -1034,7 +1035,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, f);
     if (best.lane >= 0) {
         closest_hit_store(accel, &best, &p, tfar, rayhit);
-        closest_hit_quad(accel, &rayhit->hit);
+        closest_hit_quad(accel, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
     }
 }
 

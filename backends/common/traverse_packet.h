@@ -717,8 +717,7 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
         rh->hit.u[i] = u[i];
         rh->hit.v[i] = v[i];
         rh->hit.instID[i] = RTK_INVALID_GEOMETRY_ID;
-        if (__builtin_expect(accel->quads != 0, 0))
-            rtk_quad_hit(accel->attrs, rh->hit.geomID[i], &rh->hit.primID[i], &rh->hit.u[i], &rh->hit.v[i]);
+        closest_hit_quad(accel, rh->hit.geomID[i], &rh->hit.primID[i], &rh->hit.u[i], &rh->hit.v[i]);
     }
 }
 
