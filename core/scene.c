@@ -1757,6 +1757,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     const int refit = !tree && refit_serves(s);
     size_t n = 0;
     uint32_t ni = 0, nug = 0; /* instances, user geometries */
+    uint64_t quads = 0;       /* in quad geometries */
     for (uint32_t i = 0; i < s->geom_count; i++) {
         rtk_geometry g = s->geoms[i];
         if (!g)
@@ -1796,6 +1797,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
                             "%s: geometry %u has motion blur: a loaded tree holds no motion", fn, i);
         n++;
+        quads += g->type == RTK_GEOMETRY_TYPE_QUAD ? g->index.count : 0;
     }
     if ((ni || nug) && tree)
         return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
@@ -1803,12 +1805,6 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     /* Quads go to the builders as their triangles, written for this commit
      * after the geometries (one allocation, freed with them: the layouts
      * keep no pointer to the indices). */
-    uint64_t quads = 0;
-    for (uint32_t i = 0; i < s->geom_count; i++) {
-        const rtk_geometry g = s->geoms[i];
-        if (g && g->enabled && g->type == RTK_GEOMETRY_TYPE_QUAD)
-            quads += g->index.count;
-    }
     const size_t head = ((n ? n : 1) * sizeof(rtk_build_geometry) + 15) & ~(size_t)15;
     rtk_build_geometry *in_geoms =
         quads > (SIZE_MAX - head) / 24 ? NULL : calloc(1, head + (size_t)quads * 6 * sizeof(uint32_t));
