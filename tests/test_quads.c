@@ -128,12 +128,15 @@ static rtk_scene mesh_scene(rtk_device dev, const qmesh *m, int quads, const sce
     return s;
 }
 
-/* Rays from a sphere of radius 3 toward random points of [-1, 1]^3, and
+/* RAYS rays (malloc'd) from a sphere of radius 3 toward random points of [-1, 1]^3, and
  * (every third) toward vertices and the midpoints of the quads' diagonals
  * (where the halves meet) and of their edges: those points into
  * targets[i] (if not NULL). */
-static void make_rays(const qmesh *m, rtk_ray *rays, size_t n, uint64_t seed, float (*targets)[3])
+static rtk_ray *make_rays(const qmesh *m, uint64_t seed, float (*targets)[3])
 {
+    const size_t n = RAYS;
+    rtk_ray *rays = malloc(n * sizeof *rays);
+    assert_non_null(rays);
     rng r = {seed};
     for (size_t i = 0; i < n; i++) {
         float o[3], t[3], len = 0.0f;
@@ -166,6 +169,7 @@ static void make_rays(const qmesh *m, rtk_ray *rays, size_t n, uint64_t seed, fl
         if (i % 11 == 0)
             rays[i].flags = RTK_RAY_FLAG_CULL_BACK;
     }
+    return rays;
 }
 
 /* The quad scene's answer equals the triangle scene's, translated. */
@@ -189,22 +193,28 @@ static void expect_translated(const rtk_rayhit *q, const rtk_rayhit *t, const ch
 
 /* Where quad `prim`'s u, v are (on the half they fall in), against the
  * ray's point at t: the convention of rtk.h, independent of the kernels. */
-static void expect_uv_point(const qmesh *m, const rtk_rayhit *h, const float *offset, const char *what, size_t i)
+static double quad_point_error(const qmesh *m, uint32_t quad, double u, double v, const rtk_ray *r, double t,
+                               const float *offset)
 {
-    if (h->hit.geomID == RTK_INVALID_GEOMETRY_ID)
-        return;
-    const uint32_t *q = &m->q[4 * h->hit.primID];
-    const double u = h->hit.u, v = h->hit.v;
-    if (!(u >= -1e-6 && u <= 1.0 + 1e-6 && v >= -1e-6 && v <= 1.0 + 1e-6))
-        fail_msg("%s ray %zu: quad u, v %.9g %.9g outside [0, 1]", what, i, u, v);
+    const uint32_t *q = &m->q[4 * quad];
     double err = 0.0;
     for (int k = 0; k < 3; k++) {
         const double a = m->v[3 * q[0] + k], b = m->v[3 * q[1] + k], c = m->v[3 * q[2] + k], d = m->v[3 * q[3] + k];
         const double p = u + v <= 1.0 ? a + u * (b - a) + v * (d - a) : c + (1.0 - u) * (d - c) + (1.0 - v) * (b - c);
-        const double o = (&h->ray.org_x)[k] - (offset ? offset[k] : 0.0f);
-        const double x = o + (double)h->ray.tfar * (&h->ray.dir_x)[k];
-        err = fmax(err, fabs(p - x));
+        const double o = (&r->org_x)[k] - (offset ? offset[k] : 0.0f);
+        err = fmax(err, fabs(p - (o + t * (&r->dir_x)[k])));
     }
+    return err;
+}
+
+static void expect_uv_point(const qmesh *m, const rtk_rayhit *h, const float *offset, const char *what, size_t i)
+{
+    if (h->hit.geomID == RTK_INVALID_GEOMETRY_ID)
+        return;
+    const double u = h->hit.u, v = h->hit.v;
+    if (!(u >= -1e-6 && u <= 1.0 + 1e-6 && v >= -1e-6 && v <= 1.0 + 1e-6))
+        fail_msg("%s ray %zu: quad u, v %.9g %.9g outside [0, 1]", what, i, u, v);
+    const double err = quad_point_error(m, h->hit.primID, u, v, &h->ray, h->ray.tfar, offset);
     if (err > 1e-4)
         fail_msg("%s ray %zu: quad %u at u, v %.9g %.9g is %.3g from the ray's point at t", what, i, h->hit.primID,
                  u, v, err);
@@ -281,11 +291,9 @@ static void test_every_backend_and_layout(void **state)
 {
     (void)state;
     qmesh m = quad_ball(24, 0.0f);
-    rtk_ray *rays = malloc(RAYS * sizeof *rays);
     float(*targets)[3] = malloc(RAYS * sizeof *targets);
-    assert_non_null(rays);
     assert_non_null(targets);
-    make_rays(&m, rays, RAYS, 5, targets);
+    rtk_ray *rays = make_rays(&m, 5, targets);
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     for (size_t b = 0; b < nb; b++) {
@@ -361,21 +369,8 @@ static int qfilter(const rtk_filter_args *a)
         if (a->hit->primID >= user->m->nq || !(a->hit->u >= 0.0f && a->hit->u <= 1.0f && a->hit->v >= 0.0f &&
                                                a->hit->v <= 1.0f))
             log->bad++;
-        else {
-            /* the point u, v name is the ray's at t */
-            rtk_rayhit h = {.ray = *a->ray, .hit = *a->hit};
-            h.ray.tfar = a->t;
-            const uint32_t *q = &user->m->q[4 * quad];
-            const float *v = user->m->v;
-            double err = 0.0, u = h.hit.u, w = h.hit.v;
-            for (int k = 0; k < 3; k++) {
-                const double p0 = v[3 * q[0] + k], p1 = v[3 * q[1] + k], p2 = v[3 * q[2] + k], p3 = v[3 * q[3] + k];
-                const double p = u + w <= 1.0 ? p0 + u * (p1 - p0) + w * (p3 - p0)
-                                              : p2 + (1.0 - u) * (p3 - p2) + (1.0 - w) * (p1 - p2);
-                err = fmax(err, fabs(p - ((&h.ray.org_x)[k] + (double)a->t * (&h.ray.dir_x)[k])));
-            }
-            log->bad += err > 1e-4;
-        }
+        else /* the point u, v name is the ray's at t */
+            log->bad += quad_point_error(user->m, quad, a->hit->u, a->hit->v, a->ray, a->t, NULL) > 1e-4;
     }
     return rule(quad, a->ray->id);
 }
@@ -384,9 +379,7 @@ static void test_filters_and_masks(void **state)
 {
     (void)state;
     qmesh m = quad_ball(16, 0.0f);
-    rtk_ray *rays = malloc(RAYS * sizeof *rays);
-    assert_non_null(rays);
-    make_rays(&m, rays, RAYS, 9, NULL);
+    rtk_ray *rays = make_rays(&m, 9, NULL);
     for (size_t i = 0; i < RAYS; i++)
         rays[i].mask = i % 4 == 1 ? 2u : 5u;
     char names[TEST_MAX_BACKENDS][32];
@@ -452,9 +445,7 @@ static void test_instances_motion_refit_trees(void **state)
 {
     (void)state;
     qmesh m = quad_ball(20, 0.0f), moved = quad_ball(20, 0.2f);
-    rtk_ray *rays = malloc(RAYS * sizeof *rays);
-    assert_non_null(rays);
-    make_rays(&m, rays, RAYS, 13, NULL);
+    rtk_ray *rays = make_rays(&m, 13, NULL);
     rng r = {21};
     for (size_t i = 0; i < RAYS; i++)
         rays[i].time = rng_float(&r);
@@ -617,9 +608,7 @@ static void test_versus_embree(void **state)
 {
     (void)state;
     qmesh m = quad_ball(24, 0.0f);
-    rtk_ray *rays = malloc(RAYS * sizeof *rays);
-    assert_non_null(rays);
-    make_rays(&m, rays, RAYS, 17, NULL);
+    rtk_ray *rays = make_rays(&m, 17, NULL);
     RTCDevice edev = rtcNewDevice(NULL);
     assert_non_null(edev);
     RTCScene es = rtcNewScene(edev);
