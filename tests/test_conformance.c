@@ -6,15 +6,18 @@
  * builder's tree (low quality; single rays, 4 and 8), on every mesh of the shared test
  * set and on procedural scenes made to be hard (shared edges and vertices hit
  * dead on, needles and fans, overlapping soup; the soup also moving and
- * deforming, with motion blur, its rays at random times).  The scalar backend's
- * intersect1 / occluded1 answers are the baseline.
+ * deforming, with motion blur, its rays at random times).  On a 32nd of the
+ * rays each scene is traced again with masks, culling and a filter
+ * (check_features) and with balls as user geometry beside the triangles
+ * (check_user).  The scalar backend's intersect1 / occluded1 answers are
+ * the baseline.
  *
  * Rules, per ray:
  *   - hit or miss must equal the baseline's, for every backend and width;
- *   - on a hit, primID must equal the baseline's, unless the two triangles
- *     are a tie: the double-precision reference below finds both hit, give
- *     or take its tolerance, at distances it cannot tell apart;
- *   - with the same primID, t within 1e-6 relative of the baseline's, u and
+ *   - on a hit, geomID and primID must equal the baseline's, unless the two
+ *     primitives are a tie: the double-precision reference below finds both
+ *     hit, give or take its tolerance, at distances it cannot tell apart;
+ *   - with the same ids, t within 1e-6 relative of the baseline's, u and
  *     v within 1e-5 (all backends share the arithmetic, so in practice these
  *     are equal to the bit);
  *   - lanes switched off by the valid mask come back untouched, bit for bit.
@@ -71,11 +74,16 @@ typedef struct scene_data {
     size_t nt;
     double (*sphere)[4]; /* per triangle: centre and radius, to skip far triangles in the brute force */
     size_t brute_force;  /* adjudications that searched every triangle */
+    /* User geometry: NULL, or nballs balls (centre, radius) beside the
+     * triangles, geometry 1 of the scene, traced through callbacks
+     * (check_user). */
+    const float (*balls)[4];
+    size_t nballs;
 } scene_data;
 
 typedef struct answer {
     float t, u, v;
-    uint32_t prim;  /* RTK_INVALID_GEOMETRY_ID: miss */
+    uint32_t geom, prim; /* prim RTK_INVALID_GEOMETRY_ID: miss */
     int occluded;
 } answer;
 
@@ -89,20 +97,28 @@ static size_t ray_count(void)
 
 /* ---- rays ---- */
 
-static void make_rays(const scene_data *s, rtk_ray *rays, size_t n, uint64_t seed)
+/* The box of s's vertices (at time step 0); returns its diagonal. */
+static float scene_box(const scene_data *s, float lo[3], float hi[3])
 {
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, c[3];
+    for (int k = 0; k < 3; k++)
+        lo[k] = INFINITY, hi[k] = -INFINITY;
     for (size_t i = 0; i < s->nv; i++)
         for (int k = 0; k < 3; k++) {
             lo[k] = fminf(lo[k], s->v[3 * i + k]);
             hi[k] = fmaxf(hi[k], s->v[3 * i + k]);
         }
     float diag = 0.0f;
-    for (int k = 0; k < 3; k++) {
-        c[k] = 0.5f * (lo[k] + hi[k]);
+    for (int k = 0; k < 3; k++)
         diag += (hi[k] - lo[k]) * (hi[k] - lo[k]);
-    }
-    diag = sqrtf(diag);
+    return sqrtf(diag);
+}
+
+static void make_rays(const scene_data *s, rtk_ray *rays, size_t n, uint64_t seed)
+{
+    float lo[3], hi[3], c[3];
+    const float diag = scene_box(s, lo, hi);
+    for (int k = 0; k < 3; k++)
+        c[k] = 0.5f * (lo[k] + hi[k]);
     /* grow the box by a tenth of the diagonal on every side, so flat scenes
      * get a volume (origins on a surface are test_rays.c's business) */
     for (int k = 0; k < 3; k++) {
@@ -260,6 +276,22 @@ static int dref_clear(const dref *h)
     return h->u > h->tol_u && h->v > h->tol_v && h->w > h->tol_u + h->tol_v && h->t >= 0.0;
 }
 
+/* Primitive prim of geometry geom (0: the triangles, 1: the balls) in the
+ * reference.  A ball is its callback's arithmetic (test_sphere_hit), so
+ * the reference knows it exactly: hit beyond doubt, at the callback's t
+ * give or take the float rounding. */
+static int dref_prim(const scene_data *s, uint32_t geom, uint32_t prim, const rtk_ray *r, dref *h)
+{
+    if (geom == 0)
+        return dref_one(s, prim, r, h);
+    const float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    float t;
+    if (geom != 1 || prim >= s->nballs || !test_sphere_hit(s->balls[prim], s->balls[prim][3], o, d, r->tnear, r->tfar, &t))
+        return 0;
+    *h = (dref){.t = t, .u = 1.0 / 3, .v = 1.0 / 3, .w = 1.0 / 3, .tol_t = 0x1p-24 * fabs((double)t)};
+    return 1;
+}
+
 static void make_spheres(scene_data *s)
 {
     s->sphere = malloc((s->nt ? s->nt : 1) * sizeof *s->sphere);
@@ -298,13 +330,18 @@ static int near_line(const scene_data *s, size_t i, const rtk_ray *r)
 }
 
 /* How far the nearest hit beyond doubt can be: min of t + tolerance over
- * the triangles hit beyond doubt, or +inf. */
+ * the triangles and balls hit beyond doubt, or +inf. */
 static double dref_clear_nearest(const scene_data *s, const rtk_ray *r)
 {
     double best = INFINITY;
     for (size_t i = 0; i < s->nt; i++) {
         dref h;
         if (near_line(s, i, r) && dref_one(s, (uint32_t)i, r, &h) && dref_clear(&h) && h.t + h.tol_t < best)
+            best = h.t + h.tol_t;
+    }
+    for (size_t i = 0; i < s->nballs; i++) {
+        dref h;
+        if (dref_prim(s, 1, (uint32_t)i, r, &h) && h.t >= 0.0 && h.t + h.tol_t < best)
             best = h.t + h.tol_t;
     }
     return best;
@@ -327,24 +364,31 @@ static int consistent(scene_data *s, const rtk_ray *r, const answer *a, int occl
             if (near_line(s, i, r) && dref_one(s, (uint32_t)i, r, &h) && dref_within(&h))
                 return 1;
         }
-        return 0;
+        return !isinf(clear); /* a ball */
     }
     if (a->prim == RTK_INVALID_GEOMETRY_ID)
         return isinf(clear);
     dref h;
-    return dref_one(s, a->prim, r, &h) && dref_within(&h) && h.t - h.tol_t <= clear;
+    return dref_prim(s, a->geom, a->prim, r, &h) && dref_within(&h) && h.t - h.tol_t <= clear;
 }
 
-/* Two hits on different triangles are a tie when the reference finds both
- * triangles hit (give or take the tolerances) at overlapping distances. */
+/* Two hits on different primitives are a tie when the reference finds both
+ * hit (give or take the tolerances) at overlapping distances. */
 static int tie(const scene_data *s, const rtk_ray *r, const answer *a, const answer *b)
 {
     dref ha, hb;
-    return dref_one(s, a->prim, r, &ha) && dref_one(s, b->prim, r, &hb) && dref_within(&ha) && dref_within(&hb) &&
-           fabs(ha.t - hb.t) <= ha.tol_t + hb.tol_t;
+    return dref_prim(s, a->geom, a->prim, r, &ha) && dref_prim(s, b->geom, b->prim, r, &hb) && dref_within(&ha) &&
+           dref_within(&hb) && fabs(ha.t - hb.t) <= ha.tol_t + hb.tol_t;
 }
 
 /* ---- tracing ---- */
+
+static answer hit_answer(const rtk_rayhit *rh)
+{
+    if (rh->hit.geomID == RTK_INVALID_GEOMETRY_ID)
+        return (answer){.geom = RTK_INVALID_GEOMETRY_ID, .prim = RTK_INVALID_GEOMETRY_ID};
+    return (answer){.t = rh->ray.tfar, .u = rh->hit.u, .v = rh->hit.v, .geom = rh->hit.geomID, .prim = rh->hit.primID};
+}
 
 static void trace1(rtk_scene scene, const rtk_ray *rays, size_t n, int occluded, answer *out)
 {
@@ -352,14 +396,13 @@ static void trace1(rtk_scene scene, const rtk_ray *rays, size_t n, int occluded,
         if (occluded) {
             rtk_ray r = rays[i];
             assert_int_equal(rtk_occluded1(scene, &r), RTK_OK);
-            out[i] = (answer){.occluded = r.tfar == -INFINITY, .prim = RTK_INVALID_GEOMETRY_ID};
+            out[i] = (answer){.occluded = r.tfar == -INFINITY, .geom = RTK_INVALID_GEOMETRY_ID,
+                              .prim = RTK_INVALID_GEOMETRY_ID};
         } else {
             rtk_rayhit rh = {.ray = rays[i]};
             rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
             assert_int_equal(rtk_intersect1(scene, &rh), RTK_OK);
-            out[i] = (answer){.t = rh.ray.tfar, .u = rh.hit.u, .v = rh.hit.v,
-                              .prim = rh.hit.geomID == RTK_INVALID_GEOMETRY_ID ? RTK_INVALID_GEOMETRY_ID
-                                                                              : rh.hit.primID};
+            out[i] = hit_answer(&rh);
         }
     }
 }
@@ -399,11 +442,10 @@ static int trace_packets(rtk_scene scene, const rtk_ray *rays, size_t n, unsigne
             rtk_rayhit rh;
             test_packet_get(pk, w, j, &rh, occluded);
             if (occluded)
-                out[i] = (answer){.occluded = rh.ray.tfar == -INFINITY, .prim = RTK_INVALID_GEOMETRY_ID};
+                out[i] = (answer){.occluded = rh.ray.tfar == -INFINITY, .geom = RTK_INVALID_GEOMETRY_ID,
+                                  .prim = RTK_INVALID_GEOMETRY_ID};
             else
-                out[i] = (answer){.t = rh.ray.tfar, .u = rh.hit.u, .v = rh.hit.v,
-                                  .prim = rh.hit.geomID == RTK_INVALID_GEOMETRY_ID ? RTK_INVALID_GEOMETRY_ID
-                                                                                  : rh.hit.primID};
+                out[i] = hit_answer(&rh);
         }
     }
     return failures;
@@ -423,7 +465,7 @@ static int compare(const scene_data *s, const rtk_ray *rays, size_t n, int occlu
         } else if ((a->prim == RTK_INVALID_GEOMETRY_ID) != (b->prim == RTK_INVALID_GEOMETRY_ID)) {
             why = "hit/miss differs";
         } else if (a->prim != RTK_INVALID_GEOMETRY_ID) {
-            if (a->prim != b->prim) {
+            if (a->prim != b->prim || a->geom != b->geom) {
                 /* a tie in t; or, for a ray grazing both triangles' planes,
                  * two hits at distances the reference cannot tell apart */
                 if (tie(s, &rays[i], a, b))
@@ -438,14 +480,61 @@ static int compare(const scene_data *s, const rtk_ray *rays, size_t n, int occlu
         }
         if (why && failures++ < MAX_REPORTS) {
             print_ray(what, s, i, &rays[i]);
-            print_message("    %s: baseline prim %u t %a u %a v %a occ %d; got prim %u t %a u %a v %a occ %d\n", why,
-                          a->prim, a->t, a->u, a->v, a->occluded, b->prim, b->t, b->u, b->v, b->occluded);
+            print_message("    %s: baseline geom %u prim %u t %a u %a v %a occ %d; got geom %u prim %u t %a u %a v %a "
+                          "occ %d\n",
+                          why, a->geom, a->prim, a->t, a->u, a->v, a->occluded, b->geom, b->prim, b->t, b->u, b->v,
+                          b->occluded);
         }
     }
     return failures;
 }
 
 #ifdef RTK_HAVE_EMBREE
+/* The balls as Embree user geometry: the same arithmetic as rtk's callbacks. */
+static void embree_ball_bounds(const struct RTCBoundsFunctionArguments *a)
+{
+    const float *b = ((const float (*)[4])a->geometryUserPtr)[a->primID];
+    a->bounds_o->lower_x = b[0] - b[3], a->bounds_o->lower_y = b[1] - b[3], a->bounds_o->lower_z = b[2] - b[3];
+    a->bounds_o->upper_x = b[0] + b[3], a->bounds_o->upper_y = b[1] + b[3], a->bounds_o->upper_z = b[2] + b[3];
+}
+
+static void embree_ball_query(const int *valid, void *user, unsigned prim, unsigned geom, void *rays, unsigned n,
+                              int occluded)
+{
+    const float *b = ((const float (*)[4])user)[prim];
+    for (unsigned i = 0; i < n; i++) {
+        if (!valid[i])
+            continue;
+        const float o[3] = {TEST_LANE(rays, n, 0, i), TEST_LANE(rays, n, 1, i), TEST_LANE(rays, n, 2, i)};
+        const float d[3] = {TEST_LANE(rays, n, 4, i), TEST_LANE(rays, n, 5, i), TEST_LANE(rays, n, 6, i)};
+        float t;
+        if (!test_sphere_hit(b, b[3], o, d, TEST_LANE(rays, n, 3, i), TEST_LANE(rays, n, 8, i), &t))
+            continue;
+        TEST_LANE(rays, n, 8, i) = occluded ? -INFINITY : t;
+        if (occluded)
+            continue;
+        /* RTCRayHitN's hit fields follow the ray's 12 as rtk's do (Ng, u,
+         * v, primID, geomID, instID[0]); rtcore_ray.h's accessors are C++ */
+        for (int k = 0; k < 3; k++)
+            TEST_LANE(rays, n, 12 + k, i) = o[k] + t * d[k] - b[k];
+        TEST_LANE(rays, n, 15, i) = TEST_LANE(rays, n, 16, i) = 0.0f;
+        uint32_t *ids = (uint32_t *)rays;
+        ids[17 * n + i] = prim;
+        ids[18 * n + i] = geom;
+        ids[19 * n + i] = RTC_INVALID_GEOMETRY_ID;
+    }
+}
+
+static void embree_ball_intersect(const struct RTCIntersectFunctionNArguments *a)
+{
+    embree_ball_query(a->valid, a->geometryUserPtr, a->primID, a->geomID, a->rayhit, a->N, 0);
+}
+
+static void embree_ball_occluded(const struct RTCOccludedFunctionNArguments *a)
+{
+    embree_ball_query(a->valid, a->geometryUserPtr, a->primID, a->geomID, a->ray, a->N, 1);
+}
+
 /* The same rays through Embree; returns rtk's answers inconsistent with the
  * reference where the two disagree. */
 static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const answer *base_hit,
@@ -464,12 +553,23 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
     uint32_t *ib = rtcSetNewGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, 12, s->nt);
     memcpy(ib, s->idx, s->nt * 12);
     rtcCommitGeometry(g);
-    rtcAttachGeometry(scene, g);
+    assert_int_equal(rtcAttachGeometry(scene, g), 0);
     rtcReleaseGeometry(g);
+    if (s->nballs) {
+        g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_USER);
+        rtcSetGeometryUserPrimitiveCount(g, (unsigned)s->nballs);
+        rtcSetGeometryUserData(g, (void *)s->balls);
+        rtcSetGeometryBoundsFunction(g, embree_ball_bounds, NULL);
+        rtcSetGeometryIntersectFunction(g, embree_ball_intersect);
+        rtcSetGeometryOccludedFunction(g, embree_ball_occluded);
+        rtcCommitGeometry(g);
+        assert_int_equal(rtcAttachGeometry(scene, g), 1);
+        rtcReleaseGeometry(g);
+    }
     rtcCommitScene(scene);
     struct RTCIntersectContext ctx;
-    uint32_t *embree_prim = malloc(n * sizeof *embree_prim);
-    assert_non_null(embree_prim);
+    answer *embree_hit = malloc(n * sizeof *embree_hit);
+    assert_non_null(embree_hit);
     size_t agree[2] = {0, 0}, rtk_ok[2] = {0, 0}, embree_ok[2] = {0, 0}, both_ok[2] = {0, 0}, judged[2] = {0, 0};
     int failures = 0;
     for (int occluded = 0; occluded < 2; occluded++)
@@ -482,19 +582,20 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
             rh.ray.tnear = r->tnear, rh.ray.tfar = r->tfar, rh.ray.mask = 0xffffffffu, rh.ray.time = r->time;
             rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
             rtcInitIntersectContext(&ctx);
-            answer e = {.prim = RTK_INVALID_GEOMETRY_ID};
+            answer e = {.geom = RTK_INVALID_GEOMETRY_ID, .prim = RTK_INVALID_GEOMETRY_ID};
             if (occluded) {
                 rtcOccluded1(scene, &ctx, &rh.ray);
                 e.occluded = rh.ray.tfar == -INFINITY;
             } else {
                 rtcIntersect1(scene, &ctx, &rh);
                 if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID)
-                    e = (answer){.t = rh.ray.tfar, .u = rh.hit.u, .v = rh.hit.v, .prim = rh.hit.primID};
+                    e = (answer){.t = rh.ray.tfar, .u = rh.hit.u, .v = rh.hit.v, .geom = rh.hit.geomID,
+                                 .prim = rh.hit.primID};
             }
             const answer *a = occluded ? &base_occ[i] : &base_hit[i];
             if (!occluded)
-                embree_prim[i] = e.prim;
-            if (occluded ? a->occluded == e.occluded : a->prim == e.prim) {
+                embree_hit[i] = e;
+            if (occluded ? a->occluded == e.occluded : a->prim == e.prim && a->geom == e.geom) {
                 agree[occluded]++;
                 continue;
             }
@@ -506,10 +607,11 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
             if (!occluded && a->prim != RTK_INVALID_GEOMETRY_ID && e.prim != RTK_INVALID_GEOMETRY_ID) {
                 local = tie(s, r, a, &e);
             } else {
-                const uint32_t p = occluded ? (a->occluded ? base_hit[i].prim : embree_prim[i])
-                                            : (a->prim != RTK_INVALID_GEOMETRY_ID ? a->prim : e.prim);
+                const answer *p = occluded ? (a->occluded ? &base_hit[i] : &embree_hit[i])
+                                           : (a->prim != RTK_INVALID_GEOMETRY_ID ? a : &e);
                 dref h;
-                local = p != RTK_INVALID_GEOMETRY_ID && dref_one(s, p, r, &h) && dref_within(&h) && !dref_clear(&h);
+                local = p->prim != RTK_INVALID_GEOMETRY_ID && dref_prim(s, p->geom, p->prim, r, &h) &&
+                        dref_within(&h) && !dref_clear(&h);
             }
             if (local) {
                 rtk_ok[occluded]++, embree_ok[occluded]++, both_ok[occluded]++;
@@ -523,8 +625,9 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
             both_ok[occluded] += (size_t)(ok_rtk && ok_embree);
             if (!ok_rtk && failures++ < MAX_REPORTS) {
                 print_ray(occluded ? "occluded1 vs Embree" : "intersect1 vs Embree", s, i, r);
-                print_message("    rtk prim %u t %a occ %d; Embree prim %u t %a occ %d; the reference sides with "
-                              "%s\n", a->prim, a->t, a->occluded, e.prim, e.t, e.occluded,
+                print_message("    rtk geom %u prim %u t %a occ %d; Embree geom %u prim %u t %a occ %d; the reference "
+                              "sides with %s\n",
+                              a->geom, a->prim, a->t, a->occluded, e.geom, e.prim, e.t, e.occluded,
                               ok_embree ? "Embree" : "neither");
             }
         }
@@ -532,9 +635,9 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
         /* agreement: the same answer, or a tie (both answers allowed by the reference) */
         const double same = 100.0 * (double)agree[q] / (double)n;
         const double rate = 100.0 * (double)(agree[q] + both_ok[q]) / (double)n;
-        print_message("%s: Embree %s: the same answer for %.4f%% of %zu rays; %zu differ, of which the reference "
+        print_message("%s%s: Embree %s: the same answer for %.4f%% of %zu rays; %zu differ, of which the reference "
                       "allows rtk's answer in %zu, Embree's in %zu, both in %zu: agreement %.4f%%\n",
-                      s->name, q ? "occluded1" : "intersect1", same, n, n - agree[q], rtk_ok[q], embree_ok[q],
+                      s->name, s->nballs ? ", with balls" : "", q ? "occluded1" : "intersect1", same, n, n - agree[q], rtk_ok[q], embree_ok[q],
                       both_ok[q], rate);
         if (rate < 99.99) {
             print_message("%s: agreement with Embree below 99.99%%\n", s->name);
@@ -545,7 +648,7 @@ static int versus_embree(scene_data *s, const rtk_ray *rays, size_t n, const ans
             failures++;
         }
     }
-    free(embree_prim);
+    free(embree_hit);
     rtcReleaseScene(scene);
     rtcReleaseDevice(dev);
     return failures;
@@ -684,6 +787,136 @@ static int check_features(const scene_data *s, const rtk_ray *all, size_t n_all,
     return failures;
 }
 
+/* User geometry (rtk.h): balls given by callbacks, geometry 1 beside the
+ * triangles (geometry 0): a ball per 128 triangles (at least 16, at most
+ * 1024), each centred on a triangle with a radius of 0.4% to 1.6% of the
+ * scene's diagonal, so closest hits mix balls and triangles and shadow
+ * rays end on either; in the moving scene the triangles move and the balls
+ * stay.  Every backend, default and compact layouts, single rays and
+ * packets (whose callbacks get the packet whole), against the scalar
+ * backend's answers, on a 32nd of the rays; with Embree 3 present, its
+ * user geometry on the same arithmetic (test_sphere_hit) by versus_embree's
+ * rules. */
+static unsigned ball_packet_calls; /* callback calls with N > 1 */
+
+static void ball_bounds(const rtk_bounds_args *a)
+{
+    const float *b = ((const float (*)[4])a->geometry_user)[a->prim_id];
+    for (int k = 0; k < 3; k++) {
+        a->lower[k] = b[k] - b[3];
+        a->upper[k] = b[k] + b[3];
+    }
+}
+
+static void ball_query(const rtk_user_query_args *a, int occluded)
+{
+    const float *b = ((const float (*)[4])a->geometry_user)[a->prim_id];
+    ball_packet_calls += a->N > 1;
+    for (uint32_t i = 0; i < a->N; i++) {
+        if (!a->valid[i])
+            continue;
+        const float o[3] = {TEST_LANE(a->rays, a->N, 0, i), TEST_LANE(a->rays, a->N, 1, i),
+                            TEST_LANE(a->rays, a->N, 2, i)};
+        const float d[3] = {TEST_LANE(a->rays, a->N, 4, i), TEST_LANE(a->rays, a->N, 5, i),
+                            TEST_LANE(a->rays, a->N, 6, i)};
+        float t;
+        if (!test_sphere_hit(b, b[3], o, d, TEST_LANE(a->rays, a->N, 3, i), TEST_LANE(a->rays, a->N, 8, i), &t))
+            continue;
+        TEST_LANE(a->rays, a->N, 8, i) = occluded ? -INFINITY : t;
+        if (occluded)
+            continue;
+        for (int k = 0; k < 3; k++)
+            TEST_LANE(a->rays, a->N, 12 + k, i) = o[k] + t * d[k] - b[k];
+        TEST_LANE(a->rays, a->N, 15, i) = TEST_LANE(a->rays, a->N, 16, i) = 0.0f;
+    }
+}
+static void ball_intersect(const rtk_user_query_args *a) { ball_query(a, 0); }
+static void ball_occluded(const rtk_user_query_args *a) { ball_query(a, 1); }
+
+static int check_user(scene_data *s, const rtk_ray *all, size_t n_all, char names[][32], size_t nb)
+{
+    const size_t n = (n_all / 32 + 15) / 16 * 16; /* whole packets of 16 (trace_packets) */
+    rtk_ray *rays = malloc(n * sizeof *rays);
+    answer *base[2] = {malloc(n * sizeof(answer)), malloc(n * sizeof(answer))};
+    answer *got = malloc(n * sizeof(answer));
+    size_t nballs = s->nt / 128;
+    nballs = nballs < 16 ? 16 : nballs > 1024 ? 1024 : nballs;
+    float(*balls)[4] = malloc(nballs * sizeof *balls);
+    assert_true(rays && base[0] && base[1] && got && balls);
+    for (size_t i = 0; i < n; i++) /* (the features' rays are i * 32) */
+        rays[i] = all[(i * 32 + 16) % n_all];
+    float lo[3], hi[3];
+    const float diag = scene_box(s, lo, hi);
+    rng r = {0xba11u ^ (uint64_t)s->nt};
+    for (size_t b = 0; b < nballs; b++) {
+        const uint32_t t = rng_u32(&r) % (uint32_t)s->nt;
+        for (int k = 0; k < 3; k++)
+            balls[b][k] = (s->v[3 * (size_t)s->idx[3 * t] + k] + s->v[3 * (size_t)s->idx[3 * t + 1] + k] +
+                           s->v[3 * (size_t)s->idx[3 * t + 2] + k]) / 3.0f;
+        balls[b][3] = diag * (0.004f + 0.012f * rng_float(&r));
+    }
+    s->balls = (const float (*)[4])balls;
+    s->nballs = nballs;
+    int failures = 0;
+    size_t ties = 0, on_balls = 0, on_triangles = 0;
+    for (size_t bc = 0; bc < 2 * nb; bc++) {
+        const size_t b = bc % nb;
+        const int compact = bc >= nb;
+        rtk_device dev = test_device(names[b]);
+        rtk_geometry g, u;
+        rtk_scene scene = conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g, NULL);
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &u), RTK_OK);
+        assert_int_equal(rtk_geometry_set_user_primitive_count(u, (uint32_t)nballs), RTK_OK);
+        assert_int_equal(rtk_geometry_set_bounds_function(u, ball_bounds), RTK_OK);
+        assert_int_equal(rtk_geometry_set_intersect_function(u, ball_intersect), RTK_OK);
+        assert_int_equal(rtk_geometry_set_occluded_function(u, ball_occluded), RTK_OK);
+        assert_int_equal(rtk_geometry_set_user_data(u, balls), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(u), RTK_OK);
+        uint32_t id;
+        assert_int_equal(rtk_scene_attach_geometry(scene, u, &id), RTK_OK);
+        assert_int_equal(id, 1);
+        rtk_geometry_release(u);
+        if (rtk_scene_commit(scene) != RTK_OK)
+            fail_msg("commit: %s", rtk_device_get_error_message(dev));
+        if (bc == 0) {
+            trace1(scene, rays, n, 0, base[0]);
+            trace1(scene, rays, n, 1, base[1]);
+            for (size_t i = 0; i < n; i++) {
+                const int hit = base[0][i].prim != RTK_INVALID_GEOMETRY_ID;
+                on_balls += (size_t)(hit && base[0][i].geom == 1);
+                on_triangles += (size_t)(hit && base[0][i].geom == 0);
+                if (hit != base[1][i].occluded && failures++ < MAX_REPORTS)
+                    print_ray("user geometry: intersect1 and occluded1 differ on", s, i, &rays[i]);
+            }
+        }
+        const unsigned packet_calls = ball_packet_calls;
+        failures += check_calls(scene, s, rays, n, bc == 0, 4, base, got, names[b],
+                                compact ? " compact user geometry" : " user geometry", &ties);
+        if (ball_packet_calls == packet_calls && failures++ < MAX_REPORTS)
+            print_message("%s [%s]: no callback call with N > 1 from packet queries\n", s->name, names[b]);
+        rtk_scene_release(scene);
+        rtk_device_release(dev);
+    }
+    /* both kinds must be hit for the pass to test their mixing */
+    if ((!on_balls || !on_triangles) && failures++ < MAX_REPORTS)
+        print_message("%s, user geometry: %zu hits on balls, %zu on triangles: the scene does not mix them\n", s->name,
+                      on_balls, on_triangles);
+    print_message("%s, with %zu balls as user geometry: %zu rays x %zu backends x 2 layouts x 8 calls: %zu hits on "
+                  "balls, %zu on triangles, %zu ties adjudicated, %d failures\n",
+                  s->name, nballs, n, nb, on_balls, on_triangles, ties, failures);
+#ifdef RTK_HAVE_EMBREE
+    failures += versus_embree(s, rays, n, base[0], base[1]);
+#endif
+    s->balls = NULL;
+    s->nballs = 0;
+    free(balls);
+    free(rays);
+    free(base[0]);
+    free(base[1]);
+    free(got);
+    return failures;
+}
+
 static int check_scene(scene_data *s, char names[][32], size_t nb)
 {
     const size_t n = ray_count();
@@ -735,6 +968,7 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
                   "%zu occluded, %zu ties adjudicated, %d failures\n",
                   s->name, s->nt, n, nb, hits, occl, ties, failures);
     failures += check_features(s, rays, n, names, nb);
+    failures += check_user(s, rays, n, names, nb);
 #ifdef RTK_HAVE_EMBREE
     failures += versus_embree(s, rays, n, base[0], base[1]);
 #endif

@@ -35,35 +35,13 @@ static void sphere_bounds(const rtk_bounds_args *a)
     }
 }
 
-/* The nearest root in [tnear, tfar], in double precision rounded to float;
- * 0 when none. */
 static int sphere_hit(const spheres *s, uint32_t p, const float o[3], const float d[3], float tnear, float tfar,
                       float *t_out)
 {
-    double oc[3], a = 0, b = 0, c = -(double)s->r[p] * s->r[p];
-    for (int k = 0; k < 3; k++) {
-        oc[k] = (double)o[k] - s->c[p][k];
-        a += (double)d[k] * d[k];
-        b += oc[k] * d[k];
-        c += oc[k] * oc[k];
-    }
-    const double disc = b * b - a * c;
-    if (disc < 0 || a == 0)
-        return 0;
-    const double sq = sqrt(disc);
-    const double roots[2] = {(-b - sq) / a, (-b + sq) / a};
-    for (int i = 0; i < 2; i++) {
-        const float t = (float)roots[i];
-        if (t >= tnear && t <= tfar) {
-            *t_out = t;
-            return 1;
-        }
-    }
-    return 0;
+    return test_sphere_hit(s->c[p], s->r[p], o, d, tnear, tfar, t_out);
 }
 
-/* Field f of lane i of an N-packet (N = 1: the rtk_rayhit or rtk_ray itself). */
-#define LANE(rays, n, f, i) (((float *)(rays))[(size_t)(f) * (n) + (i)])
+#define LANE TEST_LANE
 
 static void sphere_query(const rtk_user_query_args *a, int occluded)
 {

@@ -169,6 +169,31 @@ int ref_closest(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t 
     return found;
 }
 
+int test_sphere_hit(const float c[3], float r, const float o[3], const float d[3], float tnear, float tfar,
+                    float *t_out)
+{
+    double oc[3], a = 0, b = 0, cc = -(double)r * r;
+    for (int k = 0; k < 3; k++) {
+        oc[k] = (double)o[k] - c[k];
+        a += (double)d[k] * d[k];
+        b += oc[k] * d[k];
+        cc += oc[k] * oc[k];
+    }
+    const double disc = b * b - a * cc;
+    if (disc < 0 || a == 0)
+        return 0;
+    const double sq = sqrt(disc);
+    const double roots[2] = {(-b - sq) / a, (-b + sq) / a};
+    for (int i = 0; i < 2; i++) {
+        const float t = (float)roots[i];
+        if (t >= tnear && t <= tfar) {
+            *t_out = t;
+            return 1;
+        }
+    }
+    return 0;
+}
+
 rtk_ray test_ray(float ox, float oy, float oz, float dx, float dy, float dz, float tnear, float tfar)
 {
     rtk_ray r = {.org_x = ox, .org_y = oy, .org_z = oz, .tnear = tnear, .dir_x = dx, .dir_y = dy, .dir_z = dz,

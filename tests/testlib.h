@@ -57,6 +57,16 @@ int test_ray_vs_reference(rtk_scene s, const ref_mesh *ref, rtk_ray ray);
 
 rtk_ray test_ray(float ox, float oy, float oz, float dx, float dy, float dz, float tnear, float tfar);
 
+/* A sphere, the tests' user geometry: the nearest root of |o + t d - c| = r
+ * in [tnear, tfar], computed in double and rounded to float; 0 when none.
+ * The callbacks and the references share it, so they agree to the bit. */
+int test_sphere_hit(const float c[3], float r, const float o[3], const float d[3], float tnear, float tfar,
+                    float *t_out);
+/* Field f of lane i of the rays a user-geometry callback gets (rtk.h: N
+ * lanes of rtk_rayhitN / rtk_rayN, or the rtk_rayhit / rtk_ray for N = 1).
+ * Fields: org 0-2, tnear 3, dir 4-6, time 7, tfar 8, ..., Ng 12-14, u 15, v 16. */
+#define TEST_LANE(rays, n, f, i) (((float *)(rays))[(size_t)(f) * (n) + (i)])
+
 /* Packets of `width` rays (rtk.h's layout: field f of lane j is 4-byte word
  * f * width + j; an occluded packet has only the 12 ray fields).  One lane
  * in or out as an rtk_rayhit, and the call of that width. */
