@@ -157,20 +157,45 @@ static inline void rtk_watertight_ray_init(const float d[3], rtk_watertight_ray 
     w->sz = 1.0f / d[kz];
 }
 
+/* An edge function's sign at the ray moved by (e, e^2) in the sheared
+ * plane, e -> +0: f itself unless it is exactly 0, else the sign of its
+ * gradient's x, else of its y (0 only for an edge seen end-on). */
+static inline double rtk_edge_tiebreak(double f, double gx, double gy)
+{
+    return f != 0.0 ? f : gx != 0.0 ? gx : gy;
+}
+
 /* The watertight test decided in double precision, from the transformed
  * vertices a, b, c (x and y, sheared) and their scaled z (z[k] = sz times
  * vertex k's z): every product of two floats is exact there, so each edge
  * function has the exact sign.  Returns 1 and fills *hit (t not clamped to
  * [tnear, tfar] after its rounding to float: the caller's) on a hit within
  * [tnear, tfar].  The fallback of every watertight kernel, single rays and
- * packets, so all decide such rays alike. */
+ * packets, so all decide such rays alike.
+ *
+ * A ray exactly through an edge or a vertex (edge functions exactly 0) is
+ * decided as if moved by (e, e^2) in the sheared plane (simulation of
+ * simplicity): of the two triangles that share an edge, and of a fan of
+ * triangles around a vertex, exactly one is hit where the mesh crosses
+ * the ray once, so rays through edges and vertices neither leak nor hit
+ * twice (a silhouette, where the mesh folds over in the ray's view, is
+ * hit by both or neither of its triangles, the crossings' true parity).
+ * The edge functions of a shared edge are the same products in both
+ * triangles, negated, so the two agree on it exactly.  A triangle's own
+ * boundary is half open, as in a rasteriser's fill rule: a ray through
+ * an edge or vertex of a lone triangle hits it or not by the edge's
+ * direction. */
 static inline int rtk_watertight_double(const float a[2], const float b[2], const float c[2], const float z[3],
                                         float tnear, float tfar, rtk_tri_hit *hit)
 {
     const double u = (double)c[0] * b[1] - (double)c[1] * b[0];
     const double v = (double)a[0] * c[1] - (double)a[1] * c[0];
     const double w = (double)b[0] * a[1] - (double)b[1] * a[0];
-    if ((u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0))
+    /* the gradients: u's is (c.y - b.y, b.x - c.x), and so on round */
+    const double su = rtk_edge_tiebreak(u, (double)c[1] - b[1], (double)b[0] - c[0]);
+    const double sv = rtk_edge_tiebreak(v, (double)a[1] - c[1], (double)c[0] - a[0]);
+    const double sw = rtk_edge_tiebreak(w, (double)b[1] - a[1], (double)a[0] - b[0]);
+    if (!((su > 0.0 && sv > 0.0 && sw > 0.0) || (su < 0.0 && sv < 0.0 && sw < 0.0)))
         return 0;
     const double det = u + v + w;
     if (det == 0.0)

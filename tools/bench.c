@@ -153,6 +153,44 @@ static int rtk_accept(const rtk_filter_args *args)
     return 1;
 }
 
+/* The accuracy section's double hits: with bench_collect set, scene_build
+ * gives the geometry filters that note each candidate's triangle in
+ * bench_seen (those up to t = 1 + 1e-4: an edge ray's point is at t = 1)
+ * and reject it, so a query collects every triangle the ray meets up to
+ * its edge point.  Single rays on one thread only. */
+static int bench_collect;
+static struct {
+    uint32_t prim[64];
+    unsigned n;
+} bench_seen;
+
+static void seen_add(uint32_t prim, float t)
+{
+    if (!(t <= 1.0f + 1e-4f))
+        return;
+    for (unsigned k = 0; k < bench_seen.n; k++)
+        if (bench_seen.prim[k] == prim)
+            return;
+    if (bench_seen.n < 64)
+        bench_seen.prim[bench_seen.n++] = prim;
+}
+
+static void e_collect(const struct RTCFilterFunctionNArguments *args)
+{
+    /* RTCRayN / RTCHitN: tfar is the ray's field 8, primID the hit's 5 */
+    for (unsigned i = 0; i < args->N; i++) {
+        if (!args->valid[i])
+            continue;
+        seen_add(((const uint32_t *)args->hit)[5 * args->N + i], ((const float *)args->ray)[8 * args->N + i]);
+        args->valid[i] = 0;
+    }
+}
+static int rtk_collect(const rtk_filter_args *args)
+{
+    seen_add(args->hit->primID, args->t);
+    return 0;
+}
+
 typedef struct lib {
     char name[40];   /* "embree isa=avx2", "embree default", "rtk avx2" */
     char config[32]; /* what lib_open was given besides threads: "isa=avx2", "" */
@@ -315,6 +353,8 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
             rtcSetGeometryIntersectFilterFunction(g, e_accept);
             rtcSetGeometryOccludedFilterFunction(g, e_accept);
         }
+        if (bench_collect)
+            rtcSetGeometryIntersectFilterFunction(g, e_collect);
         if (mode == MODE_REFIT) {
             rtcSetSceneFlags(s, RTC_SCENE_FLAG_DYNAMIC);
             rtcSetSceneBuildQuality(s, RTC_BUILD_QUALITY_LOW);
@@ -346,7 +386,8 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
         (mode == MODE_MASK && rtk_geometry_set_mask(g, 1)) ||
         (mode == MODE_FILTER &&
-         (rtk_geometry_set_intersect_filter(g, rtk_accept) || rtk_geometry_set_occluded_filter(g, rtk_accept)));
+         (rtk_geometry_set_intersect_filter(g, rtk_accept) || rtk_geometry_set_occluded_filter(g, rtk_accept))) ||
+        (bench_collect && rtk_geometry_set_intersect_filter(g, rtk_collect));
     return rtk_mesh_commit(sc, s, g, m, mode == MODE_QUAD, bad, t0, err, err_size);
 }
 
@@ -372,6 +413,7 @@ static const int apis[4] = {1, 4, 8, 16};
 typedef struct rayset {
     rtk_ray *rays;
     size_t n; /* a multiple of 16 */
+    uint32_t (*pair)[2]; /* edge rays: the two triangles of the ray's edge; else NULL */
 } rayset;
 
 static uint64_t xs_state = 0x9e3779b97f4a7c15ull;
@@ -649,6 +691,7 @@ static int runs_forward(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
 static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set)
 {
     set->rays = NULL;
+    set->pair = NULL;
     set->n = 0;
     edge *e;
     const size_t pairs = shared_edges(m, 1, &e);
@@ -656,9 +699,10 @@ static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set)
         return 0;
     float lo[3], hi[3];
     const float diag = rtk_mesh_bounds(m, lo, hi);
-    set->rays = calloc(want, sizeof(rtk_ray));
+    set->rays = calloc(want ? want : 1, sizeof(rtk_ray));
+    set->pair = calloc(want ? want : 1, sizeof *set->pair);
     set->n = 0;
-    for (size_t tries = 0; pairs >= 2 && set->n < want && tries < 20 * want; tries++) {
+    for (size_t tries = 0; set->rays && set->pair && pairs >= 2 && set->n < want && tries < 20 * want; tries++) {
         const size_t p = (size_t)(rnd() * (float)(pairs / 2)) % (pairs / 2) * 2;
         const uint32_t a = e[p].a, b = e[p].b, t1 = e[p].tri, t2 = e[p + 1].tri;
         double n1[3], n2[3];
@@ -694,6 +738,8 @@ static size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set)
         }
         set->rays[set->n] = (rtk_ray){.org_x = org[0], .org_y = org[1], .org_z = org[2], .dir_x = dir[0],
                                       .dir_y = dir[1], .dir_z = dir[2], .tfar = INFINITY, .mask = ~0u};
+        set->pair[set->n][0] = t1;
+        set->pair[set->n][1] = t2;
         set->n++;
     }
     free(e);
@@ -711,6 +757,23 @@ static size_t count_leaks(const render_tracer *t, const rayset *set)
         leaks += rh.hit.geomID == RTK_INVALID_GEOMETRY_ID || rh.ray.tfar > 1.0f + 1e-4f;
     }
     return leaks;
+}
+
+/* Rays that hit both triangles of their edge, through a scene built with
+ * bench_collect. */
+static size_t count_double_hits(const render_tracer *t, const rayset *set)
+{
+    size_t twice = 0;
+    for (size_t i = 0; i < set->n; i++) {
+        _Alignas(16) rtk_rayhit rh = {.ray = set->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+        bench_seen.n = 0;
+        t->intersect1(t->scene, &rh);
+        int both = 0;
+        for (unsigned k = 0; k < bench_seen.n; k++)
+            both += bench_seen.prim[k] == set->pair[i][0] || bench_seen.prim[k] == set->pair[i][1];
+        twice += both == 2;
+    }
+    return twice;
 }
 
 /* ---- output ---- */
@@ -856,7 +919,7 @@ static void free_sets(ctx *c)
 {
     for (int s = 0; s < NSETS; s++) {
         free(c->sets[s].rays);
-        c->sets[s] = (rayset){NULL, 0};
+        c->sets[s] = (rayset){NULL, 0, NULL};
     }
 }
 
@@ -1761,10 +1824,11 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
     make_edge_rays(c->m, (size_t)o->edge_rays, &edges);
     const rayset diff = c->sets[SET_DIFFUSE];
     printf("\naccuracy: %zu rays aimed at points of edges shared by two triangles, from the side both face; a ray "
-           "that misses or hits beyond its edge point leaked through the mesh; beside the diffuse rays' rate "
-           "(single rays, 1 thread)\n",
+           "that misses or hits beyond its edge point leaked through the mesh, and one that hits both triangles "
+           "(every hit collected by a filter) hit twice; beside the diffuse rays' rate (single rays, 1 thread)\n",
            edges.n);
-    printf("  %-20s %-8s %10s %12s %16s %8s\n", "library", "mode", "leaks", "per million", "diffuse Mrays/s", "B/tri");
+    printf("  %-20s %-8s %10s %12s %10s %12s %16s %8s\n", "library", "mode", "leaks", "per million", "twice",
+           "per million", "diffuse Mrays/s", "B/tri");
     char path[600];
     snprintf(path, sizeof path, "%s/%s-accuracy.dat", o->outdir, c->stem);
     FILE *dat = fopen(path, "w");
@@ -1778,11 +1842,22 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
             const size_t leaks = count_leaks(&t, &edges);
             const double rate = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits), bytes = sc.bytes_per_tri;
             scene_release(&sc);
+            bench_collect = 1;
+            const int bad = scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size);
+            bench_collect = 0;
+            if (bad)
+                return 1;
+            const render_tracer tc = scene_tracer(&sc, 0);
+            const size_t twice = count_double_hits(&tc, &edges);
+            scene_release(&sc);
             const double ppm = edges.n ? 1e6 * (double)leaks / (double)edges.n : 0.0;
-            printf("  %-20s %-8s %10zu %12.1f %16.2f %8.1f\n", c->libs[l].name, mode_names[mode], leaks, ppm, rate,
-                   bytes);
+            const double ppm2 = edges.n ? 1e6 * (double)twice / (double)edges.n : 0.0;
+            printf("  %-20s %-8s %10zu %12.1f %10zu %12.1f %16.2f %8.1f\n", c->libs[l].name, mode_names[mode], leaks,
+                   ppm, twice, ppm2, rate, bytes);
             csv_row(&c->csv, "accuracy", c->libs[l].name, mode_names[mode], "edge", "single", 1, ppm,
                     "leaks per million", 0);
+            csv_row(&c->csv, "accuracy", c->libs[l].name, mode_names[mode], "edge", "single", 1, ppm2,
+                    "double hits per million", 0);
             csv_row(&c->csv, "accuracy", c->libs[l].name, mode_names[mode], "diffuse", "single", 1, rate, "Mrays/s",
                     0);
             if (dat)
@@ -1813,6 +1888,7 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
         }
     }
     free(edges.rays);
+    free(edges.pair);
     free(hits);
     return 0;
 }

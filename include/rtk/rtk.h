@@ -240,9 +240,15 @@ typedef enum rtk_scene_flags {
      * the application's to keep).  Slower than the default layout. */
     RTK_SCENE_FLAG_COMPACT = 1 << 0,
     /* Watertight: a ray through an edge or vertex shared by triangles of
-     * a closed mesh always hits one of them (the default intersector may
-     * let it pass between; rays aimed at the edges of real meshes leak
-     * there at 0.4-7%, docs/BENCHMARKS.md).  The leaves keep the
+     * a closed mesh always hits one of them, and exactly one where the
+     * mesh crosses the ray once (so a filter collecting every hit counts
+     * crossings right: inside/outside parity); the default intersector may
+     * let it pass between, or hit two (rays aimed at the edges of real
+     * meshes leak there at 0.4-7%, docs/BENCHMARKS.md).  A ray exactly
+     * through an edge or vertex is decided as if moved by an infinitesimal
+     * step in a fixed direction across the ray (a rasteriser's fill rule),
+     * so a lone triangle's boundary is half open: such a ray hits it or
+     * not by the edge's direction.  The leaves keep the
      * vertices themselves (layouts bvh8/bvh4.triangle4v, the default's
      * memory; with COMPACT bvh4.triangle4i.robust) and the intersector is
      * Woop, Benthin and Wald's (2013), with double precision where a float
