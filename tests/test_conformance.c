@@ -8,8 +8,8 @@
  * dead on, needles and fans, overlapping soup; the soup also moving and
  * deforming, with motion blur, its rays at random times).  On a 32nd of the
  * rays each scene is traced again with masks, culling and a filter
- * (check_features) and with balls as user geometry beside the triangles
- * (check_user).  The scalar backend's intersect1 / occluded1 answers are
+ * (check_features), and on a 64th with balls as user geometry beside the
+ * triangles (check_user).  The scalar backend's intersect1 / occluded1 answers are
  * the baseline.
  *
  * Rules, per ray:
@@ -794,7 +794,7 @@ static int check_features(const scene_data *s, const rtk_ray *all, size_t n_all,
  * rays end on either; in the moving scene the triangles move and the balls
  * stay.  Every backend, default and compact layouts, single rays and
  * packets (whose callbacks get the packet whole), against the scalar
- * backend's answers, on a 32nd of the rays; with Embree 3 present, its
+ * backend's answers, on a 64th of the rays; with Embree 3 present, its
  * user geometry on the same arithmetic (test_sphere_hit) by versus_embree's
  * rules. */
 static unsigned ball_packet_calls; /* callback calls with N > 1 */
@@ -835,7 +835,7 @@ static void ball_occluded(const rtk_user_query_args *a) { ball_query(a, 1); }
 
 static int check_user(scene_data *s, const rtk_ray *all, size_t n_all, char names[][32], size_t nb)
 {
-    const size_t n = (n_all / 32 + 15) / 16 * 16; /* whole packets of 16 (trace_packets) */
+    const size_t n = (n_all / 64 + 15) / 16 * 16; /* whole packets of 16 (trace_packets) */
     rtk_ray *rays = malloc(n * sizeof *rays);
     answer *base[2] = {malloc(n * sizeof(answer)), malloc(n * sizeof(answer))};
     answer *got = malloc(n * sizeof(answer));
@@ -844,7 +844,7 @@ static int check_user(scene_data *s, const rtk_ray *all, size_t n_all, char name
     float(*balls)[4] = malloc(nballs * sizeof *balls);
     assert_true(rays && base[0] && base[1] && got && balls);
     for (size_t i = 0; i < n; i++) /* (the features' rays are i * 32) */
-        rays[i] = all[(i * 32 + 16) % n_all];
+        rays[i] = all[(i * 64 + 16) % n_all];
     float lo[3], hi[3];
     const float diag = scene_box(s, lo, hi);
     rng r = {0xba11u ^ (uint64_t)s->nt};
