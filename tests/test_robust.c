@@ -33,263 +33,39 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "closed_mesh.h"
 #include "testlib.h"
 
-/* A closed mesh and the solid it approximates: sphere (radius a), torus
- * (radii a, b about the z axis) or cube (half side a), around c. */
-enum shape { SPHERE, TORUS, CUBE };
-typedef struct closed_mesh {
-    const char *name;
-    float *v;
-    uint32_t *idx;
-    size_t nv, nt;
-    float (*normal)[3]; /* per vertex: a direction pointing out of the mesh */
-    enum shape shape;
-    double c[3], a, b;
-} closed_mesh;
+typedef rtk_closed_mesh closed_mesh;
+typedef rtk_aimed aimed;
 
-/* The signed distance-like depth of p inside the solid (> 0 inside), in
- * double precision. */
-static double solid_depth(const closed_mesh *m, const float p[3])
-{
-    const double x = p[0] - m->c[0], y = p[1] - m->c[1], z = p[2] - m->c[2];
-    switch (m->shape) {
-    case SPHERE: return m->a - sqrt(x * x + y * y + z * z);
-    case TORUS: {
-        const double q = sqrt(x * x + y * y) - m->a;
-        return m->b - sqrt(q * q + z * z);
-    }
-    default: return m->a - fmax(fabs(x), fmax(fabs(y), fabs(z)));
-    }
-}
-
-static void mesh_alloc(closed_mesh *m, size_t nv, size_t nt)
-{
-    m->v = calloc(3 * nv, sizeof *m->v);
-    m->idx = calloc(3 * nt, sizeof *m->idx);
-    m->normal = calloc(nv, sizeof *m->normal);
-    assert_non_null(m->v);
-    assert_non_null(m->idx);
-    assert_non_null(m->normal);
-    m->nv = nv;
-    m->nt = 0;
-}
-
-static void add_tri(closed_mesh *m, uint32_t a, uint32_t b, uint32_t c)
-{
-    uint32_t *t = m->idx + 3 * m->nt++;
-    t[0] = a, t[1] = b, t[2] = c;
-}
-
-static void add_vertex(closed_mesh *m, size_t i, double x, double y, double z, double nx, double ny, double nz)
-{
-    m->v[3 * i] = (float)x, m->v[3 * i + 1] = (float)y, m->v[3 * i + 2] = (float)z;
-    const double l = sqrt(nx * nx + ny * ny + nz * nz);
-    m->normal[i][0] = (float)(nx / l), m->normal[i][1] = (float)(ny / l), m->normal[i][2] = (float)(nz / l);
-}
-
-/* A UV sphere of radius r around c: `rings` rings of `seg` vertices and two
- * poles. */
+/* The closed meshes (tools/closed_mesh.h), checked closed by OpenMesh. */
 static closed_mesh make_sphere(const double c[3], double r, int seg, int rings)
 {
-    closed_mesh m = {.name = "sphere", .shape = SPHERE, .c = {c[0], c[1], c[2]}, .a = r};
-    mesh_alloc(&m, (size_t)seg * (size_t)rings + 2, 2 * (size_t)seg * (size_t)rings);
-    const double pi = 3.14159265358979323846;
-    for (int i = 0; i < rings; i++)
-        for (int j = 0; j < seg; j++) {
-            const double th = pi * (i + 1) / (rings + 1), ph = 2 * pi * j / seg;
-            const double n[3] = {sin(th) * cos(ph), sin(th) * sin(ph), cos(th)};
-            add_vertex(&m, (size_t)i * seg + j, c[0] + r * n[0], c[1] + r * n[1], c[2] + r * n[2], n[0], n[1], n[2]);
-        }
-    const uint32_t top = (uint32_t)(seg * rings), bottom = top + 1;
-    add_vertex(&m, top, c[0], c[1], c[2] + r, 0, 0, 1);
-    add_vertex(&m, bottom, c[0], c[1], c[2] - r, 0, 0, -1);
-    for (int j = 0; j < seg; j++) {
-        const uint32_t j1 = (uint32_t)((j + 1) % seg);
-        add_tri(&m, top, (uint32_t)j, j1);
-        const uint32_t last = (uint32_t)((rings - 1) * seg);
-        add_tri(&m, bottom, last + j1, last + (uint32_t)j);
-        for (int i = 0; i + 1 < rings; i++) {
-            const uint32_t a = (uint32_t)(i * seg + j), b = (uint32_t)(i * seg) + j1;
-            add_tri(&m, a, a + (uint32_t)seg, b);
-            add_tri(&m, b, a + (uint32_t)seg, b + (uint32_t)seg);
-        }
-    }
+    closed_mesh m;
+    assert_int_equal(rtk_closed_sphere(c, r, seg, rings, &m), 0);
+    assert_int_equal(rtk_mesh_is_closed(&m.mesh, m.closed_triangles, NULL, NULL), 1);
     return m;
 }
-
-/* A torus around c in the xy plane: major radius R, minor r. */
 static closed_mesh make_torus(const double c[3], double R, double r, int nu, int nv)
 {
-    closed_mesh m = {.name = "torus", .shape = TORUS, .c = {c[0], c[1], c[2]}, .a = R, .b = r};
-    mesh_alloc(&m, (size_t)nu * (size_t)nv, 2 * (size_t)nu * (size_t)nv);
-    const double pi = 3.14159265358979323846;
-    for (int i = 0; i < nu; i++)
-        for (int j = 0; j < nv; j++) {
-            const double u = 2 * pi * i / nu, w = 2 * pi * j / nv;
-            const double n[3] = {cos(w) * cos(u), cos(w) * sin(u), sin(w)};
-            add_vertex(&m, (size_t)i * nv + j, c[0] + (R + r * cos(w)) * cos(u), c[1] + (R + r * cos(w)) * sin(u),
-                       c[2] + r * sin(w), n[0], n[1], n[2]);
-        }
-    for (int i = 0; i < nu; i++)
-        for (int j = 0; j < nv; j++) {
-            const uint32_t a = (uint32_t)(i * nv + j), b = (uint32_t)(((i + 1) % nu) * nv + j);
-            const uint32_t a1 = (uint32_t)(i * nv + (j + 1) % nv), b1 = (uint32_t)(((i + 1) % nu) * nv + (j + 1) % nv);
-            add_tri(&m, a, b, a1);
-            add_tri(&m, a1, b, b1);
-        }
+    closed_mesh m;
+    assert_int_equal(rtk_closed_torus(c, R, r, nu, nv, &m), 0);
+    assert_int_equal(rtk_mesh_is_closed(&m.mesh, m.closed_triangles, NULL, NULL), 1);
     return m;
 }
-
-/* The cube [c - h, c + h]^3 with each face an n x n grid of quads split
- * into two triangles; the vertices on the cube's edges and corners are
- * shared by the faces that meet there. */
 static closed_mesh make_cube(const double c[3], double h, int n)
 {
-    closed_mesh m = {.name = "cube", .shape = CUBE, .c = {c[0], c[1], c[2]}, .a = h};
-    const size_t side = (size_t)n + 1;
-    mesh_alloc(&m, side * side * side, 12 * (size_t)n * (size_t)n);
-    /* every lattice point gets an index; only the surface ones are used */
-    for (size_t i = 0; i < side; i++)
-        for (size_t j = 0; j < side; j++)
-            for (size_t k = 0; k < side; k++) {
-                const double p[3] = {-1 + 2.0 * i / n, -1 + 2.0 * j / n, -1 + 2.0 * k / n};
-                add_vertex(&m, (i * side + j) * side + k, c[0] + h * p[0], c[1] + h * p[1], c[2] + h * p[2], p[0],
-                           p[1], p[2]);
-            }
-#define LAT(i, j, k) ((uint32_t)(((size_t)(i) * side + (size_t)(j)) * side + (size_t)(k)))
-    for (int axis = 0; axis < 3; axis++)
-        for (int s = 0; s < 2; s++)
-            for (int a = 0; a < n; a++)
-                for (int b = 0; b < n; b++) {
-                    uint32_t q[4];
-                    const int corner[4][2] = {{a, b}, {a + 1, b}, {a + 1, b + 1}, {a, b + 1}};
-                    for (int k = 0; k < 4; k++) {
-                        int p[3];
-                        p[axis] = s * n;
-                        p[(axis + 1) % 3] = corner[k][0];
-                        p[(axis + 2) % 3] = corner[k][1];
-                        q[k] = LAT(p[0], p[1], p[2]);
-                    }
-                    /* alternate the diagonal, so vertices have 4 and 8 triangles */
-                    if ((a + b) % 2) {
-                        add_tri(&m, q[0], q[1], q[2]);
-                        add_tri(&m, q[0], q[2], q[3]);
-                    } else {
-                        add_tri(&m, q[0], q[1], q[3]);
-                        add_tri(&m, q[1], q[2], q[3]);
-                    }
-                }
-#undef LAT
+    closed_mesh m;
+    assert_int_equal(rtk_closed_box(c, h, n, &m), 0);
+    assert_int_equal(rtk_mesh_is_closed(&m.mesh, m.closed_triangles, NULL, NULL), 1);
     return m;
-}
-
-static void mesh_free(closed_mesh *m)
-{
-    free(m->v);
-    free(m->idx);
-    free(m->normal);
-}
-
-/* Rays aimed at a mesh's vertices and edge points, each from a point
- * outside the solid through the aimed-at point P toward a point inside it:
- * whatever the rounding of P, the ray goes from outside to inside, so it
- * must cross the closed mesh before it reaches the point inside.
- * "Outside" and "inside" are by a margin of the faceting (the mesh lies
- * within `margin` of the solid's surface, its vertices rounded to floats),
- * checked in double precision against the solid. */
-typedef struct aimed {
-    rtk_ray *rays;
-    float *t_in; /* the distance along the ray to the point inside */
-    size_t count, cap;
-} aimed;
-
-/* The ray from o toward i, its direction of unit length (so that tiny
- * meshes do not get tiny directions, which the traversal takes as at least
- * 1e-18), and the distance to i. */
-static void add_ray(aimed *a, const float o[3], const float i[3], int zero_sign)
-{
-    if (a->count == a->cap) {
-        a->cap = a->cap ? 2 * a->cap : 1024;
-        a->rays = realloc(a->rays, a->cap * sizeof *a->rays);
-        a->t_in = realloc(a->t_in, a->cap * sizeof *a->t_in);
-        assert_non_null(a->rays);
-        assert_non_null(a->t_in);
-    }
-    double dd[3], l = 0.0;
-    for (int k = 0; k < 3; k++) {
-        dd[k] = (double)i[k] - o[k];
-        l += dd[k] * dd[k];
-    }
-    l = sqrt(l);
-    float d[3];
-    for (int k = 0; k < 3; k++) {
-        d[k] = (float)(dd[k] / l);
-        if (d[k] == 0.0f)
-            d[k] = zero_sign ? -0.0f : 0.0f;
-    }
-    a->t_in[a->count] = (float)l;
-    a->rays[a->count++] = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
-}
-
-static void aim(aimed *a, const closed_mesh *m, const float p[3], const float n[3], double margin, float out,
-                float in, rng *r, int axis_too)
-{
-    /* from a random direction on the outer side */
-    for (int tries = 0; tries < 32; tries++) {
-        float w[3], o[3], i[3];
-        for (int k = 0; k < 3; k++)
-            w[k] = n[k] + 1.6f * (rng_float(r) - 0.5f);
-        const float l = sqrtf(w[0] * w[0] + w[1] * w[1] + w[2] * w[2]);
-        for (int k = 0; k < 3; k++) {
-            o[k] = p[k] + out * w[k] / l;
-            i[k] = p[k] - in * w[k] / l;
-        }
-        if (solid_depth(m, o) < -margin && solid_depth(m, i) > margin) {
-            add_ray(a, o, i, tries & 1);
-            break;
-        }
-    }
-    if (!axis_too)
-        return;
-    /* along the axis nearest the outward direction, the other components
-     * +0.0 or -0.0 */
-    for (int k = 0; k < 3; k++) {
-        float o[3] = {p[0], p[1], p[2]}, i[3] = {p[0], p[1], p[2]};
-        o[k] = p[k] + (n[k] > 0 ? out : -out);
-        i[k] = p[k] - (n[k] > 0 ? in : -in);
-        if (solid_depth(m, o) < -margin && solid_depth(m, i) > margin)
-            add_ray(a, o, i, (int)(rng_u32(r) & 1));
-    }
 }
 
 static aimed aim_at_mesh(const closed_mesh *m, double margin, float out, float in, uint64_t seed)
 {
-    aimed a = {0};
-    rng r = {seed};
-    unsigned char *used = calloc(m->nv, 1);
-    assert_non_null(used);
-    for (size_t i = 0; i < 3 * m->nt; i++)
-        used[m->idx[i]] = 1;
-    for (size_t i = 0; i < m->nv; i++)
-        if (used[i]) /* (the cube's lattice has points inside) */
-            aim(&a, m, m->v + 3 * i, m->normal[i], margin, out, in, &r, 1);
-    free(used);
-    /* points on every edge (each edge is seen from both triangles: twice) */
-    for (size_t t = 0; t < m->nt; t++)
-        for (int e = 0; e < 3; e++) {
-            const uint32_t i0 = m->idx[3 * t + e], i1 = m->idx[3 * t + (e + 1) % 3];
-            const float *p0 = m->v + 3 * i0, *p1 = m->v + 3 * i1;
-            for (int f = 0; f < 2; f++) {
-                const float s = f ? 0.5f : 1.0f / 3.0f;
-                float p[3], n[3];
-                for (int k = 0; k < 3; k++) {
-                    p[k] = p0[k] + s * (p1[k] - p0[k]);
-                    n[k] = m->normal[i0][k] + m->normal[i1][k];
-                }
-                aim(&a, m, p, n, margin, out, in, &r, f == 0);
-            }
-        }
+    aimed a;
+    assert_int_equal(rtk_closed_aim(m, margin, out, in, seed, &a), 0);
     return a;
 }
 
@@ -396,7 +172,7 @@ static size_t double_hits(rtk_scene s, const aimed *a, size_t *missed, size_t *f
 
 static rtk_scene filtered_scene(rtk_device dev, const closed_mesh *m, unsigned flags, rtk_build_quality q)
 {
-    rtk_scene s = test_scene_uncommitted(dev, m->v, m->nv, m->idx, m->nt, flags);
+    rtk_scene s = test_scene_uncommitted(dev, m->mesh.vertices, m->mesh.vertex_count, m->mesh.indices, m->mesh.triangle_count, flags);
     rtk_geometry g = rtk_scene_get_geometry(s, 0);
     assert_int_equal(rtk_geometry_set_intersect_filter(g, collect_crossing), RTK_OK);
     assert_int_equal(rtk_geometry_commit(g), RTK_OK);
@@ -425,21 +201,21 @@ static void closed_meshes_at(const double c[3], double size, const char *where, 
          * vertices of the solid's surface */
         const double margin = 0.04 * size + mag * 0x1p-23;
         const float out = (float)((mi == 1 ? 0.3 : 1.5) * size), in = (float)((mi == 1 ? 0.25 : 0.5) * size);
-        const aimed a = aim_at_mesh(m, margin, out, in, seed + (uint64_t)mi);
+        aimed a = aim_at_mesh(m, margin, out, in, seed + (uint64_t)mi);
         assert_true(a.count > 1000);
         char defaults[256] = "";
         for (size_t b = 0; b < nb; b++) {
             rtk_device dev = test_device(names[b]);
             for (int q = 0; q < 3; q++)
                 for (int compact = 0; compact < 2; compact++) {
-                    rtk_scene s = test_scene_uncommitted(dev, m->v, m->nv, m->idx, m->nt,
+                    rtk_scene s = test_scene_uncommitted(dev, m->mesh.vertices, m->mesh.vertex_count, m->mesh.indices, m->mesh.triangle_count,
                                                          RTK_SCENE_FLAG_ROBUST | (compact ? RTK_SCENE_FLAG_COMPACT : 0));
                     assert_int_equal(rtk_scene_set_build_quality(s, qualities[q]), RTK_OK);
                     assert_int_equal(rtk_scene_commit(s), RTK_OK);
                     rtk_scene_info info = {.struct_size = sizeof info};
                     assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
                     assert_int_equal(info.flags_not_honoured, 0);
-                    assert_int_equal(info.triangles, m->nt); /* none degenerate */
+                    assert_int_equal(info.triangles, m->mesh.triangle_count); /* none degenerate */
                     size_t first;
                     const size_t n = leaks(s, &a, &first, 2);
                     *rays += a.count;
@@ -467,7 +243,7 @@ static void closed_meshes_at(const double c[3], double size, const char *where, 
                     }
                     rtk_scene_release(s);
                 }
-            rtk_scene s = test_scene(dev, m->v, m->nv, m->idx, m->nt);
+            rtk_scene s = test_scene(dev, m->mesh.vertices, m->mesh.vertex_count, m->mesh.indices, m->mesh.triangle_count);
             size_t first, missed;
             const size_t n = leaks(s, &a, &first, 0);
             rtk_scene_release(s);
@@ -480,11 +256,10 @@ static void closed_meshes_at(const double c[3], double size, const char *where, 
         }
         print_message("%-6s %s: %zu rays; the default mode leaks / hits twice:%s\n", m->name, where, a.count,
                       defaults);
-        free(a.rays);
-        free(a.t_in);
+        rtk_aimed_free(&a);
     }
     for (int mi = 0; mi < 3; mi++)
-        mesh_free(&meshes[mi]);
+        rtk_closed_free(&meshes[mi]);
 }
 
 /* Meshes of size 1 moved to 10^k, k = 0 ... 6. */
@@ -527,11 +302,11 @@ static void attach_mesh(rtk_device dev, rtk_scene scene, const closed_mesh *m, c
     assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
     if (moved)
         assert_int_equal(rtk_geometry_set_time_step_count(g, 2), RTK_OK);
-    assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 0, m->v, 0, 12, m->nv), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 0, m->mesh.vertices, 0, 12, m->mesh.vertex_count), RTK_OK);
     if (moved)
-        assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 1, moved, 0, 12, m->nv),
+        assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, 1, moved, 0, 12, m->mesh.vertex_count),
                          RTK_OK);
-    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->idx, 0, 12, m->nt), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, m->mesh.indices, 0, 12, m->mesh.triangle_count), RTK_OK);
     assert_int_equal(rtk_geometry_commit(g), RTK_OK);
     assert_int_equal(rtk_scene_attach_geometry(scene, g, NULL), RTK_OK);
     rtk_geometry_release(g);
@@ -550,28 +325,28 @@ static void robust_two_levels_and_motion(void **state)
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     const double c1[3] = {0, 0, 0}, c2[3] = {5, 0, 0};
     closed_mesh sphere = make_sphere(c1, 1.0, 24, 11), cube = make_cube(c2, 1.0, 6);
-    const aimed a1 = aim_at_mesh(&sphere, 0.04, 1.5f, 0.5f, 5), a2 = aim_at_mesh(&cube, 0.04, 1.5f, 0.5f, 6);
+    aimed a1 = aim_at_mesh(&sphere, 0.04, 1.5f, 0.5f, 5), a2 = aim_at_mesh(&cube, 0.04, 1.5f, 0.5f, 6);
     /* the cube moves by (0.5, 0.25, 0) over the shutter */
-    float *moved = malloc(3 * cube.nv * sizeof *moved);
+    float *moved = malloc(3 * cube.mesh.vertex_count * sizeof *moved);
     assert_non_null(moved);
-    for (size_t i = 0; i < cube.nv; i++)
+    for (size_t i = 0; i < cube.mesh.vertex_count; i++)
         for (int k = 0; k < 3; k++)
-            moved[3 * i + k] = cube.v[3 * i + k] + (k == 0 ? 0.5f : k == 1 ? 0.25f : 0.0f);
+            moved[3 * i + k] = cube.mesh.vertices[3 * i + k] + (k == 0 ? 0.5f : k == 1 ? 0.25f : 0.0f);
     static const float times[] = {0.0f, 0.37f, 1.0f};
     aimed at_time[3];
     for (int t = 0; t < 3; t++) {
         const float f = times[t], g = 1.0f - f;
         closed_mesh now = cube;
-        now.v = malloc(3 * cube.nv * sizeof *now.v);
-        assert_non_null(now.v);
-        for (size_t i = 0; i < 3 * cube.nv; i++)
-            now.v[i] = f * moved[i] + g * cube.v[i];
+        now.mesh.vertices = malloc(3 * cube.mesh.vertex_count * sizeof *now.mesh.vertices);
+        assert_non_null(now.mesh.vertices);
+        for (size_t i = 0; i < 3 * cube.mesh.vertex_count; i++)
+            now.mesh.vertices[i] = f * moved[i] + g * cube.mesh.vertices[i];
         now.c[0] += 0.5 * f;
         now.c[1] += 0.25 * f;
         at_time[t] = aim_at_mesh(&now, 0.04, 1.5f, 0.5f, 7 + (uint64_t)t);
         for (size_t r = 0; r < at_time[t].count; r++)
             at_time[t].rays[r].time = f;
-        free(now.v);
+        free(now.mesh.vertices);
     }
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);
@@ -600,7 +375,7 @@ static void robust_two_levels_and_motion(void **state)
             assert_int_equal(rtk_scene_commit(s), RTK_OK);
             assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
             assert_int_equal(info.flags_not_honoured, 0);
-            assert_int_equal(info.triangles_motion, cube.nt);
+            assert_int_equal(info.triangles_motion, cube.mesh.triangle_count);
             assert_int_equal(leaks(s, &a1, &first, 1), 0);
             for (int t = 0; t < 3; t++) {
                 const size_t n = leaks(s, &at_time[t], &first, 1);
@@ -615,11 +390,11 @@ static void robust_two_levels_and_motion(void **state)
         rtk_device_release(dev);
     }
     for (int t = 0; t < 3; t++)
-        free(at_time[t].rays), free(at_time[t].t_in);
+        rtk_aimed_free(&at_time[t]);
     free(moved);
-    free(a1.rays), free(a1.t_in), free(a2.rays), free(a2.t_in);
-    mesh_free(&sphere);
-    mesh_free(&cube);
+    rtk_aimed_free(&a1), rtk_aimed_free(&a2);
+    rtk_closed_free(&sphere);
+    rtk_closed_free(&cube);
 }
 
 int main(void)

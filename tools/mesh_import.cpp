@@ -144,6 +144,24 @@ public:
 
 std::mutex import_lock;
 
+// OpenMesh's diagnostics go to a capture stream of ours, redirected once per
+// process: OpenMesh's mostream::disconnect drops its target without deleting
+// it, so redirecting per call would leak each time.  Emptied on each call;
+// import_lock held.
+std::ostringstream &openmesh_messages()
+{
+    static std::ostringstream messages;
+    static bool redirected = false;
+    if (!redirected) {
+        omerr().disconnect(std::cerr);
+        omlog().disconnect(std::clog);
+        omerr().connect(messages);
+        redirected = true;
+    }
+    messages.str(std::string());
+    return messages;
+}
+
 // OM files hold OpenMesh's halfedge structure, so they can only ever contain
 // what OpenMesh's mesh accepted: reading them into a PolyMesh loses nothing.
 // Its faces are then passed to the soup in order.
@@ -456,18 +474,7 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
 
     std::lock_guard<std::mutex> guard(import_lock);
     SoupImporter soup;
-    // OpenMesh's diagnostics go to a capture stream of ours, redirected once
-    // per process: OpenMesh's mostream::disconnect drops its target without
-    // deleting it, so redirecting per call would leak each time.
-    static std::ostringstream messages;
-    static bool redirected = false;
-    if (!redirected) {
-        omerr().disconnect(std::cerr);
-        omlog().disconnect(std::clog);
-        omerr().connect(messages);
-        redirected = true;
-    }
-    messages.str(std::string());
+    std::ostringstream &messages = openmesh_messages();
     bool ok = false;
     std::string failure;
     try {
@@ -555,4 +562,36 @@ extern "C" float rtk_mesh_bounds(const rtk_mesh *mesh, float lower[3], float upp
     for (int k = 0; k < 3; k++)
         d += double(upper[k] - lower[k]) * double(upper[k] - lower[k]);
     return float(std::sqrt(d));
+}
+
+extern "C" int rtk_mesh_is_closed(const rtk_mesh *mesh, size_t count, size_t *boundary_edges, size_t *faces_rejected)
+{
+    std::lock_guard<std::mutex> guard(import_lock);
+    openmesh_messages(); // add_face's complaints are counted, not printed
+    size_t boundary = 0, rejected = 0;
+    try {
+        PolyMesh_ArrayKernelT<> om;
+        std::vector<PolyMesh_ArrayKernelT<>::VertexHandle> vh(mesh->vertex_count);
+        for (size_t i = 0; i < mesh->vertex_count; i++) {
+            const float *p = mesh->vertices + 3 * i;
+            vh[i] = om.add_vertex(PolyMesh_ArrayKernelT<>::Point(p[0], p[1], p[2]));
+        }
+        for (size_t t = 0; t < count; t++) {
+            const uint32_t *x = mesh->indices + 3 * t;
+            if (x[0] >= mesh->vertex_count || x[1] >= mesh->vertex_count || x[2] >= mesh->vertex_count ||
+                !om.add_face(vh[x[0]], vh[x[1]], vh[x[2]]).is_valid())
+                rejected++;
+        }
+        for (auto e : om.edges())
+            boundary += om.is_boundary(e);
+    } catch (const std::bad_alloc &) {
+        omerr().flush();
+        return -1;
+    }
+    omerr().flush();
+    if (boundary_edges)
+        *boundary_edges = boundary;
+    if (faces_rejected)
+        *faces_rejected = rejected;
+    return boundary == 0 && rejected == 0;
 }

@@ -41,6 +41,13 @@ typedef struct rtk_mesh {
  * calls are serialised internally. */
 int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size);
 void rtk_mesh_free(rtk_mesh *mesh);
+
+/* Checks through OpenMesh that triangles [0, count) of the mesh make a
+ * closed 2-manifold: every face accepted by its halfedge structure (no
+ * complex edge or vertex, consistently oriented) and no boundary edge.
+ * Returns 1 if closed; *boundary_edges and *faces_rejected say what was
+ * found (either may be NULL).  Returns -1 when out of memory. */
+int rtk_mesh_is_closed(const rtk_mesh *mesh, size_t count, size_t *boundary_edges, size_t *faces_rejected);
 /* Bounds of the vertices and the length of their diagonal (0 for no vertices). */
 float rtk_mesh_bounds(const rtk_mesh *mesh, float lower[3], float upper[3]);
 
