@@ -129,12 +129,15 @@ typedef struct crossing_log {
     uint32_t prim[64];
     unsigned n;
     float t_in;
+    uint32_t closed; /* triangles from here on have no area */
+    unsigned flat;   /* candidates among those: must stay 0 */
 } crossing_log;
 
 static int collect_crossing(const rtk_filter_args *f)
 {
     crossing_log *log = f->context->user;
-    if (f->t > log->t_in)
+    log->flat += f->hit->primID >= log->closed;
+    if (f->t > log->t_in || f->hit->primID >= log->closed)
         return 0;
     for (unsigned k = 0; k < log->n; k++)
         if (log->prim[k] == f->hit->primID)
@@ -150,18 +153,19 @@ static int collect_crossing(const rtk_filter_args *f)
  * Returns the rays that cross an even number of times, more than none (a
  * ray through an edge or vertex hitting two triangles of one crossing: a
  * double hit); *missed: those that cross none (a leak). */
-static size_t double_hits(rtk_scene s, const aimed *a, size_t *missed, size_t *first)
+static size_t double_hits(rtk_scene s, const aimed *a, uint32_t closed, size_t *missed, size_t *first)
 {
     size_t n = 0;
     *missed = 0;
     *first = SIZE_MAX;
     for (size_t i = 0; i < a->count; i++) {
-        crossing_log log = {.t_in = a->t_in[i]};
+        crossing_log log = {.t_in = a->t_in[i], .closed = closed};
         const rtk_query_context ctx = {&log};
         rtk_rayhit rh = {.ray = a->rays[i]};
         rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
         assert_int_equal(rtk_intersect1_ctx(s, &rh, &ctx), RTK_OK);
         assert_int_equal(rh.hit.geomID, RTK_INVALID_GEOMETRY_ID); /* every candidate rejected */
+        assert_int_equal(log.flat, 0);                            /* zero-area triangles never hit */
         if (log.n % 2 == 0 && *first == SIZE_MAX)
             *first = i;
         *missed += log.n == 0;
@@ -181,17 +185,78 @@ static rtk_scene filtered_scene(rtk_device dev, const closed_mesh *m, unsigned f
     return s;
 }
 
-/* The three closed meshes of size `size` around c, through every backend
- * and robust layout at every build quality (robust leaks and double hits
- * added to *rays and *leaked), and through the default layouts (their
- * leaks and double hits printed). */
-static void closed_meshes_at(const double c[3], double size, const char *where, uint64_t seed, size_t *rays,
-                             size_t *leaked)
+/* The aimed rays through one closed mesh, on every backend and robust
+ * layout at every build quality (robust leaks and double hits added to
+ * *rays and *leaked), and through the default layouts (their leaks and
+ * double hits printed).  Zero-area triangles after the closed surface must
+ * never be hit, in either mode. */
+static void check_mesh(const closed_mesh *m, const aimed *a, const char *where, size_t *rays, size_t *leaked)
 {
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     static const rtk_build_quality qualities[] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM,
                                                   RTK_BUILD_QUALITY_HIGH};
+    const size_t flat = m->mesh.triangle_count - m->closed_triangles;
+    char defaults[256] = "";
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        for (int q = 0; q < 3; q++)
+            for (int compact = 0; compact < 2; compact++) {
+                rtk_scene s = test_scene_uncommitted(dev, m->mesh.vertices, m->mesh.vertex_count, m->mesh.indices,
+                                                     m->mesh.triangle_count,
+                                                     RTK_SCENE_FLAG_ROBUST | (compact ? RTK_SCENE_FLAG_COMPACT : 0));
+                assert_int_equal(rtk_scene_set_build_quality(s, qualities[q]), RTK_OK);
+                assert_int_equal(rtk_scene_commit(s), RTK_OK);
+                rtk_scene_info info = {.struct_size = sizeof info};
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                assert_int_equal(info.flags_not_honoured, 0);
+                assert_int_equal(info.triangles, m->closed_triangles);
+                assert_int_equal(info.triangles_degenerate, flat);
+                size_t first;
+                const size_t n = leaks(s, a, &first, 2);
+                *rays += a->count;
+                *leaked += n;
+                if (n) {
+                    print_message("%s %s, %s, %s, quality %d: %zu of %zu rays leak\n", m->name, where, names[b],
+                                  info.layout, (int)qualities[q], n, a->count);
+                    print_ray(&a->rays[first]);
+                }
+                rtk_scene_release(s);
+                /* the same with every crossing collected (under the
+                 * sanitizers, scripts/test, at medium quality only) */
+                if (getenv("RTK_TEST_SANITIZED") && qualities[q] != RTK_BUILD_QUALITY_MEDIUM)
+                    continue;
+                s = filtered_scene(dev, m, RTK_SCENE_FLAG_ROBUST | (compact ? RTK_SCENE_FLAG_COMPACT : 0),
+                                   qualities[q]);
+                size_t missed;
+                const size_t twice = double_hits(s, a, (uint32_t)m->closed_triangles, &missed, &first);
+                *leaked += twice + missed;
+                if (twice + missed) {
+                    print_message("%s %s, %s, %s, quality %d: %zu of %zu rays hit twice, %zu none (all "
+                                  "crossings collected)\n",
+                                  m->name, where, names[b], info.layout, (int)qualities[q], twice, a->count, missed);
+                    print_ray(&a->rays[first]);
+                }
+                rtk_scene_release(s);
+            }
+        rtk_scene s = test_scene(dev, m->mesh.vertices, m->mesh.vertex_count, m->mesh.indices,
+                                 m->mesh.triangle_count);
+        size_t first, missed;
+        const size_t n = leaks(s, a, &first, 0);
+        rtk_scene_release(s);
+        s = filtered_scene(dev, m, 0, RTK_BUILD_QUALITY_MEDIUM);
+        const size_t twice = double_hits(s, a, (uint32_t)m->closed_triangles, &missed, &first);
+        snprintf(defaults + strlen(defaults), sizeof defaults - strlen(defaults), " %s %zu/%zu", names[b], n, twice);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+    print_message("%-8s %s: %zu rays; the default mode leaks / hits twice:%s\n", m->name, where, a->count, defaults);
+}
+
+/* The three closed meshes of size `size` around c. */
+static void closed_meshes_at(const double c[3], double size, const char *where, uint64_t seed, size_t *rays,
+                             size_t *leaked)
+{
     closed_mesh meshes[3] = {make_sphere(c, size, 24, 11), make_torus(c, size, 0.4 * size, 24, 12),
                              make_cube(c, size, 6)};
     const double mag = fmax(fabs(c[0]), fmax(fabs(c[1]), fabs(c[2]))) + 2.0 * size;
@@ -203,76 +268,26 @@ static void closed_meshes_at(const double c[3], double size, const char *where, 
         const float out = (float)((mi == 1 ? 0.3 : 1.5) * size), in = (float)((mi == 1 ? 0.25 : 0.5) * size);
         aimed a = aim_at_mesh(m, margin, out, in, seed + (uint64_t)mi);
         assert_true(a.count > 1000);
-        char defaults[256] = "";
-        for (size_t b = 0; b < nb; b++) {
-            rtk_device dev = test_device(names[b]);
-            for (int q = 0; q < 3; q++)
-                for (int compact = 0; compact < 2; compact++) {
-                    rtk_scene s = test_scene_uncommitted(dev, m->mesh.vertices, m->mesh.vertex_count, m->mesh.indices, m->mesh.triangle_count,
-                                                         RTK_SCENE_FLAG_ROBUST | (compact ? RTK_SCENE_FLAG_COMPACT : 0));
-                    assert_int_equal(rtk_scene_set_build_quality(s, qualities[q]), RTK_OK);
-                    assert_int_equal(rtk_scene_commit(s), RTK_OK);
-                    rtk_scene_info info = {.struct_size = sizeof info};
-                    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
-                    assert_int_equal(info.flags_not_honoured, 0);
-                    assert_int_equal(info.triangles, m->mesh.triangle_count); /* none degenerate */
-                    size_t first;
-                    const size_t n = leaks(s, &a, &first, 2);
-                    *rays += a.count;
-                    *leaked += n;
-                    if (n) {
-                        print_message("%s %s, %s, %s, quality %d: %zu of %zu rays leak\n", m->name, where, names[b],
-                                      info.layout, (int)qualities[q], n, a.count);
-                        print_ray(&a.rays[first]);
-                    }
-                    rtk_scene_release(s);
-                    /* the same with every crossing collected (under the
-                     * sanitizers, scripts/test, at medium quality only) */
-                    if (getenv("RTK_TEST_SANITIZED") && qualities[q] != RTK_BUILD_QUALITY_MEDIUM)
-                        continue;
-                    s = filtered_scene(dev, m, RTK_SCENE_FLAG_ROBUST | (compact ? RTK_SCENE_FLAG_COMPACT : 0),
-                                       qualities[q]);
-                    size_t missed;
-                    const size_t twice = double_hits(s, &a, &missed, &first);
-                    *leaked += twice + missed;
-                    if (twice + missed) {
-                        print_message("%s %s, %s, %s, quality %d: %zu of %zu rays hit twice, %zu none (all "
-                                      "crossings collected)\n",
-                                      m->name, where, names[b], info.layout, (int)qualities[q], twice, a.count, missed);
-                        print_ray(&a.rays[first]);
-                    }
-                    rtk_scene_release(s);
-                }
-            rtk_scene s = test_scene(dev, m->mesh.vertices, m->mesh.vertex_count, m->mesh.indices, m->mesh.triangle_count);
-            size_t first, missed;
-            const size_t n = leaks(s, &a, &first, 0);
-            rtk_scene_release(s);
-            s = filtered_scene(dev, m, 0, RTK_BUILD_QUALITY_MEDIUM);
-            const size_t twice = double_hits(s, &a, &missed, &first);
-            snprintf(defaults + strlen(defaults), sizeof defaults - strlen(defaults), " %s %zu/%zu", names[b], n,
-                     twice);
-            rtk_scene_release(s);
-            rtk_device_release(dev);
-        }
-        print_message("%-6s %s: %zu rays; the default mode leaks / hits twice:%s\n", m->name, where, a.count,
-                      defaults);
+        check_mesh(m, &a, where, rays, leaked);
         rtk_aimed_free(&a);
     }
     for (int mi = 0; mi < 3; mi++)
         rtk_closed_free(&meshes[mi]);
 }
 
-/* Meshes of size 1 moved to 10^k, k = 0 ... 6. */
+/* Meshes of size 1 moved to 10^k, k = 0 ... 8; from 10^7 on of size
+ * 10^(k-6), so that rounding keeps their vertices 2^-4 of the size or
+ * better apart (at 10^8 a float's step is 8). */
 static void watertight_far_from_origin(void **state)
 {
     (void)state;
     size_t rays = 0, leaked = 0;
-    for (int k = 0; k <= 6; k++) {
+    for (int k = 0; k <= 8; k++) {
         const double off = pow(10.0, k);
         const double c[3] = {off, 0.5 * off, -0.25 * off};
         char where[32];
         snprintf(where, sizeof where, "at 1e%d", k);
-        closed_meshes_at(c, 1.0, where, 17u + 3u * (uint64_t)k, &rays, &leaked);
+        closed_meshes_at(c, fmax(1.0, off * 1e-6), where, 17u + 3u * (uint64_t)k, &rays, &leaked);
     }
     print_message("robust: %zu leaks or double hits in %zu rays\n", leaked, rays);
     assert_int_equal(leaked, 0);
@@ -293,6 +308,55 @@ static void watertight_tiny_and_huge(void **state)
     }
     print_message("robust: %zu leaks or double hits in %zu rays\n", leaked, rays);
     assert_int_equal(leaked, 0);
+}
+
+/* A cylinder whose sides and caps are needles (1024 sides: side triangles
+ * 20 x 0.006, cap triangles 1 x 0.006), with zero-area triangles along its
+ * side lines (three collinear points) and on its caps (a repeated vertex),
+ * which the rays aimed at the side lines pass exactly through. */
+static void needles_and_zero_area(void **state)
+{
+    (void)state;
+    const double c[3] = {0.25, -0.5, 0.125};
+    closed_mesh m;
+    assert_int_equal(rtk_closed_cylinder(c, 1.0, 10.0, 1024, 1, &m), 0);
+    assert_int_equal(rtk_mesh_is_closed(&m.mesh, m.closed_triangles, NULL, NULL), 1);
+    assert_int_equal(m.mesh.triangle_count, m.closed_triangles + 2048);
+    aimed a = aim_at_mesh(&m, 1e-5, 1.5f, 0.5f, 4242);
+    assert_true(a.count > 10000);
+    size_t rays = 0, leaked = 0;
+    check_mesh(&m, &a, "of needles", &rays, &leaked);
+    print_message("robust: %zu leaks or double hits in %zu rays\n", leaked, rays);
+    assert_int_equal(leaked, 0);
+    rtk_aimed_free(&a);
+    rtk_closed_free(&m);
+}
+
+/* Rays grazing a flat face of a box (exact vertices: the mesh is the
+ * solid) at 10^-k degrees, k = 0 ... 6, aimed inside its triangles and at
+ * its edges and vertices. */
+static void grazing_rays(void **state)
+{
+    (void)state;
+    const double c[3] = {0.0, 0.0, -1.0};
+    closed_mesh box;
+    assert_int_equal(rtk_closed_box(c, 1.0, 16, &box), 0);
+    size_t rays = 0, leaked = 0;
+    for (int k = 0; k <= 6; k++)
+        for (int on_lines = 0; on_lines < 2; on_lines++) {
+            aimed a;
+            assert_int_equal(rtk_closed_graze(&box, 16, pow(10.0, -k), 1000, on_lines, 31u + 2u * (uint64_t)k +
+                                              (uint64_t)on_lines, &a),
+                             0);
+            assert_true(a.count > 900);
+            char where[48];
+            snprintf(where, sizeof where, "grazed at 1e-%d degrees%s", k, on_lines ? " on edges" : "");
+            check_mesh(&box, &a, where, &rays, &leaked);
+            rtk_aimed_free(&a);
+        }
+    print_message("robust: %zu leaks or double hits in %zu rays\n", leaked, rays);
+    assert_int_equal(leaked, 0);
+    rtk_closed_free(&box);
 }
 
 /* Attaches m; with `moved` a second time step with those vertices. */
@@ -402,6 +466,8 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(watertight_far_from_origin),
         cmocka_unit_test(watertight_tiny_and_huge),
+        cmocka_unit_test(needles_and_zero_area),
+        cmocka_unit_test(grazing_rays),
         cmocka_unit_test(robust_two_levels_and_motion),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);

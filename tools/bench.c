@@ -45,6 +45,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "closed_mesh.h"
 #include "mesh_import.h"
 #include "mesh_tools.h"
 #include "progress.h"
@@ -164,9 +165,11 @@ static struct {
     unsigned n;
 } bench_seen;
 
+static float bench_t_limit = 1.0f + 1e-4f; /* the closed section: each ray's distance to its point inside */
+
 static void seen_add(uint32_t prim, float t)
 {
-    if (!(t <= 1.0f + 1e-4f))
+    if (!(t <= bench_t_limit))
         return;
     for (unsigned k = 0; k < bench_seen.n; k++)
         if (bench_seen.prim[k] == prim)
@@ -833,7 +836,7 @@ typedef struct bench_opts {
     char isa[4][16];
     int nisa;
     int api_on[4];
-    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features;
+    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed;
     int render_w, render_h, render_spp;
     int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
 } bench_opts;
@@ -863,15 +866,20 @@ static void bench_usage(FILE *f)
             "  time at every quality, as in its Table 4, against the time to trace the tree), refit (a\n"
             "  deforming mesh: refit time, and the trace speed of the refitted tree), two levels (instances\n"
             "  and a dynamic scene: commit times and trace speed), motion blur (2 and 5 time steps: start\n"
-            "  time, memory, trace speed at random ray times) and accuracy (rays aimed at shared edges\n"
-            "  that leak through, beside speed). Ratios are to Embree isa=avx2.  A MESH named\n"
+            "  time, memory, trace speed at random ray times), accuracy (rays aimed at shared edges\n"
+            "  that leak through, beside speed) and, once per run, closed (the accuracy harness: rays aimed\n"
+            "  at the vertices and edges of closed procedural meshes moved to 10^0..10^8 and sized\n"
+            "  1e-8..1e8, needles and zero-area triangles, grazing rays; false misses, double hits, t error\n"
+            "  in ulps, each library's default and robust mode; no MESH needed for --only closed).\n"
+            "  Ratios are to Embree isa=avx2.  A MESH named\n"
             "  procedural:N (e.g. procedural:10M) is a bumpy sphere of about N triangles made on the spot.\n"
             "  -o, --output DIR  bench.csv, the charts (PNG, drawn by gnuplot when installed) and their\n"
             "                    gnuplot scripts (default: bench-out)\n"
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
-            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features (default: all)\n"
+            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed\n"
+            "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
             "  --repeat N        best of N passes per measurement (default: 3)\n"
             "  --builds N        best of N builds per start time (default: 3)\n"
@@ -883,7 +891,8 @@ static void bench_usage(FILE *f)
             "examples:\n"
             "  rtktool bench ../shared/meshes/dragon.ply ../shared/meshes/sanmiguel_building.ply -o bench-out\n"
             "  rtktool bench dragon.ply --only trace --isa avx2 --api single,packet8 --threads 1\n"
-            "  rtktool bench procedural:100k procedural:1M procedural:16M --only build --isa avx2\n");
+            "  rtktool bench procedural:100k procedural:1M procedural:16M --only build --isa avx2\n"
+            "  rtktool bench --only closed --isa avx2,sse41\n");
 }
 
 /* ---- the sections ---- */
@@ -1893,6 +1902,488 @@ static int section_accuracy(ctx *c, char *err, size_t err_size)
     return 0;
 }
 
+/* ---- closed meshes: the accuracy harness ---- */
+
+/* What one library and mode did with a group of aimed rays. */
+typedef struct closed_tally {
+    size_t rays, misses, twice, zero_area;
+    double *ulps; /* each hit's t error, in ulps of the reference t */
+    size_t nulps, cap;
+    double point_err; /* the largest |t - t_ref| over the mesh's diagonal */
+    double seconds;   /* intersect1 over the timed groups' rays, best of --repeat */
+    size_t timed;
+} closed_tally;
+
+static void tally_free(closed_tally *t)
+{
+    free(t->ulps);
+    memset(t, 0, sizeof *t);
+}
+
+static int tally_ulps(closed_tally *t, double u)
+{
+    if (t->nulps == t->cap) {
+        const size_t cap = t->cap ? 2 * t->cap : 4096;
+        double *p = realloc(t->ulps, cap * sizeof *p);
+        if (!p)
+            return 1;
+        t->ulps = p, t->cap = cap;
+    }
+    t->ulps[t->nulps++] = u;
+    return 0;
+}
+
+static int cmp_double(const void *x, const void *y)
+{
+    const double a = *(const double *)x, b = *(const double *)y;
+    return a < b ? -1 : a > b;
+}
+
+static void tally_sort(closed_tally *t)
+{
+    if (t->nulps)
+        qsort(t->ulps, t->nulps, sizeof *t->ulps, cmp_double);
+}
+
+/* The q-quantile of the tally's t errors (sorted by tally_sort); -1 for none. */
+static double tally_quantile(const closed_tally *t, double q)
+{
+    if (!t->nulps)
+        return -1.0;
+    size_t i = (size_t)(q * (double)(t->nulps - 1) + 0.5);
+    return t->ulps[i < t->nulps ? i : t->nulps - 1];
+}
+
+/* Where the ray meets the plane of triangle prim, in long double from the
+ * float vertices and ray: the reference t. */
+static long double plane_t(const rtk_mesh *m, uint32_t prim, const rtk_ray *r)
+{
+    const uint32_t *x = m->indices + 3 * (size_t)prim;
+    long double v[3][3], e1[3], e2[3], n[3];
+    for (int j = 0; j < 3; j++)
+        for (int k = 0; k < 3; k++)
+            v[j][k] = m->vertices[3 * x[j] + k];
+    for (int k = 0; k < 3; k++)
+        e1[k] = v[1][k] - v[0][k], e2[k] = v[2][k] - v[0][k];
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    const long double o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    long double num = 0, den = 0;
+    for (int k = 0; k < 3; k++)
+        num += n[k] * (v[0][k] - o[k]), den += n[k] * d[k];
+    return num / den;
+}
+
+/* The aimed rays through one library's scene of the mesh in one mode:
+ * closest hits (a miss, or a first hit beyond the point inside, is a false
+ * miss; a hit's t against the reference), then every crossing before the
+ * point inside collected by a filter (an even number, more than none, is a
+ * double hit); hits on the triangles after the closed surface (zero area)
+ * counted in both.  With `timed`, intersect1 over the rays is timed too. */
+static int closed_run(lib *l, int mode, const rtk_closed_mesh *cm, const rtk_aimed *a, int timed, int repeat,
+                      closed_tally *t, char *err, size_t err_size)
+{
+    const rtk_mesh *m = &cm->mesh;
+    float lo[3], hi[3];
+    const double diag = rtk_mesh_bounds(m, lo, hi);
+    scene sc;
+    if (scene_build(&sc, l, m, m->vertices, mode, 1, err, err_size))
+        return 1;
+    render_tracer tr = scene_tracer(&sc, 0);
+    int bad = 0;
+    for (size_t i = 0; i < a->count; i++) {
+        _Alignas(16) rtk_rayhit rh = {.ray = a->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+        tr.intersect1(tr.scene, &rh);
+        const int hit = rh.hit.geomID != RTK_INVALID_GEOMETRY_ID;
+        t->misses += !hit || rh.ray.tfar > a->t_in[i];
+        if (hit && rh.hit.primID >= cm->closed_triangles) {
+            t->zero_area++;
+        } else if (hit) {
+            const long double tr_ = plane_t(m, rh.hit.primID, &a->rays[i]);
+            const float tf = fabsf((float)tr_);
+            const double ulp = (double)(nextafterf(tf, INFINITY) - tf);
+            const double e = (double)fabsl((long double)rh.ray.tfar - tr_);
+            bad |= tally_ulps(t, e / ulp);
+            t->point_err = fmax(t->point_err, diag > 0 ? e / diag : 0.0);
+        }
+    }
+    if (timed) {
+        double best = 1e30;
+        for (int r = 0; r < repeat; r++) {
+            const double t0 = now();
+            for (size_t i = 0; i < a->count; i++) {
+                _Alignas(16) rtk_rayhit rh = {.ray = a->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+                tr.intersect1(tr.scene, &rh);
+            }
+            best = fmin(best, now() - t0);
+        }
+        t->seconds += best;
+        t->timed += a->count;
+    }
+    scene_release(&sc);
+    bench_collect = 1;
+    bad |= scene_build(&sc, l, m, m->vertices, mode, 1, err, err_size);
+    bench_collect = 0;
+    if (bad) {
+        if (!err[0])
+            snprintf(err, err_size, "out of memory");
+        return 1;
+    }
+    tr = scene_tracer(&sc, 0);
+    for (size_t i = 0; i < a->count; i++) {
+        _Alignas(16) rtk_rayhit rh = {.ray = a->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+        bench_seen.n = 0;
+        bench_t_limit = a->t_in[i];
+        tr.intersect1(tr.scene, &rh);
+        unsigned n = 0, flat = 0;
+        for (unsigned k = 0; k < bench_seen.n; k++) {
+            n += bench_seen.prim[k] < cm->closed_triangles;
+            flat += bench_seen.prim[k] >= cm->closed_triangles;
+        }
+        t->twice += n && n % 2 == 0;
+        t->zero_area += flat != 0;
+    }
+    bench_t_limit = 1.0f + 1e-4f;
+    t->rays += a->count;
+    scene_release(&sc);
+    return 0;
+}
+
+/* The closed meshes of the offset and size sweeps: a sphere, a torus and a
+ * box of radius `size` around c, checked closed by OpenMesh, and the rays
+ * aimed at them.  The mesh lies within its faceting (under 4% of its size)
+ * and the rounding of its vertices of the solid's surface: the margin. */
+static int closed_group(const double c[3], double size, uint64_t seed, rtk_closed_mesh cm[3], rtk_aimed a[3],
+                        char *err, size_t err_size)
+{
+    memset(cm, 0, 3 * sizeof *cm);
+    memset(a, 0, 3 * sizeof *a);
+    const double mag = fmax(fabs(c[0]), fmax(fabs(c[1]), fabs(c[2]))) + 2.0 * size;
+    const double margin = 0.04 * size + mag * 0x1p-23;
+    int bad = rtk_closed_sphere(c, size, 48, 23, &cm[0]) || rtk_closed_torus(c, size, 0.4 * size, 48, 24, &cm[1]) ||
+              rtk_closed_box(c, size, 8, &cm[2]);
+    for (int i = 0; !bad && i < 3; i++) {
+        size_t boundary = 0, rejected = 0;
+        if (rtk_mesh_is_closed(&cm[i].mesh, cm[i].closed_triangles, &boundary, &rejected) != 1) {
+            snprintf(err, err_size, "the %s is not closed: %zu boundary edges, %zu faces OpenMesh rejected",
+                     cm[i].name, boundary, rejected);
+            return 1;
+        }
+        const float out = (float)((i == 1 ? 0.3 : 1.5) * size), in = (float)((i == 1 ? 0.25 : 0.5) * size);
+        bad = rtk_closed_aim(&cm[i], margin, out, in, seed + (uint64_t)i, &a[i]);
+    }
+    if (bad)
+        snprintf(err, err_size, "out of memory");
+    return bad;
+}
+
+static void closed_group_free(rtk_closed_mesh cm[3], rtk_aimed a[3])
+{
+    for (int i = 0; i < 3; i++)
+        rtk_closed_free(&cm[i]), rtk_aimed_free(&a[i]);
+}
+
+enum { NOFF = 9, NSIZE = 9, NGRAZE = 7, CLOSED_MODES = 2 };
+
+typedef struct closed_results {
+    closed_tally off[NOFF], size[NSIZE], needle, graze[NGRAZE][2]; /* graze: inside faces, on lines */
+} closed_results;
+
+static double per_million(size_t n, size_t of)
+{
+    return of ? 1e6 * (double)n / (double)of : 0.0;
+}
+
+static void closed_print_row(const char *lib_name, int mode, closed_tally *t, int n, int twice)
+{
+    printf("  %-18s %-7s", lib_name, mode_names[mode]);
+    for (int k = 0; k < n; k++)
+        printf(" %8.0f", per_million(twice ? t[k].twice : t[k].misses, t[k].rays));
+    printf("\n");
+}
+
+/* The accuracy harness: closed meshes (OpenMesh checks them closed) and
+ * rays aimed exactly at their vertices and edges, through every library in
+ * its default and robust modes:
+ *   - the meshes moved to 10^k, k = 0 ... 8 (of radius 1, and from 10^7 on
+ *     of radius 10^(k-6), so that their vertices keep 2^-4 of the radius
+ *     or better apart after rounding): false misses and double hits, and
+ *     the failure envelope, the largest offset before the first false miss;
+ *   - meshes of radius 1e-8 ... 1e8 near the origin;
+ *   - a cylinder of 4096 needle sides and needle caps, with zero-area
+ *     triangles on its side lines (collinear) and caps (a repeated vertex),
+ *     which must never be hit;
+ *   - rays grazing a flat face at 10^-k degrees, k = 0 ... 6;
+ *   - the t error of every hit in ulps against the reference (the ray
+ *     against the hit triangle's plane in long double), and the hit point's
+ *     error over the mesh's diagonal;
+ *   - ns per ray (intersect1, 1 thread) over the offset sweep's rays at
+ *     10^0, beside the false-miss rate over every aimed ray: the chart. */
+static int section_closed(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    const int nlm = c->nlibs * CLOSED_MODES;
+    closed_results *res = calloc((size_t)nlm, sizeof *res);
+    if (!res) {
+        snprintf(err, err_size, "out of memory");
+        return 1;
+    }
+    int bad = 0;
+    size_t off_rays[NOFF] = {0}, size_rays[NSIZE] = {0}, needle_rays = 0, graze_n[NGRAZE] = {0};
+    printf("\nclosed meshes: rays aimed exactly at every vertex and edge of closed meshes (a sphere, a torus and a box "
+           "of 2208, 2304 and 768 triangles, OpenMesh checking each closed), from outside the solid to a point "
+           "inside it (random directions, and along the axes with the other components +0.0 and -0.0): a ray that "
+           "reaches its point inside without a hit is a false miss; one that crosses the mesh an even number of "
+           "times (every crossing collected by a filter) has hit one crossing twice.  Per million rays.\n");
+    for (int k = 0; !bad && k < NOFF; k++) {
+        const double off = pow(10.0, k), size = fmax(1.0, off * 1e-6);
+        const double cc[3] = {off, 0.5 * off, -0.25 * off};
+        rtk_closed_mesh cm[3];
+        rtk_aimed a[3];
+        bad = closed_group(cc, size, 17u + 3u * (uint64_t)k, cm, a, err, err_size);
+        for (int i = 0; i < 3; i++)
+            off_rays[k] += a[i].count;
+        for (int lm = 0; !bad && lm < nlm; lm++)
+            for (int i = 0; !bad && i < 3; i++)
+                bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &cm[i],
+                                 &a[i], k == 0, o->repeat, &res[lm].off[k], err, err_size);
+        closed_group_free(cm, a);
+    }
+    for (int k = 0; !bad && k < NSIZE; k++) {
+        const double size = pow(10.0, 2 * k - 8);
+        const double cc[3] = {0.3 * size, -0.2 * size, 0.1 * size};
+        rtk_closed_mesh cm[3];
+        rtk_aimed a[3];
+        bad = closed_group(cc, size, 99u + 3u * (uint64_t)k, cm, a, err, err_size);
+        for (int i = 0; i < 3; i++)
+            size_rays[k] += a[i].count;
+        for (int lm = 0; !bad && lm < nlm; lm++)
+            for (int i = 0; !bad && i < 3; i++)
+                bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &cm[i],
+                                 &a[i], 0, 1, &res[lm].size[k], err, err_size);
+        closed_group_free(cm, a);
+    }
+    if (!bad) {
+        const double cc[3] = {0.25, -0.5, 0.125};
+        rtk_closed_mesh cyl;
+        rtk_aimed a = {0};
+        size_t boundary = 0, rejected = 0;
+        bad = rtk_closed_cylinder(cc, 1.0, 10.0, 4096, 1, &cyl);
+        if (!bad && rtk_mesh_is_closed(&cyl.mesh, cyl.closed_triangles, &boundary, &rejected) != 1) {
+            snprintf(err, err_size, "the cylinder is not closed: %zu boundary edges, %zu faces rejected", boundary,
+                     rejected);
+            bad = 1;
+        }
+        bad = bad || rtk_closed_aim(&cyl, 1e-5, 1.5f, 0.5f, 4242, &a);
+        needle_rays = a.count;
+        for (int lm = 0; !bad && lm < nlm; lm++)
+            bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &cyl, &a, 0,
+                             1, &res[lm].needle, err, err_size);
+        rtk_aimed_free(&a);
+        rtk_closed_free(&cyl);
+    }
+    if (!bad) {
+        const double cc[3] = {0.0, 0.0, -1.0};
+        rtk_closed_mesh box;
+        bad = rtk_closed_box(cc, 1.0, 16, &box); /* exact vertices: the mesh is the solid */
+        for (int k = 0; !bad && k < 2 * NGRAZE; k++) {
+            rtk_aimed a;
+            bad = rtk_closed_graze(&box, 16, pow(10.0, -(k / 2)), 10000, k % 2, 31u + (uint64_t)k, &a);
+            graze_n[k / 2] += a.count;
+            for (int lm = 0; !bad && lm < nlm; lm++)
+                bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &box,
+                                 &a, 0, 1, &res[lm].graze[k / 2][k % 2], err, err_size);
+            rtk_aimed_free(&a);
+        }
+        rtk_closed_free(&box);
+    }
+    if (bad) {
+        if (!err[0])
+            snprintf(err, err_size, "out of memory");
+        goto done;
+    }
+    for (int lm = 0; lm < nlm; lm++) {
+        for (int k = 0; k < NOFF; k++)
+            tally_sort(&res[lm].off[k]);
+        for (int k = 0; k < NGRAZE; k++)
+            tally_sort(&res[lm].graze[k][0]), tally_sort(&res[lm].graze[k][1]);
+    }
+
+    printf("\n  moved to 10^k (radius max(1, 10^(k-6))); rays per offset:");
+    for (int k = 0; k < NOFF; k++)
+        printf(" %zu", off_rays[k]);
+    printf("\n  false misses       mode   ");
+    for (int k = 0; k < NOFF; k++)
+        printf("   10^%-3d", k);
+    printf(" envelope\n");
+    for (int lm = 0; lm < nlm; lm++) {
+        closed_tally *t = res[lm].off;
+        printf("  %-18s %-7s", c->libs[lm / CLOSED_MODES].name, mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0]);
+        int env = -1, gap = 0;
+        for (int k = 0; k < NOFF; k++) {
+            printf(" %8.0f", per_million(t[k].misses, t[k].rays));
+            if (!t[k].misses)
+                gap |= env < k - 1, env = k;
+        }
+        if (env < 0)
+            printf("     none\n");
+        else
+            printf("   1e%d%s\n", env, gap ? " (not below)" : "");
+    }
+    printf("  double hits\n");
+    for (int lm = 0; lm < nlm; lm++)
+        closed_print_row(c->libs[lm / CLOSED_MODES].name, lm % CLOSED_MODES ? MODE_ROBUST : 0, res[lm].off, NOFF, 1);
+
+    printf("\n  of radius 10^k near the origin; rays per size:");
+    for (int k = 0; k < NSIZE; k++)
+        printf(" %zu", size_rays[k]);
+    printf("\n  false misses       mode   ");
+    for (int k = 0; k < NSIZE; k++)
+        printf("  10^%-4d", 2 * k - 8);
+    printf("\n");
+    for (int lm = 0; lm < nlm; lm++)
+        closed_print_row(c->libs[lm / CLOSED_MODES].name, lm % CLOSED_MODES ? MODE_ROBUST : 0, res[lm].size, NSIZE, 0);
+    printf("  double hits\n");
+    for (int lm = 0; lm < nlm; lm++)
+        closed_print_row(c->libs[lm / CLOSED_MODES].name, lm % CLOSED_MODES ? MODE_ROBUST : 0, res[lm].size, NSIZE, 1);
+
+    printf("\n  needles: a cylinder of radius 1 and height 20 with 4096 sides (side triangles 20 x 0.0015, caps fans of "
+           "1 x 0.0015) and 8192 zero-area triangles on its side lines and caps; %zu rays\n",
+           needle_rays);
+    printf("  %-18s %-7s %14s %14s %16s\n", "library", "mode", "false misses", "double hits", "zero-area hits");
+    for (int lm = 0; lm < nlm; lm++) {
+        const closed_tally *t = &res[lm].needle;
+        printf("  %-18s %-7s %14zu %14zu %16zu\n", c->libs[lm / CLOSED_MODES].name,
+               mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0], t->misses, t->twice, t->zero_area);
+    }
+
+    printf("\n  grazing a flat face at 10^-k degrees (%zu rays each, half at points inside its triangles, half on "
+           "their edges or at vertices): false misses per million (inside / on edges), and the t error in ulps "
+           "(median / max)\n  %-18s %-7s",
+           graze_n[0], "library", "mode");
+    for (int k = 0; k < NGRAZE; k++) {
+        char head[16];
+        snprintf(head, sizeof head, "10^-%d deg", k);
+        printf(" %18s", head);
+    }
+    printf("\n");
+    for (int lm = 0; lm < nlm; lm++) {
+        printf("  %-18s %-7s", c->libs[lm / CLOSED_MODES].name, mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0]);
+        for (int k = 0; k < NGRAZE; k++) {
+            const closed_tally *t = res[lm].graze[k];
+            char cell[40];
+            snprintf(cell, sizeof cell, "%.0f/%.0f %.1f/%.0f", per_million(t[0].misses, t[0].rays),
+                     per_million(t[1].misses, t[1].rays), fmax(tally_quantile(&t[0], 0.5), tally_quantile(&t[1], 0.5)),
+                     fmax(tally_quantile(&t[0], 1.0), tally_quantile(&t[1], 1.0)));
+            printf(" %18s", cell);
+        }
+        printf("\n");
+    }
+
+    printf("\n  t error of the hits, in ulps of the reference t (median / 99th percentile / max), and the largest hit "
+           "point error over the mesh's diagonal, at 10^0 and 10^6; ns per ray (intersect1, 1 thread, the rays at "
+           "10^0)\n");
+    printf("  %-18s %-7s %22s %10s %22s %10s %8s\n", "library", "mode", "t ulps at 10^0", "point", "t ulps at 10^6",
+           "point", "ns/ray");
+    char path[600];
+    snprintf(path, sizeof path, "%s/closed-accuracy.dat", o->outdir);
+    FILE *dat = fopen(path, "w");
+    for (int lm = 0; lm < nlm; lm++) {
+        closed_results *r = &res[lm];
+        const char *name = c->libs[lm / CLOSED_MODES].name, *mode = mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0];
+        closed_tally *t0 = &r->off[0], *t6 = &r->off[6];
+        const double ns = t0->timed ? 1e9 * t0->seconds / (double)t0->timed : 0.0;
+        printf("  %-18s %-7s %6.1f / %5.1f / %6.0f %10.1e %6.1f / %5.1f / %6.0f %10.1e %8.1f\n", name, mode,
+               tally_quantile(t0, 0.5), tally_quantile(t0, 0.99), tally_quantile(t0, 1.0), t0->point_err,
+               tally_quantile(t6, 0.5), tally_quantile(t6, 0.99), tally_quantile(t6, 1.0), t6->point_err,
+               ns);
+        size_t all = 0, missed = 0, twice = 0, flat = r->needle.zero_area;
+        const closed_tally *groups[3] = {r->off, r->size, r->graze[0]};
+        const int counts[3] = {NOFF, NSIZE, 2 * NGRAZE};
+        for (int g = 0; g < 3; g++)
+            for (int k = 0; k < counts[g]; k++)
+                all += groups[g][k].rays, missed += groups[g][k].misses, twice += groups[g][k].twice;
+        all += r->needle.rays, missed += r->needle.misses, twice += r->needle.twice;
+        char variant[48];
+        for (int k = 0; k < NOFF; k++) {
+            snprintf(variant, sizeof variant, "%s, at 1e%d", mode, k);
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(r->off[k].misses, r->off[k].rays),
+                    "false misses per million", 0);
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(r->off[k].twice, r->off[k].rays),
+                    "double hits per million", 0);
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, tally_quantile(&r->off[k], 0.5),
+                    "median t error, ulps", 0);
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, tally_quantile(&r->off[k], 1.0),
+                    "max t error, ulps", 0);
+        }
+        for (int k = 0; k < NSIZE; k++) {
+            snprintf(variant, sizeof variant, "%s, size 1e%d", mode, 2 * k - 8);
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(r->size[k].misses, r->size[k].rays),
+                    "false misses per million", 0);
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(r->size[k].twice, r->size[k].rays),
+                    "double hits per million", 0);
+        }
+        for (int k = 0; k < 2 * NGRAZE; k++) {
+            const closed_tally *t = &r->graze[k / 2][k % 2];
+            snprintf(variant, sizeof variant, "%s, grazing 1e-%d deg%s", mode, k / 2, k % 2 ? ", edges" : "");
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(t->misses, t->rays),
+                    "false misses per million", 0);
+            csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, tally_quantile(t, 1.0),
+                    "max t error, ulps", 0);
+        }
+        snprintf(variant, sizeof variant, "%s, needles", mode);
+        csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, (double)flat, "zero-area hits", 0);
+        csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(r->needle.misses, r->needle.rays),
+                "false misses per million", 0);
+        snprintf(variant, sizeof variant, "%s, all", mode);
+        csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(missed, all),
+                "false misses per million", 0);
+        csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, per_million(twice, all),
+                "double hits per million", 0);
+        csv_row(&c->csv, "closed", name, variant, "aimed", "single", 1, ns, "ns per ray", 0);
+        if (dat) {
+            fprintf(dat, "%.2f %.3f %s\n", ns, per_million(missed, all), mode);
+            if (lm % CLOSED_MODES == CLOSED_MODES - 1)
+                fprintf(dat, "\n\n"); /* one gnuplot index per library */
+        }
+    }
+    if (dat) {
+        fclose(dat);
+        snprintf(path, sizeof path, "%s/closed-accuracy.gp", o->outdir);
+        FILE *gp = fopen(path, "w");
+        if (gp) {
+            fprintf(gp,
+                    "set terminal pngcairo noenhanced size 900,600 font 'sans,10'\nset output 'closed-accuracy.png'\n"
+                    "set title 'closed meshes: speed against accuracy per (library, backend, mode)'\n"
+                    "set xlabel 'ns per ray, intersect1, 1 thread (lower is better)'\n"
+                    "set ylabel 'false misses per million rays aimed at vertices and edges (lower is better)'\n"
+                    "set grid\nset key outside right\nset xrange [0:*]\nset logscale y\nset yrange [0.05:2e5]\n"
+                    "set ytics add ('0' 0.1)\nset offsets graph 0.05, graph 0.1, 0, 0\nplot ");
+            /* no false miss at all is drawn at 0.1 on the log scale, labelled 0 */
+            for (int l = 0; l < c->nlibs; l++)
+                fprintf(gp, "%s'closed-accuracy.dat' index %d using 1:($2 > 0 ? $2 : 0.1) with points pt %d ps 1.5 "
+                        "lc %d title '%s', '' index %d using 1:($2 > 0 ? $2 : 0.1):3 with labels offset 0.8,0.5 left "
+                        "font 'sans,7' tc lt -1 notitle",
+                        l ? ", " : "", l, 5 + 2 * (l % 3), l + 1, c->libs[l].name, l);
+            fprintf(gp, "\n");
+            fclose(gp);
+        }
+    }
+done:
+    for (int lm = 0; lm < nlm; lm++) {
+        for (int k = 0; k < NOFF; k++)
+            tally_free(&res[lm].off[k]);
+        for (int k = 0; k < NSIZE; k++)
+            tally_free(&res[lm].size[k]);
+        for (int k = 0; k < NGRAZE; k++)
+            tally_free(&res[lm].graze[k][0]), tally_free(&res[lm].graze[k][1]);
+        tally_free(&res[lm].needle);
+    }
+    free(res);
+    return bad;
+}
+
 /* What masks, filters and quads cost when a scene uses them: the default
  * scene, one whose geometry has a mask, one with filters that accept every
  * candidate (the same hits), and the same triangles as quads (MODE_QUAD),
@@ -1968,7 +2459,7 @@ int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
                     .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .do_trace = 1, .do_render = 1,
-                    .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1, .do_accuracy = 1, .do_features = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
+                    .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1, .do_accuracy = 1, .do_features = 1, .do_closed = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
     const char *meshes[64];
     int nmeshes = 0;
     for (int i = 0; i < argc; i++) {
@@ -2018,7 +2509,7 @@ int cmd_bench(int argc, char **argv)
         } else if (!strcmp(a, "--only") && more) {
             n = parse_list(argv[++i], items, 8);
             o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_twolevel = o.do_motion = o.do_accuracy =
-                o.do_features = 0;
+                o.do_features = o.do_closed = 0;
             for (int k = 0; k < n; k++) {
                 int *flag = !strcmp(items[k], "trace")      ? &o.do_trace
                             : !strcmp(items[k], "render")   ? &o.do_render
@@ -2028,6 +2519,7 @@ int cmd_bench(int argc, char **argv)
                             : !strcmp(items[k], "motion")   ? &o.do_motion
                             : !strcmp(items[k], "accuracy") ? &o.do_accuracy
                             : !strcmp(items[k], "features") ? &o.do_features
+                            : !strcmp(items[k], "closed")   ? &o.do_closed
                                                             : NULL;
                 if (!flag)
                     n = -1;
@@ -2037,7 +2529,7 @@ int cmd_bench(int argc, char **argv)
             if (n < 1) {
                 fprintf(stderr,
                         "rtktool bench: --only wants a list of trace, render, build, refit, twolevel, motion, "
-                        "accuracy, features (got '%s')\n",
+                        "accuracy, features, closed (got '%s')\n",
                         argv[i]);
                 return 2;
             }
@@ -2079,7 +2571,9 @@ int cmd_bench(int argc, char **argv)
             return 2;
         }
     }
-    if (!nmeshes) {
+    const int mesh_sections = o.do_trace || o.do_render || o.do_build || o.do_refit || o.do_twolevel ||
+                              o.do_motion || o.do_accuracy || o.do_features;
+    if (!nmeshes && mesh_sections) {
         bench_usage(stderr);
         return 2;
     }
@@ -2211,6 +2705,19 @@ int cmd_bench(int argc, char **argv)
                 printf("chart: %s/%s.gp not drawn (%s)\n", o.outdir, name,
                        gnuplot ? "gnuplot failed, see the .gp.log beside it" : "gnuplot is not installed");
         }
+    }
+    if (o.do_closed) {
+        c.m = NULL;
+        c.csv = (out){csv, "procedural:closed"};
+        if (section_closed(&c, err, sizeof err)) {
+            fprintf(stderr, "rtktool bench: %s\n", err);
+            goto done;
+        }
+        if (gnuplot && run_gnuplot(o.outdir, "closed-accuracy"))
+            printf("chart: %s/closed-accuracy.png\n", o.outdir);
+        else
+            printf("chart: %s/closed-accuracy.gp not drawn (%s)\n", o.outdir,
+                   gnuplot ? "gnuplot failed, see the .gp.log beside it" : "gnuplot is not installed");
     }
     printf("\ncsv: %s/bench.csv\n", o.outdir);
     rc = 0;

@@ -311,3 +311,34 @@ int rtk_closed_aim(const rtk_closed_mesh *m, double margin, float out, float in,
         rtk_aimed_free(a);
     return bad;
 }
+
+int rtk_closed_graze(const rtk_closed_mesh *box, int n, double deg, size_t count, int on_lines, uint64_t seed,
+                     rtk_aimed *a)
+{
+    memset(a, 0, sizeof *a);
+    uint64_t rng = seed;
+    const double th = deg * pi / 180.0, h = box->a, cell = 2.0 * h / n;
+    for (size_t i = 0; i < count; i++) {
+        /* within 7/8 of the face's half side of its centre */
+        double q[2] = {1.75 * h * (next_float(&rng) - 0.5), 1.75 * h * (next_float(&rng) - 0.5)};
+        if (on_lines) {
+            const int first = (int)(i % 2), both = (int)(i / 2 % 2); /* a line of x or y; every other a vertex */
+            q[first] = round(q[first] / cell) * cell;
+            if (both)
+                q[!first] = round(q[!first] / cell) * cell;
+        }
+        const double p[3] = {box->c[0] + q[0], box->c[1] + q[1], box->c[2] + h};
+        const double ph = 2.0 * pi * next_float(&rng);
+        const double w[3] = {cos(th) * cos(ph), cos(th) * sin(ph), -sin(th)};
+        float o[3], in[3];
+        for (int k = 0; k < 3; k++) {
+            o[k] = (float)(p[k] - 0.5 * h * w[k]);
+            in[k] = (float)(p[k] + 0.05 * h * w[k]);
+        }
+        if (rtk_closed_depth(box, o) < 0 && rtk_closed_depth(box, in) > 0 && rtk_aimed_add(a, o, in, (int)(i & 1))) {
+            rtk_aimed_free(a);
+            return 1;
+        }
+    }
+    return 0;
+}

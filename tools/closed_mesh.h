@@ -79,6 +79,17 @@ int rtk_closed_aim(const rtk_closed_mesh *m, double margin, float out, float in,
 int rtk_aimed_add(rtk_aimed *a, const float o[3], const float i[3], int zero_sign);
 void rtk_aimed_free(rtk_aimed *a);
 
+/* `count` rays grazing the top face (z = c + h) of a box made by
+ * rtk_closed_box(c, h, n) at `deg` degrees: each aimed at a random point of
+ * the face within 7/8 of its half side of the centre (on_lines: on a line
+ * of its grid, every other one at a vertex), from a random azimuth, from
+ * h/2 before the point to h/20 past it; those whose rounded ends are not
+ * strictly outside and inside (margin 0: with c and h exact and n a power
+ * of two the mesh is the solid) are left out.  Returns 0, or non-zero when
+ * out of memory. */
+int rtk_closed_graze(const rtk_closed_mesh *box, int n, double deg, size_t count, int on_lines, uint64_t seed,
+                     rtk_aimed *a);
+
 #ifdef __cplusplus
 }
 #endif
