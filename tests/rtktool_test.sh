@@ -137,10 +137,21 @@ if "$tool" bench --help >/dev/null 2>&1; then
     ! grep -q "packet16" "$csv" || fail "bench.csv has packet16 rows though --api left them out"
     grep -qE '^[^,]*bunny.ply,trace,rtk avx2,default,diffuse,single,1,[0-9.]+,Mrays/s,[0-9.]+$' "$csv" ||
         fail "bench.csv: no rate with its ratio for rtk avx2 diffuse rays"
+    # the accuracy harness (closed meshes, once per run): rtk's robust mode
+    # has no false miss and no double hit; no library hits a zero-area triangle
+    for isa in scalar avx2; do
+        for what in "false misses per million" "double hits per million"; do
+            grep -qF "procedural:closed,closed,rtk $isa,robust, all,aimed,single,1,0,$what," "$csv" ||
+                fail "bench.csv: rtk $isa robust has $what in the closed section (or no row)"
+        done
+    done
+    [ "$(grep -c ', needles,aimed,single,1,0,zero-area hits,' "$csv")" = 8 ] ||
+        fail "bench.csv: a library hit a zero-area triangle (or rows are missing)"
     if command -v gnuplot >/dev/null; then
         for chart in trace build accuracy; do
             [ -s "$work/bench/bunny-$chart.png" ] || fail "no $chart chart"
         done
+        [ -s "$work/bench/closed-accuracy.png" ] || fail "no closed-accuracy chart"
     fi
     expect 2 "--api wants a list of single" -- "$tool" bench "$data/bunny.ply" --api packet5
     expect 2 "--only wants a list of trace" -- "$tool" bench "$data/bunny.ply" --only speed

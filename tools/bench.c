@@ -839,6 +839,7 @@ typedef struct bench_opts {
     int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed;
     int render_w, render_h, render_spp;
     int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
+    int quick;      /* --quick: the closed section's meshes coarser and fewer grazing rays */
 } bench_opts;
 
 static int parse_list(const char *s, char items[][16], int max)
@@ -887,7 +888,7 @@ static void bench_usage(FILE *f)
             "  --render WxHxS    path tracer image and samples per pixel (default: 512x384x1)\n"
             "  --robust          trace and render with every library's scene in robust mode (watertight)\n"
             "  --quick           a smoke run: 256x192 rays, 1 pass, 1 build, 1 thread, 20000 edge rays,\n"
-            "                    128x96x1 render\n"
+            "                    128x96x1 render, closed meshes of a quarter of the triangles\n"
             "examples:\n"
             "  rtktool bench ../shared/meshes/dragon.ply ../shared/meshes/sanmiguel_building.ply -o bench-out\n"
             "  rtktool bench dragon.ply --only trace --isa avx2 --api single,packet8 --threads 1\n"
@@ -2054,15 +2055,16 @@ static int closed_run(lib *l, int mode, const rtk_closed_mesh *cm, const rtk_aim
  * box of radius `size` around c, checked closed by OpenMesh, and the rays
  * aimed at them.  The mesh lies within its faceting (under 4% of its size)
  * and the rounding of its vertices of the solid's surface: the margin. */
-static int closed_group(const double c[3], double size, uint64_t seed, rtk_closed_mesh cm[3], rtk_aimed a[3],
-                        char *err, size_t err_size)
+static int closed_group(const double c[3], double size, int quick, uint64_t seed, rtk_closed_mesh cm[3],
+                        rtk_aimed a[3], char *err, size_t err_size)
 {
     memset(cm, 0, 3 * sizeof *cm);
     memset(a, 0, 3 * sizeof *a);
     const double mag = fmax(fabs(c[0]), fmax(fabs(c[1]), fabs(c[2]))) + 2.0 * size;
     const double margin = 0.04 * size + mag * 0x1p-23;
-    int bad = rtk_closed_sphere(c, size, 48, 23, &cm[0]) || rtk_closed_torus(c, size, 0.4 * size, 48, 24, &cm[1]) ||
-              rtk_closed_box(c, size, 8, &cm[2]);
+    const int f = quick ? 1 : 2; /* --quick: a quarter of the triangles */
+    int bad = rtk_closed_sphere(c, size, 24 * f, 12 * f - 1, &cm[0]) ||
+              rtk_closed_torus(c, size, 0.4 * size, 24 * f, 12 * f, &cm[1]) || rtk_closed_box(c, size, 4 * f, &cm[2]);
     for (int i = 0; !bad && i < 3; i++) {
         size_t boundary = 0, rejected = 0;
         if (rtk_mesh_is_closed(&cm[i].mesh, cm[i].closed_triangles, &boundary, &rejected) != 1) {
@@ -2132,16 +2134,17 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     int bad = 0;
     size_t off_rays[NOFF] = {0}, size_rays[NSIZE] = {0}, needle_rays = 0, graze_n[NGRAZE] = {0};
     printf("\nclosed meshes: rays aimed exactly at every vertex and edge of closed meshes (a sphere, a torus and a box "
-           "of 2208, 2304 and 768 triangles, OpenMesh checking each closed), from outside the solid to a point "
+           "of %s triangles, OpenMesh checking each closed), from outside the solid to a point "
            "inside it (random directions, and along the axes with the other components +0.0 and -0.0): a ray that "
            "reaches its point inside without a hit is a false miss; one that crosses the mesh an even number of "
-           "times (every crossing collected by a filter) has hit one crossing twice.  Per million rays.\n");
+           "times (every crossing collected by a filter) has hit one crossing twice.  Per million rays.\n",
+           o->quick ? "528, 576 and 192" : "2208, 2304 and 768");
     for (int k = 0; !bad && k < NOFF; k++) {
         const double off = pow(10.0, k), size = fmax(1.0, off * 1e-6);
         const double cc[3] = {off, 0.5 * off, -0.25 * off};
         rtk_closed_mesh cm[3];
         rtk_aimed a[3];
-        bad = closed_group(cc, size, 17u + 3u * (uint64_t)k, cm, a, err, err_size);
+        bad = closed_group(cc, size, o->quick, 17u + 3u * (uint64_t)k, cm, a, err, err_size);
         for (int i = 0; i < 3; i++)
             off_rays[k] += a[i].count;
         for (int lm = 0; !bad && lm < nlm; lm++)
@@ -2155,7 +2158,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
         const double cc[3] = {0.3 * size, -0.2 * size, 0.1 * size};
         rtk_closed_mesh cm[3];
         rtk_aimed a[3];
-        bad = closed_group(cc, size, 99u + 3u * (uint64_t)k, cm, a, err, err_size);
+        bad = closed_group(cc, size, o->quick, 99u + 3u * (uint64_t)k, cm, a, err, err_size);
         for (int i = 0; i < 3; i++)
             size_rays[k] += a[i].count;
         for (int lm = 0; !bad && lm < nlm; lm++)
@@ -2169,7 +2172,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
         rtk_closed_mesh cyl;
         rtk_aimed a = {0};
         size_t boundary = 0, rejected = 0;
-        bad = rtk_closed_cylinder(cc, 1.0, 10.0, 4096, 1, &cyl);
+        bad = rtk_closed_cylinder(cc, 1.0, 10.0, o->quick ? 1024 : 4096, 1, &cyl);
         if (!bad && rtk_mesh_is_closed(&cyl.mesh, cyl.closed_triangles, &boundary, &rejected) != 1) {
             snprintf(err, err_size, "the cylinder is not closed: %zu boundary edges, %zu faces rejected", boundary,
                      rejected);
@@ -2189,7 +2192,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
         bad = rtk_closed_box(cc, 1.0, 16, &box); /* exact vertices: the mesh is the solid */
         for (int k = 0; !bad && k < 2 * NGRAZE; k++) {
             rtk_aimed a;
-            bad = rtk_closed_graze(&box, 16, pow(10.0, -(k / 2)), 10000, k % 2, 31u + (uint64_t)k, &a);
+            bad = rtk_closed_graze(&box, 16, pow(10.0, -(k / 2)), o->quick ? 1000 : 10000, k % 2, 31u + (uint64_t)k, &a);
             graze_n[k / 2] += a.count;
             for (int lm = 0; !bad && lm < nlm; lm++)
                 bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &box,
@@ -2248,9 +2251,10 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     for (int lm = 0; lm < nlm; lm++)
         closed_print_row(c->libs[lm / CLOSED_MODES].name, lm % CLOSED_MODES ? MODE_ROBUST : 0, res[lm].size, NSIZE, 1);
 
-    printf("\n  needles: a cylinder of radius 1 and height 20 with 4096 sides (side triangles 20 x 0.0015, caps fans of "
-           "1 x 0.0015) and 8192 zero-area triangles on its side lines and caps; %zu rays\n",
-           needle_rays);
+    const int sides = o->quick ? 1024 : 4096;
+    printf("\n  needles: a cylinder of radius 1 and height 20 with %d sides (side triangles 20 x %.4f, caps fans of "
+           "1 x %.4f) and %d zero-area triangles on its side lines and caps; %zu rays\n",
+           sides, 6.2832 / sides, 6.2832 / sides, 2 * sides, needle_rays);
     printf("  %-18s %-7s %14s %14s %16s\n", "library", "mode", "false misses", "double hits", "zero-area hits");
     for (int lm = 0; lm < nlm; lm++) {
         const closed_tally *t = &res[lm].needle;
@@ -2562,7 +2566,7 @@ int cmd_bench(int argc, char **argv)
             o.trace_mode = MODE_ROBUST;
         } else if (!strcmp(a, "--quick")) {
             o.w = 256, o.h = 192, o.repeat = 1, o.builds = 1, o.nthreads = 1, o.threads[0] = 1;
-            o.edge_rays = 20000, o.render_w = 128, o.render_h = 96;
+            o.edge_rays = 20000, o.render_w = 128, o.render_h = 96, o.quick = 1;
         } else if (a[0] != '-' && nmeshes < 64)
             meshes[nmeshes++] = a;
         else {
