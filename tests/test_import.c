@@ -152,10 +152,44 @@ static void test_malformed(void **state)
     expect_error(write_text("word.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nwhat\n"
                                         "end_header\n0\n"),
                  "unknown line 'what'");
+    /* A face line after leading blanks: OpenMesh trims it, then asserted on
+     * a word with no vertex (fuzz_mesh). */
+    expect_error(write_text("lead.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n  f /1 2 3\n"),
+                 "line 4: expected f and three or more vertex references");
     expect_error(write_text("garbage.off", "OFF\nlots of words\n"), "malformed OFF: expected vertex, face and edge counts");
     expect_error(write_text("garbage2.off", "NOT AN OFF\n3 1 0\n"), "malformed OFF: the file does not start with OFF");
     /* counts the file cannot hold (OpenMesh read millions of empty vertices: fuzz_mesh) */
     expect_error(write_text("many.off", "OFF\n25555555 4 0\n0 0 0\n"), "need at least 153333362 bytes");
+    /* What OpenMesh's OFF reader misreads (fuzz_mesh): a face declaring
+     * two billion vertices (it pushed that many indices, exhausting memory),
+     * a comment where the counts go (left uninitialised), a vertex that does
+     * not parse as floats and words after a face without C in the keyword
+     * (each read after them fails or goes astray), a file cut short, and a
+     * binary face whose count runs past the end. */
+#define TRI "0 0 0\n1 0 0\n0 1 0\n"
+    static const char *const off_cases[][3] = {
+        {"bigface.off", "OFF\n3 1 0\n" TRI "2000000000 0 1 2\n", "face 0 needs its vertex count and that many"},
+        {"comment.off", "OFF\n# made by hand\n3 1 0\n" TRI "3 0 1 2\n", "a comment after the keyword line (line 2)"},
+        {"nan.off", "OFF\n3 1 0\n0 0 0\nnan 0 0\n0 1 0\n3 0 1 2\n", "line 4: vertex 1 needs 3 numbers in float"},
+        {"range.off", "OFF\n3 1 0\n0 0 0\n1e39 0 0\n0 1 0\n3 0 1 2\n", "line 4: vertex 1 needs 3 numbers"},
+        {"colour.off", "OFF\n3 2 0\n" TRI "3 0 1 2 255 0 0\n3 0 2 1\n", "(the keyword has no C for colours)"},
+        {"negative.off", "OFF\n3 2 0\n" TRI "3 0 1 -2\n3 0 2 1\n", "line 6: face 0 needs its vertex count"},
+        {"short.off", "OFF\n3 3 0\n" TRI "3 0 1 2\n3 0 2 1\n", "the file ends after 2 of 3 faces"},
+    };
+#undef TRI
+    for (size_t k = 0; k < sizeof off_cases / sizeof *off_cases; k++)
+        expect_error(write_text(off_cases[k][0], off_cases[k][1]), off_cases[k][2]);
+    static const unsigned char bin[] = {'O', 'F', 'F', ' ', 'B', 'I', 'N', 'A', 'R', 'Y', '\n', 0, 0, 0, 0, 1, 0,
+                                        0, 0, 0, 0, 0, 0, 0, 0, 0, 0x80, 0, 0, 0, 0};
+    expect_error(write_file("bigface_binary.off", bin, sizeof bin), "face 0 declares 2147483648 vertices");
+    /* With C, a face's colour follows its indices; blank lines anywhere. */
+    rtk_mesh m;
+    char err[512];
+    const char *coff = "COFF\n\n3 1 0\n0 0 0 255 0 0\n\n1 0 0 0 255 0\n0 1 0 0 0 255\n3 0 1 2 9 9 9\n";
+    assert_int_equal(rtk_mesh_load(write_text("c.off", coff), &m, err, sizeof err), 0);
+    assert_int_equal(m.triangle_count, 1);
+    assert_int_equal(m.indices[2], 2);
+    rtk_mesh_free(&m);
     /* A binary PLY cut short, and one whose header promises absurd counts. */
     FILE *f = fopen(RTK_TEST_DATA "/bunny.ply", "rb");
     assert_non_null(f);
@@ -167,6 +201,26 @@ static void test_malformed(void **state)
                        "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
                        "end_header\n";
     expect_error(write_text("huge.ply", huge), "its elements need at least 48000000001 bytes");
+    /* Lists whose counts the file cannot hold (OpenMesh pushed that many
+     * values, exhausting memory: fuzz_mesh), and a value that does not read
+     * as its type (every read after it goes astray), ascii and binary. */
+    const char *ply_head = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                           "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+    char ply_text[512];
+    snprintf(ply_text, sizeof ply_text, "%s0 0 0\n1 0 0\n0 1 0\n4000000000 0 1 2\n", ply_head);
+    expect_error(write_text("biglist.ply", ply_text), "element 1 item 0: a list count '4000000000'");
+    snprintf(ply_text, sizeof ply_text, "%s0 0 0\n1 0 0\n0 1 0\n-2 0 1\n", ply_head);
+    expect_error(write_text("neglist.ply", ply_text), "a list count '-2'");
+    snprintf(ply_text, sizeof ply_text, "%s0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n", ply_head);
+    expect_error(write_text("nanvalue.ply", ply_text), "element 0 item 1: 'nan' is not a float");
+    static const char bin_head[] = "ply\nformat binary_little_endian 1.0\nelement face 1\n"
+                                   "property list int int vertex_indices\nend_header\n";
+    char bin_ply[sizeof bin_head + 16];
+    memcpy(bin_ply, bin_head, sizeof bin_head - 1);
+    const unsigned char count_le[8] = {0, 0, 0, 0x40, 1, 0, 0, 0}; /* 2^30 indices, then one */
+    memcpy(bin_ply + sizeof bin_head - 1, count_le, sizeof count_le);
+    expect_error(write_file("biglist_binary.ply", bin_ply, sizeof bin_head - 1 + sizeof count_le),
+                 "a list count of 1073741824 the rest of the file cannot hold");
     expect_error(write_text("empty.stl", ""), "empty file");
 }
 

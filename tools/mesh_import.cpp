@@ -182,55 +182,276 @@ bool read_om(const char *path, SoupImporter &soup)
     return true;
 }
 
-// OpenMesh's OFF reader goes on with uninitialised counts when the header
-// does not parse, so the header is checked here first: the keyword
-// ([ST][C][N][4][n]OFF, optionally BINARY), then three counts.
-bool off_header_ok(const char *path, std::string &why)
+// The whole file into data; false with why set when it cannot be read.
+bool read_whole(const char *path, std::string &data, std::string &why)
 {
     FILE *f = std::fopen(path, "rb");
     if (!f) {
         why = std::strerror(errno);
         return false;
     }
-    char buf[4096];
-    size_t n = std::fread(buf, 1, sizeof buf - 1, f);
-    std::fseek(f, 0, SEEK_END);
-    const double size = (double)std::ftell(f);
+    char buf[1 << 16];
+    size_t n;
+    while ((n = std::fread(buf, 1, sizeof buf, f)) > 0)
+        data.append(buf, n);
     std::fclose(f);
-    buf[n] = '\0';
-    std::istringstream in(std::string(buf, n));
-    std::string keyword;
-    in >> keyword;
+    return true;
+}
+
+// OpenMesh's OFF reader trusts the file.  It reads the counts after the
+// keyword line with >> (a comment there leaves them uninitialised), then as
+// many vertices and faces as they say, past the end of the file; a face
+// declaring billions of vertices pushes that many indices even at the end of
+// the file, and once a read fails, the counts it reuses keep their last value
+// (found by fuzz/fuzz_mesh: memory exhausted, or billions of empty faces).
+// So the whole file is checked here first, as OpenMesh will read it, and
+// anything it would misread is refused with a reason:
+//  - the keyword line: [ST][C][N]OFF, optionally BINARY (4OFF and nOFF
+//    OpenMesh refuses itself); it ignores the rest of that line;
+//  - ASCII: a line of exactly three counts (no comment: OpenMesh cannot skip
+//    it); then, skipping blank lines, a line per vertex starting with its
+//    three coordinates (six with N), which must parse as floats (OpenMesh's
+//    stream fails on nan, inf and values out of float range, and everything
+//    after would be misread); then a line per face: its vertex count n and n
+//    indices, whole numbers, and nothing more unless the keyword has C (a
+//    colour: OpenMesh reads the rest of the line only then);
+//  - binary: three counts, the vertex records (12 bytes, and 12 for N, 12 for
+//    C, 8 for ST), and for each face its count and indices, all within the
+//    file.
+bool is_count(const std::string &t, unsigned long &v)
+{
+    if (t.empty() || t.size() > 10)
+        return false;
+    for (char ch : t)
+        if (ch < '0' || ch > '9')
+            return false;
+    v = std::strtoul(t.c_str(), nullptr, 10);
+    return v <= 0xffffffffu;
+}
+
+bool off_ok(const char *path, std::string &why)
+{
+    std::string data;
+    if (!read_whole(path, data, why))
+        return false;
+    size_t pos = data.find('\n');
+    const std::string first = data.substr(0, pos);
+    pos = pos == std::string::npos ? data.size() : pos + 1;
+    std::istringstream head(first);
+    std::string keyword, second;
+    head >> keyword >> second;
     if (keyword.size() < 3 || keyword.compare(keyword.size() - 3, 3, "OFF") != 0) {
         why = "malformed OFF: the file does not start with OFF";
         return false;
     }
-    std::string token;
-    std::streampos mark = in.tellg();
-    if ((in >> token) && token == "BINARY")
-        return true; // binary counts follow; OpenMesh reads them as data
-    in.clear();
-    in.seekg(mark);
-    long counts[3];
-    for (long &c : counts) {
-        while (in >> std::ws && in.peek() == '#')
-            in.ignore(1 << 20, '\n');
-        if (!(in >> c) || c < 0) {
-            why = "malformed OFF: expected vertex, face and edge counts after the keyword";
-            return false;
-        }
-    }
-    // OpenMesh reads as many vertices and faces as the header says, past
-    // the end of the file (millions of empty ones for a bad count, found by
-    // fuzz/fuzz_mesh): they must fit in the file, at least "0 0 0" and
-    // "3 0 0 0" with a separator each.
-    const double need = 6.0 * (double)counts[0] + 8.0 * (double)counts[1];
-    if (need > size) {
-        why = "malformed OFF: " + std::to_string(counts[0]) + " vertices and " + std::to_string(counts[1]) +
-              " faces need at least " + std::to_string((long long)need) + " bytes, the file has " +
-              std::to_string((long long)size);
+    const std::string prefix = keyword.substr(0, keyword.size() - 3);
+    const bool st = prefix.compare(0, 2, "ST") == 0;
+    const bool color = prefix.find('C') != std::string::npos, normal = prefix.find('N') != std::string::npos;
+    const auto fail = [&why](const std::string &text) {
+        why = "malformed OFF: " + text;
         return false;
+    };
+    if (second == "BINARY") {
+        const auto u32 = [&data](size_t at) {
+            return (uint32_t)(unsigned char)data[at] | (uint32_t)(unsigned char)data[at + 1] << 8 |
+                   (uint32_t)(unsigned char)data[at + 2] << 16 | (uint32_t)(unsigned char)data[at + 3] << 24;
+        };
+        if (data.size() - pos < 12)
+            return fail("the binary counts are cut short");
+        const uint64_t nv = u32(pos), nf = u32(pos + 4);
+        const uint64_t record = 12 + (normal ? 12 : 0) + (color ? 12 : 0) + (st ? 8 : 0);
+        uint64_t at = pos + 12 + nv * record;
+        if (at > data.size())
+            return fail(std::to_string(nv) + " binary vertices need " + std::to_string(nv * record) +
+                        " bytes, the file has " + std::to_string(data.size() - pos - 12) + " after the counts");
+        for (uint64_t f = 0; f < nf; f++) {
+            if (at + 4 > data.size())
+                return fail("the file ends after " + std::to_string(f) + " of " + std::to_string(nf) + " faces");
+            const uint64_t n = u32(at);
+            at += 4 + 4 * n;
+            if (at > data.size())
+                return fail("face " + std::to_string(f) + " declares " + std::to_string(n) +
+                            " vertices, more than the rest of the file holds");
+        }
+        return true;
     }
+    // the next non-blank line, split into words; false at the end
+    std::vector<std::string> words;
+    size_t line_no = 1;
+    const auto next_line = [&]() {
+        while (pos < data.size()) {
+            size_t end = data.find('\n', pos);
+            if (end == std::string::npos)
+                end = data.size();
+            std::istringstream in(data.substr(pos, end - pos));
+            pos = end + 1;
+            line_no++;
+            words.clear();
+            for (std::string w; in >> w;)
+                words.push_back(w);
+            if (!words.empty())
+                return true;
+        }
+        return false;
+    };
+    unsigned long counts[3];
+    if (!next_line() || words.size() != 3 || !is_count(words[0], counts[0]) || !is_count(words[1], counts[1]) ||
+        !is_count(words[2], counts[2]))
+        return fail(!words.empty() && words[0][0] == '#'
+                        ? "a comment after the keyword line (line " + std::to_string(line_no) +
+                              "), where OpenMesh's reader expects the counts"
+                        : "expected vertex, face and edge counts after the keyword");
+    // each needs at least "0 0 0" or "3 0 0 0" with a separator
+    const double need = 6.0 * (double)counts[0] + 8.0 * (double)counts[1];
+    if (need > (double)data.size())
+        return fail(std::to_string(counts[0]) + " vertices and " + std::to_string(counts[1]) +
+                    " faces need at least " + std::to_string((long long)need) + " bytes, the file has " +
+                    std::to_string(data.size()));
+    const size_t coords = normal ? 6 : 3;
+    for (unsigned long v = 0; v < counts[0]; v++) {
+        if (!next_line())
+            return fail("the file ends after " + std::to_string(v) + " of " + std::to_string(counts[0]) +
+                        " vertices");
+        bool ok = words.size() >= coords && words[0][0] != '#';
+        std::string line;
+        for (size_t k = 0; k < words.size(); k++)
+            line += words[k] + " ";
+        std::istringstream in(line);
+        float x;
+        for (size_t k = 0; ok && k < coords; k++)
+            ok = static_cast<bool>(in >> x);
+        if (!ok)
+            return fail("line " + std::to_string(line_no) + ": vertex " + std::to_string(v) + " needs " +
+                        std::to_string(coords) + " numbers in float range first");
+    }
+    for (unsigned long f = 0; f < counts[1]; f++) {
+        if (!next_line())
+            return fail("the file ends after " + std::to_string(f) + " of " + std::to_string(counts[1]) + " faces");
+        unsigned long n = 0, idx;
+        bool ok = is_count(words[0], n) && words.size() - 1 >= n && (color || words.size() - 1 == n);
+        for (size_t k = 1; ok && k <= n; k++)
+            ok = is_count(words[k], idx);
+        if (!ok)
+            return fail("line " + std::to_string(line_no) + ": face " + std::to_string(f) +
+                        " needs its vertex count and that many vertex indices" +
+                        (color ? "" : ", and nothing after them (the keyword has no C for colours)"));
+    }
+    return true;
+}
+
+struct ply_property {
+    bool list;
+    std::string count_type, type; // a scalar's type in both
+};
+struct ply_element {
+    unsigned long long count;
+    std::vector<ply_property> props;
+};
+
+// Whether an ascii PLY word reads as a value of the type for OpenMesh's
+// stream: integers (no sign for unsigned types), and decimal numbers in
+// float or double range for floats (the stream fails on nan, inf and
+// values out of range, and every read after a failure goes astray).
+bool ply_word_ok(const std::string &w, const std::string &type)
+{
+    const bool is_float = type.compare(0, 5, "float") == 0 || type.compare(0, 6, "double") == 0;
+    const bool is_unsigned = type[0] == 'u';
+    if (w.empty() || w.size() > 64)
+        return false;
+    if (!is_float) {
+        size_t k = (w[0] == '-' && !is_unsigned) || w[0] == '+' ? 1 : 0;
+        if (k == w.size() || w.size() - k > 10)
+            return false;
+        for (; k < w.size(); k++)
+            if (w[k] < '0' || w[k] > '9')
+                return false;
+        const long long v = std::strtoll(w.c_str(), nullptr, 10);
+        return v >= -2147483648ll && v <= 4294967295ll;
+    }
+    for (char ch : w)
+        if (!std::isdigit((unsigned char)ch) && ch != '.' && ch != '-' && ch != '+' && ch != 'e' && ch != 'E')
+            return false;
+    char *end;
+    errno = 0;
+    const double v = std::strtod(w.c_str(), &end);
+    const double limit = type == "double" || type == "float64" ? 1.7976931348623157e308 : 3.4028234663852886e38;
+    return *end == '\0' && errno == 0 && std::fabs(v) <= limit;
+}
+
+// OpenMesh's PLY reader reads as many values as each list's count says,
+// past the end of the file, pushing each (a count of billions exhausts
+// memory: fuzz/fuzz_mesh), and goes on after a value that does not read.
+// So the body is walked here as it will read it: every value must read as
+// its type, every list count be at most what is left of the file.
+template <class TypeSize>
+bool ply_body_ok(const char *path, size_t header_size, const std::vector<ply_element> &elements, bool ascii,
+                 bool big_endian, const TypeSize &type_size, std::string &why)
+{
+    std::string data;
+    if (!read_whole(path, data, why))
+        return false;
+    size_t pos = header_size;
+    const auto bad = [&why](unsigned long long item, const std::string &element_index, const std::string &what) {
+        why = "malformed PLY: " + element_index + " " + std::to_string(item) + ": " + what;
+        return false;
+    };
+    if (ascii) {
+        const auto word = [&data, &pos](std::string &w) {
+            while (pos < data.size() && std::isspace((unsigned char)data[pos]))
+                pos++;
+            const size_t start = pos;
+            while (pos < data.size() && !std::isspace((unsigned char)data[pos]))
+                pos++;
+            w.assign(data, start, pos - start);
+            return !w.empty();
+        };
+        std::string w;
+        for (size_t e = 0; e < elements.size(); e++)
+            for (unsigned long long i = 0; i < elements[e].count; i++)
+                for (const ply_property &p : elements[e].props) {
+                    const std::string where = "element " + std::to_string(e) + " item";
+                    if (!word(w))
+                        return bad(i, where, "the file ends");
+                    unsigned long long n = 1;
+                    if (p.list) {
+                        if (!ply_word_ok(w, "uint") || (n = std::strtoull(w.c_str(), nullptr, 10)) > data.size() - pos)
+                            return bad(i, where, "a list count '" + w + "' the rest of the file cannot hold");
+                        if (n && !word(w))
+                            return bad(i, where, "the file ends");
+                    }
+                    for (unsigned long long k = 0; k < n; k++) {
+                        if (!ply_word_ok(w, p.type))
+                            return bad(i, where, "'" + w + "' is not a " + p.type);
+                        if (k + 1 < n && !word(w))
+                            return bad(i, where, "the file ends");
+                    }
+                }
+        return true;
+    }
+    for (size_t e = 0; e < elements.size(); e++)
+        for (unsigned long long i = 0; i < elements[e].count; i++)
+            for (const ply_property &p : elements[e].props) {
+                const std::string where = "element " + std::to_string(e) + " item";
+                const size_t cs = (size_t)type_size(p.count_type), ts = (size_t)type_size(p.type);
+                unsigned long long n = 1;
+                if (p.list) {
+                    if (data.size() - pos < cs)
+                        return bad(i, where, "the file ends");
+                    unsigned long long v = 0;
+                    for (size_t k = 0; k < cs; k++)
+                        v |= (unsigned long long)(unsigned char)data[pos + (big_endian ? k : cs - 1 - k)]
+                             << (8 * (cs - 1 - k));
+                    const bool negative = p.count_type[0] != 'u' && (v >> (8 * cs - 1)) & 1;
+                    pos += cs;
+                    n = v;
+                    if (negative || n > (data.size() - pos) / ts)
+                        return bad(i, where, "a list count of " + (negative ? "a negative number" : std::to_string(n)) +
+                                                 " the rest of the file cannot hold");
+                }
+                if ((data.size() - pos) / ts < n)
+                    return bad(i, where, "the file ends");
+                pos += (size_t)n * ts;
+            }
     return true;
 }
 
@@ -286,7 +507,8 @@ bool ply_header_ok(const char *path, std::string &why)
     std::getline(in, line);
     if (line != "ply" && line != "ply\r")
         return bad("the file does not start with ply");
-    bool ascii = false, have_format = false;
+    bool ascii = false, have_format = false, big_endian = false;
+    std::vector<ply_element> elements;
     double need = 0.0;    // bytes the declared elements take at least
     double count = 0.0;   // items of the current element
     double per_item = 0.0; // bytes per item of the current element, at least
@@ -312,6 +534,7 @@ bool ply_header_ok(const char *path, std::string &why)
             if (version != "1.0" || !done())
                 return bad("expected format TYPE 1.0, got '" + line + "'");
             ascii = kind == "ascii";
+            big_endian = kind == "binary_big_endian";
             have_format = true;
         } else if (key == "element") {
             std::string name;
@@ -322,6 +545,7 @@ bool ply_header_ok(const char *path, std::string &why)
             count = (double)n;
             per_item = 0.0;
             in_element = true;
+            elements.push_back(ply_element{(unsigned long long)n, {}});
         } else if (key == "property") {
             std::string type, name;
             if (!in_element || !(w >> type))
@@ -332,10 +556,12 @@ bool ply_header_ok(const char *path, std::string &why)
                     !done())
                     return bad("expected property list TYPE TYPE NAME, got '" + line + "'");
                 per_item += ascii ? 2 : type_size(count_type);
+                elements.back().props.push_back(ply_property{true, count_type, item_type});
             } else {
                 if (!(w >> name) || !type_size(type) || !done())
                     return bad("expected property TYPE NAME, got '" + line + "'");
                 per_item += ascii ? 2 : type_size(type);
+                elements.back().props.push_back(ply_property{false, type, type});
             }
         } else {
             return bad("unknown line '" + line + "'");
@@ -348,7 +574,7 @@ bool ply_header_ok(const char *path, std::string &why)
     if (need > rest + 1.0) // (an ascii file's last value needs no separator)
         return bad("its elements need at least " + std::to_string((long long)need) + " bytes, the file has " +
                    std::to_string((long long)rest) + " after the header");
-    return true;
+    return ply_body_ok(path, header.size(), elements, ascii, big_endian, type_size, why);
 }
 
 // OpenMesh's OBJ reader asserts (aborting the process, as Debian builds
@@ -392,6 +618,11 @@ bool obj_faces_ok(const char *path, std::string &why)
         while ((c = std::fgetc(f)) != EOF && c != '\n')
             line.push_back(char(c));
         number++;
+        // OpenMesh trims the line first (fuzz_mesh: " f /0 ..." asserted)
+        size_t lead = 0;
+        while (lead < line.size() && std::isspace((unsigned char)line[lead]))
+            lead++;
+        line.erase(0, lead);
         if (line.size() < 2 || line[0] != 'f' || !std::isspace((unsigned char)line[1]))
             continue;
         std::istringstream w(line.substr(1));
@@ -485,7 +716,7 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
             readable = readable || ext == k;
         if (!readable) {
             failure = "unknown mesh format (rtk reads .rtkm, .obj, .ply, .off, .stl, .om)";
-        } else if (ext == "off" && !off_header_ok(path, failure)) {
+        } else if (ext == "off" && !off_ok(path, failure)) {
             // failure says why
         } else if (ext == "ply" && !ply_header_ok(path, failure)) {
             // failure says why
