@@ -201,6 +201,9 @@ static void test_malformed(void **state)
                        "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\n"
                        "end_header\n";
     expect_error(write_text("huge.ply", huge), "its elements need at least 48000000001 bytes");
+    expect_error(write_text("huger.ply", "ply\nformat ascii 1.0\nelement vertex 4888888888888888888\n"
+                                         "property float x\nproperty float y\nend_header\n0 0\n"),
+                 "its elements need at least 195555555555555");
     /* Lists whose counts the file cannot hold (OpenMesh pushed that many
      * values, exhausting memory: fuzz_mesh), and a value that does not read
      * as its type (every read after it goes astray), ascii and binary. */

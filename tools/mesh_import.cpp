@@ -571,9 +571,12 @@ bool ply_header_ok(const char *path, std::string &why)
         return bad("no format line");
     need += count * per_item;
     const double rest = (double)file_size - (double)header.size();
-    if (need > rest + 1.0) // (an ascii file's last value needs no separator)
-        return bad("its elements need at least " + std::to_string((long long)need) + " bytes, the file has " +
+    if (need > rest + 1.0) { // (an ascii file's last value needs no separator)
+        char need_text[64];  // (need can pass the range of long long: fuzz_mesh)
+        std::snprintf(need_text, sizeof need_text, "%.0f", need);
+        return bad(std::string("its elements need at least ") + need_text + " bytes, the file has " +
                    std::to_string((long long)rest) + " after the header");
+    }
     return ply_body_ok(path, header.size(), elements, ascii, big_endian, type_size, why);
 }
 
