@@ -97,8 +97,7 @@ static int by_axes(const void *x, const void *y)
 /* Leaks of the aimed rays through one scene: no hit before the point
  * inside; checked through intersect1, occluded1 (tfar at that point), and
  * packets of 8 (with packets = 2 also packets of rays grouped by their
- * axis permutation, so that the packet kernels' path for packets whose
- * rays all permute alike answers as single rays do). */
+ * axis permutation, as coherent packets are, besides the mixed ones). */
 static size_t leaks(rtk_scene s, const aimed *a, size_t *first, int packets)
 {
     size_t n = 0;

@@ -83,10 +83,6 @@ typedef struct PK_(packet_pre) {
      * z), the permuted origin and the shear */
     vkb is_x[3], is_y[3];
     vk worg[3], sx, sy, sz;
-    /* every active ray permutes the axes alike (coherent packets nearly
-     * always do): axes[] then names them, and a vertex's permuted
-     * coordinates are picked once for the packet instead of by selection */
-    int uniform_axes, axes[3];
 #endif
 #if RTK_SIMD_HAS_FMA
     vk c_lo[3], c_hi[3]; /* org * rinv moved toward the near side, as c_near / c_far in ray_pre */
@@ -316,19 +312,11 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
         VK(store)(dd[k], p->dir[k]);
         VK(store)(o[k], p->org[k]);
     }
-    const unsigned live = (unsigned)VKB(mask)(active);
-    p->uniform_axes = live != 0;
-    p->axes[0] = p->axes[1] = p->axes[2] = -1;
     for (int i = 0; i < RTK_PACKET; i++) {
         const float d3[3] = {dd[0][i], dd[1][i], dd[2][i]};
         rtk_watertight_ray w;
         rtk_watertight_ray_init(d3, &w);
         const int axes[3] = {w.kx, w.ky, w.kz};
-        if (live >> i & 1) {
-            if (p->axes[0] < 0)
-                p->axes[0] = axes[0], p->axes[1] = axes[1], p->axes[2] = axes[2];
-            p->uniform_axes &= p->axes[0] == axes[0] && p->axes[1] == axes[1] && p->axes[2] == axes[2];
-        }
         for (int j = 0; j < 3; j++) {
             isx[j][i] = axes[j] == 0 ? -1 : 0;
             isy[j][i] = axes[j] == 1 ? -1 : 0;
@@ -382,9 +370,9 @@ static inline int PK_(box_intersect)(const node_t *n, int i, const PK_(packet_pr
  * triangle roles of the lanes swapped: each ray's permuted coordinates are
  * picked by selection, and a ray whose edge function comes out exactly zero
  * (or |det| below FLT_MIN) is decided again alone in double precision. */
-static inline vk PK_(permuted)(const PK_(packet_pre) *p, int axis, const float c[3])
+static inline vk PK_(permuted)(const PK_(packet_pre) *p, int axis, float x, float y, float z)
 {
-    return VK(select)(p->is_x[axis], VK(set1)(c[0]), VK(select)(p->is_y[axis], VK(set1)(c[1]), VK(set1)(c[2])));
+    return VK(select)(p->is_x[axis], VK(set1)(x), VK(select)(p->is_y[axis], VK(set1)(y), VK(set1)(z)));
 }
 
 static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(packet_pre) *p, vk tfar, vk *U_out,
@@ -392,15 +380,11 @@ static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(pac
 {
     vk tx[3], ty[3], tz[3]; /* per vertex: permuted x and y sheared, and z, relative to the origin */
     const float *f = (const float *)t;
-    const int uniform = p->uniform_axes;
     for (int v = 0; v < 3; v++) {
-        const float c[3] = {f[12 * v + j], f[12 * v + 4 + j], f[12 * v + 8 + j]};
-        vk q[3];
-        for (int a = 0; a < 3; a++) /* (inactive lanes' values do not matter: tfar is -inf there) */
-            q[a] = uniform ? VK(set1)(c[p->axes[a]]) : PK_(permuted)(p, a, c);
-        const vk z = VK(sub)(q[2], p->worg[2]);
-        tx[v] = VK(sub)(VK(sub)(q[0], p->worg[0]), VK(mul)(p->sx, z));
-        ty[v] = VK(sub)(VK(sub)(q[1], p->worg[1]), VK(mul)(p->sy, z));
+        const float vx = f[12 * v + j], vy = f[12 * v + 4 + j], vz = f[12 * v + 8 + j];
+        const vk z = VK(sub)(PK_(permuted)(p, 2, vx, vy, vz), p->worg[2]);
+        tx[v] = VK(sub)(VK(sub)(PK_(permuted)(p, 0, vx, vy, vz), p->worg[0]), VK(mul)(p->sx, z));
+        ty[v] = VK(sub)(VK(sub)(PK_(permuted)(p, 1, vx, vy, vz), p->worg[1]), VK(mul)(p->sy, z));
         tz[v] = VK(mul)(p->sz, z);
     }
     const vk U = VK(sub)(VK(mul)(tx[2], ty[1]), VK(mul)(ty[2], tx[1]));
