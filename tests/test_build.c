@@ -657,6 +657,99 @@ static void concurrent_commits(void **state)
     rtk_bvh_free(&want[1]);
 }
 
+/* ---- concurrent queries on one committed scene ---- */
+
+enum { QUERY_RAYS = 2048 };
+typedef struct querier {
+    rtk_scene s;
+    const rtk_ray *rays;
+    const rtk_rayhit *want; /* intersect1's answers, from one thread */
+    const unsigned char *occluded;
+    int wrong;
+} querier;
+
+/* Every ray through intersect1, occluded1 and packets of 8, against the
+ * answers of one thread: the same, bit for bit (packets: the same distance
+ * and geometry, the triangle where two tie may differ). */
+static void *query_loop(void *arg)
+{
+    querier *q = arg;
+    for (int round = 0; round < 2; round++)
+        for (size_t i = 0; i < QUERY_RAYS; i++) {
+            rtk_rayhit rh = {.ray = q->rays[i]};
+            rh.hit.geomID = rh.hit.primID = rh.hit.instID = RTK_INVALID_GEOMETRY_ID;
+            rtk_ray o = q->rays[i];
+            q->wrong += rtk_intersect1(q->s, &rh) != RTK_OK || memcmp(&rh, &q->want[i], sizeof rh) != 0;
+            q->wrong += rtk_occluded1(q->s, &o) != RTK_OK || (o.tfar == -INFINITY) != q->occluded[i];
+        }
+    _Alignas(64) uint32_t packet[20 * 8];
+    for (size_t base = 0; base < QUERY_RAYS; base += 8) {
+        for (unsigned l = 0; l < 8; l++) {
+            rtk_rayhit rh = {.ray = q->rays[base + l]};
+            rh.hit.geomID = rh.hit.primID = rh.hit.instID = RTK_INVALID_GEOMETRY_ID;
+            test_packet_put(packet, 8, l, &rh, 0);
+        }
+        q->wrong += test_trace_packet(q->s, 8, 0, NULL, packet) != RTK_OK;
+        for (unsigned l = 0; l < 8; l++) {
+            rtk_rayhit got;
+            test_packet_get(packet, 8, l, &got, 0);
+            q->wrong += got.ray.tfar != q->want[base + l].ray.tfar || got.hit.geomID != q->want[base + l].hit.geomID;
+        }
+    }
+    return NULL;
+}
+
+/* Four application threads querying one committed scene at once (run under
+ * ThreadSanitizer by scripts/test), in the default, compact and robust
+ * layouts, on the best backend. */
+static void concurrent_queries(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    rtk_device dev = test_device_threads(names[nb - 1], 2);
+    rtk_ray *rays = malloc(QUERY_RAYS * sizeof *rays);
+    rtk_rayhit *want = malloc(QUERY_RAYS * sizeof *want);
+    unsigned char *occluded = malloc(QUERY_RAYS);
+    assert_true(rays && want && occluded);
+    rng r = {4711};
+    for (size_t i = 0; i < QUERY_RAYS; i++) {
+        const float th = 6.2831853f * rng_float(&r), z = 2.0f * rng_float(&r) - 1.0f, w = sqrtf(1.0f - z * z);
+        const float o[3] = {3.0f * w * cosf(th), 3.0f * w * sinf(th), 3.0f * z};
+        const float t[3] = {rng_float(&r) - 0.5f, rng_float(&r) - 0.5f, rng_float(&r) - 0.5f};
+        rays[i] = test_ray(o[0], o[1], o[2], t[0] - o[0], t[1] - o[1], t[2] - o[2], 0.0f, INFINITY);
+    }
+    static const unsigned flags[] = {RTK_SCENE_FLAG_NONE, RTK_SCENE_FLAG_COMPACT, RTK_SCENE_FLAG_ROBUST};
+    for (int f = 0; f < 3; f++) {
+        rtk_scene s = test_scene_uncommitted(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt, flags[f]);
+        assert_int_equal(rtk_scene_commit(s), RTK_OK);
+        size_t hits = 0;
+        for (size_t i = 0; i < QUERY_RAYS; i++) {
+            want[i] = (rtk_rayhit){.ray = rays[i]};
+            want[i].hit.geomID = want[i].hit.primID = want[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
+            assert_int_equal(rtk_intersect1(s, &want[i]), RTK_OK);
+            rtk_ray o = rays[i];
+            assert_int_equal(rtk_occluded1(s, &o), RTK_OK);
+            occluded[i] = o.tfar == -INFINITY;
+            hits += want[i].hit.geomID != RTK_INVALID_GEOMETRY_ID;
+        }
+        assert_true(hits > QUERY_RAYS / 2);
+        querier q[4];
+        pthread_t t[4];
+        for (int k = 0; k < 4; k++) {
+            q[k] = (querier){.s = s, .rays = rays, .want = want, .occluded = occluded};
+            assert_int_equal(pthread_create(&t[k], NULL, query_loop, &q[k]), 0);
+        }
+        for (int k = 0; k < 4; k++) {
+            pthread_join(t[k], NULL);
+            assert_int_equal(q[k].wrong, 0);
+        }
+        rtk_scene_release(s);
+    }
+    free(rays), free(want), free(occluded);
+    rtk_device_release(dev);
+}
+
 /* ---- worker threads end with the device ---- */
 
 static int thread_count_now(void)
@@ -706,11 +799,13 @@ int main(int argc, char **argv)
         cmocka_unit_test(same_tree_any_threads),   cmocka_unit_test(hits_match_brute_force),
         cmocka_unit_test(morton_edge_cases),       cmocka_unit_test(spatial_splits_vs_brute_force),
         cmocka_unit_test(application_task_system), cmocka_unit_test(concurrent_commits),
-        cmocka_unit_test(workers_end_with_device), cmocka_unit_test(chosen_builder_and_layout),
+        cmocka_unit_test(concurrent_queries),      cmocka_unit_test(workers_end_with_device),
+        cmocka_unit_test(chosen_builder_and_layout),
     };
     const struct CMUnitTest threads_only[] = {
         cmocka_unit_test(application_task_system),
         cmocka_unit_test(concurrent_commits),
+        cmocka_unit_test(concurrent_queries),
         cmocka_unit_test(workers_end_with_device),
     };
     return quick ? cmocka_run_group_tests(threads_only, setup, teardown) : cmocka_run_group_tests(all, setup, teardown);
