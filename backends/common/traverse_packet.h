@@ -305,33 +305,31 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
     /* inactive lanes start beyond everything: they never enter a box */
     p->tnear = VK(select)(active, VK(load)(r->tnear), VK(set1)(INFINITY));
 #if RTK_ROBUST
-    /* the axes as rtk_watertight_ray_init picks them, lane by lane */
-    _Alignas(64) float dd[3][RTK_PACKET], o[3][RTK_PACKET], wo[3][RTK_PACKET], sh[3][RTK_PACKET];
-    _Alignas(64) int32_t isx[3][RTK_PACKET], isy[3][RTK_PACKET];
-    for (int k = 0; k < 3; k++) {
-        VK(store)(dd[k], p->dir[k]);
-        VK(store)(o[k], p->org[k]);
-    }
-    for (int i = 0; i < RTK_PACKET; i++) {
-        const float d3[3] = {dd[0][i], dd[1][i], dd[2][i]};
-        rtk_watertight_ray w;
-        rtk_watertight_ray_init(d3, &w);
-        const int axes[3] = {w.kx, w.ky, w.kz};
-        for (int j = 0; j < 3; j++) {
-            isx[j][i] = axes[j] == 0 ? -1 : 0;
-            isy[j][i] = axes[j] == 1 ? -1 : 0;
-            wo[j][i] = o[axes[j]][i];
-        }
-        sh[0][i] = w.sx, sh[1][i] = w.sy, sh[2][i] = w.sz;
-    }
+    /* the axes as rtk_watertight_ray_init picks them, for all lanes at once
+     * (the same comparisons and IEEE divisions, so the same values): kz the
+     * largest |d| component, kx and ky the next two cyclically, swapped
+     * where d[kz] < 0 */
+    const vk ax = VK(abs)(p->dir[0]), ay = VK(abs)(p->dir[1]), az = VK(abs)(p->dir[2]);
+    const vkb xy = VK(gt)(ax, ay);
+    const vkb z0 = VKB(and)(xy, VK(gt)(ax, az));       /* kz = x */
+    const vkb z1 = VKB(andnot)(VK(gt)(ay, az), xy);    /* kz = y */
+    const vkb z2 = VKB(andnot)(VKB(andnot)(VK(eq)(ax, ax), z0), z1); /* kz = z (NaN lanes: none; inactive) */
+    const vk dkz = VK(select)(z0, p->dir[0], VK(select)(z1, p->dir[1], p->dir[2]));
+    const vkb neg = VK(lt)(dkz, VK(set1)(0.0f));
+#define PK_EITHER(m, a, b) VKB(or)(VKB(and)(m, a), VKB(andnot)(b, m)) /* a where m, else b */
+    /* unswapped, kx is x where kz = z, y where kz = x; ky is x where kz = y, y where kz = z */
+    p->is_x[0] = PK_EITHER(neg, z1, z2), p->is_y[0] = PK_EITHER(neg, z2, z0);
+    p->is_x[1] = PK_EITHER(neg, z2, z1), p->is_y[1] = PK_EITHER(neg, z0, z2);
+#undef PK_EITHER
+    p->is_x[2] = z0, p->is_y[2] = z1;
+    vk dk[3];
     for (int j = 0; j < 3; j++) {
-        p->is_x[j] = VKB(load)(isx[j]);
-        p->is_y[j] = VKB(load)(isy[j]);
-        p->worg[j] = VK(load)(wo[j]);
+        dk[j] = VK(select)(p->is_x[j], p->dir[0], VK(select)(p->is_y[j], p->dir[1], p->dir[2]));
+        p->worg[j] = VK(select)(p->is_x[j], p->org[0], VK(select)(p->is_y[j], p->org[1], p->org[2]));
     }
-    p->sx = VK(load)(sh[0]);
-    p->sy = VK(load)(sh[1]);
-    p->sz = VK(load)(sh[2]);
+    p->sx = VK(div)(dk[0], dk[2]);
+    p->sy = VK(div)(dk[1], dk[2]);
+    p->sz = VK(div)(VK(set1)(1.0f), dk[2]);
 #endif
 }
 
