@@ -2,6 +2,7 @@
 #include "mesh_import.h"
 #include "rtkm.h"
 
+#include <algorithm>
 #include <cctype>
 #include <cerrno>
 #include <cmath>
@@ -275,15 +276,17 @@ bool off_ok(const char *path, std::string &why)
         }
         return true;
     }
-    // the next non-blank line, split into words; false at the end
+    // the next non-blank line, as text and split into words; false at the end
     std::vector<std::string> words;
+    std::string text;
     size_t line_no = 1;
     const auto next_line = [&]() {
         while (pos < data.size()) {
             size_t end = data.find('\n', pos);
             if (end == std::string::npos)
                 end = data.size();
-            std::istringstream in(data.substr(pos, end - pos));
+            text.assign(data, pos, end - pos);
+            std::istringstream in(text);
             pos = end + 1;
             line_no++;
             words.clear();
@@ -313,10 +316,7 @@ bool off_ok(const char *path, std::string &why)
             return fail("the file ends after " + std::to_string(v) + " of " + std::to_string(counts[0]) +
                         " vertices");
         bool ok = words.size() >= coords && words[0][0] != '#';
-        std::string line;
-        for (size_t k = 0; k < words.size(); k++)
-            line += words[k] + " ";
-        std::istringstream in(line);
+        std::istringstream in(text);
         float x;
         for (size_t k = 0; ok && k < coords; k++)
             ok = static_cast<bool>(in >> x);
@@ -337,6 +337,19 @@ bool off_ok(const char *path, std::string &why)
                         (color ? "" : ", and nothing after them (the keyword has no C for colours)"));
     }
     return true;
+}
+
+// The size in bytes of a PLY property type, 0 for none.
+int ply_type_size(const std::string &t)
+{
+    static const std::pair<const char *, int> types[] = {
+        {"char", 1},  {"uchar", 1},  {"short", 2},   {"ushort", 2},  {"int", 4},     {"uint", 4},
+        {"float", 4}, {"double", 8}, {"int8", 1},    {"uint8", 1},   {"int16", 2},   {"uint16", 2},
+        {"int32", 4}, {"uint32", 4}, {"float32", 4}, {"float64", 8}};
+    for (const auto &k : types)
+        if (t == k.first)
+            return k.second;
+    return 0;
 }
 
 struct ply_property {
@@ -383,13 +396,9 @@ bool ply_word_ok(const std::string &w, const std::string &type)
 // memory: fuzz/fuzz_mesh), and goes on after a value that does not read.
 // So the body is walked here as it will read it: every value must read as
 // its type, every list count be at most what is left of the file.
-template <class TypeSize>
-bool ply_body_ok(const char *path, size_t header_size, const std::vector<ply_element> &elements, bool ascii,
-                 bool big_endian, const TypeSize &type_size, std::string &why)
+bool ply_body_ok(const std::string &data, size_t header_size, const std::vector<ply_element> &elements, bool ascii,
+                 bool big_endian, std::string &why)
 {
-    std::string data;
-    if (!read_whole(path, data, why))
-        return false;
     size_t pos = header_size;
     const auto bad = [&why](unsigned long long item, const std::string &element_index, const std::string &what) {
         why = "malformed PLY: " + element_index + " " + std::to_string(item) + ": " + what;
@@ -432,7 +441,7 @@ bool ply_body_ok(const char *path, size_t header_size, const std::vector<ply_ele
         for (unsigned long long i = 0; i < elements[e].count; i++)
             for (const ply_property &p : elements[e].props) {
                 const std::string where = "element " + std::to_string(e) + " item";
-                const size_t cs = (size_t)type_size(p.count_type), ts = (size_t)type_size(p.type);
+                const size_t cs = (size_t)ply_type_size(p.count_type), ts = (size_t)ply_type_size(p.type);
                 unsigned long long n = 1;
                 if (p.list) {
                     if (data.size() - pos < cs)
@@ -465,43 +474,22 @@ bool ply_body_ok(const char *path, size_t header_size, const std::vector<ply_ele
 // value, each binary value's size).
 bool ply_header_ok(const char *path, std::string &why)
 {
-    FILE *f = std::fopen(path, "rb");
-    if (!f) {
-        why = std::strerror(errno);
+    std::string data;
+    if (!read_whole(path, data, why))
         return false;
-    }
-    // up to a line that is exactly end_header (OpenMesh looks for the word:
-    // "xend_header" on a line does not end its header)
-    std::string header;
-    int c;
-    auto ends = [&header](const char *tail) {
-        const size_t n = std::strlen(tail);
-        return header.size() >= n && header.compare(header.size() - n, n, tail) == 0;
-    };
-    while (header.size() < (1u << 20) && (c = std::fgetc(f)) != EOF) {
-        header.push_back(char(c));
-        if (ends("\nend_header\n") || ends("\nend_header\r\n"))
-            break;
-    }
-    std::fseek(f, 0, SEEK_END);
-    const long file_size = std::ftell(f);
-    std::fclose(f);
     auto bad = [&why](const std::string &what) {
         why = "malformed PLY header: " + what;
         return false;
     };
-    if (!ends("\nend_header\n") && !ends("\nend_header\r\n"))
+    // up to the first line that is exactly end_header, within 1 MiB
+    // (OpenMesh looks for the word: "xend_header" on a line does not end
+    // its header)
+    const size_t lf = data.find("\nend_header\n"), crlf = data.find("\nend_header\r\n");
+    const size_t end = std::min(lf == std::string::npos ? lf : lf + 12, crlf == std::string::npos ? crlf : crlf + 13);
+    if (end > (1u << 20))
         return bad("no end_header line");
-    static const std::pair<const char *, int> types[] = {
-        {"char", 1},  {"uchar", 1},  {"short", 2},   {"ushort", 2},  {"int", 4},     {"uint", 4},
-        {"float", 4}, {"double", 8}, {"int8", 1},    {"uint8", 1},   {"int16", 2},   {"uint16", 2},
-        {"int32", 4}, {"uint32", 4}, {"float32", 4}, {"float64", 8}};
-    auto type_size = [](const std::string &t) {
-        for (const auto &k : types)
-            if (t == k.first)
-                return k.second;
-        return 0;
-    };
+    const std::string header = data.substr(0, end);
+    const size_t file_size = data.size();
     std::istringstream in(header);
     std::string line;
     std::getline(in, line);
@@ -552,15 +540,15 @@ bool ply_header_ok(const char *path, std::string &why)
                 return bad("a property outside an element: '" + line + "'");
             if (type == "list") {
                 std::string count_type, item_type;
-                if (!(w >> count_type >> item_type >> name) || !type_size(count_type) || !type_size(item_type) ||
+                if (!(w >> count_type >> item_type >> name) || !ply_type_size(count_type) || !ply_type_size(item_type) ||
                     !done())
                     return bad("expected property list TYPE TYPE NAME, got '" + line + "'");
-                per_item += ascii ? 2 : type_size(count_type);
+                per_item += ascii ? 2 : ply_type_size(count_type);
                 elements.back().props.push_back(ply_property{true, count_type, item_type});
             } else {
-                if (!(w >> name) || !type_size(type) || !done())
+                if (!(w >> name) || !ply_type_size(type) || !done())
                     return bad("expected property TYPE NAME, got '" + line + "'");
-                per_item += ascii ? 2 : type_size(type);
+                per_item += ascii ? 2 : ply_type_size(type);
                 elements.back().props.push_back(ply_property{false, type, type});
             }
         } else {
@@ -577,7 +565,7 @@ bool ply_header_ok(const char *path, std::string &why)
         return bad(std::string("its elements need at least ") + need_text + " bytes, the file has " +
                    std::to_string((long long)rest) + " after the header");
     }
-    return ply_body_ok(path, header.size(), elements, ascii, big_endian, type_size, why);
+    return ply_body_ok(data, header.size(), elements, ascii, big_endian, why);
 }
 
 // OpenMesh's OBJ reader asserts (aborting the process, as Debian builds
