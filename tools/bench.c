@@ -1976,14 +1976,43 @@ static long double plane_t(const rtk_mesh *m, uint32_t prim, const rtk_ray *r)
     return num / den;
 }
 
+/* Ways a ray is made invalid, to time what a renderer handing over broken
+ * rays pays (rtk only: Embree 3 as Debian builds it asserts ray.valid()
+ * and aborts the process). */
+enum { NINVALID = 4 };
+static const char *const invalid_names[NINVALID] = {"NaN origin", "NaN direction", "inf direction", "NaN tnear"};
+
+/* Seconds of intersect1 over the aimed rays, best of `repeat`; with
+ * invalid >= 0 each ray broken the way invalid_names[invalid] says. */
+static double time_aimed(const render_tracer *tr, const rtk_aimed *a, int invalid, int repeat)
+{
+    double best = 1e30;
+    for (int r = 0; r < repeat; r++) {
+        const double t0 = now();
+        for (size_t i = 0; i < a->count; i++) {
+            _Alignas(16) rtk_rayhit rh = {.ray = a->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+            if (invalid >= 0)
+                *(invalid == 0   ? &rh.ray.org_x
+                  : invalid == 1 ? &rh.ray.dir_y
+                  : invalid == 2 ? &rh.ray.dir_z
+                                 : &rh.ray.tnear) = invalid == 2 ? INFINITY : NAN;
+            tr->intersect1(tr->scene, &rh);
+        }
+        best = fmin(best, now() - t0);
+    }
+    return best;
+}
+
 /* The aimed rays through one library's scene of the mesh in one mode:
  * closest hits (a miss, or a first hit beyond the point inside, is a false
  * miss; a hit's t against the reference), then every crossing before the
  * point inside collected by a filter (an even number, more than none, is a
  * double hit); hits on the triangles after the closed surface (zero area)
- * counted in both.  With `timed`, intersect1 over the rays is timed too. */
+ * counted in both.  With `timed`, intersect1 over the rays is timed too,
+ * and with `invalid` also over the rays made invalid each way (seconds
+ * added to invalid[]). */
 static int closed_run(lib *l, int mode, const rtk_closed_mesh *cm, const rtk_aimed *a, int timed, int repeat,
-                      closed_tally *t, char *err, size_t err_size)
+                      closed_tally *t, double *invalid, char *err, size_t err_size)
 {
     const rtk_mesh *m = &cm->mesh;
     float lo[3], hi[3];
@@ -2010,17 +2039,10 @@ static int closed_run(lib *l, int mode, const rtk_closed_mesh *cm, const rtk_aim
         }
     }
     if (timed) {
-        double best = 1e30;
-        for (int r = 0; r < repeat; r++) {
-            const double t0 = now();
-            for (size_t i = 0; i < a->count; i++) {
-                _Alignas(16) rtk_rayhit rh = {.ray = a->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
-                tr.intersect1(tr.scene, &rh);
-            }
-            best = fmin(best, now() - t0);
-        }
-        t->seconds += best;
+        t->seconds += time_aimed(&tr, a, -1, repeat);
         t->timed += a->count;
+        for (int v = 0; invalid && v < NINVALID; v++)
+            invalid[v] += time_aimed(&tr, a, v, repeat);
     }
     scene_release(&sc);
     bench_collect = 1;
@@ -2055,6 +2077,18 @@ static int closed_run(lib *l, int mode, const rtk_closed_mesh *cm, const rtk_aim
  * box of radius `size` around c, checked closed by OpenMesh, and the rays
  * aimed at them.  The mesh lies within its faceting (under 4% of its size)
  * and the rounding of its vertices of the solid's surface: the margin. */
+/* Non-zero, with err saying why, unless OpenMesh finds the mesh's closed
+ * surface closed. */
+static int closed_check(const rtk_closed_mesh *cm, char *err, size_t err_size)
+{
+    size_t boundary = 0, rejected = 0;
+    if (rtk_mesh_is_closed(&cm->mesh, cm->closed_triangles, &boundary, &rejected) == 1)
+        return 0;
+    snprintf(err, err_size, "the %s is not closed: %zu boundary edges, %zu faces OpenMesh rejected", cm->name,
+             boundary, rejected);
+    return 1;
+}
+
 static int closed_group(const double c[3], double size, int quick, uint64_t seed, rtk_closed_mesh cm[3],
                         rtk_aimed a[3], char *err, size_t err_size)
 {
@@ -2066,12 +2100,8 @@ static int closed_group(const double c[3], double size, int quick, uint64_t seed
     int bad = rtk_closed_sphere(c, size, 24 * f, 12 * f - 1, &cm[0]) ||
               rtk_closed_torus(c, size, 0.4 * size, 24 * f, 12 * f, &cm[1]) || rtk_closed_box(c, size, 4 * f, &cm[2]);
     for (int i = 0; !bad && i < 3; i++) {
-        size_t boundary = 0, rejected = 0;
-        if (rtk_mesh_is_closed(&cm[i].mesh, cm[i].closed_triangles, &boundary, &rejected) != 1) {
-            snprintf(err, err_size, "the %s is not closed: %zu boundary edges, %zu faces OpenMesh rejected",
-                     cm[i].name, boundary, rejected);
+        if (closed_check(&cm[i], err, err_size))
             return 1;
-        }
         const float out = (float)((i == 1 ? 0.3 : 1.5) * size), in = (float)((i == 1 ? 0.25 : 0.5) * size);
         bad = rtk_closed_aim(&cm[i], margin, out, in, seed + (uint64_t)i, &a[i]);
     }
@@ -2086,42 +2116,41 @@ static void closed_group_free(rtk_closed_mesh cm[3], rtk_aimed a[3])
         rtk_closed_free(&cm[i]), rtk_aimed_free(&a[i]);
 }
 
-enum { NOFF = 9, NSIZE = 9, NGRAZE = 7, CLOSED_MODES = 2, NINVALID = 4 };
-static const char *const invalid_names[NINVALID] = {"NaN origin", "NaN direction", "inf direction", "NaN tnear"};
-
-/* Seconds of intersect1 over the aimed rays each made invalid one way
- * (invalid_names), best of `repeat`, added to seconds[]: what a renderer
- * handing over broken rays pays.  rtk only: Embree 3 as Debian builds it
- * asserts ray.valid() and aborts the process. */
-static int invalid_run(lib *l, int mode, const rtk_closed_mesh *cm, const rtk_aimed *a, int repeat, double *seconds,
-                       char *err, size_t err_size)
-{
-    scene sc;
-    if (scene_build(&sc, l, &cm->mesh, cm->mesh.vertices, mode, 1, err, err_size))
-        return 1;
-    const render_tracer tr = scene_tracer(&sc, 0);
-    for (int v = 0; v < NINVALID; v++) {
-        double best = 1e30;
-        for (int r = 0; r < repeat; r++) {
-            const double t0 = now();
-            for (size_t i = 0; i < a->count; i++) {
-                _Alignas(16) rtk_rayhit rh = {.ray = a->rays[i], .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
-                float *field = v == 0 ? &rh.ray.org_x : v == 1 ? &rh.ray.dir_y : v == 2 ? &rh.ray.dir_z : &rh.ray.tnear;
-                *field = v == 2 ? INFINITY : NAN;
-                tr.intersect1(tr.scene, &rh);
-            }
-            best = fmin(best, now() - t0);
-        }
-        seconds[v] += best;
-    }
-    scene_release(&sc);
-    return 0;
-}
+enum { NOFF = 9, NSIZE = 9, NGRAZE = 7, CLOSED_MODES = 2 };
 
 typedef struct closed_results {
     closed_tally off[NOFF], size[NSIZE], needle, graze[NGRAZE][2]; /* graze: inside faces, on lines */
     double invalid_seconds[NINVALID]; /* the offset sweep's rays at 10^0 made invalid, intersect1 */
 } closed_results;
+
+/* Library-and-mode lm's mode: each library's default, then robust. */
+static int closed_mode(int lm)
+{
+    return lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT;
+}
+
+/* Step k of the offset sweep (sizes: of the size sweep): the three closed
+ * meshes of radius `size` around c through every library and mode, into
+ * each library-and-mode's tally for that step; `timed`: intersect1 timed
+ * too, and for rtk the invalid rays. */
+static int closed_sweep_step(ctx *c, closed_results *res, int sizes, int k, const double cc[3], double size,
+                             uint64_t seed, int timed, size_t *rays, char *err, size_t err_size)
+{
+    rtk_closed_mesh cm[3];
+    rtk_aimed a[3];
+    int bad = closed_group(cc, size, c->o->quick, seed, cm, a, err, err_size);
+    for (int i = 0; i < 3; i++)
+        *rays += a[i].count;
+    for (int lm = 0; !bad && lm < c->nlibs * CLOSED_MODES; lm++) {
+        lib *l = &c->libs[lm / CLOSED_MODES];
+        closed_tally *t = sizes ? &res[lm].size[k] : &res[lm].off[k];
+        for (int i = 0; !bad && i < 3; i++)
+            bad = closed_run(l, closed_mode(lm), &cm[i], &a[i], timed, timed ? c->o->repeat : 1, t,
+                             timed && !l->embree ? res[lm].invalid_seconds : NULL, err, err_size);
+    }
+    closed_group_free(cm, a);
+    return bad;
+}
 
 static double per_million(size_t n, size_t of)
 {
@@ -2171,65 +2200,41 @@ static int section_closed(ctx *c, char *err, size_t err_size)
            "times (every crossing collected by a filter) has hit one crossing twice.  Per million rays.\n",
            o->quick ? "528, 576 and 192" : "2208, 2304 and 768");
     for (int k = 0; !bad && k < NOFF; k++) {
-        const double off = pow(10.0, k), size = fmax(1.0, off * 1e-6);
+        const double off = pow(10.0, k);
         const double cc[3] = {off, 0.5 * off, -0.25 * off};
-        rtk_closed_mesh cm[3];
-        rtk_aimed a[3];
-        bad = closed_group(cc, size, o->quick, 17u + 3u * (uint64_t)k, cm, a, err, err_size);
-        for (int i = 0; i < 3; i++)
-            off_rays[k] += a[i].count;
-        for (int lm = 0; !bad && lm < nlm; lm++)
-            for (int i = 0; !bad && i < 3; i++)
-                bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &cm[i],
-                                 &a[i], k == 0, o->repeat, &res[lm].off[k], err, err_size) ||
-                      (k == 0 && !c->libs[lm / CLOSED_MODES].embree && invalid_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT,
-                                             &cm[i], &a[i], o->repeat, res[lm].invalid_seconds, err, err_size));
-        closed_group_free(cm, a);
+        bad = closed_sweep_step(c, res, 0, k, cc, fmax(1.0, off * 1e-6),
+                                17u + 3u * (uint64_t)k, k == 0, &off_rays[k], err, err_size);
     }
     for (int k = 0; !bad && k < NSIZE; k++) {
         const double size = pow(10.0, 2 * k - 8);
         const double cc[3] = {0.3 * size, -0.2 * size, 0.1 * size};
-        rtk_closed_mesh cm[3];
-        rtk_aimed a[3];
-        bad = closed_group(cc, size, o->quick, 99u + 3u * (uint64_t)k, cm, a, err, err_size);
-        for (int i = 0; i < 3; i++)
-            size_rays[k] += a[i].count;
-        for (int lm = 0; !bad && lm < nlm; lm++)
-            for (int i = 0; !bad && i < 3; i++)
-                bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &cm[i],
-                                 &a[i], 0, 1, &res[lm].size[k], err, err_size);
-        closed_group_free(cm, a);
+        bad = closed_sweep_step(c, res, 1, k, cc, size, 99u + 3u * (uint64_t)k, 0,
+                                &size_rays[k], err, err_size);
     }
     if (!bad) {
         const double cc[3] = {0.25, -0.5, 0.125};
         rtk_closed_mesh cyl;
         rtk_aimed a = {0};
-        size_t boundary = 0, rejected = 0;
-        bad = rtk_closed_cylinder(cc, 1.0, 10.0, o->quick ? 1024 : 4096, 1, &cyl);
-        if (!bad && rtk_mesh_is_closed(&cyl.mesh, cyl.closed_triangles, &boundary, &rejected) != 1) {
-            snprintf(err, err_size, "the cylinder is not closed: %zu boundary edges, %zu faces rejected", boundary,
-                     rejected);
-            bad = 1;
-        }
-        bad = bad || rtk_closed_aim(&cyl, 1e-5, 1.5f, 0.5f, 4242, &a);
+        bad = rtk_closed_cylinder(cc, 1.0, 10.0, o->quick ? 1024 : 4096, 1, &cyl) || closed_check(&cyl, err, err_size) ||
+              rtk_closed_aim(&cyl, 1e-5, 1.5f, 0.5f, 4242, &a);
         needle_rays = a.count;
         for (int lm = 0; !bad && lm < nlm; lm++)
-            bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &cyl, &a, 0,
-                             1, &res[lm].needle, err, err_size);
+            bad = closed_run(&c->libs[lm / CLOSED_MODES], closed_mode(lm), &cyl, &a, 0, 1, &res[lm].needle, NULL, err,
+                             err_size);
         rtk_aimed_free(&a);
         rtk_closed_free(&cyl);
     }
     if (!bad) {
         const double cc[3] = {0.0, 0.0, -1.0};
         rtk_closed_mesh box;
-        bad = rtk_closed_box(cc, 1.0, 16, &box); /* exact vertices: the mesh is the solid */
+        bad = rtk_closed_box(cc, 1.0, 16, &box) || closed_check(&box, err, err_size); /* exact vertices: the mesh is the solid */
         for (int k = 0; !bad && k < 2 * NGRAZE; k++) {
             rtk_aimed a;
             bad = rtk_closed_graze(&box, 16, pow(10.0, -(k / 2)), o->quick ? 1000 : 10000, k % 2, 31u + (uint64_t)k, &a);
             graze_n[k / 2] += a.count;
             for (int lm = 0; !bad && lm < nlm; lm++)
-                bad = closed_run(&c->libs[lm / CLOSED_MODES], lm % CLOSED_MODES ? MODE_ROBUST : MODE_DEFAULT, &box,
-                                 &a, 0, 1, &res[lm].graze[k / 2][k % 2], err, err_size);
+                bad = closed_run(&c->libs[lm / CLOSED_MODES], closed_mode(lm), &box, &a, 0, 1,
+                                 &res[lm].graze[k / 2][k % 2], NULL, err, err_size);
             rtk_aimed_free(&a);
         }
         rtk_closed_free(&box);
@@ -2255,7 +2260,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     printf(" envelope\n");
     for (int lm = 0; lm < nlm; lm++) {
         closed_tally *t = res[lm].off;
-        printf("  %-18s %-7s", c->libs[lm / CLOSED_MODES].name, mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0]);
+        printf("  %-18s %-7s", c->libs[lm / CLOSED_MODES].name, mode_names[closed_mode(lm)]);
         int env = -1, gap = 0;
         for (int k = 0; k < NOFF; k++) {
             printf(" %8.0f", per_million(t[k].misses, t[k].rays));
@@ -2269,7 +2274,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     }
     printf("  double hits\n");
     for (int lm = 0; lm < nlm; lm++)
-        closed_print_row(c->libs[lm / CLOSED_MODES].name, lm % CLOSED_MODES ? MODE_ROBUST : 0, res[lm].off, NOFF, 1);
+        closed_print_row(c->libs[lm / CLOSED_MODES].name, closed_mode(lm), res[lm].off, NOFF, 1);
 
     printf("\n  of radius 10^k near the origin; rays per size:");
     for (int k = 0; k < NSIZE; k++)
@@ -2279,10 +2284,10 @@ static int section_closed(ctx *c, char *err, size_t err_size)
         printf("  10^%-4d", 2 * k - 8);
     printf("\n");
     for (int lm = 0; lm < nlm; lm++)
-        closed_print_row(c->libs[lm / CLOSED_MODES].name, lm % CLOSED_MODES ? MODE_ROBUST : 0, res[lm].size, NSIZE, 0);
+        closed_print_row(c->libs[lm / CLOSED_MODES].name, closed_mode(lm), res[lm].size, NSIZE, 0);
     printf("  double hits\n");
     for (int lm = 0; lm < nlm; lm++)
-        closed_print_row(c->libs[lm / CLOSED_MODES].name, lm % CLOSED_MODES ? MODE_ROBUST : 0, res[lm].size, NSIZE, 1);
+        closed_print_row(c->libs[lm / CLOSED_MODES].name, closed_mode(lm), res[lm].size, NSIZE, 1);
 
     const int sides = o->quick ? 1024 : 4096;
     printf("\n  needles: a cylinder of radius 1 and height 20 with %d sides (side triangles 20 x %.4f, caps fans of "
@@ -2292,7 +2297,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     for (int lm = 0; lm < nlm; lm++) {
         const closed_tally *t = &res[lm].needle;
         printf("  %-18s %-7s %14zu %14zu %16zu\n", c->libs[lm / CLOSED_MODES].name,
-               mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0], t->misses, t->twice, t->zero_area);
+               mode_names[closed_mode(lm)], t->misses, t->twice, t->zero_area);
     }
 
     printf("\n  grazing a flat face at 10^-k degrees (%zu rays each, half at points inside its triangles, half on "
@@ -2306,7 +2311,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     }
     printf("\n");
     for (int lm = 0; lm < nlm; lm++) {
-        printf("  %-18s %-7s", c->libs[lm / CLOSED_MODES].name, mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0]);
+        printf("  %-18s %-7s", c->libs[lm / CLOSED_MODES].name, mode_names[closed_mode(lm)]);
         for (int k = 0; k < NGRAZE; k++) {
             const closed_tally *t = res[lm].graze[k];
             char cell[40];
@@ -2328,7 +2333,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     FILE *dat = fopen(path, "w");
     for (int lm = 0; lm < nlm; lm++) {
         closed_results *r = &res[lm];
-        const char *name = c->libs[lm / CLOSED_MODES].name, *mode = mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0];
+        const char *name = c->libs[lm / CLOSED_MODES].name, *mode = mode_names[closed_mode(lm)];
         closed_tally *t0 = &r->off[0], *t6 = &r->off[6];
         const double ns = t0->timed ? 1e9 * t0->seconds / (double)t0->timed : 0.0;
         printf("  %-18s %-7s %6.1f / %5.1f / %6.0f %10.1e %6.1f / %5.1f / %6.0f %10.1e %8.1f\n", name, mode,
@@ -2393,7 +2398,7 @@ static int section_closed(ctx *c, char *err, size_t err_size)
     printf("\n");
     for (int lm = 0; lm < nlm; lm++) {
         const closed_tally *t0 = &res[lm].off[0];
-        const char *name = c->libs[lm / CLOSED_MODES].name, *mode = mode_names[lm % CLOSED_MODES ? MODE_ROBUST : 0];
+        const char *name = c->libs[lm / CLOSED_MODES].name, *mode = mode_names[closed_mode(lm)];
         const double ns = t0->timed ? 1e9 * t0->seconds / (double)t0->timed : 0.0;
         printf("  %-18s %-7s %8.1f", name, mode, ns);
         if (c->libs[lm / CLOSED_MODES].embree) {
