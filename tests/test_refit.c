@@ -2,11 +2,13 @@
  * Refit (RTK_BUILD_QUALITY_REFIT on a geometry): after vertices move, a
  * commit keeps the tree and refits it.  Checked here: the hits of a refitted
  * tree against brute force over the moved triangles, on every backend,
- * builder and layout; boxes exactly as tight as the tree allows; the same
+ * builder and layout; boxes exactly as tight as the tree allows, and the
+ * SAH cost an import of the tree finds; the same
  * tree on any number of threads; a tree that loads back through
  * rtk_scene_commit_bvh (whose check proves every triangle inside its
  * boxes); and every change that must make the commit build afresh instead.
  */
+#include <float.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -203,6 +205,11 @@ static void refit_matches_brute_force(void **state)
                                                           bunny.triangle_count, f ? RTK_SCENE_FLAG_COMPACT : 0);
                 if (rtk_scene_commit_bvh(loaded, &t) != RTK_OK)
                     fail_msg("%s: %s", names[b], rtk_device_get_error_message(dev));
+                /* the refit summed its SAH as it went; the import sums the
+                 * same tree's after: the same figure to the bit */
+                if (info_of(loaded).sah_cost != info.sah_cost)
+                    fail_msg("%s: SAH %.17g refitted, %.17g loaded", names[b], info.sah_cost,
+                             info_of(loaded).sah_cost);
                 rtk_bvh_free(&t);
                 rtk_scene_release(loaded);
                 rtk_scene_release(s);
@@ -593,6 +600,137 @@ static void zero_area_never_hit(void **state)
     free(rays);
 }
 
+/* Whether some pair of terms a_i b_j, a_j b_i of the float cross product
+ * of the triangle's edges a = v1 - v0, b = v2 - v0 rounds to two different
+ * subnormal floats (each product rounded on its own, as the leaf writer's
+ * float test computes them). */
+static int subnormal_terms_differ(const float *tri)
+{
+    volatile float a[3], b[3], p, q;
+    for (int k = 0; k < 3; k++) {
+        a[k] = tri[3 + k] - tri[k];
+        b[k] = tri[6 + k] - tri[k];
+    }
+    for (int i = 0; i < 3; i++) {
+        const int j = (i + 1) % 3, k = (i + 2) % 3;
+        p = a[j] * b[k];
+        q = a[k] * b[j];
+        if (p != q && fabsf(p) < FLT_MIN && fabsf(q) < FLT_MIN)
+            return 1;
+    }
+    return 0;
+}
+
+/* ---- which kept triangles have zero area, at every scale ----
+ * The leaf writer decides zero area four lanes at once: a float test first,
+ * and rtk_triangle_is_degenerate only for the lanes it cannot clear.  Here,
+ * at scales from 2^-140 (vertices below the smallest normal float) to
+ * 2^120 (edge products far past FLT_MAX), triangles that are exactly
+ * collinear, one ulp off collinear, 2^-20 off, collinear through a point
+ * near the origin (their float edges are rounded, so their float cross
+ * product is not zero, but in double it is), such triangles whose float
+ * cross product terms are subnormals that round apart, and generic ones.
+ * A scene built over generic triangles, refitted onto these and back, must
+ * count the zero-area ones as the exact test does, in the layouts that
+ * copy vertices (default and robust) and the compact one. */
+static void zero_area_at_every_scale(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    enum { PER_KIND = 61, NT = 6 * PER_KIND };
+    static const int exps[] = {-140, -126, -100, -72, -68, -64, -40, -20, 0, 20, 40, 64, 100, 120};
+    static const unsigned layouts[] = {0, RTK_SCENE_FLAG_COMPACT, RTK_SCENE_FLAG_ROBUST};
+    float *v = malloc(NT * 9 * sizeof *v), *generic = malloc(NT * 9 * sizeof *v), *odd = malloc(NT * 9 * sizeof *v);
+    uint32_t *idx = malloc(NT * 3 * sizeof *idx);
+    assert_non_null(v);
+    assert_non_null(generic);
+    assert_non_null(odd);
+    assert_non_null(idx);
+    for (size_t i = 0; i < 3 * (size_t)NT; i++)
+        idx[i] = (uint32_t)i;
+    rng r = {777};
+    for (size_t e = 0; e < sizeof exps / sizeof *exps; e++) {
+        const float scale = ldexpf(1.0f, exps[e]);
+        uint64_t expect = 0;
+        for (size_t t = 0; t < NT; t++) {
+            float *tri = odd + 9 * t;
+            float p[3], d[3];
+            for (int k = 0; k < 3; k++) {
+                p[k] = (float)(1 + rng_u32(&r) % 1024) / 128.0f * scale;
+                d[k] = (float)((int)(rng_u32(&r) % 15) - 7) / 16.0f * scale;
+                for (int j = 0; j < 3; j++)
+                    generic[9 * t + 3 * j + k] = (rng_float(&r) + 1.0f) * 4.0f * scale;
+            }
+            const float s1 = (float)(1 + rng_u32(&r) % 5), s2 = -(float)(1 + rng_u32(&r) % 5);
+            for (int k = 0; k < 3; k++) {
+                tri[k] = p[k];
+                tri[3 + k] = p[k] + s1 * d[k];
+                tri[6 + k] = p[k] + s2 * d[k];
+            }
+            const int kind = (int)(t / PER_KIND), axis = (int)(rng_u32(&r) % 3);
+            if (kind == 1) /* one ulp off */
+                tri[6 + axis] = nextafterf(tri[6 + axis], INFINITY);
+            else if (kind == 2) /* 2^-20 off */
+                tri[6 + axis] += ldexpf(tri[6 + axis] == 0.0f ? scale : tri[6 + axis], -20);
+            else if (kind == 3) /* through f * 2^-10, f of 20 bits: s1 f - f 2^-10 needs 33 */
+                for (int k = 0; k < 3; k++) {
+                    const float f = (float)((int32_t)(rng_u32(&r) % (1u << 20)) - (1 << 19)) * 0x1p-20f * scale;
+                    tri[k] = ldexpf(f, -10);
+                    tri[3 + k] = s1 * f;
+                    tri[6 + k] = s2 * f;
+                }
+            else if (kind == 4)
+                memcpy(tri, generic + 9 * t, 9 * sizeof *tri);
+            else if (kind == 5) /* as kind 3 at 2^-67, drawn until some term pair rounds apart */
+                for (int tries = 0;; tries++) {
+                    assert_true(tries < 1 << 20);
+                    for (int k = 0; k < 3; k++) {
+                        const float f = (float)((int32_t)(rng_u32(&r) % (1u << 20)) - (1 << 19)) * 0x1p-87f;
+                        tri[k] = ldexpf(f, -10);
+                        tri[3 + k] = s1 * f;
+                        tri[6 + k] = s2 * f;
+                    }
+                    if (subnormal_terms_differ(tri))
+                        break;
+                }
+            expect += (uint64_t)rtk_triangle_is_degenerate(tri, tri + 3, tri + 6);
+            if (kind == 5)
+                assert_true(rtk_triangle_is_degenerate(tri, tri + 3, tri + 6));
+        }
+        /* the kinds are what they claim, where floats can hold them */
+        if (exps[e] >= -100 && exps[e] <= 100)
+            assert_true(expect >= 3 * PER_KIND && expect < 5 * PER_KIND);
+        for (size_t b = 0; b < nb; b++)
+            for (size_t l = 0; l < sizeof layouts / sizeof *layouts; l++) {
+                rtk_device dev = test_device_threads(names[b], 1);
+                memcpy(v, generic, NT * 9 * sizeof *v);
+                rtk_geometry g;
+                rtk_scene s = refit_scene(dev, v, idx, 3 * NT, NT, layouts[l], RTK_BUILD_QUALITY_MEDIUM, &g);
+                assert_int_equal(info_of(s).triangles_degenerate, 0);
+                memcpy(v, odd, NT * 9 * sizeof *v);
+                commit_moved(s, g);
+                rtk_scene_info info = info_of(s);
+                assert_int_equal(info.refits, 1);
+                if (info.triangles_degenerate != expect)
+                    fail_msg("%s, layout flags %u, scale 2^%d: %llu zero-area triangles, the exact test says %llu",
+                             names[b], layouts[l], exps[e], (unsigned long long)info.triangles_degenerate,
+                             (unsigned long long)expect);
+                memcpy(v, generic, NT * 9 * sizeof *v);
+                commit_moved(s, g);
+                info = info_of(s);
+                assert_int_equal(info.refits, 2);
+                assert_int_equal(info.triangles_degenerate, 0);
+                rtk_scene_release(s);
+                rtk_device_release(dev);
+            }
+    }
+    free(v);
+    free(generic);
+    free(odd);
+    free(idx);
+}
+
 /* ---- API misuse gets a clear error ---- */
 
 static void refit_api_errors(void **state)
@@ -637,7 +775,8 @@ int main(int argc, char **argv)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(refit_matches_brute_force), cmocka_unit_test(refit_same_tree_any_threads),
         cmocka_unit_test(refit_or_build),            cmocka_unit_test(refit_onto_new_buffer),
-        cmocka_unit_test(zero_area_never_hit),       cmocka_unit_test(refit_api_errors),
+        cmocka_unit_test(zero_area_never_hit),       cmocka_unit_test(zero_area_at_every_scale),
+        cmocka_unit_test(refit_api_errors),
     };
     const struct CMUnitTest quick[] = {
         cmocka_unit_test(refit_same_tree_any_threads),

@@ -9,25 +9,35 @@
 #include "build_common.h"
 #include "kernels.h"
 
+/* The SAH terms of node `index`'s slots, each slot's half-area times its
+ * blocks for a leaf (once for an inner node), summed in slot order.  Not
+ * inlined: a refit sums a node's terms as it writes the node, a build or
+ * an import after the tree is done, and both must round alike. */
+__attribute__((noinline)) double build_node_sah(const build *bd, uint64_t index)
+{
+    node_view v = view_node(bd, bd->nodes, index);
+    double sah = 0.0;
+    for (int c = 0; c < bd->width; c++) {
+        const uint32_t ref = v.child[c];
+        if (ref == RTK_BVH4_EMPTY)
+            continue;
+        box4 b = {vf4_set(v.lx[c], v.ly[c], v.lz[c], 0.0f), vf4_set(v.ux[c], v.uy[c], v.uz[c], 0.0f)};
+        sah += (double)box_half_area(&b) * (ref & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(ref) : 1);
+    }
+    return sah;
+}
+
 /* The SAH cost of the final tree, summed in node order, so a tree and its
  * export imported again get the same figure to the bit: the root's box
- * (an inner node or a leaf of some blocks), then every slot's box, once for
- * an inner node and once per block for a leaf. */
+ * (an inner node or a leaf of some blocks), then every node's terms
+ * (build_node_sah, or bd->node_sah where a refit kept them). */
 static double tree_sah(const build *bd, uint64_t node_count, uint32_t root, const box4 *bounds)
 {
     if (root == RTK_BVH4_EMPTY)
         return 0.0;
     double sah = (double)box_half_area(bounds) * (root & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(root) : 1);
-    for (uint64_t i = 0; i < node_count; i++) {
-        node_view v = view_node(bd, bd->nodes, i);
-        for (int c = 0; c < bd->width; c++) {
-            const uint32_t ref = v.child[c];
-            if (ref == RTK_BVH4_EMPTY)
-                continue;
-            box4 b = {vf4_set(v.lx[c], v.ly[c], v.lz[c], 0.0f), vf4_set(v.ux[c], v.uy[c], v.uz[c], 0.0f)};
-            sah += (double)box_half_area(&b) * (ref & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(ref) : 1);
-        }
-    }
+    for (uint64_t i = 0; i < node_count; i++)
+        sah += bd->node_sah ? bd->node_sah[i] : build_node_sah(bd, i);
     return sah;
 }
 
@@ -250,79 +260,65 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
         out->refs = prims;
 }
 
+/* The lanes of `live` (a mask) whose triangle has zero area by
+ * rtk_triangle_is_degenerate, given the float edges a = v1 - v0 and
+ * b = v2 - v0 of four triangles across the lanes.  A lane where some
+ * component a_i b_j - a_j b_i of the float cross product is far from zero
+ * next to its rounding error (4 float ulps of |a_i b_j| + |a_j b_i| at
+ * most) has a nonzero cross product in double precision too; only the
+ * other lanes take the exact test.  The terms' sum must be at least 2^-60,
+ * where subnormal rounding is far below the margin; a sum that overflowed
+ * fails the comparison by itself. */
+static uint32_t zero_area_lanes(uint32_t live, vfloat4 ax, vfloat4 ay, vfloat4 az, vfloat4 bx, vfloat4 by,
+                                vfloat4 bz, const float *const (*v)[3])
+{
+    const vfloat4 rel = vf4_set1(0x1p-16f), tiny = vf4_set1(0x1p-60f);
+    const vfloat4 p[3] = {vf4_mul(ay, bz), vf4_mul(az, bx), vf4_mul(ax, by)};
+    const vfloat4 q[3] = {vf4_mul(az, by), vf4_mul(ax, bz), vf4_mul(ay, bx)};
+    vbool4 sure = vb4_from_bits(0);
+    for (int i = 0; i < 3; i++) {
+        const vfloat4 sum = vf4_add(vf4_abs(p[i]), vf4_abs(q[i]));
+        const vbool4 clear = vf4_gt(vf4_abs(vf4_sub(p[i], q[i])), vf4_mul(rel, sum));
+        sure = vb4_or(sure, vb4_and(clear, vf4_gt(sum, tiny)));
+    }
+    uint32_t zero = 0;
+    for (uint32_t unsure = live & ~(uint32_t)vb4_mask(sure); unsure; unsure &= unsure - 1) {
+        const int lane = __builtin_ctz(unsure);
+        zero |= (uint32_t)rtk_triangle_is_degenerate(v[lane][0], v[lane][1], v[lane][2]) << lane;
+    }
+    return zero;
+}
+
 uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
-                           uint32_t count, box4 *bounds)
+                           uint32_t count, box4 *bounds, int *finite)
 {
     const rtk_build_input *in = bd->in;
-    box4 b = box_empty();
-    uint32_t never_hit = 0;
     if (bd->indexed) {
+        box4 b = box_empty();
+        uint32_t never_hit = 0;
         rtk_triangle4i *t = (rtk_triangle4i *)bd->leaves + index;
         for (uint32_t lane = 0; lane < 4; lane++) {
             if (lane >= count) {
                 t->v0[lane] = t->v1[lane] = t->v2[lane] = t->v0[0];
-                t->geom[lane] = t->geom[0];
-                t->prim[lane] = RTK_BVH4_EMPTY;
+                if (!bd->ids_kept) {
+                    t->geom[lane] = t->geom[0];
+                    t->prim[lane] = RTK_BVH4_EMPTY;
+                }
                 continue;
             }
             const rtk_build_geometry *g = &in->geometries[geom[lane]];
             const uint32_t *tri = triangle_at(g, prim[lane]);
-            const int never = build_unhittable_lane(g, vertex_at(g, tri[0]), vertex_at(g, tri[1]),
-                                                    vertex_at(g, tri[2]));
+            const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
+            if (finite && !rtk_triangle_is_finite(v0, v1, v2))
+                *finite = 0;
+            const int never = build_unhittable_lane(g, v0, v1, v2);
             never_hit += (uint32_t)never;
             t->v0[lane] = tri[0];
             t->v1[lane] = never ? tri[0] : tri[1];
             t->v2[lane] = never ? tri[0] : tri[2];
-            t->geom[lane] = geom[lane];
-            t->prim[lane] = prim[lane];
-            if (bounds)
-                for (int v = 0; v < 3; v++) {
-                    const float *q = vertex_at(g, tri[v]);
-                    const vfloat4 x = vf4_set(q[0], q[1], q[2], 0.0f);
-                    box_grow(&b, x, x);
-                }
-        }
-    } else if (bd->vertex_leaves) {
-        rtk_triangle4v *t = (rtk_triangle4v *)bd->leaves + index;
-        const float nan3[3] = {NAN, NAN, NAN};
-        for (uint32_t lane = 0; lane < 4; lane++) {
-            if (lane >= count) {
-                rtk_triangle4v_set_lane(t, (int)lane, nan3, nan3, nan3, RTK_BVH4_EMPTY, RTK_BVH4_EMPTY);
-                continue;
-            }
-            const rtk_build_geometry *g = &in->geometries[geom[lane]];
-            const uint32_t *tri = triangle_at(g, prim[lane]);
-            const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
-            const int never = build_unhittable_lane(g, v0, v1, v2);
-            never_hit += (uint32_t)never;
-            rtk_triangle4v_set_lane(t, (int)lane, never ? nan3 : v0, never ? nan3 : v1, never ? nan3 : v2,
-                                    g->geom_id, prim[lane]);
-            if (bounds) {
-                const vfloat4 p0 = vf4_set(v0[0], v0[1], v0[2], 0.0f), p1 = vf4_set(v1[0], v1[1], v1[2], 0.0f);
-                const vfloat4 p2 = vf4_set(v2[0], v2[1], v2[2], 0.0f);
-                box_grow(&b, vf4_min(vf4_min(p0, p1), p2), vf4_max(vf4_max(p0, p1), p2));
-            }
-        }
-    } else {
-        rtk_triangle4 *t = (rtk_triangle4 *)bd->leaves + index;
-        const float nan = NAN;
-        for (uint32_t lane = 0; lane < 4; lane++) {
-            if (lane >= count) {
-                t->v0x[lane] = t->v0y[lane] = t->v0z[lane] = nan;
-                t->e1x[lane] = t->e1y[lane] = t->e1z[lane] = 0.0f;
-                t->e2x[lane] = t->e2y[lane] = t->e2z[lane] = 0.0f;
-                t->geom[lane] = t->prim[lane] = RTK_BVH4_EMPTY;
-                continue;
-            }
-            const rtk_build_geometry *g = &in->geometries[geom[lane]];
-            const uint32_t *tri = triangle_at(g, prim[lane]);
-            const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
-            rtk_triangle4_set_lane(t, (int)lane, v0, v1, v2, g->geom_id, prim[lane]);
-            if (build_unhittable_lane(g, v0, v1, v2)) {
-                never_hit++;
-                t->v0x[lane] = t->v0y[lane] = t->v0z[lane] = nan;
-                t->e1x[lane] = t->e1y[lane] = t->e1z[lane] = 0.0f;
-                t->e2x[lane] = t->e2y[lane] = t->e2z[lane] = 0.0f;
+            if (!bd->ids_kept) {
+                t->geom[lane] = geom[lane];
+                t->prim[lane] = prim[lane];
             }
             if (bounds) {
                 const vfloat4 p0 = vf4_set(v0[0], v0[1], v0[2], 0.0f), p1 = vf4_set(v1[0], v1[1], v1[2], 0.0f);
@@ -330,10 +326,69 @@ uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom
                 box_grow(&b, vf4_min(vf4_min(p0, p1), p2), vf4_max(vf4_max(p0, p1), p2));
             }
         }
+        if (bounds)
+            box_grow(bounds, b.lo, b.hi);
+        return never_hit;
     }
-    if (bounds)
-        box_grow(bounds, b.lo, b.hi);
-    return never_hit;
+
+    /* triangle4 and triangle4v: the four lanes at once.  p[k][lane] is
+     * vertex k of the lane's triangle as (x, y, z, 0); unused lanes repeat
+     * lane 0, so they change neither the box nor the finite check. */
+    vfloat4 p[3][4];
+    const float *v[4][3];
+    uint32_t ids[2][4], deforms = 0;
+    for (uint32_t lane = 0; lane < count; lane++) {
+        const rtk_build_geometry *g = &in->geometries[geom[lane]];
+        const uint32_t *tri = triangle_at(g, prim[lane]);
+        for (int k = 0; k < 3; k++) {
+            const float *q = v[lane][k] = vertex_at(g, tri[k]);
+            p[k][lane] = vf4_set(q[0], q[1], q[2], 0.0f);
+        }
+        deforms |= (uint32_t)((g->flags & RTK_BUILD_GEOMETRY_DEFORMS) != 0) << lane;
+        ids[0][lane] = g->geom_id;
+        ids[1][lane] = prim[lane];
+    }
+    for (uint32_t lane = count; lane < 4; lane++) {
+        for (int k = 0; k < 3; k++)
+            p[k][lane] = p[k][0];
+        ids[0][lane] = ids[1][lane] = RTK_BVH4_EMPTY;
+    }
+    const vfloat4 zero = vf4_set1(0.0f);
+    if (bounds || finite) {
+        vfloat4 lo = p[0][0], hi = p[0][0], s = zero;
+        for (int k = 0; k < 3; k++)
+            for (int lane = 0; lane < 4; lane++) {
+                lo = vf4_min(lo, p[k][lane]);
+                hi = vf4_max(hi, p[k][lane]);
+                s = vf4_add(s, vf4_mul(zero, p[k][lane])); /* NaN for any NaN or infinity */
+            }
+        if (bounds)
+            box_grow(bounds, lo, hi);
+        if (finite && vb4_mask(vf4_eq(s, zero)) != 0xf)
+            *finite = 0;
+    }
+    for (int k = 0; k < 3; k++) /* rows of lanes become x, y, z (and zeros) across the lanes */
+        vf4_transpose(&p[k][0], &p[k][1], &p[k][2], &p[k][3]);
+    const vfloat4 ax = vf4_sub(p[1][0], p[0][0]), ay = vf4_sub(p[1][1], p[0][1]), az = vf4_sub(p[1][2], p[0][2]);
+    const vfloat4 bx = vf4_sub(p[2][0], p[0][0]), by = vf4_sub(p[2][1], p[0][1]), bz = vf4_sub(p[2][2], p[0][2]);
+    const uint32_t live = (1u << count) - 1;
+    const uint32_t never = deforms ? zero_area_lanes(deforms, ax, ay, az, bx, by, bz, v) : 0;
+    /* unused and never-hit lanes: NaN vertices (and no edges) */
+    const vbool4 dead = vb4_from_bits((int)(never | (~live & 0xf)));
+    const vfloat4 nan = vf4_set1(NAN);
+    float *out = (float *)((rtk_triangle4 *)bd->leaves + index);
+    const vfloat4 rows[9] = {p[0][0], p[0][1], p[0][2], bd->vertex_leaves ? p[1][0] : ax,
+                             bd->vertex_leaves ? p[1][1] : ay, bd->vertex_leaves ? p[1][2] : az,
+                             bd->vertex_leaves ? p[2][0] : bx, bd->vertex_leaves ? p[2][1] : by,
+                             bd->vertex_leaves ? p[2][2] : bz};
+    for (int i = 0; i < 9; i++)
+        vf4_storeu(out + 4 * i, vf4_select(dead, i < 3 || bd->vertex_leaves ? nan : zero, rows[i]));
+    rtk_triangle4 *t = (rtk_triangle4 *)bd->leaves + index;
+    if (!bd->ids_kept) {
+        memcpy(t->geom, ids[0], sizeof t->geom);
+        memcpy(t->prim, ids[1], sizeof t->prim);
+    }
+    return (uint32_t)__builtin_popcount(never);
 }
 
 void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)

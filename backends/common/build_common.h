@@ -50,6 +50,8 @@ typedef struct build {
     float spatial_overlap;
     void *nodes;      /* the final arrays (stage 3) */
     void *leaves;
+    const double *node_sah; /* NULL, or each node's build_node_sah (a refit's) */
+    int ids_kept;           /* a refit: the leaf blocks hold their ids already, and only their vertex data is written */
 } build;
 
 /* Runs fn(data, i) for i in [0, count) on the build's threads. */
@@ -195,6 +197,7 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
+#define build_node_sah RTK_SYM(rtk_build_node_sah)
 
 /* geom_id -> index of that geometry in in->geometries, UINT32_MAX for ids
  * not there (malloc'd, *max_id + 1 entries); NULL when out of memory. */
@@ -273,6 +276,10 @@ RTK_HIDDEN void build_run_ordered(const build *bd, const uint64_t *order, uint32
  * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
  * NULL when out of memory. */
 RTK_HIDDEN struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks);
+/* The SAH terms of node `index`'s slots (each slot's half-area, times its
+ * blocks for a leaf), summed in slot order; the tree's SAH cost adds them
+ * in node order. */
+RTK_HIDDEN double build_node_sah(const build *bd, uint64_t index);
 /* Describes the finished accel in out; `bounds` holds the scene's box. */
 RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root, uint64_t prims,
                                    uint32_t depth, const box4 *bounds, rtk_build_output *out);
@@ -281,9 +288,11 @@ RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uin
  * primitive index.  If `bounds` is not NULL, the triangles' box is added
  * to it.  A deforming geometry's zero-area triangle gets a lane that is
  * never hit (NaN v0 and no edges; three equal vertex indices), whatever
- * rounding would make of its edges, and keeps its ids for a refit.
- * Returns the number of such lanes. */
+ * rounding would make of its edges, and keeps its ids for a refit.  If
+ * `finite` is not NULL, *finite is set to 0 when a vertex of the block is
+ * NaN or infinite (a refit's check; a build's triangles are finite).
+ * Returns the number of never-hit lanes. */
 RTK_HIDDEN uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
-                                  uint32_t count, box4 *bounds);
+                                      uint32_t count, box4 *bounds, int *finite);
 
 #endif

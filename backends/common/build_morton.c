@@ -397,7 +397,7 @@ static uint32_t write_node(walk *w, uint32_t b, uint32_t e, box4 *bounds)
         for (uint32_t k = 0; k < e - b; k++)
             prim[k] = item_prim(m, b + k, &geom[k]);
         const uint64_t block = w->blocks++;
-        build_write_block(bd, block, geom, prim, e - b, bounds);
+        build_write_block(bd, block, geom, prim, e - b, bounds, NULL);
         return rtk_leaf_ref((uint32_t)block, 1);
     }
     uint32_t begin[9], ref[8];

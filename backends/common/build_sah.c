@@ -1118,7 +1118,7 @@ static void write_block(const build *bd, uint32_t first, uint32_t end, uint64_t 
         geom[count] = ref_geom(&bd->refs[k]);
         prim[count] = ref_prim(&bd->refs[k]);
     }
-    build_write_block(bd, index, geom, prim, count, NULL);
+    build_write_block(bd, index, geom, prim, count, NULL, NULL);
 }
 
 /* Copies part p's nodes to the final array at p->node_base, turning its

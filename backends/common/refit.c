@@ -10,22 +10,34 @@
  *
  * If the triangles that go in the tree now (build_hittable: those that
  * can be hit, and a deforming geometry's zero-area ones) are not the ones
- * it holds, RTK_REFIT_NEEDS_BUILD, and the core builds afresh.  One pass
- * over the leaves does the work (reading each triangle's vertices once),
- * then one over the nodes, both on the build's threads.
+ * it holds, RTK_REFIT_NEEDS_BUILD, and the core builds afresh.  One walk
+ * of the tree does the work, as Embree's refit does: each leaf is written
+ * again (reading each triangle's vertices once) and its box taken into its
+ * parent's at once; subtrees below a cut are walked as tasks on the
+ * build's threads.
  */
 #include <stdlib.h>
 
 #include "build_common.h"
 #include "kernels.h"
 
-/* Triangles or leaf blocks per task; a multiple of 64, so the tasks of the
- * first pass own whole words of the bit set. */
+/* Triangles per task of the exact check; a multiple of 64, so its tasks
+ * own whole words of the bit set. */
 #define REFIT_CHUNK 8192u
-/* Subtrees refitted as parallel tasks: those at this depth, below which
- * a 4-wide tree has up to 64 (an 8-wide one 64 at depth 2). */
-#define REFIT_CUT_DEPTH(width) ((width) == 8 ? 2 : 3)
+/* Subtrees refitted as parallel tasks: those at this depth, of which a
+ * 4-wide tree has up to 256 (an 8-wide one 512 at depth 3), enough for
+ * the threads to share unequal subtrees evenly. */
+#define REFIT_CUT_DEPTH(width) ((width) == 8 ? 3 : 4)
 #define REFIT_MAX_CUTS 512
+/* Leaf blocks whose vertex indices are prefetched ahead of the one written:
+ * 2 measured best of 0, 2, 4 and 8 (rtktool bench --only refit). */
+#define REFIT_AHEAD 2
+
+/* What a walk found: triangles that failed the checks, lanes written never
+ * to hit. */
+typedef struct refit_counts {
+    uint64_t bad, never_hit;
+} refit_counts;
 
 typedef struct refit {
     build *bd;
@@ -33,12 +45,13 @@ typedef struct refit {
     const uint64_t *geom_first; /* build_geom_first */
     uint64_t total;             /* triangles over all geometries */
     uint64_t *kept;             /* exact check: one bit per triangle that goes in the tree, by global index */
-    uint64_t (*counts)[3];      /* per chunk: non-finite, zero-area, kept (exact check); the leaf pass: bad, never-hit */
+    double *node_sah;           /* per node: build_node_sah */
+    uint64_t (*counts)[3];      /* per chunk of the exact check: non-finite, zero-area, kept */
     const uint32_t *index_of;   /* triangle4 leaves: geometry id -> index in the input */
     uint32_t max_id;
-    box4 *block_box;            /* per leaf block */
     uint32_t cuts[REFIT_MAX_CUTS]; /* the subtrees refitted in parallel, in depth-first order */
     box4 cut_box[REFIT_MAX_CUTS];
+    refit_counts cut_counts[REFIT_MAX_CUTS];
     uint32_t cut_count;
 } refit;
 
@@ -91,61 +104,55 @@ static int block_triangles(const refit *r, uint64_t k, uint32_t geom[4], uint32_
     return n;
 }
 
-/* The leaf pass, one chunk of leaf blocks: every triangle checked (a
- * finite one, and with the exact check one that goes in the tree), the
- * block written again and its box kept.  counts[chunk]: [0] the triangles
- * that failed, [1] the lanes written never to hit. */
-static void rewrite_blocks(void *data, uint32_t chunk)
+/* The blocks of leaf `ref` checked (every triangle finite, and with the
+ * exact check one that goes in the tree) and written again; returns their
+ * box. */
+static box4 refit_leaf(const refit *r, uint32_t ref, refit_counts *c)
 {
-    refit *r = data;
-    const rtk_build_input *in = r->bd->in;
-    const uint64_t begin = (uint64_t)chunk * REFIT_CHUNK;
-    const uint64_t end = begin + REFIT_CHUNK < r->accel->leaf_count ? begin + REFIT_CHUNK : r->accel->leaf_count;
-    uint64_t bad = 0, never_hit = 0;
-    for (uint64_t k = begin; k < end; k++) {
+    box4 box = box_empty();
+    const uint32_t first = rtk_leaf_first(ref);
+    for (uint32_t k = first; k < first + rtk_leaf_blocks(ref); k++) {
         uint32_t geom[4], prim[4];
+        /* the vertex indices of the block two on (the leaves lie in walk
+         * order), so its vertex loads need not wait for them */
+        if (k + REFIT_AHEAD < r->accel->leaf_count) {
+            const int m = block_triangles(r, k + REFIT_AHEAD, geom, prim);
+            for (int j = 0; j < m; j++)
+                __builtin_prefetch(triangle_at(&r->bd->in->geometries[geom[j]], prim[j]));
+        }
         const int n = block_triangles(r, k, geom, prim);
         if (n <= 0) {
-            bad++;
+            c->bad++;
             continue;
         }
-        for (int j = 0; j < n; j++) {
-            const rtk_build_geometry *g = &in->geometries[geom[j]];
-            const uint32_t *tri = triangle_at(g, prim[j]);
-            if (!rtk_triangle_is_finite(vertex_at(g, tri[0]), vertex_at(g, tri[1]), vertex_at(g, tri[2])))
-                bad++;
-            if (r->kept) {
-                const uint64_t i = r->geom_first[geom[j]] + prim[j];
-                bad += !(r->kept[i / 64] >> (i % 64) & 1);
-            }
+        for (int j = 0; r->kept && j < n; j++) {
+            const uint64_t i = r->geom_first[geom[j]] + prim[j];
+            c->bad += !(r->kept[i / 64] >> (i % 64) & 1);
         }
-        r->block_box[k] = box_empty();
-        never_hit += build_write_block(r->bd, k, geom, prim, (uint32_t)n, &r->block_box[k]);
+        int finite = 1;
+        c->never_hit += build_write_block(r->bd, k, geom, prim, (uint32_t)n, &box, &finite);
+        c->bad += !finite;
     }
-    r->counts[chunk][0] = bad;
-    r->counts[chunk][1] = never_hit;
+    return box;
 }
 
-/* The boxes of the subtree `ref`, written into its nodes; returns the
- * subtree's box.  Above the cut (depth < cut), the subtrees at the cut
- * were refitted already: their boxes are taken in depth-first order from
- * r->cut_box through *next.  Depth is at most RTK_BVH4_MAX_DEPTH. */
-static box4 refit_subtree(refit *r, uint32_t ref, int depth, int cut, uint32_t *next)
+/* The subtree `ref` refitted: its leaves written (refit_leaf) and its
+ * nodes' boxes; returns the subtree's box.  Above the cut (depth < cut),
+ * the subtrees at the cut were refitted already: their boxes are taken in
+ * depth-first order from r->cut_box through *next.  Depth is at most
+ * RTK_BVH4_MAX_DEPTH. */
+static box4 refit_subtree(refit *r, uint32_t ref, int depth, int cut, uint32_t *next, refit_counts *counts)
 {
     if (depth == cut || (cut > 0 && (ref & RTK_BVH4_LEAF_BIT)))
         return r->cut_box[(*next)++];
+    if (ref & RTK_BVH4_LEAF_BIT)
+        return refit_leaf(r, ref, counts);
     box4 all = box_empty();
-    if (ref & RTK_BVH4_LEAF_BIT) {
-        const uint32_t first = rtk_leaf_first(ref);
-        for (uint32_t k = first; k < first + rtk_leaf_blocks(ref); k++)
-            box_grow(&all, r->block_box[k].lo, r->block_box[k].hi);
-        return all;
-    }
     node_view v = view_node(r->bd, r->bd->nodes, ref);
     for (int c = 0; c < r->bd->width; c++) {
         if (v.child[c] == RTK_BVH4_EMPTY)
             continue;
-        const box4 b = refit_subtree(r, v.child[c], depth + 1, cut, next);
+        const box4 b = refit_subtree(r, v.child[c], depth + 1, cut, next, counts);
         _Alignas(16) float lo[4], hi[4];
         vf4_store(lo, b.lo);
         vf4_store(hi, b.hi);
@@ -153,6 +160,7 @@ static box4 refit_subtree(refit *r, uint32_t ref, int depth, int cut, uint32_t *
         v.ux[c] = hi[0], v.uy[c] = hi[1], v.uz[c] = hi[2];
         box_grow(&all, b.lo, b.hi);
     }
+    r->node_sah[ref] = build_node_sah(r->bd, ref); /* while the node is in the cache */
     return all;
 }
 
@@ -173,23 +181,30 @@ static void refit_cut(void *data, uint32_t i)
 {
     refit *r = data;
     uint32_t unused = 0;
-    r->cut_box[i] = refit_subtree(r, r->cuts[i], 0, -1, &unused);
+    refit_counts counts = {0, 0}; /* on the stack: the tasks' entries share cache lines */
+    r->cut_box[i] = refit_subtree(r, r->cuts[i], 0, -1, &unused, &counts);
+    r->cut_counts[i] = counts;
 }
 
-/* The root's box, every node refitted: the subtrees below the cut as
- * parallel tasks, then the nodes above it. */
-static box4 refit_nodes(refit *r)
+/* The root's box, the whole tree refitted: the subtrees below the cut as
+ * parallel tasks, then the nodes above it; *counts sums what the walks
+ * found. */
+static box4 refit_tree(refit *r, refit_counts *counts)
 {
     const uint32_t root = r->accel->root;
     if (root == RTK_BVH4_EMPTY)
         return box_empty();
     uint32_t next = 0;
     if (!r->bd->tasks) /* one thread: no cut */
-        return refit_subtree(r, root, 0, -1, &next);
+        return refit_subtree(r, root, 0, -1, &next, counts);
     const int cut = REFIT_CUT_DEPTH(r->bd->width);
     collect_cuts(r, root, 0, cut);
     run_parallel(r->bd, r->cut_count, refit_cut, r);
-    return refit_subtree(r, root, 0, cut, &next);
+    for (uint32_t i = 0; i < r->cut_count; i++) {
+        counts->bad += r->cut_counts[i].bad;
+        counts->never_hit += r->cut_counts[i].never_hit;
+    }
+    return refit_subtree(r, root, 0, cut, &next, counts);
 }
 
 static int refit_fail(rtk_build_output *out, int rc, const char *text)
@@ -209,11 +224,12 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
         return refit_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the input asks for another layout than the accel's");
     bd.nodes = accel->nodes;
     bd.leaves = bd.indexed ? (void *)accel->trisi : (void *)accel->tris;
+    bd.ids_kept = 1; /* so a task may read the ids of the blocks ahead of it, which another task writes */
 
     /* The quick check serves when nothing was left out for a non-finite
      * vertex and every triangle is in one leaf: then the tree holds every
      * triangle of the deforming geometries, and the others have not
-     * changed (rtk_accel_refit), so the leaf pass need only find every
+     * changed (rtk_accel_refit), so the walk need only find every
      * triangle still finite.  Otherwise the exact check first marks the
      * triangles that go in the tree now. */
     const uint64_t refs = out->refs ? out->refs : out->prims;
@@ -223,15 +239,14 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
     r.geom_first = geom_first;
     r.total = geom_first ? geom_first[in->geometry_count] : 0;
     const uint32_t tri_chunks = (uint32_t)((r.total + REFIT_CHUNK - 1) / REFIT_CHUNK);
-    const uint32_t block_chunks = (uint32_t)((accel->leaf_count + REFIT_CHUNK - 1) / REFIT_CHUNK);
-    const uint32_t chunks = tri_chunks > block_chunks ? tri_chunks : block_chunks;
-    if (exact)
+    if (exact) {
         r.kept = calloc(r.total / 64 + 1, sizeof *r.kept);
-    r.counts = calloc(chunks ? chunks : 1, sizeof *r.counts);
-    r.block_box = malloc((accel->leaf_count ? accel->leaf_count : 1) * sizeof *r.block_box);
+        r.counts = calloc(tri_chunks ? tri_chunks : 1, sizeof *r.counts);
+    }
     uint32_t *index_of = bd.indexed ? NULL : build_geometry_index(in, &r.max_id);
     r.index_of = index_of;
-    if (!geom_first || (exact && !r.kept) || !r.counts || !r.block_box || (!bd.indexed && !index_of)) {
+    r.node_sah = malloc((accel->node_count ? accel->node_count : 1) * sizeof *r.node_sah);
+    if (!geom_first || (exact && (!r.kept || !r.counts)) || (!bd.indexed && !index_of) || !r.node_sah) {
         rc = refit_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the refit");
         goto done;
     }
@@ -251,25 +266,20 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
         }
     }
 
-    /* The leaves, checked and written; then the nodes. */
+    /* The tree: leaves checked and written, boxes recomputed. */
     for (uint32_t gi = 0; bd.indexed && gi < in->geometry_count; gi++) {
         accel->geoms[gi].vertices = in->geometries[gi].vertices;
         accel->geoms[gi].stride = in->geometries[gi].vertex_stride;
     }
-    memset(r.counts, 0, (size_t)chunks * sizeof *r.counts);
-    run_parallel(&bd, block_chunks, rewrite_blocks, &r);
-    uint64_t bad = 0, never_hit = 0;
-    for (uint32_t c = 0; c < block_chunks; c++) {
-        bad += r.counts[c][0];
-        never_hit += r.counts[c][1];
-    }
-    if (bad) {
+    refit_counts counts = {0, 0};
+    const box4 bounds = refit_tree(&r, &counts);
+    if (counts.bad) {
         rc = RTK_REFIT_NEEDS_BUILD;
         goto done;
     }
     if (!exact) /* left out: the unchanged geometries' zero-area triangles */
-        degenerate = r.total - out->prims + never_hit;
-    const box4 bounds = refit_nodes(&r);
+        degenerate = r.total - out->prims + counts.never_hit;
+    bd.node_sah = r.node_sah;
     build_accel_finish(&bd, accel, accel->root, out->prims, out->depth, &bounds, out);
     if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
         out->refs = refs;
@@ -283,7 +293,7 @@ done:
     free(geom_first);
     free(r.kept);
     free(r.counts);
-    free(r.block_box);
+    free(r.node_sah);
     free(index_of);
     return rc;
 }
