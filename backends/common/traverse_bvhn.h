@@ -678,9 +678,9 @@ static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, con
 static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const feat_ctx *p, const tri4_hit *h,
                                                          unsigned mask, float tnear_s, float tfar_s)
 {
-    _Alignas(16) float T[4], absdet[4], U[4], V[4];
+    _Alignas(16) float T[4], rcp[4], U[4], V[4];
     vf4_store(T, h->T);
-    vf4_store(absdet, h->absdet);
+    vf4_store(rcp, vf4_div(vf4_set1(1.0f), h->absdet));
     vf4_store(U, h->U);
     vf4_store(V, h->V);
     while (mask) {
@@ -688,15 +688,14 @@ static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const
         float tl = 0.0f;
         for (unsigned m = mask; m; m &= m - 1) {
             const int i = __builtin_ctz(m);
-            const float ti = T[i] * (1.0f / absdet[i]);
+            const float ti = T[i] * rcp[i];
             if (lane < 0 || ti < tl) {
                 lane = i;
                 tl = ti;
             }
         }
         tl = tl <= tnear_s ? tnear_s : (tl >= tfar_s ? tfar_s : tl); /* as closest_from_ clamps */
-        const float inv = 1.0f / absdet[lane];
-        if (accept_lane(t, lane, p, tl, U[lane] * inv, V[lane] * inv, tfar_s, 0))
+        if (accept_lane(t, lane, p, tl, U[lane] * rcp[lane], V[lane] * rcp[lane], tfar_s, 0))
             return 1u << lane;
         mask &= ~(1u << lane);
     }
@@ -707,17 +706,16 @@ static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const
 static __attribute__((noinline)) int accept_any(const block_t *t, const feat_ctx *p, const tri4_hit *h, unsigned mask,
                                                 float tnear_s, float tfar_s)
 {
-    _Alignas(16) float T[4], absdet[4], U[4], V[4];
+    _Alignas(16) float T[4], rcp[4], U[4], V[4];
     vf4_store(T, h->T);
-    vf4_store(absdet, h->absdet);
+    vf4_store(rcp, vf4_div(vf4_set1(1.0f), h->absdet));
     vf4_store(U, h->U);
     vf4_store(V, h->V);
     for (; mask; mask &= mask - 1) {
         const int i = __builtin_ctz(mask);
-        float ti = T[i] * (1.0f / absdet[i]);
+        float ti = T[i] * rcp[i];
         ti = ti <= tnear_s ? tnear_s : (ti >= tfar_s ? tfar_s : ti);
-        const float inv = 1.0f / absdet[i];
-        if (accept_lane(t, i, p, ti, U[i] * inv, V[i] * inv, tfar_s, 1))
+        if (accept_lane(t, i, p, ti, U[i] * rcp[i], V[i] * rcp[i], tfar_s, 1))
             return 1;
     }
     return 0;
@@ -840,15 +838,16 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             if (f && mask)
                 mask = accept_closest(t, f, &h, mask, tnear_s, tfar_s);
             if (mask) {
-                /* the nearest of the lanes hit */
-                _Alignas(16) float T[4], absdet[4], U[4], V[4];
+                /* the nearest of the lanes hit; the reciprocals of |det|
+                 * in one division for the four lanes (the same quotients) */
+                _Alignas(16) float T[4], rcp[4], U[4], V[4];
                 vf4_store(T, h.T);
-                vf4_store(absdet, h.absdet);
+                vf4_store(rcp, vf4_div(vf4_set1(1.0f), h.absdet));
                 int lane = -1;
                 float t_lane = 0.0f;
                 for (; mask; mask &= mask - 1) {
                     const int i = __builtin_ctz(mask);
-                    float ti = T[i] * (1.0f / absdet[i]);
+                    float ti = T[i] * rcp[i];
                     if (lane < 0 || ti < t_lane) {
                         lane = i;
                         t_lane = ti;
@@ -861,9 +860,8 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
                 t_lane = t_lane <= tnear_s ? tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
                 vf4_store(U, h.U);
                 vf4_store(V, h.V);
-                const float inv = 1.0f / absdet[lane];
-                best->u = U[lane] * inv;
-                best->v = V[lane] * inv;
+                best->u = U[lane] * rcp[lane];
+                best->v = V[lane] * rcp[lane];
                 best->leaf = block;
                 best->lane = lane;
                 tfar_s = t_lane;
