@@ -224,6 +224,22 @@ static void test_malformed(void **state)
     memcpy(bin_ply + sizeof bin_head - 1, count_le, sizeof count_le);
     expect_error(write_file("biglist_binary.ply", bin_ply, sizeof bin_head - 1 + sizeof count_le),
                  "a list count of 1073741824 the rest of the file cannot hold");
+    /* the second of two binary faces cut short in its count, then in its
+     * indices, and a negative count */
+    static const char two_head[] = "ply\nformat binary_little_endian 1.0\nelement face 2\n"
+                                   "property list int int vertex_indices\nend_header\n";
+    char two_ply[sizeof two_head + 32];
+    memcpy(two_ply, two_head, sizeof two_head - 1);
+    const unsigned char faces_le[24] = {3, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 3, 0, 0, 0, 0, 0, 0, 0};
+    memcpy(two_ply + sizeof two_head - 1, faces_le, sizeof faces_le);
+    expect_error(write_file("cutcount.ply", two_ply, sizeof two_head - 1 + 18),
+                 "malformed PLY: element 0 item 1: the file ends");
+    expect_error(write_file("cutface.ply", two_ply, sizeof two_head - 1 + sizeof faces_le),
+                 "malformed PLY: element 0 item 1: a list count of 3 the rest of the file cannot hold");
+    const unsigned char minus_one[4] = {0xff, 0xff, 0xff, 0xff};
+    memcpy(two_ply + sizeof two_head - 1 + 16, minus_one, sizeof minus_one);
+    expect_error(write_file("negface.ply", two_ply, sizeof two_head - 1 + sizeof faces_le),
+                 "element 0 item 1: a list count of a negative number");
     expect_error(write_text("empty.stl", ""), "empty file");
 }
 

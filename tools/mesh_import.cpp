@@ -400,8 +400,10 @@ bool ply_body_ok(const std::string &data, size_t header_size, const std::vector<
                  bool big_endian, std::string &why)
 {
     size_t pos = header_size;
-    const auto bad = [&why](unsigned long long item, const std::string &element_index, const std::string &what) {
-        why = "malformed PLY: " + element_index + " " + std::to_string(item) + ": " + what;
+    // the message is made only for the item that fails (making it for every
+    // value cost more than reading the file)
+    const auto bad = [&why](size_t element, unsigned long long item, const std::string &what) {
+        why = "malformed PLY: element " + std::to_string(element) + " item " + std::to_string(item) + ": " + what;
         return false;
     };
     if (ascii) {
@@ -418,49 +420,69 @@ bool ply_body_ok(const std::string &data, size_t header_size, const std::vector<
         for (size_t e = 0; e < elements.size(); e++)
             for (unsigned long long i = 0; i < elements[e].count; i++)
                 for (const ply_property &p : elements[e].props) {
-                    const std::string where = "element " + std::to_string(e) + " item";
                     if (!word(w))
-                        return bad(i, where, "the file ends");
+                        return bad(e, i, "the file ends");
                     unsigned long long n = 1;
                     if (p.list) {
                         if (!ply_word_ok(w, "uint") || (n = std::strtoull(w.c_str(), nullptr, 10)) > data.size() - pos)
-                            return bad(i, where, "a list count '" + w + "' the rest of the file cannot hold");
+                            return bad(e, i, "a list count '" + w + "' the rest of the file cannot hold");
                         if (n && !word(w))
-                            return bad(i, where, "the file ends");
+                            return bad(e, i, "the file ends");
                     }
                     for (unsigned long long k = 0; k < n; k++) {
                         if (!ply_word_ok(w, p.type))
-                            return bad(i, where, "'" + w + "' is not a " + p.type);
+                            return bad(e, i, "'" + w + "' is not a " + p.type);
                         if (k + 1 < n && !word(w))
-                            return bad(i, where, "the file ends");
+                            return bad(e, i, "the file ends");
                     }
                 }
         return true;
     }
-    for (size_t e = 0; e < elements.size(); e++)
+    struct sizes {
+        size_t count, type; // bytes of a list's count (0: not a list) and of a value
+        bool count_signed;
+    };
+    for (size_t e = 0; e < elements.size(); e++) {
+        std::vector<sizes> props;
+        size_t fixed = 0; // bytes of an item without lists
+        bool lists = false;
+        for (const ply_property &p : elements[e].props) {
+            props.push_back({p.list ? (size_t)ply_type_size(p.count_type) : 0, (size_t)ply_type_size(p.type),
+                             p.list && p.count_type[0] != 'u'});
+            lists |= p.list;
+            fixed += p.list ? 0 : props.back().type;
+        }
+        if (!lists) { // items of one size: only whether they fit
+            const unsigned long long fit = fixed ? (data.size() - pos) / fixed : elements[e].count;
+            if (fit < elements[e].count)
+                return bad(e, fit, "the file ends");
+            pos += (size_t)elements[e].count * fixed;
+            continue;
+        }
         for (unsigned long long i = 0; i < elements[e].count; i++)
-            for (const ply_property &p : elements[e].props) {
-                const std::string where = "element " + std::to_string(e) + " item";
-                const size_t cs = (size_t)ply_type_size(p.count_type), ts = (size_t)ply_type_size(p.type);
+            for (const sizes &p : props) {
+                const size_t cs = p.count, ts = p.type;
                 unsigned long long n = 1;
-                if (p.list) {
+                if (cs) {
                     if (data.size() - pos < cs)
-                        return bad(i, where, "the file ends");
+                        return bad(e, i, "the file ends");
                     unsigned long long v = 0;
                     for (size_t k = 0; k < cs; k++)
                         v |= (unsigned long long)(unsigned char)data[pos + (big_endian ? k : cs - 1 - k)]
                              << (8 * (cs - 1 - k));
-                    const bool negative = p.count_type[0] != 'u' && (v >> (8 * cs - 1)) & 1;
+                    const bool negative = p.count_signed && (v >> (8 * cs - 1)) & 1;
                     pos += cs;
                     n = v;
                     if (negative || n > (data.size() - pos) / ts)
-                        return bad(i, where, "a list count of " + (negative ? "a negative number" : std::to_string(n)) +
-                                                 " the rest of the file cannot hold");
+                        return bad(e, i,
+                                   "a list count of " + (negative ? std::string("a negative number") : std::to_string(n)) +
+                                       " the rest of the file cannot hold");
                 }
                 if ((data.size() - pos) / ts < n)
-                    return bad(i, where, "the file ends");
+                    return bad(e, i, "the file ends");
                 pos += (size_t)n * ts;
             }
+    }
     return true;
 }
 
