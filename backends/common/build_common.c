@@ -373,16 +373,17 @@ uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom
     const vfloat4 bx = vf4_sub(p[2][0], p[0][0]), by = vf4_sub(p[2][1], p[0][1]), bz = vf4_sub(p[2][2], p[0][2]);
     const uint32_t live = (1u << count) - 1;
     const uint32_t never = deforms ? zero_area_lanes(deforms, ax, ay, az, bx, by, bz, v) : 0;
+    if (!bd->vertex_leaves) { /* triangle4 holds v0 and the edges from it */
+        p[1][0] = ax, p[1][1] = ay, p[1][2] = az;
+        p[2][0] = bx, p[2][1] = by, p[2][2] = bz;
+    }
     /* unused and never-hit lanes: NaN vertices (and no edges) */
     const vbool4 dead = vb4_from_bits((int)(never | (~live & 0xf)));
     const vfloat4 nan = vf4_set1(NAN);
     float *out = (float *)((rtk_triangle4 *)bd->leaves + index);
-    const vfloat4 rows[9] = {p[0][0], p[0][1], p[0][2], bd->vertex_leaves ? p[1][0] : ax,
-                             bd->vertex_leaves ? p[1][1] : ay, bd->vertex_leaves ? p[1][2] : az,
-                             bd->vertex_leaves ? p[2][0] : bx, bd->vertex_leaves ? p[2][1] : by,
-                             bd->vertex_leaves ? p[2][2] : bz};
-    for (int i = 0; i < 9; i++)
-        vf4_storeu(out + 4 * i, vf4_select(dead, i < 3 || bd->vertex_leaves ? nan : zero, rows[i]));
+    for (int k = 0; k < 3; k++)
+        for (int j = 0; j < 3; j++)
+            vf4_storeu(out + 4 * (3 * k + j), vf4_select(dead, k == 0 || bd->vertex_leaves ? nan : zero, p[k][j]));
     rtk_triangle4 *t = (rtk_triangle4 *)bd->leaves + index;
     if (!bd->ids_kept) {
         memcpy(t->geom, ids[0], sizeof t->geom);

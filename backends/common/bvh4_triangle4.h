@@ -72,9 +72,10 @@ typedef struct rtk_triangle4 {
     uint32_t prim[4];
 } rtk_triangle4;
 
-/* Writes one lane of a triangle4 block: v0 and the two edges from it.  The
- * builder and the triangle4i traversal both go through here, so the two
- * layouts hold the same floats and give the same answers to the bit. */
+/* Writes one lane of a triangle4 block: v0 and the two edges from it, the
+ * same subtractions as the builders' four-lane writer (build_write_block),
+ * so the triangle4i traversal, which goes through here, and the triangle4
+ * layout hold the same floats and give the same answers to the bit. */
 static inline void rtk_triangle4_set_lane(rtk_triangle4 *t, int lane, const float *v0, const float *v1,
                                           const float *v2, uint32_t geom, uint32_t prim)
 {

@@ -224,7 +224,7 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
         return refit_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the input asks for another layout than the accel's");
     bd.nodes = accel->nodes;
     bd.leaves = bd.indexed ? (void *)accel->trisi : (void *)accel->tris;
-    bd.ids_kept = 1; /* so a task may read the ids of the blocks ahead of it, which another task writes */
+    bd.ids_kept = 1; /* unwritten, so a task may read the ids of blocks ahead in another task's subtree */
 
     /* The quick check serves when nothing was left out for a non-finite
      * vertex and every triangle is in one leaf: then the tree holds every
