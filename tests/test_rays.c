@@ -209,6 +209,27 @@ static void test_nan_and_inf(void **state)
     expect("denormal direction", test_ray(0.75f, 0.25f, 5, 1e-40f, -1e-40f, -1, 0, inf), 0, 5);
 }
 
+/* A scene without motion blur ignores the ray's time, whatever it holds:
+ * negative, -0.0, NaN, infinite or beyond 1 (the single-ray kernels load
+ * it beside the direction, and once took its sign for a fourth axis'), from
+ * all eight octants of directions. */
+static void test_time_without_motion(void **state)
+{
+    (void)state;
+    const float times[] = {-1.0f, -0.0f, NAN, INFINITY, -INFINITY, 2.0f, 0.5f};
+    for (int octant = 0; octant < 8; octant++) {
+        /* toward (0.75, 0.25, 0) on the square, from the octant's side */
+        const float dx = octant & 1 ? -1.0f : 1.0f, dy = octant & 2 ? -0.5f : 0.5f, dz = octant & 4 ? -5.0f : 5.0f;
+        for (size_t k = 0; k < sizeof times / sizeof *times; k++) {
+            rtk_ray r = test_ray(0.75f - dx, 0.25f - dy, -dz, dx, dy, dz, 0, INFINITY);
+            r.time = times[k];
+            char what[64];
+            snprintf(what, sizeof what, "octant %d, time %g", octant, times[k]);
+            expect(what, r, 0, 1);
+        }
+    }
+}
+
 static void test_interval(void **state)
 {
     (void)state;
@@ -455,6 +476,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_axis_parallel_zero_and_negative_zero),
         cmocka_unit_test(test_nan_and_inf),
+        cmocka_unit_test(test_time_without_motion),
         cmocka_unit_test(test_interval),
         cmocka_unit_test(test_origin_on_surface),
         cmocka_unit_test_setup_teardown(test_origin_on_box_far_plane, setup_flat_squares, restore_fixture),

@@ -200,6 +200,18 @@ static inline const feat_ctx *feat_init(feat_ctx *f, const rtk_ray *r, const rtk
     return f;
 }
 
+/* The byte offsets of a node's near and far planes along x, y and z, by
+ * the signs of the direction (bit k set: negative along axis k).  A table,
+ * not arithmetic per ray: a load instead of a dozen instructions. */
+#define PLANE_OFF(neg, k, lo, up) (((neg) >> (k) & 1) ? offsetof(node_t, up) : offsetof(node_t, lo))
+#define PLANE_OFFSETS(neg)                                                                                          \
+    {{PLANE_OFF(neg, 0, lower_x, upper_x), PLANE_OFF(neg, 1, lower_y, upper_y), PLANE_OFF(neg, 2, lower_z, upper_z)}, \
+     {PLANE_OFF(neg, 0, upper_x, lower_x), PLANE_OFF(neg, 1, upper_y, lower_y), PLANE_OFF(neg, 2, upper_z, lower_z)}}
+static const size_t plane_offsets[8][2][3] = {PLANE_OFFSETS(0), PLANE_OFFSETS(1), PLANE_OFFSETS(2), PLANE_OFFSETS(3),
+                                              PLANE_OFFSETS(4), PLANE_OFFSETS(5), PLANE_OFFSETS(6), PLANE_OFFSETS(7)};
+#undef PLANE_OFFSETS
+#undef PLANE_OFF
+
 /* Everything per axis is computed for x, y, z at once in lanes 0..2 of
  * 4-wide vectors (lane 3 carries tnear or time and is never used), then
  * broadcast: one division instead of three, and no scalar shuffling
@@ -210,8 +222,6 @@ static inline const feat_ctx *feat_init(feat_ctx *f, const rtk_ray *r, const rtk
 static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel)
 {
     (void)accel;
-    static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
-    static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
     /* a component below 1e-18 in magnitude becomes +-1e-18, its sign kept */
     const vfloat4 tiny = vf4_set1(1e-18f);
@@ -235,7 +245,7 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
 #endif
     (void)org_far; /* (unused without FMA or robustness) */
     /* inv is never +-0 (|d| >= 1e-18 and finite), so < 0 is its sign bit */
-    const unsigned neg = (unsigned)vb4_mask(vf4_lt(inv, vf4_set1(0.0f)));
+    const unsigned neg = (unsigned)vb4_mask(vf4_lt(inv, vf4_set1(0.0f))) & 7; /* (lane 3: time or tnear) */
     _Alignas(16) float o[4], on[4], dd[4], in[4], inf[4];
     vf4_store(o, org);
     vf4_store(on, org_near);
@@ -278,10 +288,9 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
             p->norg_far[k] = vn_set1(of[k]);
 #endif
         }
-        const int nk = neg >> k & 1;
-        p->near_off[k] = nk ? upper[k] : lower[k];
-        p->far_off[k] = nk ? lower[k] : upper[k];
     }
+    memcpy(p->near_off, plane_offsets[neg][0], sizeof p->near_off);
+    memcpy(p->far_off, plane_offsets[neg][1], sizeof p->far_off);
 #if RTK_ROBUST
     rtk_watertight_ray_init(dd, &p->w);
     const int axes[3] = {p->w.kx, p->w.ky, p->w.kz};
@@ -1020,17 +1029,61 @@ static inline void closest_hit_quad(const rtk_accel *attrs, uint32_t geom, uint3
 }
 
 #if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
+#if RTK_SIMD_HAS_FMA
+#define BVHN_FUSED 1
+#else
+#define BVHN_FUSED 0
+#endif
+/* The entry points keep the usual ray (no features, and with FMA an
+ * origin the fused node test can take) on a path where the traversal is
+ * inlined and the ray's precomputed vectors are the function's own values,
+ * so the compiler keeps them in registers or spills only those that do not
+ * fit, instead of writing all of them to a struct for a callee to read
+ * back.  Every other ray goes through a function of its own that sets up
+ * its ray again. */
+static __attribute__((noinline)) void intersect1_other(const rtk_accel *accel, rtk_rayhit *rayhit,
+                                                       const feat_ctx *f)
+{
+    ray_pre p;
+    ray_pre_init(&p, &rayhit->ray, accel);
+    closest_hit best = CLOSEST_HIT_NONE;
+    float tfar = rayhit->ray.tfar;
+    closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, f);
+    if (best.lane >= 0) {
+        closest_hit_store(accel, &best, &p, tfar, rayhit);
+        closest_hit_quad(accel, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
+    }
+}
+
+static __attribute__((noinline)) void occluded1_other(const rtk_accel *accel, rtk_ray *ray, const feat_ctx *f)
+{
+    ray_pre p;
+    ray_pre_init(&p, ray, accel);
+    if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar, f))
+        ray->tfar = -INFINITY;
+}
+
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
-    ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel);
     feat_ctx fc;
     const feat_ctx *f = feat_init(&fc, &rayhit->ray, accel, q);
+    if (__builtin_expect(f != NULL, 0)) {
+        intersect1_other(accel, rayhit, f);
+        return;
+    }
+    ray_pre p;
+    ray_pre_init(&p, &rayhit->ray, accel);
+#if RTK_SIMD_HAS_FMA
+    if (__builtin_expect(!p.fma, 0)) {
+        intersect1_other(accel, rayhit, NULL);
+        return;
+    }
+#endif
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
-    closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, f);
+    closest_from_(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, BVHN_FUSED, NULL);
     if (best.lane >= 0) {
         closest_hit_store(accel, &best, &p, tfar, rayhit);
         closest_hit_quad(accel, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
@@ -1041,10 +1094,21 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
+    feat_ctx fc;
+    const feat_ctx *f = feat_init(&fc, ray, accel, q);
+    if (__builtin_expect(f != NULL, 0)) {
+        occluded1_other(accel, ray, f);
+        return;
+    }
     ray_pre p;
     ray_pre_init(&p, ray, accel);
-    feat_ctx fc;
-    if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar, feat_init(&fc, ray, accel, q)))
+#if RTK_SIMD_HAS_FMA
+    if (__builtin_expect(!p.fma, 0)) {
+        occluded1_other(accel, ray, NULL);
+        return;
+    }
+#endif
+    if (any_from_usual_(accel, accel->root, &p, ray->tnear, ray->tfar, BVHN_FUSED, NULL))
         ray->tfar = -INFINITY;
 }
 #endif
