@@ -416,6 +416,123 @@ static void test_spread_packets(void **state)
  * leaf of four blocks, the largest there is, at the root.  Every block must
  * be searched, by single rays and packets: the nearest triangle from above
  * is the last one, from below the first. */
+/* Teeth in the plane z = TEETH_Z, each with its base on y = TEETH_Y, so
+ * every box of the tree is flat in z and has its lower y face on that line:
+ * a ray aimed at a point of a base enters a box through its y face and
+ * leaves it through its z face at one and the same distance, in exact
+ * arithmetic.  Far from the coordinate origin, and coordinates that are not
+ * round in binary, so the slab arithmetic rounds. */
+#define TEETH 64
+#define TEETH_X 150.3f
+#define TEETH_Y 300.3f
+#define TEETH_Z (-500.7f)
+#define TEETH_W 1.37f
+static float teeth_v[TEETH * 9]; /* static: compact scenes keep using them */
+
+static int setup_teeth(void **state)
+{
+    static uint32_t idx[TEETH * 3];
+    for (int i = 0; i < TEETH; i++) {
+        const float x = TEETH_X + 2.11f * (float)i;
+        const float tri[9] = {x, TEETH_Y, TEETH_Z, x + TEETH_W, TEETH_Y, TEETH_Z, x + 0.5f * TEETH_W, TEETH_Y + 1.13f,
+                              TEETH_Z};
+        memcpy(&teeth_v[9 * i], tri, sizeof tri);
+        for (int k = 0; k < 3; k++)
+            idx[3 * i + k] = (uint32_t)(3 * i + k);
+    }
+    teardown(state);
+    build_scenes(teeth_v, 3 * TEETH, idx, TEETH);
+    return 0;
+}
+
+/* The box tests are conservative against their own rounding: a ray that
+ * meets a box in exact arithmetic, even only on one of its edges, enters
+ * it.  On the teeth, rays from near the coordinate origin (where the
+ * padding of a slab test's origin term is small against its distances)
+ * aimed at points of the bases, their directions rounded, so each passes a
+ * little above or below the base line: where the exact ray crosses the
+ * plane on or above the line (decided in double, away from the tie), every
+ * box on the way must let it through, so the answer must be the triangle
+ * test's on the tooth aimed at, which every backend's kernels compute to
+ * the same bits (geometry/triangle.h).  A box test that rounds an entry
+ * distance up or an exit distance down by an ulp culls some of these
+ * rays. */
+static void test_box_edges(void **state)
+{
+    (void)state;
+    rng seed = {12345};
+    const size_t nb = nscenes / 4;
+    size_t checked = 0, hits = 0;
+    for (int n = 0; n < 20000; n++) {
+        const int i = (int)(rng_u32(&seed) % TEETH);
+        const float *v0 = &teeth_v[9 * i];
+        const float px = v0[0] + TEETH_W * (0.1f + 0.8f * rng_float(&seed));
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++)
+            o[k] = 2.0f * rng_float(&seed) - 1.0f;
+        d[0] = px - o[0];
+        d[1] = TEETH_Y - o[1];
+        d[2] = TEETH_Z - o[2];
+        if (n & 1) /* and from beyond the plane, toward the origin */
+            for (int k = 0; k < 3; k++) {
+                o[k] += 2.0f * d[k];
+                d[k] = -d[k];
+            }
+        /* where the exact ray crosses the plane */
+        const double tz = ((double)TEETH_Z - o[2]) / d[2];
+        const double y = o[1] + tz * d[1];
+        if (y - (double)TEETH_Y < 1e-12)
+            continue; /* below the line, or too close to it to tell in double */
+        const float e1[3] = {v0[3] - v0[0], v0[4] - v0[1], v0[5] - v0[2]};
+        const float e2[3] = {v0[6] - v0[0], v0[7] - v0[1], v0[8] - v0[2]};
+        rtk_tri_hit th;
+        const int want = rtk_triangle_intersect(o, d, 0.0f, INFINITY, v0, e1, e2, &th);
+        checked++;
+        hits += (size_t)want;
+        const rtk_ray r = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+        for (size_t b = 0; b < 2 * nb; b++) { /* the default and compact layouts (robust ones test another way) */
+            rtk_rayhit rh = {.ray = r};
+            rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+            rtk_ray oc = r;
+            assert_int_equal(rtk_intersect1(scenes[b].scene, &rh), RTK_OK);
+            assert_int_equal(rtk_occluded1(scenes[b].scene, &oc), RTK_OK);
+            const int got = rh.hit.geomID != RTK_INVALID_GEOMETRY_ID;
+            if (got != want || (got && rh.hit.primID != (uint32_t)i) || (oc.tfar == -INFINITY) != want)
+                fail_msg("[%s] ray %a %a %a  %a %a %a at tooth %d: the triangle test %s, intersect1 %s (prim %u), "
+                         "occluded1 %s",
+                         scenes[b].name, o[0], o[1], o[2], d[0], d[1], d[2], i, want ? "hits" : "misses",
+                         got ? "hits" : "misses", rh.hit.primID, oc.tfar == -INFINITY ? "hits" : "misses");
+            if (n % 16 == 0) /* the packet kernels' box tests too */
+                for (unsigned w = 4; w <= 16; w *= 2)
+                    for (int occluded = 0; occluded < 2; occluded++) {
+                        _Alignas(64) uint32_t pk[20 * 16];
+                        int valid[16];
+                        for (unsigned j = 0; j < w; j++) {
+                            rtk_rayhit in = {.ray = r};
+                            in.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                            test_packet_put(pk, w, j, &in, occluded);
+                            valid[j] = -1;
+                        }
+                        assert_int_equal(test_trace_packet(scenes[b].scene, w, occluded, valid, pk), RTK_OK);
+                        for (unsigned j = 0; j < w; j++) {
+                            rtk_rayhit out;
+                            test_packet_get(pk, w, j, &out, occluded);
+                            const int pgot = occluded ? out.ray.tfar == -INFINITY
+                                                      : out.hit.geomID != RTK_INVALID_GEOMETRY_ID;
+                            if (pgot != want || (!occluded && pgot && out.hit.primID != (uint32_t)i))
+                                fail_msg("[%s] ray %a %a %a  %a %a %a at tooth %d: the triangle test %s, "
+                                         "%s%u lane %u %s",
+                                         scenes[b].name, o[0], o[1], o[2], d[0], d[1], d[2], i,
+                                         want ? "hits" : "misses", occluded ? "occluded" : "intersect", w, j,
+                                         pgot ? "hits" : "misses");
+                        }
+                    }
+        }
+    }
+    print_message("box edges: %zu rays checked, %zu hit their tooth\n", checked, hits);
+    assert_true(checked > 5000 && hits > 1000 && hits < checked);
+}
+
 static int setup_stacked_triangles(void **state)
 {
     static float v[16 * 9]; /* static: compact scenes keep using them */
@@ -484,6 +601,7 @@ int main(void)
         cmocka_unit_test(test_huge_coordinates),
         cmocka_unit_test(test_spread_packets),
         cmocka_unit_test_setup_teardown(test_multi_block_leaf, setup_stacked_triangles, restore_fixture),
+        cmocka_unit_test_setup_teardown(test_box_edges, setup_teeth, restore_fixture),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -5,6 +5,7 @@
  * once with -msse4.1 (intrinsics, as sse41/avx/avx2 see it), and both
  * binaries must pass the same expectations.
  */
+#include <float.h>
 #include <math.h>
 #include <setjmp.h>
 #include <stdarg.h>
@@ -151,6 +152,10 @@ static void test_integer_order(void **state)
     /* among negatives the order is that of the magnitudes: callers must
      * keep them out of anything but "below every non-negative value" */
     assert_int_equal(vb4_mask(vf4_gti(vf4_set1(-2.0f), vf4_set1(-1.0f))), 0xf);
+    /* n ulps up */
+    get4(vf4_add_ulps(vf4_set(1.0f, 0.0f, 0x1.fffffep-1f, 3.0f), 8), r);
+    assert_true(r[0] == 0x1.000010p0f && r[1] == 0x1p-146f && r[2] == 0x1.00000ep0f && r[3] == 0x1.800010p1f);
+    assert_int_equal(vb4_mask(vf4_gti(vf4_add_ulps(vf4_set1(INFINITY), 8), vf4_set1(FLT_MAX))), 0xf);
 }
 
 int main(void)

@@ -69,6 +69,8 @@ typedef vfloat4 vnode;
 #define vn_mini vf4_mini
 #define vn_gti vf4_gti
 #define vn_madd vf4_madd
+#define vn_low4(a) (a)
+#define vn_add_ulps vf4_add_ulps
 #define RTK_NODE_INT_ORDER RTK_SIMD_INT_ORDER_4
 #elif RTK_BVHN == 8
 typedef rtk_bvh8_node node_t;
@@ -89,6 +91,8 @@ typedef vfloat8 vnode;
 #define vn_maxi vf8_maxi
 #define vn_mini vf8_mini
 #define vn_gti vf8_gti
+#define vn_low4 vf8_low
+#define vn_add_ulps vf8_add_ulps
 #define BVHN_NODES(accel) ((const rtk_bvh8_node *)(accel)->nodes)
 #define RTK_NODE_INT_ORDER RTK_SIMD_INT_ORDER_8
 #else
@@ -135,6 +139,27 @@ typedef rtk_triangle4 block_t;
  * they come out no smaller than the exact ones however the near and far
  * distances round (at most four roundings between them; Ize 2013). */
 #define RTK_BOX_FAR_SCALE (1.0f + 2.0f * (4.0f * 0x1p-24f) / (1.0f - 4.0f * 0x1p-24f))
+
+/* The fused node test of the default layouts (FMA, not robust) scales
+ * differently, and with no vectors of its own: the far distances use the
+ * near planes' reciprocals, and the interval's far end moves up by
+ * RTK_FAR_ULPS ulps (an integer addition to its bits) before the
+ * comparison.  There each distance is off by at most two roundings of
+ * relative size u = 2^-24 (the reciprocal's and the fused operation's; the
+ * error of org * inv is absolute, covered by the padding of c_near and
+ * c_far, see ray_pre_init), so an entry distance can come out (1 + u)^2
+ * times too far and an exit distance (1 - u)^2 times too near; an ulp of a
+ * positive normal float is more than u times it, so 8 ulps (a factor over
+ * 1 + 8u) cover both with room to spare, and subnormal or zero exit
+ * distances are covered by the padding's absolute part.  Three vectors
+ * fewer for the single-ray loop to keep in registers (a multiplication
+ * of the far reciprocals would cost the same but keep them). */
+#define RTK_FAR_ULPS 8
+#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
+#define RTK_FUSED_FAR_ULPS 1
+#else
+#define RTK_FUSED_FAR_ULPS 0
+#endif
 
 /* Robust traversal pads every box, on top of the conservative slab test
  * above, for the rounding of the watertight triangle test: that test
@@ -243,6 +268,12 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
     const vfloat4 inv = inv_exact, inv_far = vf4_mul(inv, vf4_set1(RTK_BOX_FAR_SCALE));
     const vfloat4 org_near = org, org_far = org;
 #endif
+#if RTK_FUSED_FAR_ULPS
+    const vfloat4 fused_inv_far = inv; /* (see RTK_FAR_ULPS) */
+#else
+    const vfloat4 fused_inv_far = inv_far;
+#endif
+    (void)fused_inv_far;
     (void)org_far; /* (unused without FMA or robustness) */
     /* inv is never +-0 (|d| >= 1e-18 and finite), so < 0 is its sign bit */
     const unsigned neg = (unsigned)vb4_mask(vf4_lt(inv, vf4_set1(0.0f))) & 7; /* (lane 3: time or tnear) */
@@ -263,7 +294,7 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
      * c_far could become infinite or NaN, the slab would drop out of
      * the test, and with all three gone the empty child slots would be
      * entered; such rays take the subtract-then-multiply test. */
-    const vfloat4 c = vf4_mul(org_near, inv), cf = vf4_mul(org_far, inv_far);
+    const vfloat4 c = vf4_mul(org_near, inv), cf = vf4_mul(org_far, fused_inv_far);
     const vfloat4 ulp4 = vf4_set1(0x1p-22f), min_normal = vf4_set1(0x1p-126f);
     const vfloat4 e = vf4_add(vf4_mul(vf4_abs(c), ulp4), min_normal);
     const vfloat4 ef = vf4_add(vf4_mul(vf4_abs(cf), ulp4), min_normal);
@@ -351,9 +382,15 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
         t0x = vn_msub(PLANE(n, p->near_off[0]), p->ninv[0], p->c_near[0]);
         t0y = vn_msub(PLANE(n, p->near_off[1]), p->ninv[1], p->c_near[1]);
         t0z = vn_msub(PLANE(n, p->near_off[2]), p->ninv[2], p->c_near[2]);
-        t1x = vn_msub(PLANE(n, p->far_off[0]), p->ninv_far[0], p->c_far[0]);
-        t1y = vn_msub(PLANE(n, p->far_off[1]), p->ninv_far[1], p->c_far[1]);
-        t1z = vn_msub(PLANE(n, p->far_off[2]), p->ninv_far[2], p->c_far[2]);
+#if RTK_FUSED_FAR_ULPS
+#define FUSED_INV_FAR p->ninv
+#else
+#define FUSED_INV_FAR p->ninv_far
+#endif
+        t1x = vn_msub(PLANE(n, p->far_off[0]), FUSED_INV_FAR[0], p->c_far[0]);
+        t1y = vn_msub(PLANE(n, p->far_off[1]), FUSED_INV_FAR[1], p->c_far[1]);
+        t1z = vn_msub(PLANE(n, p->far_off[2]), FUSED_INV_FAR[2], p->c_far[2]);
+#undef FUSED_INV_FAR
     } else
 #endif
     {
@@ -382,7 +419,11 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
     }
 #if RTK_NODE_INT_ORDER
     const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, tnear));
-    const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
+    vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
+#if RTK_FUSED_FAR_ULPS
+    if (fused)
+        tmax = vn_add_ulps(tmax, RTK_FAR_ULPS);
+#endif
     *dist = tmin;
     return (unsigned)vn_mask(vn_gti(tmin, tmax)) ^ ((1u << RTK_BVHN) - 1);
 #else
@@ -826,11 +867,14 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
                                                                   const ray_pre *p, float tnear_s, float *tfar_io,
                                                                   closest_hit *best, int fused, const feat_ctx *f)
 {
-    const vfloat4 tnear = vf4_set1(tnear_s);
+    /* The triangle tests take the lower lanes of the node tests' interval
+     * (-0.0 made +0.0 there, which compares the same): two vectors fewer
+     * to keep in registers. */
     const vnode ntnear = vn_set1(tnear_s + 0.0f); /* -0.0 -> +0.0 for node_intersect */
+    const vfloat4 tnear = vn_low4(ntnear);
     float tfar_s = *tfar_io;
-    vfloat4 tfar = vf4_set1(tfar_s);
     vnode ntfar = vn_set1(tfar_s + 0.0f);
+    vfloat4 tfar = vn_low4(ntfar);
 
     stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
     int sp = 0;
@@ -874,8 +918,8 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
                 best->leaf = block;
                 best->lane = lane;
                 tfar_s = t_lane;
-                tfar = vf4_set1(tfar_s);
                 ntfar = vn_set1(tfar_s + 0.0f);
+                tfar = vn_low4(ntfar);
             }
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
@@ -895,8 +939,8 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
     static inline __attribute__((always_inline)) int name(const rtk_accel *accel, uint32_t root, const ray_pre *p,  \
                                                           float tnear_s, float tfar_s, int fused, const feat_ctx *f) \
     {                                                                                                                \
-        const vfloat4 tnear = vf4_set1(tnear_s), tfar = vf4_set1(tfar_s);                                            \
         const vnode ntnear = vn_set1(tnear_s + 0.0f), ntfar = vn_set1(tfar_s + 0.0f); /* no -0.0 */                  \
+        const vfloat4 tnear = vn_low4(ntnear), tfar = vn_low4(ntfar); /* as in closest_from_ */                     \
         stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];                                                            \
         int sp = 0;                                                                                                  \
         uint32_t cur = root;                                                                                         \

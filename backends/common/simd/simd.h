@@ -32,6 +32,11 @@
  *                            RTK_SIMD_INT_ORDER_4 / _8 say where they are
  *                            cheaper than the float ops at that width
  *                            (SSE4.1 / AVX2), so kernels use them there
+ *   vf4_add_ulps(a, n)       the lanes' bit patterns plus n as integers
+ *                            (wrapping): for finite positive lanes, n ulps
+ *                            up (+inf becomes a NaN pattern, which the
+ *                            integer order still puts above every finite
+ *                            value); vf8_ on AVX2 only
  *   vf4_madd / vf4_msub      fused (one rounding) where the ISA has FMA,
  *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
  *                            which, for kernels whose error bounds depend on

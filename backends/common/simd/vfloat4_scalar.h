@@ -51,6 +51,15 @@ RTK_INLINE vfloat4 vf4_mini(vfloat4 a, vfloat4 b)
 {
     RTK_S4_F(rtk_s_bits(a.f[k]) > rtk_s_bits(b.f[k]) ? b.f[k] : a.f[k]);
 }
+RTK_INLINE vfloat4 vf4_add_ulps(vfloat4 a, int n)
+{
+    vfloat4 r;
+    for (int k = 0; k < 4; k++) {
+        const int32_t b = (int32_t)((uint32_t)rtk_s_bits(a.f[k]) + (uint32_t)n);
+        memcpy(&r.f[k], &b, sizeof b);
+    }
+    return r;
+}
 /* two roundings: the scalar backend has no FMA (RTK_SIMD_HAS_FMA is unset) */
 RTK_INLINE vfloat4 vf4_madd(vfloat4 a, vfloat4 b, vfloat4 c) { RTK_S4_F(a.f[k] * b.f[k] + c.f[k]); }
 RTK_INLINE vfloat4 vf4_msub(vfloat4 a, vfloat4 b, vfloat4 c) { RTK_S4_F(a.f[k] * b.f[k] - c.f[k]); }

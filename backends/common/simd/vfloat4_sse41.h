@@ -39,6 +39,12 @@ RTK_INLINE vbool4 vf4_gti(vfloat4 a, vfloat4 b)
 {
     return _mm_castsi128_ps(_mm_cmpgt_epi32(_mm_castps_si128(a), _mm_castps_si128(b)));
 }
+/* the lanes' bits plus n as integers: n ulps up for a finite positive
+ * value (see simd.h) */
+RTK_INLINE vfloat4 vf4_add_ulps(vfloat4 a, int n)
+{
+    return _mm_castsi128_ps(_mm_add_epi32(_mm_castps_si128(a), _mm_set1_epi32(n)));
+}
 /* a * b + c, fused where the ISA has FMA (one rounding) */
 RTK_INLINE vfloat4 vf4_madd(vfloat4 a, vfloat4 b, vfloat4 c)
 {

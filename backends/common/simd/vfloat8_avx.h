@@ -34,7 +34,13 @@ RTK_INLINE vbool8 vf8_gti(vfloat8 a, vfloat8 b)
 {
     return _mm256_castsi256_ps(_mm256_cmpgt_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
 }
+RTK_INLINE vfloat8 vf8_add_ulps(vfloat8 a, int n)
+{
+    return _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(a), _mm256_set1_epi32(n)));
+}
 #endif
+/* lanes 0..3 (free: the lower half of the same register) */
+RTK_INLINE vfloat4 vf8_low(vfloat8 a) { return _mm256_castps256_ps128(a); }
 RTK_INLINE vfloat8 vf8_div(vfloat8 a, vfloat8 b) { return _mm256_div_ps(a, b); }
 RTK_INLINE vfloat8 vf8_min(vfloat8 a, vfloat8 b) { return _mm256_min_ps(a, b); } /* b where either is NaN */
 RTK_INLINE vfloat8 vf8_max(vfloat8 a, vfloat8 b) { return _mm256_max_ps(a, b); }
