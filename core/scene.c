@@ -2067,7 +2067,7 @@ rtk_error rtk_occluded1_ctx(rtk_scene s, rtk_ray *ray, const rtk_query_context *
  * Every ray type is an array of 4-byte fields in the order of rtk_rayhit's:
  * rtk_rayhit is a packet of one, and field f of lane i of an N-packet is
  * element f * N + i.  So lanes move between widths with one copy per field. */
-enum { RAY_FIELDS = sizeof(rtk_ray) / 4, RAYHIT_FIELDS = sizeof(rtk_rayhit) / 4 };
+enum { RAY_FIELDS = sizeof(rtk_ray) / 4, RAYHIT_FIELDS = sizeof(rtk_rayhit) / 4, TFAR_FIELD = offsetof(rtk_ray, tfar) / 4 };
 _Static_assert(sizeof(rtk_ray) == 12 * 4 && sizeof(rtk_rayhit) == 20 * 4, "4-byte fields");
 _Static_assert(sizeof(rtk_ray4) == 4 * sizeof(rtk_ray) && sizeof(rtk_rayhit4) == 4 * sizeof(rtk_rayhit), "SoA 4");
 _Static_assert(sizeof(rtk_ray8) == 8 * sizeof(rtk_ray) && sizeof(rtk_rayhit8) == 8 * sizeof(rtk_rayhit), "SoA 8");
@@ -2082,8 +2082,39 @@ static void copy_lanes(void *dst, size_t dst_n, size_t dst_lane, const void *src
         memcpy((uint32_t *)dst + f * dst_n + dst_lane, (const uint32_t *)src + f * src_n + src_lane, lanes * 4);
 }
 
-static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint32_t n, int occluded,
-                              const rtk_query_context *ctx)
+/* The lanes of a packet of n rays that are on (valid, or valid NULL) and
+ * pass ray_valid, as -1 / 0 into active; whether any does.  Read straight
+ * from the structure of arrays, lane by lane with no branches, so the
+ * compiler does all lanes at once (inlined where n is a constant). */
+static inline __attribute__((always_inline)) int packet_active(const void *packet, uint32_t n, const int *valid,
+                                                               int32_t *active)
+{
+    enum { ORG_X, ORG_Y, ORG_Z, TNEAR, DIR_X, DIR_Y, DIR_Z, TIME, TFAR, MASK };
+    _Static_assert(offsetof(rtk_ray, tfar) == 4 * TFAR && offsetof(rtk_ray, mask) == 4 * MASK, "rtk_ray's layout");
+    const float *f = packet;
+    const uint32_t *u = packet;
+    int32_t any = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        const float z = 0.0f * f[ORG_X * n + i] + 0.0f * f[ORG_Y * n + i] + 0.0f * f[ORG_Z * n + i] +
+                        0.0f * f[DIR_X * n + i] + 0.0f * f[DIR_Y * n + i] + 0.0f * f[DIR_Z * n + i] +
+                        0.0f * f[TNEAR * n + i];
+        const float tnear = f[TNEAR * n + i];
+        active[i] = -((z == 0.0f) & (tnear >= 0.0f) & (tnear <= f[TFAR * n + i]) & (u[MASK * n + i] != 0));
+        any |= active[i];
+    }
+    if (valid) {
+        any = 0;
+        for (uint32_t i = 0; i < n; i++) {
+            active[i] &= -(valid[i] != 0);
+            any |= active[i];
+        }
+    }
+    return any != 0;
+}
+
+static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s, const int *valid, void *packet,
+                                                                    uint32_t n, int occluded,
+                                                                    const rtk_query_context *ctx)
 {
     /* The name for messages, e.g. "rtk_intersect8": formatted by rtk_fail only on an error. */
     const char *q = occluded ? "occluded" : "intersect";
@@ -2098,14 +2129,7 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_%s%u: the scene was never committed", q, n);
 
     _Alignas(64) int32_t active[16];
-    int any = 0;
-    for (uint32_t i = 0; i < n; i++) {
-        rtk_ray r;
-        copy_lanes(&r, 1, 0, packet, n, i, 1, RAY_FIELDS);
-        active[i] = (!valid || valid[i]) && ray_valid(&r) ? -1 : 0;
-        any |= active[i];
-    }
-    if (!any)
+    if (!packet_active(packet, n, valid, active))
         return RTK_OK;
     const rtk_query query = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
     const struct packet_kernel *k = &s->packet[occluded][n == 4 ? 0 : n == 8 ? 1 : 2];
@@ -2114,17 +2138,26 @@ static rtk_error trace_packet(rtk_scene s, const int *valid, void *packet, uint3
         k->fn(s->accel, active, packet, &query);
     } else if (k->width > 1) { /* narrower packets: through an aligned copy */
         _Alignas(64) uint32_t sub[RAYHIT_FIELDS * 16];
-        for (uint32_t base = 0; base < n; base += k->width) {
-            int sub_any = 0;
-            for (uint32_t i = 0; i < k->width; i++)
-                sub_any |= active[base + i];
-            if (!sub_any)
+        const uint32_t w = k->width;
+        for (uint32_t base = 0; base < n; base += w) {
+            uint32_t on = 0;
+            for (uint32_t i = 0; i < w; i++)
+                on += active[base + i] != 0;
+            if (!on)
                 continue;
-            copy_lanes(sub, k->width, 0, packet, n, base, k->width, fields);
+            copy_lanes(sub, w, 0, packet, n, base, w, fields);
             k->fn(s->accel, active + base, sub, &query);
-            for (uint32_t i = 0; i < k->width; i++)
-                if (active[base + i])
-                    copy_lanes(packet, n, base + i, sub, k->width, i, 1, fields);
+            /* back: the fields a query writes (tfar, and the hit), whole
+             * rows when every lane is on, else the lanes that are */
+            for (size_t f = TFAR_FIELD; f < fields; f = f == TFAR_FIELD ? RAY_FIELDS : f + 1) {
+                if (on == w) {
+                    copy_lanes((uint32_t *)packet + f * n, n, base, sub + f * w, w, 0, w, 1);
+                    continue;
+                }
+                for (uint32_t i = 0; i < w; i++)
+                    if (active[base + i])
+                        copy_lanes((uint32_t *)packet + f * n, n, base + i, sub + f * w, w, i, 1, 1);
+            }
         }
     } else { /* ray by ray */
         for (uint32_t i = 0; i < n; i++) {
