@@ -2067,7 +2067,9 @@ rtk_error rtk_occluded1_ctx(rtk_scene s, rtk_ray *ray, const rtk_query_context *
  * Every ray type is an array of 4-byte fields in the order of rtk_rayhit's:
  * rtk_rayhit is a packet of one, and field f of lane i of an N-packet is
  * element f * N + i.  So lanes move between widths with one copy per field. */
-enum { RAY_FIELDS = sizeof(rtk_ray) / 4, RAYHIT_FIELDS = sizeof(rtk_rayhit) / 4, TFAR_FIELD = offsetof(rtk_ray, tfar) / 4 };
+enum { RAY_FIELDS = sizeof(rtk_ray) / 4, RAYHIT_FIELDS = sizeof(rtk_rayhit) / 4 };
+/* a field's row in a packet (rtk.h: field f of lane j is 4-byte word f * N + j) */
+#define RAY_ROW(field) (offsetof(rtk_ray, field) / 4)
 _Static_assert(sizeof(rtk_ray) == 12 * 4 && sizeof(rtk_rayhit) == 20 * 4, "4-byte fields");
 _Static_assert(sizeof(rtk_ray4) == 4 * sizeof(rtk_ray) && sizeof(rtk_rayhit4) == 4 * sizeof(rtk_rayhit), "SoA 4");
 _Static_assert(sizeof(rtk_ray8) == 8 * sizeof(rtk_ray) && sizeof(rtk_rayhit8) == 8 * sizeof(rtk_rayhit), "SoA 8");
@@ -2089,19 +2091,18 @@ static void copy_lanes(void *dst, size_t dst_n, size_t dst_lane, const void *src
 static inline __attribute__((always_inline)) int packet_active(const void *packet, uint32_t n, const int *valid,
                                                                int32_t *active)
 {
-    enum { ORG_X, ORG_Y, ORG_Z, TNEAR, DIR_X, DIR_Y, DIR_Z, TIME, TFAR, MASK };
-    _Static_assert(offsetof(rtk_ray, tfar) == 4 * TFAR && offsetof(rtk_ray, mask) == 4 * MASK, "rtk_ray's layout");
     const float *f = packet;
     const uint32_t *u = packet;
+#define LANE(field) f[RAY_ROW(field) * n + i]
     int32_t any = 0;
     for (uint32_t i = 0; i < n; i++) {
-        const float z = 0.0f * f[ORG_X * n + i] + 0.0f * f[ORG_Y * n + i] + 0.0f * f[ORG_Z * n + i] +
-                        0.0f * f[DIR_X * n + i] + 0.0f * f[DIR_Y * n + i] + 0.0f * f[DIR_Z * n + i] +
-                        0.0f * f[TNEAR * n + i];
-        const float tnear = f[TNEAR * n + i];
-        active[i] = -((z == 0.0f) & (tnear >= 0.0f) & (tnear <= f[TFAR * n + i]) & (u[MASK * n + i] != 0));
+        const float z = 0.0f * LANE(org_x) + 0.0f * LANE(org_y) + 0.0f * LANE(org_z) + 0.0f * LANE(dir_x) +
+                        0.0f * LANE(dir_y) + 0.0f * LANE(dir_z) + 0.0f * LANE(tnear);
+        const float tnear = LANE(tnear);
+        active[i] = -((z == 0.0f) & (tnear >= 0.0f) & (tnear <= LANE(tfar)) & (u[RAY_ROW(mask) * n + i] != 0));
         any |= active[i];
     }
+#undef LANE
     if (valid) {
         any = 0;
         for (uint32_t i = 0; i < n; i++) {
@@ -2149,7 +2150,7 @@ static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s,
             k->fn(s->accel, active + base, sub, &query);
             /* back: the fields a query writes (tfar, and the hit), whole
              * rows when every lane is on, else the lanes that are */
-            for (size_t f = TFAR_FIELD; f < fields; f = f == TFAR_FIELD ? RAY_FIELDS : f + 1) {
+            for (size_t f = RAY_ROW(tfar); f < fields; f = f == RAY_ROW(tfar) ? RAY_FIELDS : f + 1) {
                 if (on == w) {
                     copy_lanes((uint32_t *)packet + f * n, n, base, sub + f * w, w, 0, w, 1);
                     continue;

@@ -411,11 +411,6 @@ static void test_spread_packets(void **state)
         }
 }
 
-/* Sixteen small triangles stacked 0.01 apart along z: splitting them buys
- * nothing (every half has the stack's footprint), so the SAH makes them one
- * leaf of four blocks, the largest there is, at the root.  Every block must
- * be searched, by single rays and packets: the nearest triangle from above
- * is the last one, from below the first. */
 /* Teeth in the plane z = TEETH_Z, each with its base on y = TEETH_Y, so
  * every box of the tree is flat in z and has its lower y face on that line:
  * a ray aimed at a point of a base enters a box through its y face and
@@ -533,6 +528,11 @@ static void test_box_edges(void **state)
     assert_true(checked > 5000 && hits > 1000 && hits < checked);
 }
 
+/* Sixteen small triangles stacked 0.01 apart along z: splitting them buys
+ * nothing (every half has the stack's footprint), so the SAH makes them one
+ * leaf of four blocks, the largest there is, at the root.  Every block must
+ * be searched, by single rays and packets: the nearest triangle from above
+ * is the last one, from below the first. */
 static int setup_stacked_triangles(void **state)
 {
     static float v[16 * 9]; /* static: compact scenes keep using them */

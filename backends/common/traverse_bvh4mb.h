@@ -39,10 +39,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(seg, seg->root, &p, rayhit->ray.tnear, &tfar, &best, f);
-    if (best.lane >= 0) {
-        closest_hit_store(seg, &best, &p, tfar, rayhit);
-        closest_hit_quad(accel, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
-    }
+    closest_hit_write(seg, accel, &best, &p, tfar, rayhit);
 }
 
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)

@@ -1072,6 +1072,18 @@ static inline void closest_hit_quad(const rtk_accel *attrs, uint32_t geom, uint3
         rtk_quad_hit(attrs->attrs, geom, prim, u, v);
 }
 
+/* A single ray's closest hit, if it found one, into its ray and hit:
+ * leaves is the accel that holds the block (a moving tree's segment),
+ * attrs the one that holds the attributes (its top accel). */
+static inline void closest_hit_write(const rtk_accel *leaves, const rtk_accel *attrs, const closest_hit *best,
+                                     const ray_pre *p, float tfar, rtk_rayhit *rayhit)
+{
+    if (best->lane < 0)
+        return;
+    closest_hit_store(leaves, best, p, tfar, rayhit);
+    closest_hit_quad(attrs, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
+}
+
 #if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
 #if RTK_SIMD_HAS_FMA
 #define BVHN_FUSED 1
@@ -1093,10 +1105,7 @@ static __attribute__((noinline)) void intersect1_other(const rtk_accel *accel, r
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, f);
-    if (best.lane >= 0) {
-        closest_hit_store(accel, &best, &p, tfar, rayhit);
-        closest_hit_quad(accel, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
-    }
+    closest_hit_write(accel, accel, &best, &p, tfar, rayhit);
 }
 
 static __attribute__((noinline)) void occluded1_other(const rtk_accel *accel, rtk_ray *ray, const feat_ctx *f)
@@ -1128,10 +1137,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from_(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, BVHN_FUSED, NULL);
-    if (best.lane >= 0) {
-        closest_hit_store(accel, &best, &p, tfar, rayhit);
-        closest_hit_quad(accel, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
-    }
+    closest_hit_write(accel, accel, &best, &p, tfar, rayhit);
 }
 
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
