@@ -980,7 +980,9 @@ static int section_trace(ctx *c, char *err, size_t err_size)
     progress bar;
     progress_begin(&bar, "rtktool bench: trace");
     const int work = c->nlibs * o->nthreads * NSETS * 4;
-    int done = 0;
+    int done = 0, ref_api = 0; /* the reference hits: the first library's first API asked for */
+    while (ref_api < 3 && !o->api_on[ref_api])
+        ref_api++;
     for (int l = 0; l < c->nlibs; l++) {
         scene sc;
         if (scene_build(&sc, &c->libs[l], c->m, c->padded, o->trace_mode, 1, err, err_size))
@@ -991,7 +993,7 @@ static int section_trace(ctx *c, char *err, size_t err_size)
                     if (!o->api_on[a] || !sets[s].n)
                         continue;
                     const render_tracer t = scene_tracer(&sc, s == SET_PRIMARY && a > 0);
-                    unsigned char *h = l == 0 && ti == 0 && a == 0 ? ref_hits[s] : hits;
+                    unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : hits;
                     rate[l][ti][s][a] = trace_set(&t, &sets[s], apis[a], s == SET_SHADOW, o->threads[ti], o->repeat, h);
                     if (h == hits)
                         for (size_t i = 0; i < sets[s].n; i++)
