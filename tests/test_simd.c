@@ -158,13 +158,83 @@ static void test_integer_order(void **state)
     assert_int_equal(vb4_mask(vf4_gti(vf4_add_ulps(vf4_set1(INFINITY), 8), vf4_set1(FLT_MAX))), 0xf);
 }
 
+static void test_reduce(void **state)
+{
+    (void)state;
+    assert_true(vf4_reduce_max(vf4_set(3.0f, 1.0f, 9.0f, -5.0f)) == 9.0f);
+    assert_true(vf4_reduce_max(vf4_set(-INFINITY, -2.0f, -INFINITY, -7.0f)) == -2.0f);
+    assert_true(vf4_reduce_min(vf4_set(INFINITY, 2.0f, INFINITY, 7.0f)) == 2.0f);
+#if RTK_SIMD_HAS_8
+    /* every lane position as the extreme one */
+    for (int i = 0; i < 8; i++) {
+        _Alignas(32) float x[8];
+        for (int k = 0; k < 8; k++)
+            x[k] = (float)(k * 3 % 8) - 4.0f; /* a permutation of -4..3, -4 at 0 */
+        x[i] = -100.0f;
+        assert_true(vf8_reduce_min(vf8_load(x)) == -100.0f);
+        x[i] = 100.0f;
+        assert_true(vf8_reduce_max(vf8_load(x)) == 100.0f);
+        assert_true(vf8_reduce_min(vf8_load(x)) == (i == 0 ? -3.0f : -4.0f));
+    }
+#endif
+}
+
+#if RTK_SIMD_HAS_8
+static void test_width8(void **state)
+{
+    (void)state;
+    _Alignas(32) float a[8] = {1.0f, -2.0f, 0.0f, -0.0f, INFINITY, 3.0f, 0x1p-149f, NAN}, r[8];
+    _Alignas(32) const float b[8] = {2.0f, -3.0f, -0.0f, 0.0f, 1.0f, NAN, 0.0f, 5.0f};
+    const vfloat8 va = vf8_load(a), vb = vf8_load(b);
+    vf8_store(r, vf8_min(va, vb)); /* b where either is NaN */
+    assert_true(r[0] == 1.0f && r[1] == -3.0f && r[4] == 1.0f && isnan(r[5]) && r[6] == 0.0f && r[7] == 5.0f);
+    vf8_store(r, vf8_max(va, vb));
+    assert_true(r[0] == 2.0f && r[1] == -2.0f && r[4] == INFINITY && isnan(r[5]) && r[6] == 0x1p-149f && r[7] == 5.0f);
+    assert_int_equal(vb8_mask(vf8_lt(va, vb)), 0x01);
+    assert_int_equal(vb8_mask(vf8_le(va, vb)), 0x0d); /* 0 <= -0 and -0 <= 0 */
+    vf8_store(r, vf8_select(vf8_gt(va, vb), va, vb));
+    assert_true(r[1] == -2.0f && r[4] == INFINITY && r[6] == 0x1p-149f && r[7] == 5.0f && isnan(r[5]));
+    vf8_store(r, vf8_xor_sign(vf8_abs(va), vb));
+    assert_true(r[0] == 1.0f && r[1] == -2.0f && r[2] == 0.0f && signbit(r[2]) && r[3] == 0.0f && !signbit(r[3]));
+    vf4_store(r, vf8_low(va));
+    assert_true(r[0] == 1.0f && r[1] == -2.0f && r[3] == 0.0f && signbit(r[3]));
+#if RTK_SIMD_HAS_FMA
+    /* one rounding: (1 + 2^-12)^2 - 1 keeps its 2^-24 term */
+    const float e = 1.0f + 0x1p-12f;
+    vf8_store(r, vf8_msub(vf8_set1(e), vf8_set1(e), vf8_set1(1.0f)));
+    assert_true(r[0] == 0x1p-11f + 0x1p-24f);
+#endif
+#if RTK_SIMD_INT_ORDER_8
+    vf8_store(r, vf8_add_ulps(vf8_set1(1.0f), 8));
+    assert_true(r[7] == 0x1.000010p0f);
+    assert_int_equal(vb8_mask(vf8_gti(vf8_add_ulps(vf8_set1(INFINITY), 8), vf8_set1(FLT_MAX))), 0xff);
+    vf8_store(r, vf8_maxi(vf8_set1(-0.0f), vf8_set1(0x1p-149f)));
+    assert_true(r[3] == 0x1p-149f);
+#endif
+}
+#endif
+
 int main(void)
 {
+#if RTK_SIMD_HAS_8
+    print_message("SIMD layer implementation: %s, and 8 lanes\n", RTK_SIMD_ISA);
+#else
     print_message("SIMD layer implementation: %s\n", RTK_SIMD_ISA);
+#endif
+#if defined(__AVX2__)
+    if (!__builtin_cpu_supports("avx2") || !__builtin_cpu_supports("fma")) {
+        print_message("this CPU has no AVX2 and FMA: nothing to test\n");
+        return 0;
+    }
+#endif
     const struct CMUnitTest tests[] = {
+        cmocka_unit_test(test_reduce),
         cmocka_unit_test(test_min_max_nan), cmocka_unit_test(test_compare_select_mask),
         cmocka_unit_test(test_arithmetic),  cmocka_unit_test(test_transpose),
         cmocka_unit_test(test_int),         cmocka_unit_test(test_integer_order),
+#if RTK_SIMD_HAS_8
+        cmocka_unit_test(test_width8),
+#endif
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

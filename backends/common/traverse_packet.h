@@ -108,39 +108,25 @@ typedef struct PK_(packet_pre) {
     vnode fr_tnear;
 } PK_(packet_pre);
 
-/* The largest of the K lanes (they are never NaN here). */
-static inline float PK_(reduce_max)(vk a)
-{
-    _Alignas(64) float x[RTK_PACKET];
-    VK(store)(x, a);
-    float m = x[0];
-    for (int i = 1; i < RTK_PACKET; i++)
-        m = x[i] > m ? x[i] : m;
-    return m;
-}
-
 /* Sets up the frustum of a packet whose active rays share their direction
  * signs (else leaves p->frustum 0).  For each axis the bounds are over the
  * active rays: the least and greatest near- and far-plane reciprocals, and
  * the extreme c (or origin) that gives the least near and the greatest far
  * distance.  frustum_intersect combines them so that its near distance is
  * never above and its far distance never below what any of the rays computes
- * (rounding is monotone), so the frustum never drops a box a ray enters. */
-static inline void PK_(frustum_init)(PK_(packet_pre) *p, unsigned all)
+ * (rounding is monotone), so the frustum never drops a box a ray enters.
+ * The bounds are lane reductions with the inactive lanes set to the
+ * reduction's identity (none of the active lanes is NaN: the core passes
+ * only valid rays). */
+static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 {
     static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
     static const size_t upper[3] = {offsetof(node_t, upper_x), offsetof(node_t, upper_y), offsetof(node_t, upper_z)};
-    const vk zero = VK(set1)(0.0f);
+    const vk zero = VK(set1)(0.0f), pinf = VK(set1)(INFINITY), ninf = VK(set1)(-INFINITY);
+    const unsigned all = (unsigned)VKB(mask)(active);
     p->frustum = 0;
     if (!all)
         return;
-    _Alignas(64) float tn[RTK_PACKET];
-    VK(store)(tn, p->tnear);
-    float tnear_min = INFINITY;
-    for (unsigned m = all; m; m &= m - 1) {
-        const float t = tn[__builtin_ctz(m)];
-        tnear_min = t < tnear_min ? t : tnear_min;
-    }
     for (int k = 0; k < 3; k++) {
         const unsigned neg = (unsigned)VKB(mask)(VK(lt)(p->rinv_lo[k], zero)) & all;
         if (neg && neg != all)
@@ -153,60 +139,36 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, unsigned all)
 #if RTK_SIMD_HAS_FMA
         p->cn[k] = n ? p->c_hi[k] : p->c_lo[k];
         p->cf[k] = n ? p->c_lo[k] : p->c_hi[k];
-#else
-        p->on[k] = n ? p->org_hi[k] : p->org_lo[k];
-        p->of[k] = n ? p->org_lo[k] : p->org_hi[k];
-#endif
-#if RTK_SIMD_HAS_FMA
         /* out of range products: the single-ray kernel would not use FMA */
         const vk big = VK(set1)(0x1p126f);
         const unsigned ok = (unsigned)VKB(mask)(VKB(and)(VK(le)(VK(abs)(p->cn[k]), big), VK(le)(VK(abs)(p->cf[k]), big)));
         if ((ok & all) != all)
             return;
+#else
+        p->on[k] = n ? p->org_hi[k] : p->org_lo[k];
+        p->of[k] = n ? p->org_lo[k] : p->org_hi[k];
 #endif
     }
     for (int k = 0; k < 3; k++) {
-        _Alignas(64) float rn[RTK_PACKET], rf[RTK_PACKET], a[RTK_PACKET], b[RTK_PACKET];
-        VK(store)(rn, p->rn[k]);
-        VK(store)(rf, p->rf[k]);
-#if RTK_SIMD_HAS_FMA
-        VK(store)(a, p->cn[k]);
-        VK(store)(b, p->cf[k]);
-#else
-        VK(store)(a, p->on[k]);
-        VK(store)(b, p->of[k]);
-#endif
-        float rn_min = INFINITY, rn_max = -INFINITY, rf_min = INFINITY, rf_max = -INFINITY;
-        float a_max = -INFINITY, b_min = INFINITY, a_min = INFINITY, b_max = -INFINITY;
-        for (unsigned m = all; m; m &= m - 1) {
-            const int i = __builtin_ctz(m);
-            rn_min = rn[i] < rn_min ? rn[i] : rn_min;
-            rn_max = rn[i] > rn_max ? rn[i] : rn_max;
-            rf_min = rf[i] < rf_min ? rf[i] : rf_min;
-            rf_max = rf[i] > rf_max ? rf[i] : rf_max;
-            a_max = a[i] > a_max ? a[i] : a_max;
-            a_min = a[i] < a_min ? a[i] : a_min;
-            b_min = b[i] < b_min ? b[i] : b_min;
-            b_max = b[i] > b_max ? b[i] : b_max;
-        }
-        (void)a_min, (void)b_max;
-        p->fr_rn_min[k] = vn_set1(rn_min);
-        p->fr_rn_max[k] = vn_set1(rn_max);
-        p->fr_rf_min[k] = vn_set1(rf_min);
-        p->fr_rf_max[k] = vn_set1(rf_max);
+        p->fr_rn_min[k] = vn_set1(VK(reduce_min)(VK(select)(active, p->rn[k], pinf)));
+        p->fr_rn_max[k] = vn_set1(VK(reduce_max)(VK(select)(active, p->rn[k], ninf)));
+        p->fr_rf_min[k] = vn_set1(VK(reduce_min)(VK(select)(active, p->rf[k], pinf)));
+        p->fr_rf_max[k] = vn_set1(VK(reduce_max)(VK(select)(active, p->rf[k], ninf)));
 #if RTK_SIMD_HAS_FMA
         /* near = plane * rn - cn: least with the greatest cn; far the other way */
-        p->fr_cn_max[k] = vn_set1(a_max);
-        p->fr_cf_min[k] = vn_set1(b_min);
+        p->fr_cn_max[k] = vn_set1(VK(reduce_max)(VK(select)(active, p->cn[k], ninf)));
+        p->fr_cf_min[k] = vn_set1(VK(reduce_min)(VK(select)(active, p->cf[k], pinf)));
 #else
         /* near = (plane - org) * rn: least with the origin farthest along the
          * direction (the greatest where it is positive); far the other way */
         const int n = p->near_off[k] == upper[k];
-        p->fr_on[k] = vn_set1(n ? a_min : a_max);
-        p->fr_of[k] = vn_set1(n ? b_max : b_min);
+        p->fr_on[k] = vn_set1(n ? VK(reduce_min)(VK(select)(active, p->on[k], pinf))
+                                : VK(reduce_max)(VK(select)(active, p->on[k], ninf)));
+        p->fr_of[k] = vn_set1(n ? VK(reduce_max)(VK(select)(active, p->of[k], ninf))
+                                : VK(reduce_min)(VK(select)(active, p->of[k], pinf)));
 #endif
     }
-    p->fr_tnear = vn_set1(tnear_min);
+    p->fr_tnear = vn_set1(VK(reduce_min)(p->tnear)); /* +inf in the inactive lanes */
     p->frustum = 1;
 }
 
@@ -551,8 +513,8 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
     PK_(packet_pre) p;
     PK_(packet_pre_init)(&p, ray, active, accel);
     vk tfar = VK(select)(active, VK(load)(ray->tfar), VK(set1)(-INFINITY));
-    PK_(frustum_init)(&p, (unsigned)VKB(mask)(active));
-    vnode fr_tfar = vn_set1(p.frustum ? PK_(reduce_max)(tfar) : 0.0f);
+    PK_(frustum_init)(&p, active);
+    vnode fr_tfar = vn_set1(p.frustum ? VK(reduce_max)(tfar) : 0.0f);
     vk hu = VK(set1)(0.0f), hv = hu;
     const unsigned all = VKB(mask)(active);
     unsigned done = 0; /* occluded: rays that found a hit */
@@ -598,7 +560,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             if (!closest && done == all)
                 break;
             if (p.frustum)
-                fr_tfar = vn_set1(PK_(reduce_max)(tfar));
+                fr_tfar = vn_set1(VK(reduce_max)(tfar));
             continue;
         }
         /* descend together, the others pushed: for the closest hit the
@@ -681,7 +643,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             }
         }
         if (any && p.frustum)
-            fr_tfar = vn_set1(PK_(reduce_max)(tfar));
+            fr_tfar = vn_set1(VK(reduce_max)(tfar));
         if (!closest && done == all)
             break;
     }

@@ -37,6 +37,9 @@
  *                            up (+inf becomes a NaN pattern, which the
  *                            integer order still puts above every finite
  *                            value); vf8_ on AVX2 only
+ *   vf4_reduce_min / _max    the least / greatest of the lanes (vf8_ too);
+ *                            with NaN lanes the answer depends on the
+ *                            order of the pairings, which is not specified
  *   vf4_madd / vf4_msub      fused (one rounding) where the ISA has FMA,
  *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
  *                            which, for kernels whose error bounds depend on

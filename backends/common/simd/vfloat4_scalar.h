@@ -79,6 +79,10 @@ RTK_INLINE float vf4_reduce_min(vfloat4 a)
 {
     return rtk_s_min(rtk_s_min(a.f[0], a.f[1]), rtk_s_min(a.f[2], a.f[3]));
 }
+RTK_INLINE float vf4_reduce_max(vfloat4 a)
+{
+    return rtk_s_max(rtk_s_max(a.f[0], a.f[1]), rtk_s_max(a.f[2], a.f[3]));
+}
 RTK_INLINE float vf4_lane0(vfloat4 a) { return a.f[0]; }
 #define vf4_broadcast(a, I) vf4_set1((a).f[I])
 RTK_INLINE float vf4_reduce_min3(vfloat4 a) { return rtk_s_min(rtk_s_min(a.f[0], a.f[1]), a.f[2]); }

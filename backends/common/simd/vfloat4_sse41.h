@@ -81,6 +81,12 @@ RTK_INLINE float vf4_reduce_min(vfloat4 a)
     m = _mm_min_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(1, 0, 3, 2)));
     return _mm_cvtss_f32(m);
 }
+RTK_INLINE float vf4_reduce_max(vfloat4 a)
+{
+    vfloat4 m = _mm_max_ps(a, _mm_shuffle_ps(a, a, _MM_SHUFFLE(2, 3, 0, 1)));
+    m = _mm_max_ps(m, _mm_shuffle_ps(m, m, _MM_SHUFFLE(1, 0, 3, 2)));
+    return _mm_cvtss_f32(m);
+}
 RTK_INLINE float vf4_lane0(vfloat4 a) { return _mm_cvtss_f32(a); }
 /* broadcast lane I (a constant) to all lanes */
 #define vf4_broadcast(a, I) _mm_shuffle_ps((a), (a), _MM_SHUFFLE(I, I, I, I))

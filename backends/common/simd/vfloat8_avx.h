@@ -55,6 +55,16 @@ RTK_INLINE vfloat8 vf8_xor_sign(vfloat8 a, vfloat8 s)
 {
     return _mm256_xor_ps(a, _mm256_and_ps(s, _mm256_set1_ps(-0.0f)));
 }
+/* the least and greatest lane (NaN-free lanes: the order of the pairings
+ * is not specified) */
+RTK_INLINE float vf8_reduce_min(vfloat8 a)
+{
+    return vf4_reduce_min(_mm_min_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1)));
+}
+RTK_INLINE float vf8_reduce_max(vfloat8 a)
+{
+    return vf4_reduce_max(_mm_max_ps(_mm256_castps256_ps128(a), _mm256_extractf128_ps(a, 1)));
+}
 
 RTK_INLINE vbool8 vb8_and(vbool8 a, vbool8 b) { return _mm256_and_ps(a, b); }
 RTK_INLINE vbool8 vb8_or(vbool8 a, vbool8 b) { return _mm256_or_ps(a, b); }
