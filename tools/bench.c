@@ -836,6 +836,7 @@ typedef struct bench_opts {
     char isa[4][16];
     int nisa;
     int api_on[4];
+    int set_on[NSETS]; /* --rays: the trace section's ray sets */
     int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed;
     int render_w, render_h, render_spp;
     int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
@@ -879,6 +880,7 @@ static void bench_usage(FILE *f)
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
+            "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow (default: all)\n"
             "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed\n"
             "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
@@ -990,7 +992,7 @@ static int section_trace(ctx *c, char *err, size_t err_size)
         for (int ti = 0; ti < o->nthreads; ti++)
             for (int s = 0; s < NSETS; s++)
                 for (int a = 0; a < 4; a++, done++) {
-                    if (!o->api_on[a] || !sets[s].n)
+                    if (!o->api_on[a] || !o->set_on[s] || !sets[s].n)
                         continue;
                     const render_tracer t = scene_tracer(&sc, s == SET_PRIMARY && a > 0);
                     unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : hits;
@@ -1008,7 +1010,7 @@ static int section_trace(ctx *c, char *err, size_t err_size)
         print_header(c);
         for (int s = 0; s < NSETS; s++)
             for (int a = 0; a < 4; a++) {
-                if (!o->api_on[a])
+                if (!o->api_on[a] || !o->set_on[s])
                     continue;
                 char label[48];
                 snprintf(label, sizeof label, "%s %s", set_names[s], render_api_name(apis[a]));
@@ -2527,7 +2529,7 @@ static int section_features(ctx *c, char *err, size_t err_size)
 int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
-                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .do_trace = 1, .do_render = 1,
+                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .set_on = {1, 1, 1}, .do_trace = 1, .do_render = 1,
                     .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1, .do_accuracy = 1, .do_features = 1, .do_closed = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
     const char *meshes[64];
     int nmeshes = 0;
@@ -2573,6 +2575,21 @@ int cmd_bench(int argc, char **argv)
             if (n < 1) {
                 fprintf(stderr, "rtktool bench: --api wants a list of single, packet4, packet8, packet16 (got '%s')\n",
                         argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--rays") && more) {
+            n = parse_list(argv[++i], items, 8);
+            memset(o.set_on, 0, sizeof o.set_on);
+            for (int k = 0; k < n; k++) {
+                int found = 0;
+                for (int j = 0; j < NSETS; j++)
+                    if (!strcmp(items[k], set_names[j]))
+                        o.set_on[j] = found = 1;
+                if (!found)
+                    n = -1;
+            }
+            if (n < 1) {
+                fprintf(stderr, "rtktool bench: --rays wants a list of primary, diffuse, shadow (got '%s')\n", argv[i]);
                 return 2;
             }
         } else if (!strcmp(a, "--only") && more) {
