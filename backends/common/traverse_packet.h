@@ -29,6 +29,7 @@
  */
 #include <math.h>
 #include <stdint.h>
+#include <string.h>
 
 #if !defined(RTK_BVHN)
 #error "include traverse_bvhn.h first"
@@ -494,14 +495,45 @@ static inline vkb PK_(lanes_mask)(unsigned bits)
     return VKB(load)(m);
 }
 
+/* What a packet query found, per ray: the distance (tfar), and for the
+ * closest hit the barycentrics, geometric normal and ids, the ids' bits in
+ * float lanes (so that one blend records a triangle for all the rays that
+ * hit it); `hit` the rays with a closest hit, or the rays occluded. */
+typedef struct PK_(hits) {
+    _Alignas(64) float t[RTK_PACKET];
+    _Alignas(64) float u[RTK_PACKET];
+    _Alignas(64) float v[RTK_PACKET];
+    _Alignas(64) float ng[3][RTK_PACKET];
+    _Alignas(64) float prim[RTK_PACKET];
+    _Alignas(64) float geom[RTK_PACKET];
+    unsigned hit;
+} PK_(hits);
+
+static inline float PK_(bits_float)(uint32_t x)
+{
+    float f;
+    memcpy(&f, &x, sizeof f);
+    return f;
+}
+
+/* Rays `ok` (lanes) take lane j of block t as their closest hit so far: its
+ * normal (as closest_hit_record computes it, to the bit) and ids. */
+static inline void PK_(record_triangle)(PK_(hits) *h, vkb ok, const block_t *t, int j)
+{
+    float v0[3], e1[3], e2[3], ng[3];
+    lane_triangle(t, j, v0, e1, e2);
+    rtk_triangle_normal(e1, e2, ng);
+    for (int c = 0; c < 3; c++)
+        VK(store)(h->ng[c], VK(select)(ok, VK(set1)(ng[c]), VK(load)(h->ng[c])));
+    VK(store)(h->prim, VK(select)(ok, VK(set1)(PK_(bits_float)(t->prim[j])), VK(load)(h->prim)));
+    VK(store)(h->geom, VK(select)(ok, VK(set1)(PK_(bits_float)(t->geom[j])), VK(load)(h->geom)));
+}
+
 /* The packet traversal both queries share; `closest` selects the query and
- * is a constant in each kernel (the function is inlined there).  Outputs are
- * 64-byte aligned arrays of K: tfar, u, v, and per ray the hit as
- * leaf * 4 + lane (closest; left alone where no hit), or in *ref_out the mask
- * of rays that found any hit (occluded). */
+ * is a constant in each kernel (the function is inlined there).  The
+ * results go to *h (for the occluded query only t and hit). */
 static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel *accel, const int32_t *valid,
-                                                                const rayK *ray, int closest, float *tfar_out,
-                                                                float *u_out, float *v_out, uint32_t *ref_out,
+                                                                const rayK *ray, int closest, PK_(hits) *h,
                                                                 const rtk_query *q)
 {
     const vkb active = VKB(load)(valid);
@@ -517,8 +549,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
     vnode fr_tfar = vn_set1(p.frustum ? VK(reduce_max)(tfar) : 0.0f);
     vk hu = VK(set1)(0.0f), hv = hu;
     const unsigned all = VKB(mask)(active);
-    unsigned done = 0; /* occluded: rays that found a hit */
-    _Alignas(64) float lane_t[RTK_PACKET], lane_u[RTK_PACKET], lane_v[RTK_PACKET];
+    unsigned done = 0; /* occluded: rays that found a hit; closest: rays with a hit */
+    if (closest) /* defined lanes throughout, for the blends (and memory checkers) */
+        for (int c = 0; c < 5; c++)
+            VK(store)(c < 3 ? h->ng[c] : c == 3 ? h->prim : h->geom, VK(set1)(0.0f));
 
     PK_(pstack_entry) stack[RTK_BVHN_STACK_SIZE(RTK_BVHN) + 1];
     int sp = 0;
@@ -532,9 +566,9 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             continue;
         if (__builtin_popcount(want) <= (p.frustum ? PK_SWITCH_FRUSTUM : PK_SWITCH)) {
             /* few rays want this subtree: each finishes it alone */
-            VK(store)(lane_t, tfar);
-            VK(store)(lane_u, hu);
-            VK(store)(lane_v, hv);
+            VK(store)(h->t, tfar);
+            VK(store)(h->u, hu);
+            VK(store)(h->v, hv);
             for (unsigned m = want; m; m &= m - 1) {
                 const int i = __builtin_ctz(m);
                 ray_pre rp;
@@ -543,20 +577,27 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 const feat_ctx *f = PK_(lane_ray_pre)(&rp, &one, &fc, ray, i, accel, q);
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
-                    closest_from(accel, cur, &rp, ray->tnear[i], &lane_t[i], &best, f);
+                    closest_from(accel, cur, &rp, ray->tnear[i], &h->t[i], &best, f);
                     if (best.lane >= 0) {
-                        lane_u[i] = best.u;
-                        lane_v[i] = best.v;
-                        ref_out[i] = best.leaf * 4u + (uint32_t)best.lane;
+                        float ng[3];
+                        uint32_t prim, geom;
+                        closest_hit_record(accel, &best, NULL, ng, &prim, &geom);
+                        h->u[i] = best.u;
+                        h->v[i] = best.v;
+                        for (int c = 0; c < 3; c++)
+                            h->ng[c][i] = ng[c];
+                        h->prim[i] = PK_(bits_float)(prim);
+                        h->geom[i] = PK_(bits_float)(geom);
+                        done |= 1u << i;
                     }
-                } else if (any_from(accel, cur, &rp, ray->tnear[i], lane_t[i], f)) {
-                    lane_t[i] = -INFINITY;
+                } else if (any_from(accel, cur, &rp, ray->tnear[i], h->t[i], f)) {
+                    h->t[i] = -INFINITY;
                     done |= 1u << i;
                 }
             }
-            tfar = VK(load)(lane_t);
-            hu = VK(load)(lane_u);
-            hv = VK(load)(lane_v);
+            tfar = VK(load)(h->t);
+            hu = VK(load)(h->u);
+            hv = VK(load)(h->v);
             if (!closest && done == all)
                 break;
             if (p.frustum)
@@ -634,12 +675,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                     tfar = VK(select)(ok, tt, tfar);
                     hu = VK(select)(ok, VK(mul)(U, rcp), hu);
                     hv = VK(select)(ok, VK(mul)(V, rcp), hv);
-                    for (unsigned m = hit; m; m &= m - 1)
-                        ref_out[__builtin_ctz(m)] = leaf * 4u + (uint32_t)j;
-                } else {
+                    PK_(record_triangle)(h, ok, t, j);
+                } else
                     tfar = VK(select)(ok, VK(set1)(-INFINITY), tfar);
-                    done |= hit;
-                }
+                done |= hit;
             }
         }
         if (any && p.frustum)
@@ -647,11 +686,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         if (!closest && done == all)
             break;
     }
-    VK(store)(tfar_out, tfar);
-    VK(store)(u_out, hu);
-    VK(store)(v_out, hv);
-    if (!closest)
-        *ref_out = done;
+    VK(store)(h->t, tfar);
+    VK(store)(h->u, hu);
+    VK(store)(h->v, hv);
+    h->hit = done;
 }
 
 void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
@@ -659,25 +697,32 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     rayhitK *rh = packet;
-    _Alignas(64) float t[RTK_PACKET], u[RTK_PACKET], v[RTK_PACKET];
-    uint32_t ref[RTK_PACKET];
-    for (int i = 0; i < RTK_PACKET; i++)
-        ref[i] = UINT32_MAX;
-    PK_(traverse)(accel, valid, &rh->ray, 1, t, u, v, ref, q);
-    for (int i = 0; i < RTK_PACKET; i++) {
-        if (ref[i] == UINT32_MAX)
-            continue;
-        const closest_hit best = {.leaf = ref[i] / 4, .lane = (int)(ref[i] % 4)};
-        float ng[3];
-        closest_hit_record(accel, &best, NULL, ng, &rh->hit.primID[i], &rh->hit.geomID[i]);
-        rh->ray.tfar[i] = t[i];
-        rh->hit.Ng_x[i] = ng[0];
-        rh->hit.Ng_y[i] = ng[1];
-        rh->hit.Ng_z[i] = ng[2];
-        rh->hit.u[i] = u[i];
-        rh->hit.v[i] = v[i];
+    PK_(hits) h;
+    PK_(traverse)(accel, valid, &rh->ray, 1, &h, q);
+    if (!h.hit)
+        return;
+    if (__builtin_expect(accel->quads != 0, 0))
+        for (unsigned m = h.hit; m; m &= m - 1) {
+            const int i = __builtin_ctz(m);
+            uint32_t prim, geom;
+            memcpy(&prim, &h.prim[i], sizeof prim);
+            memcpy(&geom, &h.geom[i], sizeof geom);
+            closest_hit_quad(accel, geom, &prim, &h.u[i], &h.v[i]);
+            h.prim[i] = PK_(bits_float)(prim);
+        }
+    /* whole rows, the rays without a hit blended back as they were */
+    const vkb m = PK_(lanes_mask)(h.hit);
+    VK(store)(rh->ray.tfar, VK(select)(m, VK(load)(h.t), VK(load)(rh->ray.tfar)));
+    VK(store)(rh->hit.Ng_x, VK(select)(m, VK(load)(h.ng[0]), VK(load)(rh->hit.Ng_x)));
+    VK(store)(rh->hit.Ng_y, VK(select)(m, VK(load)(h.ng[1]), VK(load)(rh->hit.Ng_y)));
+    VK(store)(rh->hit.Ng_z, VK(select)(m, VK(load)(h.ng[2]), VK(load)(rh->hit.Ng_z)));
+    VK(store)(rh->hit.u, VK(select)(m, VK(load)(h.u), VK(load)(rh->hit.u)));
+    VK(store)(rh->hit.v, VK(select)(m, VK(load)(h.v), VK(load)(rh->hit.v)));
+    for (unsigned b = h.hit; b; b &= b - 1) {
+        const int i = __builtin_ctz(b);
+        memcpy(&rh->hit.primID[i], &h.prim[i], sizeof(uint32_t));
+        memcpy(&rh->hit.geomID[i], &h.geom[i], sizeof(uint32_t));
         rh->hit.instID[i] = RTK_INVALID_GEOMETRY_ID;
-        closest_hit_quad(accel, rh->hit.geomID[i], &rh->hit.primID[i], &rh->hit.u[i], &rh->hit.v[i]);
     }
 }
 
@@ -686,10 +731,9 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     rayK *r = packet;
-    _Alignas(64) float t[RTK_PACKET], u[RTK_PACKET], v[RTK_PACKET];
-    uint32_t done = 0;
-    PK_(traverse)(accel, valid, r, 0, t, u, v, &done, q);
-    for (unsigned m = done; m; m &= m - 1)
+    PK_(hits) h;
+    PK_(traverse)(accel, valid, r, 0, &h, q);
+    for (unsigned m = h.hit; m; m &= m - 1)
         r->tfar[__builtin_ctz(m)] = -INFINITY;
 }
 
