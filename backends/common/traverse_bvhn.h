@@ -71,7 +71,13 @@ typedef vfloat4 vnode;
 #define vn_madd vf4_madd
 #define vn_low4(a) (a)
 #define vn_add_ulps vf4_add_ulps
+/* (see node_intersect) the integer order only with FMA: the unfused test
+ * would pay three additions for it */
+#if RTK_SIMD_HAS_FMA
 #define RTK_NODE_INT_ORDER RTK_SIMD_INT_ORDER_4
+#else
+#define RTK_NODE_INT_ORDER 0
+#endif
 #elif RTK_BVHN == 8
 typedef rtk_bvh8_node node_t;
 typedef vfloat8 vnode;
@@ -353,10 +359,15 @@ static inline vnode plane(const node_t *n, size_t off)
  * subtraction and one multiplication, the far scale folded into inv_far.
  *
  * Where the ISA has them cheap (RTK_SIMD_INT_ORDER_N: SSE4.1 for 4 wide,
- * AVX2 for 8) the maxima, minima and the comparison are done on the floats'
- * bits as integers (as Embree does): one cycle each instead of four, on the
- * critical path of every node visit (measured on dragon.ply, avx2: camera,
- * diffuse and shadow rays 8-10% faster).  That is the float order
+ * AVX2 for 8) and the test is fused, the maxima, minima and the comparison
+ * are done on the floats' bits as integers (as Embree does): one cycle each
+ * instead of four on Intel cores, on the critical path of every node visit
+ * (measured on dragon.ply, avx2, on an Intel VM: camera, diffuse and shadow
+ * rays 8-10% faster).  The unfused test (sse41) would need three additions
+ * for it (below), and on the AMD cores of the later development VM, where
+ * the float minima and maxima take one cycle too, sse41 measured 3-10%
+ * faster in the float order (rtktool bench, dragon and San Miguel, single
+ * rays, three interleaved rounds), so it uses that.  That is the float order
  * for non-negative values; tnear and tfar are at least +0.0 (ray_pre_init
  * and its callers add +0.0, so -0.0 never appears), so tmin is exactly the
  * float maximum, and a negative far distance, which the integer minimum
