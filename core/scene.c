@@ -2077,11 +2077,42 @@ _Static_assert(sizeof(rtk_ray16) == 16 * sizeof(rtk_ray) && sizeof(rtk_rayhit16)
                "SoA 16");
 _Static_assert(offsetof(rtk_rayhit8, hit) == sizeof(rtk_ray8) && offsetof(rtk_ray8, tfar) == 8 * 8 * 4, "order");
 
-static void copy_lanes(void *dst, size_t dst_n, size_t dst_lane, const void *src, size_t src_n, size_t src_lane,
-                       size_t lanes, size_t fields)
+static inline __attribute__((always_inline)) void copy_lanes(void *dst, size_t dst_n, size_t dst_lane,
+                                                             const void *src, size_t src_n, size_t src_lane,
+                                                             size_t lanes, size_t fields)
 {
     for (size_t f = 0; f < fields; f++)
         memcpy((uint32_t *)dst + f * dst_n + dst_lane, (const uint32_t *)src + f * src_n + src_lane, lanes * 4);
+}
+
+/* A packet of n rays through a kernel of w < n, w rays at a time, each
+ * group through an aligned copy.  Inlined with n and w constants, so the
+ * copies are a few vector moves, not calls. */
+static inline __attribute__((always_inline)) void trace_split(rtk_scene s, const int32_t *active, void *packet,
+                                                              uint32_t n, uint32_t w, size_t fields,
+                                                              const struct packet_kernel *k, const rtk_query *query)
+{
+    _Alignas(64) uint32_t sub[RAYHIT_FIELDS * 16];
+    for (uint32_t base = 0; base < n; base += w) {
+        uint32_t on = 0;
+        for (uint32_t i = 0; i < w; i++)
+            on += active[base + i] != 0;
+        if (!on)
+            continue;
+        copy_lanes(sub, w, 0, packet, n, base, w, fields);
+        k->fn(s->accel, active + base, sub, query);
+        /* back: the fields a query writes (tfar, and the hit), whole
+         * rows when every lane is on, else the lanes that are */
+        for (size_t f = RAY_ROW(tfar); f < fields; f = f == RAY_ROW(tfar) ? RAY_FIELDS : f + 1) {
+            if (on == w) {
+                copy_lanes((uint32_t *)packet + f * n, n, base, sub + f * w, w, 0, w, 1);
+                continue;
+            }
+            for (uint32_t i = 0; i < w; i++)
+                if (active[base + i])
+                    copy_lanes((uint32_t *)packet + f * n, n, base + i, sub + f * w, w, i, 1, 1);
+        }
+    }
 }
 
 /* The lanes of a packet of n rays that are on (valid, or valid NULL) and
@@ -2137,29 +2168,12 @@ static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s,
     const size_t fields = occluded ? RAY_FIELDS : RAYHIT_FIELDS;
     if (k->width == n) {
         k->fn(s->accel, active, packet, &query);
-    } else if (k->width > 1) { /* narrower packets: through an aligned copy */
-        _Alignas(64) uint32_t sub[RAYHIT_FIELDS * 16];
-        const uint32_t w = k->width;
-        for (uint32_t base = 0; base < n; base += w) {
-            uint32_t on = 0;
-            for (uint32_t i = 0; i < w; i++)
-                on += active[base + i] != 0;
-            if (!on)
-                continue;
-            copy_lanes(sub, w, 0, packet, n, base, w, fields);
-            k->fn(s->accel, active + base, sub, &query);
-            /* back: the fields a query writes (tfar, and the hit), whole
-             * rows when every lane is on, else the lanes that are */
-            for (size_t f = RAY_ROW(tfar); f < fields; f = f == RAY_ROW(tfar) ? RAY_FIELDS : f + 1) {
-                if (on == w) {
-                    copy_lanes((uint32_t *)packet + f * n, n, base, sub + f * w, w, 0, w, 1);
-                    continue;
-                }
-                for (uint32_t i = 0; i < w; i++)
-                    if (active[base + i])
-                        copy_lanes((uint32_t *)packet + f * n, n, base + i, sub + f * w, w, i, 1, 1);
-            }
-        }
+    } else if (k->width == 8) { /* narrower packets: through an aligned copy */
+        trace_split(s, active, packet, n, 8, fields, k, &query);
+    } else if (k->width == 4) {
+        trace_split(s, active, packet, n, 4, fields, k, &query);
+    } else if (k->width > 1) {
+        trace_split(s, active, packet, n, k->width, fields, k, &query);
     } else { /* ray by ray */
         for (uint32_t i = 0; i < n; i++) {
             if (!active[i])
