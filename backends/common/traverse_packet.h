@@ -550,9 +550,13 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
     vk hu = VK(set1)(0.0f), hv = hu;
     const unsigned all = VKB(mask)(active);
     unsigned done = 0; /* occluded: rays that found a hit; closest: rays with a hit */
-    if (closest) /* defined lanes throughout, for the blends (and memory checkers) */
-        for (int c = 0; c < 5; c++)
-            VK(store)(c < 3 ? h->ng[c] : c == 3 ? h->prim : h->geom, VK(set1)(0.0f));
+    if (closest) { /* defined lanes throughout, for the blends (and memory checkers) */
+        const vk zero = VK(set1)(0.0f);
+        for (int c = 0; c < 3; c++)
+            VK(store)(h->ng[c], zero);
+        VK(store)(h->prim, zero);
+        VK(store)(h->geom, zero);
+    }
 
     PK_(pstack_entry) stack[RTK_BVHN_STACK_SIZE(RTK_BVHN) + 1];
     int sp = 0;
@@ -579,15 +583,11 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                     closest_hit best = CLOSEST_HIT_NONE;
                     closest_from(accel, cur, &rp, ray->tnear[i], &h->t[i], &best, f);
                     if (best.lane >= 0) {
-                        float ng[3];
-                        uint32_t prim, geom;
-                        closest_hit_record(accel, &best, NULL, ng, &prim, &geom);
+                        block_t scratch;
                         h->u[i] = best.u;
                         h->v[i] = best.v;
-                        for (int c = 0; c < 3; c++)
-                            h->ng[c][i] = ng[c];
-                        h->prim[i] = PK_(bits_float)(prim);
-                        h->geom[i] = PK_(bits_float)(geom);
+                        PK_(record_triangle)(h, PK_(lanes_mask)(1u << i), leaf_block(accel, best.leaf, &scratch),
+                                             best.lane);
                         done |= 1u << i;
                     }
                 } else if (any_from(accel, cur, &rp, ray->tnear[i], h->t[i], f)) {
