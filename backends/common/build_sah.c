@@ -1254,7 +1254,7 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
         room = RTK_LEAF_INDEX_LIMIT - 1 - total;
     bd.spatial = room > 0;
     const size_t ref_bytes = (total + room ? total + room : 1) * sizeof *bd.refs;
-    bd.refs = build_reserve(ref_bytes);
+    bd.refs = build_reserve_huge(ref_bytes);
     refgen g = {.bd = &bd, .total = total, .chunks = (uint32_t)((total + RTK_REF_CHUNK - 1) / RTK_REF_CHUNK)};
     const size_t nc = g.chunks ? g.chunks : 1;
     uint64_t *geom_first = build_geom_first(in);
@@ -1424,7 +1424,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
     uint32_t max_id;
     uint32_t *index_of = build_geometry_index(in, &max_id);
     const size_t ref_bytes = (t->prim_count ? t->prim_count : 1) * sizeof *bd.refs;
-    bd.refs = build_reserve(ref_bytes);
+    bd.refs = build_reserve_huge(ref_bytes);
     part p = {.bd = &bd, .node_count = (uint32_t)t->node_count, .leaf_count = (uint32_t)t->leaf_count};
     p.nodes = malloc((t->node_count ? t->node_count : 1) * bd.node_size);
     p.leaves = malloc((t->leaf_count ? t->leaf_count : 1) * sizeof *p.leaves);
