@@ -51,7 +51,14 @@ typedef struct range {
     uint32_t ext; /* [end, ext): room for references spatial splits add */
     box4 geom; /* bounds of the triangles */
     box4 cent; /* bounds of the centroids */
+    struct binned *bn; /* NULL, or its references' bins, made while its parent was partitioned */
 } range;
+
+/* Bins for ranges (struct binned, below), reused: `free` ones, and `all`
+ * of them, freed with the pool.  A pool is used by one thread at a time. */
+typedef struct binpool {
+    struct binned *free, *all;
+} binpool;
 
 /* References inside a part's own node array: an inner node of the same part
  * (its index there), or one of the part's external children (EXT | k): for
@@ -76,6 +83,7 @@ typedef struct part {
     uint64_t refs;  /* references in the leaves */
     uint32_t depth; /* the deepest level reached */
     uint32_t root;  /* part-local reference */
+    binpool pool;   /* its ranges' bins */
     int oom;
     uint64_t node_base, block_base; /* where stage 3 puts it */
 } part;
@@ -127,7 +135,8 @@ typedef struct split {
     int pos;    /* left = bins [0, pos) */
     float cost; /* the two halves' areas times their blocks of four */
     binmap map;
-    box4 left, right; /* the halves' boxes, when sweep was asked for them */
+    box4 left, right; /* the halves' boxes */
+    uint32_t n_left;  /* references in the left half */
 } split;
 
 /* Fewer bins for small ranges, as Embree counts them (4 + n / 20): clearing
@@ -228,11 +237,8 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
 }
 
 /* The best split of n references from their bins: the three axes at once in
- * lanes 0..2.  right_cost[k] is the cost of bins [k, nb) as one child.
- * With `halves`, also the two halves' boxes (for spatial splits only: on
- * every split of a medium build they cost 7%, 0.268 -> 0.287 s on dragon,
- * rtktool build --threads 1). */
-static split sweep(const bins *b, int nb, uint32_t n, const binmap *map, int halves)
+ * lanes 0..2.  right_cost[k] is the cost of bins [k, nb) as one child. */
+static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
 {
     split best = {.axis = -1};
     vfloat4 right_cost[RTK_SAH_BINS];
@@ -273,19 +279,91 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map, int hal
         }
     best.cost = c;
     best.map = *map;
-    if (halves && best.axis >= 0) {
-        best.left = best.right = box_empty();
-        for (int k = 0; k < nb; k++) {
-            box4 *half = k < best.pos ? &best.left : &best.right;
-            box_grow(half, b->box[best.axis][k].lo, b->box[best.axis][k].hi);
+    if (best.axis >= 0) {
+        const int a = best.axis;
+        box4 l = box_empty(), r = box_empty();
+        uint32_t nl = 0;
+        for (int k = 0; k < best.pos; k++) {
+            box_grow(&l, b->box[a][k].lo, b->box[a][k].hi);
+            nl += (uint32_t)b->counts[k][a];
         }
+        for (int k = best.pos; k < nb; k++)
+            box_grow(&r, b->box[a][k].lo, b->box[a][k].hi);
+        best.left = l;
+        best.right = r;
+        best.n_left = nl;
     }
     return best;
+}
+
+/* ---- bins made ahead ----
+ * A split is found from the bins of the range's references (find_split),
+ * and the references are then partitioned by it, another pass over them.
+ * So that the next split needs no pass of its own, the partition also adds
+ * each reference to its side's bins.  A side's centroid bounds, which its
+ * bins should span, are only known after that pass: its bins span the box
+ * known before it, the parent's centroid bounds cut to the side's bounds
+ * (the boxes of its bins on the split axis).  Its exact centroid bounds,
+ * gathered by the partition, are what its own sides' bins start from. */
+typedef struct binned {
+    bins b;
+    binmap map;
+    int nb;
+    struct binned *next_free, *next_all;
+} binned;
+
+/* Bins from pool p; NULL when out of memory (the range is then binned by
+ * find_split). */
+static binned *pool_get(binpool *p)
+{
+    binned *b = p->free;
+    if (b) {
+        p->free = b->next_free;
+        return b;
+    }
+    b = malloc(sizeof *b);
+    if (b) {
+        b->next_all = p->all;
+        p->all = b;
+    }
+    return b;
+}
+
+/* Back to p, to be reused by p's thread (the bins may come from another
+ * pool, which still frees them). */
+static void pool_put(binpool *p, binned *b)
+{
+    if (b) {
+        b->next_free = p->free;
+        p->free = b;
+    }
+}
+
+static void pool_release(binpool *p)
+{
+    while (p->all) {
+        binned *next = p->all->next_all;
+        free(p->all);
+        p->all = next;
+    }
+    p->free = NULL;
+}
+
+/* Sets up b for a side of n references of split s of r (see above). */
+static void side_bins(const range *r, const box4 *side, uint32_t n, binned *b)
+{
+    const vbool4 xyz = vb4_from_bits(7); /* lane 3 of a box holds ids: see centroid */
+    const box4 c = {vf4_keep(xyz, vf4_max(r->cent.lo, side->lo)), vf4_keep(xyz, vf4_min(r->cent.hi, side->hi))};
+    b->nb = bin_count(n);
+    make_binmap(&c, b->nb, &b->map); /* a flat box gives no usable axis, and sweep no split */
+    bins_clear(&b->b, b->nb);
 }
 
 static split find_split(const build *bd, const range *r)
 {
     const uint32_t n = r->end - r->begin;
+    if (r->bn)
+        return sweep(&r->bn->b, r->bn->nb, n, &r->bn->map);
     const int nb = bin_count(n);
     binmap map;
     if (!make_binmap(&r->cent, nb, &map))
@@ -293,7 +371,7 @@ static split find_split(const build *bd, const range *r)
     bins b;
     bins_clear(&b, nb);
     bin_refs(bd->refs, r->begin, r->end, &map, &b, nb);
-    return sweep(&b, nb, n, &map, bd->spatial);
+    return sweep(&b, nb, n, &map);
 }
 
 static void range_init(range *r, uint32_t begin, uint32_t end)
@@ -303,6 +381,7 @@ static void range_init(range *r, uint32_t begin, uint32_t end)
     r->ext = end;
     r->geom = box_empty();
     r->cent = box_empty();
+    r->bn = NULL;
 }
 
 static inline void range_add(range *r, vfloat4 lo, vfloat4 hi)
@@ -310,6 +389,12 @@ static inline void range_add(range *r, vfloat4 lo, vfloat4 hi)
     vfloat4 c = centroid(lo, hi);
     box_grow(&r->geom, lo, hi);
     box_grow(&r->cent, c, c);
+}
+
+static inline void cent_add(box4 *cent, vfloat4 lo, vfloat4 hi)
+{
+    vfloat4 c = centroid(lo, hi);
+    box_grow(cent, c, c);
 }
 
 static void range_merge(range *into, const range *r)
@@ -325,32 +410,54 @@ static void range_recompute(const primref *refs, range *r)
         range_add(r, vf4_load(refs[i].lo), vf4_load(refs[i].hi));
 }
 
+/* The bins the two sides of a partition are added to (see "bins made
+ * ahead"), or none. */
+typedef struct side_bins_to {
+    bins *left, *right;
+    const binmap *left_map, *right_map;
+} side_bins_to;
+
 /* Hoare partition of [begin, end) by split s: a reference goes left when
  * its bin on the split axis is below the split position.  Returns the first
  * reference of the right side; left and right get the two sides' bounds
- * (their begin and end are the caller's to set). */
-static uint32_t partition(primref *refs, uint32_t begin, uint32_t end, const split *s, range *left, range *right)
+ * (their begin and end are the caller's to set): their boxes are the
+ * split's halves (the bins' boxes of each side, exactly the union of its
+ * references' boxes), their centroid bounds gathered here.  With_bins (a
+ * constant: the two uses are compiled apart), each reference is also
+ * added to its side's bins in *to. */
+static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t end, const split *s, range *left,
+                                      range *right, const side_bins_to *to, const int with_bins)
 {
+    /* All in locals: the stores below could alias *s, *to, *left and *right
+     * for all the compiler knows. */
     const vint4 pos = vi4_set1(s->pos);
+    const binmap map = s->map;
+    bins *lb = with_bins ? to->left : NULL, *rb = with_bins ? to->right : NULL;
+    const binmap lm = with_bins ? *to->left_map : map, rm = with_bins ? *to->right_map : map;
     const int bit = 1 << s->axis;
     uint32_t i = begin, j = end;
-    range_init(left, 0, 0);
-    range_init(right, 0, 0);
+    box4 lc = box_empty(), rc = box_empty();
     vfloat4 lo_i, hi_i, lo_j, hi_j;
     for (;;) {
         for (; i < j; i++) {
             lo_i = vf4_load(refs[i].lo);
             hi_i = vf4_load(refs[i].hi);
-            if (!(vb4_mask(vi4_lt(bin_of(&s->map, centroid(lo_i, hi_i)), pos)) & bit))
+            const vfloat4 c = centroid(lo_i, hi_i);
+            if (!(vb4_mask(vi4_lt(bin_of(&map, c), pos)) & bit))
                 break;
-            range_add(left, lo_i, hi_i);
+            cent_add(&lc, lo_i, hi_i);
+            if (with_bins)
+                bin_add(lb->box, lb->counts, bin_of(&lm, c), lo_i, hi_i);
         }
         for (; i < j; j--) {
             lo_j = vf4_load(refs[j - 1].lo);
             hi_j = vf4_load(refs[j - 1].hi);
-            if (vb4_mask(vi4_lt(bin_of(&s->map, centroid(lo_j, hi_j)), pos)) & bit)
+            const vfloat4 c = centroid(lo_j, hi_j);
+            if (vb4_mask(vi4_lt(bin_of(&map, c), pos)) & bit)
                 break;
-            range_add(right, lo_j, hi_j);
+            cent_add(&rc, lo_j, hi_j);
+            if (with_bins)
+                bin_add(rb->box, rb->counts, bin_of(&rm, c), lo_j, hi_j);
         }
         if (i >= j)
             break;
@@ -359,12 +466,31 @@ static uint32_t partition(primref *refs, uint32_t begin, uint32_t end, const spl
         vf4_store(refs[i].hi, hi_j);
         vf4_store(refs[j - 1].lo, lo_i);
         vf4_store(refs[j - 1].hi, hi_i);
-        range_add(left, lo_j, hi_j);
-        range_add(right, lo_i, hi_i);
+        cent_add(&lc, lo_j, hi_j);
+        cent_add(&rc, lo_i, hi_i);
+        if (with_bins) {
+            bin_add(lb->box, lb->counts, bin_of(&lm, centroid(lo_j, hi_j)), lo_j, hi_j);
+            bin_add(rb->box, rb->counts, bin_of(&rm, centroid(lo_i, hi_i)), lo_i, hi_i);
+        }
         i++;
         j--;
     }
+    range_init(left, 0, 0);
+    range_init(right, 0, 0);
+    left->geom = s->left;
+    left->cent = lc;
+    right->geom = s->right;
+    right->cent = rc;
     return i;
+}
+
+/* partition, adding the sides' references to bins `to` if not NULL. */
+static uint32_t partition(primref *refs, uint32_t begin, uint32_t end, const split *s, range *left, range *right,
+                          const side_bins_to *to)
+{
+    if (to)
+        return partition_with(refs, begin, end, s, left, right, to, 1);
+    return partition_with(refs, begin, end, s, left, right, NULL, 0);
 }
 
 /* Halves at the middle reference: for coinciding centroids, and past the
@@ -730,11 +856,47 @@ static void share_room(primref *refs, const range *r, range *left, range *right)
     right->ext = r->ext;
 }
 
+/* Bins from pool for the sides of object split s of r, to be filled by
+ * the partition: 0 (none) when neither side will be split again (four
+ * references or fewer), or without a pool. */
+static int sides_get(binpool *pool, const range *r, const split *s, binned **lb, binned **rb)
+{
+    const uint32_t nl = s->n_left, nr = r->end - r->begin - s->n_left;
+    *lb = *rb = NULL;
+    if (!pool || (nl <= 4 && nr <= 4))
+        return 0;
+    *lb = pool_get(pool);
+    *rb = pool_get(pool);
+    if (!*lb || !*rb) {
+        pool_put(pool, *lb);
+        pool_put(pool, *rb);
+        *lb = *rb = NULL;
+        return 0;
+    }
+    side_bins(r, &s->left, nl, *lb);
+    side_bins(r, &s->right, nr, *rb);
+    return 1;
+}
+
+/* The partitioned sides take their bins, but for a side of four or fewer. */
+static void sides_keep(binpool *pool, range *left, binned *lb, range *right, binned *rb)
+{
+    if (left->end - left->begin > 4)
+        left->bn = lb;
+    else
+        pool_put(pool, lb);
+    if (right->end - right->begin > 4)
+        right->bn = rb;
+    else
+        pool_put(pool, rb);
+}
+
 /* Splits r into two non-empty halves on this thread, along *given if not
  * NULL (a split find_split made for r), else along the best one (median:
  * halves); with spatial splits on, along a spatial split where one is
- * cheaper. */
-static void split_range(const build *bd, const range *r, int median, const split *given, range *left, range *right)
+ * cheaper.  With a pool, an object split also bins the halves. */
+static void split_range(const build *bd, binpool *pool, const range *r, int median, const split *given,
+                        range *left, range *right)
 {
     primref *refs = bd->refs;
     split s = {.axis = -1};
@@ -752,11 +914,17 @@ static void split_range(const build *bd, const range *r, int median, const split
         split_middle(refs, r, left, right);
         return;
     }
-    const uint32_t mid = partition(refs, r->begin, r->end, &s, left, right);
+    binned *lb, *rb;
+    const int binning = !median && sides_get(pool, r, &s, &lb, &rb);
+    const side_bins_to to = {binning ? &lb->b : NULL, binning ? &rb->b : NULL, binning ? &lb->map : NULL,
+                             binning ? &rb->map : NULL};
+    const uint32_t mid = partition(refs, r->begin, r->end, &s, left, right, binning ? &to : NULL);
     left->begin = r->begin;
     left->end = mid;
     right->begin = mid;
     right->end = r->end;
+    if (binning)
+        sides_keep(pool, left, lb, right, rb);
 }
 
 /* ---- splitting a large range with every thread (stage 1) ---- */
@@ -772,7 +940,8 @@ typedef struct psplit {
     int nb;
     binmap map;
     split s;
-    bins *bins;                  /* one per chunk */
+    bins *bins;                  /* two per chunk: its references', then its sides' */
+    binned *lb, *rb;             /* the sides' bins, or NULL */
     uint32_t mid[RTK_CHUNKS_MAX]; /* each chunk's first right reference after its partition */
     range left[RTK_CHUNKS_MAX], right[RTK_CHUNKS_MAX];
     /* The misplaced references: rights below the split point and lefts at
@@ -802,7 +971,14 @@ static void psplit_partition(void *data, uint32_t k)
 {
     psplit *p = data;
     range left, right;
-    p->mid[k] = partition(p->refs, chunk_begin(p, k), chunk_begin(p, k + 1), &p->s, &left, &right);
+    side_bins_to to = {0};
+    if (p->lb) {
+        to = (side_bins_to){&p->bins[2 * k], &p->bins[2 * k + 1], &p->lb->map, &p->rb->map};
+        bins_clear(to.left, p->lb->nb);
+        bins_clear(to.right, p->rb->nb);
+    }
+    p->mid[k] =
+        partition(p->refs, chunk_begin(p, k), chunk_begin(p, k + 1), &p->s, &left, &right, p->lb ? &to : NULL);
     p->left[k] = left;
     p->right[k] = right;
 }
@@ -843,18 +1019,19 @@ static void psplit_swap(void *data, uint32_t q)
     }
 }
 
-/* As split_range without `given`, on every thread: bins per chunk, merged
- * in chunk order; a Hoare partition per chunk; then the rights left of the
- * split point and the lefts right of it swapped pairwise, in order.  The
- * result depends on the chunks alone, which depend on the size alone. */
-static void split_parallel(const build *bd, bins *scratch, sbins *sscratch, const range *r, range *left,
-                           range *right)
+/* As split_range without `given`, on every thread: bins per chunk (unless
+ * r has its bins), merged in chunk order; a Hoare partition per chunk,
+ * binning its sides as it goes; then the rights left of the split point
+ * and the lefts right of it swapped pairwise, in order.  The result depends
+ * on the chunks alone, which depend on the size alone. */
+static void split_parallel(const build *bd, binpool *pool, bins *scratch, sbins *sscratch, const range *r,
+                           range *left, range *right)
 {
     const uint32_t n = r->end - r->begin;
     psplit *p = malloc(sizeof *p);
     if (!p) {
         /* the same split, on this thread */
-        split_range(bd, r, 0, NULL, left, right);
+        split_range(bd, pool, r, 0, NULL, left, right);
         return;
     }
     p->refs = bd->refs;
@@ -863,11 +1040,13 @@ static void split_parallel(const build *bd, bins *scratch, sbins *sscratch, cons
     p->nb = bin_count(n);
     p->bins = scratch;
     p->s = (split){.axis = -1};
-    if (make_binmap(&r->cent, p->nb, &p->map)) {
+    if (r->bn) {
+        p->s = find_split(bd, r);
+    } else if (make_binmap(&r->cent, p->nb, &p->map)) {
         run_parallel(bd, p->chunks, psplit_bin, p);
         for (uint32_t k = 1; k < p->chunks; k++)
             bins_merge(&p->bins[0], &p->bins[k], p->nb);
-        p->s = sweep(&p->bins[0], p->nb, n, &p->map, bd->spatial);
+        p->s = sweep(&p->bins[0], p->nb, n, &p->map);
     }
     spatial_split sp;
     if (bd->spatial && find_spatial(bd, sscratch, r, &p->s, &sp)) {
@@ -881,6 +1060,7 @@ static void split_parallel(const build *bd, bins *scratch, sbins *sscratch, cons
         split_middle(bd->refs, r, left, right);
         return;
     }
+    sides_get(pool, r, &p->s, &p->lb, &p->rb);
     run_parallel(bd, p->chunks, psplit_partition, p);
 
     range_init(left, 0, 0);
@@ -890,6 +1070,10 @@ static void split_parallel(const build *bd, bins *scratch, sbins *sscratch, cons
         range_merge(left, &p->left[k]);
         range_merge(right, &p->right[k]);
         split_at += p->mid[k] - chunk_begin(p, k);
+        if (p->lb) {
+            bins_merge(&p->lb->b, &p->bins[2 * k], p->lb->nb);
+            bins_merge(&p->rb->b, &p->bins[2 * k + 1], p->rb->nb);
+        }
     }
     p->n_wrong_right = p->n_wrong_left = 0;
     p->misplaced = 0;
@@ -908,6 +1092,8 @@ static void split_parallel(const build *bd, bins *scratch, sbins *sscratch, cons
     left->end = split_at;
     right->begin = split_at;
     right->end = r->end;
+    if (p->lb)
+        sides_keep(pool, left, p->lb, right, p->rb);
     free(p);
 }
 
@@ -957,6 +1143,7 @@ static void part_free_nodes(part *p)
 static void part_free(part *p)
 {
     part_free_nodes(p);
+    pool_release(&p->pool);
     free(p->leaves);
     p->leaves = NULL;
 }
@@ -983,9 +1170,11 @@ static void set_child(part *p, uint32_t index, int i, uint32_t ref)
 /* The children of a node over r: the child with the largest area (median:
  * the most references) is split until there are N or none has more than
  * four references.  `first`, if not NULL, is find_split's split of r.
- * Stage 1 (`parallel`) splits its large ranges with every thread. */
-static int split_children(const build *bd, bins *scratch, sbins *sscratch, const range *r, int median,
-                          const split *first, int parallel, range child[8])
+ * Stage 1 (`parallel`) splits its large ranges with every thread.  The
+ * bins of a range split go back to pool (r's among them); the children
+ * keep theirs. */
+static int split_children(const build *bd, binpool *pool, bins *scratch, sbins *sscratch, const range *r,
+                          int median, const split *first, int parallel, range child[8])
 {
     int nc = 1;
     child[0] = *r;
@@ -1006,9 +1195,10 @@ static int split_children(const build *bd, bins *scratch, sbins *sscratch, const
             break;
         range l, rr;
         if (parallel && !median && child[pick].end - child[pick].begin >= 2 * RTK_CHUNK_MIN)
-            split_parallel(bd, scratch, sscratch, &child[pick], &l, &rr);
+            split_parallel(bd, pool, scratch, sscratch, &child[pick], &l, &rr);
         else
-            split_range(bd, &child[pick], median, nc == 1 ? first : NULL, &l, &rr);
+            split_range(bd, pool, &child[pick], median, nc == 1 ? first : NULL, &l, &rr);
+        pool_put(pool, child[pick].bn);
         share_room(bd->refs, &child[pick], &l, &rr);
         child[pick] = l;
         child[nc++] = rr;
@@ -1037,12 +1227,14 @@ static uint32_t build_node(part *p, const range *r, uint32_t depth)
     if (n <= 4 * RTK_LEAF_MAX_BLOCKS && !median) {
         first = find_split(bd, r);
         const float area = box_half_area(&r->geom);
-        if (first.axis < 0 || (float)((n + 3) / 4) * area <= area + first.cost)
+        if (first.axis < 0 || (float)((n + 3) / 4) * area <= area + first.cost) {
+            pool_put(&p->pool, r->bn);
             return part_leaf(p, r->begin, r->end);
+        }
         have_first = 1;
     }
     range child[8];
-    const int nc = split_children(bd, NULL, NULL, r, median, have_first ? &first : NULL, 0, child);
+    const int nc = split_children(bd, &p->pool, NULL, NULL, r, median, have_first ? &first : NULL, 0, child);
     const uint32_t index = part_node(p);
     write_node(p, index, child, nc);
     for (int i = 0; i < nc; i++)
@@ -1068,6 +1260,7 @@ static void build_subtree(void *data, uint32_t i)
     }
     build_grow((void **)&p->leaves, &p->leaf_cap, n / 3 + 1, sizeof *p->leaves);
     p->root = build_node(p, &p->r, p->depth0);
+    pool_release(&p->pool); /* (its root's bins are the top's, which frees them) */
 }
 
 /* ---- stage 1: the top nodes, on every thread ---- */
@@ -1076,7 +1269,7 @@ typedef struct top {
     part nodes; /* the top nodes; EXT | k is subtree k */
     part *subtrees;
     uint32_t subtree_count, subtree_cap;
-    bins *scratch;   /* RTK_CHUNKS_MAX of them */
+    bins *scratch;   /* 2 * RTK_CHUNKS_MAX of them */
     sbins *sscratch; /* the same, for spatial splits */
 } top;
 
@@ -1097,7 +1290,7 @@ static uint32_t top_node(top *t, const range *r, uint32_t depth)
         p->depth = depth;
     range child[8];
     const int nc =
-        split_children(p->bd, t->scratch, t->sscratch, r, depth >= RTK_SAH_MEDIAN_DEPTH, NULL, 1, child);
+        split_children(p->bd, &p->pool, t->scratch, t->sscratch, r, depth >= RTK_SAH_MEDIAN_DEPTH, NULL, 1, child);
     const uint32_t index = part_node(p);
     write_node(p, index, child, nc);
     for (int i = 0; i < nc; i++) {
@@ -1263,7 +1456,7 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     g.skipped = malloc(nc * sizeof *g.skipped);
     g.degenerate = malloc(nc * sizeof *g.degenerate);
     g.bounds = malloc(nc * sizeof *g.bounds);
-    top t = {.nodes = {.bd = &bd}, .scratch = malloc(RTK_CHUNKS_MAX * sizeof *t.scratch)};
+    top t = {.nodes = {.bd = &bd}, .scratch = malloc(2 * RTK_CHUNKS_MAX * sizeof *t.scratch)};
     if (bd.spatial)
         t.sscratch = malloc(RTK_CHUNKS_MAX * sizeof *t.sscratch);
     if (!bd.refs || !geom_first || !g.kept || !g.skipped || !g.degenerate || !g.bounds || !t.scratch ||
