@@ -65,19 +65,18 @@ void *build_reserve(size_t size)
  * builder's references of San Miguel, 32 MB: 16 -> 7 ms on one thread).
  * The advice is only a hint (the kernel may not have huge pages); the memory
  * is the same either way. */
-#define HUGE_PAGE ((size_t)2 << 20)
 void *build_reserve_huge(size_t size)
 {
     size = page_round(size);
-    if (size < HUGE_PAGE)
+    if (size < RTK_HUGE_PAGE)
         return build_reserve(size);
-    char *p = build_reserve(size + HUGE_PAGE);
+    char *p = build_reserve(size + RTK_HUGE_PAGE);
     if (!p)
         return NULL;
-    const size_t head = (HUGE_PAGE - (uintptr_t)p % HUGE_PAGE) % HUGE_PAGE;
+    const size_t head = (RTK_HUGE_PAGE - (uintptr_t)p % RTK_HUGE_PAGE) % RTK_HUGE_PAGE;
     if (head)
         munmap(p, head);
-    munmap(p + head + size, HUGE_PAGE - head);
+    munmap(p + head + size, RTK_HUGE_PAGE - head);
 #ifdef MADV_HUGEPAGE
     madvise(p + head, size, MADV_HUGEPAGE);
 #endif

@@ -248,7 +248,9 @@ static inline void build_store_node(const build *bd, void *nodes, uint64_t index
 /* Scratch memory: an anonymous mapping, returned to the system when freed. */
 RTK_HIDDEN void *build_reserve(size_t size);
 /* The same, on transparent huge pages where the kernel has them (large
- * arrays: one fault per 2 MiB, and fewer TLB misses). */
+ * arrays: one fault per 2 MiB, and fewer TLB misses).  A reservation of
+ * RTK_HUGE_PAGE bytes or more starts on a multiple of RTK_HUGE_PAGE. */
+#define RTK_HUGE_PAGE ((size_t)2 << 20)
 RTK_HIDDEN void *build_reserve_huge(size_t size);
 RTK_HIDDEN void build_unreserve(void *p, size_t size);
 /* Gives the pages wholly inside [p, p + size) of a reservation back to the
