@@ -185,7 +185,7 @@ static void bins_clear(bins *b, int nb)
     for (int a = 0; a < 3; a++)
         for (int k = 0; k < nb; k++)
             b->box[a][k] = box_empty();
-    memset(b->counts, 0, sizeof b->counts);
+    memset(b->counts, 0, (size_t)nb * sizeof b->counts[0]);
 }
 
 static void bins_merge(bins *into, const bins *b, int nb)
@@ -201,16 +201,12 @@ static void bins_merge(bins *into, const bins *b, int nb)
  * triangles); 0 when no axis can be split (the box is flat in all three). */
 static int make_binmap(const box4 *b, int nb, binmap *map)
 {
-    _Alignas(16) float ext[4], scale[4] = {0, 0, 0, 0};
-    vf4_store(ext, vf4_sub(b->hi, b->lo));
-    int splittable = 0;
-    for (int a = 0; a < 3; a++)
-        if (ext[a] > 0.0f && ext[a] <= FLT_MAX) {
-            scale[a] = (float)nb * 0.99999f / ext[a];
-            splittable = 1;
-        }
-    *map = (binmap){.cmin = b->lo, .scale = vf4_load(scale), .top = vf4_set1((float)(nb - 1))};
-    return splittable;
+    const vfloat4 ext = vf4_sub(b->hi, b->lo);
+    const vbool4 ok = vb4_and(vb4_from_bits(7), vb4_and(vf4_gt(ext, vf4_set1(0.0f)), vf4_le(ext, vf4_set1(FLT_MAX))));
+    /* the division in lanes without an extent gives what the mask drops */
+    const vfloat4 scale = vf4_keep(ok, vf4_div(vf4_set1((float)nb * 0.99999f), vf4_select(ok, ext, vf4_set1(1.0f))));
+    *map = (binmap){.cmin = b->lo, .scale = scale, .top = vf4_set1((float)(nb - 1))};
+    return vb4_mask(ok) != 0;
 }
 
 /* Adds references [begin, end) to the bins (cleared by the caller).  Two
