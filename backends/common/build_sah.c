@@ -40,8 +40,15 @@
 #define RTK_SAH_MEDIAN_DEPTH 30
 /* Stage 1 takes nodes of at least this many references; smaller ones are
  * subtree tasks.  Chunks of stage 1 hold at least RTK_CHUNK_MIN references,
- * at most RTK_CHUNKS_MAX of them per split. */
-#define RTK_TOP_MIN 16384u
+ * at most RTK_CHUNKS_MAX of them per split.  Stage 1's passes stream the
+ * references from memory, where two threads slow each other down (San
+ * Miguel's chunks: 53 ms of partitioning on one thread, 68 ms between two);
+ * a subtree task's fit the caches.  So stage 1 ends at 64K references, not
+ * 16K: rtktool build, 2 threads, best of 8 interleaved rounds: San Miguel
+ * 123 -> 114 ms, dragon 85 -> 82 (1 thread: 222 -> 216).  Those meshes
+ * still make 71 and 50 subtrees of up to 59K references, work for more
+ * threads than two. */
+#define RTK_TOP_MIN 65536u
 #define RTK_CHUNK_MIN 4096u
 #define RTK_CHUNKS_MAX 64u
 /* Triangles per task when the references are made. */
