@@ -1352,12 +1352,37 @@ static uint32_t subtree_root(const part *p)
     return p->root & EXT ? p->leaves[p->root & ~EXT].begin : (uint32_t)(p->node_base + p->root);
 }
 
+/* Prefetches the triangles of a leaf for write_block, which otherwise
+ * waits on the application's arrays (perf: a quarter of its time on the
+ * load of the indices): their indices, or (once those have come) their
+ * vertices.  place_subtree asks for the indices four leaves ahead, the
+ * vertices two: San Miguel 219 -> 211 ms on one thread, 119 -> 116 on two
+ * (rtktool build, best of 8 interleaved rounds).  An earlier try with the
+ * indices alone made no difference. */
+static void prefetch_leaf(const build *bd, const leafrange *l, int vertices)
+{
+    for (uint32_t k = l->begin; k < l->end; k++) {
+        const rtk_build_geometry *g = &bd->in->geometries[ref_geom(&bd->refs[k])];
+        const uint32_t *tri = triangle_at(g, ref_prim(&bd->refs[k]));
+        if (!vertices) {
+            __builtin_prefetch(tri);
+            continue;
+        }
+        for (int j = 0; j < 3; j++)
+            __builtin_prefetch(vertex_at(g, tri[j]));
+    }
+}
+
 static void place_subtree(void *data, uint32_t i)
 {
     part *p = (part *)data + i;
     uint64_t block = p->block_base;
     for (uint32_t k = 0; k < p->leaf_count; k++) {
         leafrange *l = &p->leaves[k];
+        if (k + 4 < p->leaf_count)
+            prefetch_leaf(p->bd, &p->leaves[k + 4], 0);
+        if (k + 2 < p->leaf_count)
+            prefetch_leaf(p->bd, &p->leaves[k + 2], 1);
         const uint32_t blocks = (l->end - l->begin + 3) / 4;
         for (uint32_t b = 0; b < blocks; b++)
             write_block(p->bd, l->begin + 4 * b, l->end, block + b);
