@@ -442,7 +442,10 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
 {
     /* All in locals: the stores below could alias *s, *to, *left and *right
      * for all the compiler knows. */
-    const vint4 pos = vi4_set1(s->pos);
+    /* bin_of(c) < pos on the split axis, without the clamp and conversion:
+     * x = (c - cmin) * scale is below pos (or NaN, which bin_of puts in bin
+     * 0); the clamp at the top bin cannot take an x >= pos below pos. */
+    const vfloat4 pos = vf4_set1((float)s->pos);
     const binmap map = s->map;
     bins *lb = with_bins ? to->left : NULL, *rb = with_bins ? to->right : NULL;
     const binmap lm = with_bins ? *to->left_map : map, rm = with_bins ? *to->right_map : map;
@@ -455,7 +458,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
             lo_i = vf4_load(refs[i].lo);
             hi_i = vf4_load(refs[i].hi);
             const vfloat4 c = centroid(lo_i, hi_i);
-            if (!(vb4_mask(vi4_lt(bin_of(&map, c), pos)) & bit))
+            if (vb4_mask(vf4_ge(vf4_mul(vf4_sub(c, map.cmin), map.scale), pos)) & bit)
                 break;
             cent_add(&lc, lo_i, hi_i);
             if (with_bins)
@@ -465,7 +468,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
             lo_j = vf4_load(refs[j - 1].lo);
             hi_j = vf4_load(refs[j - 1].hi);
             const vfloat4 c = centroid(lo_j, hi_j);
-            if (vb4_mask(vi4_lt(bin_of(&map, c), pos)) & bit)
+            if (!(vb4_mask(vf4_ge(vf4_mul(vf4_sub(c, map.cmin), map.scale), pos)) & bit))
                 break;
             cent_add(&rc, lo_j, hi_j);
             if (with_bins)
