@@ -396,6 +396,12 @@ static void range_init(range *r, uint32_t begin, uint32_t end)
     r->bn = NULL;
 }
 
+/* The end of r's references and of the room behind them, whichever is last. */
+static inline uint32_t range_room_end(const range *r)
+{
+    return r->ext > r->end ? r->ext : r->end;
+}
+
 static inline void range_add(range *r, vfloat4 lo, vfloat4 hi)
 {
     vfloat4 c = centroid(lo, hi);
@@ -931,8 +937,9 @@ static void split_range(const build *bd, binpool *pool, const range *r, int medi
     }
     binned *lb, *rb;
     const int binning = !median && sides_get(pool, r, &s, &lb, &rb);
-    const side_bins_to to = {binning ? &lb->b : NULL, binning ? &rb->b : NULL, binning ? &lb->map : NULL,
-                             binning ? &rb->map : NULL};
+    side_bins_to to = {0};
+    if (binning)
+        to = (side_bins_to){&lb->b, &rb->b, &lb->map, &rb->map};
     const uint32_t mid = partition(refs, r->begin, r->end, &s, left, right, binning ? &to : NULL);
     left->begin = r->begin;
     left->end = mid;
@@ -1267,7 +1274,7 @@ static void build_subtree(void *data, uint32_t i)
      * of which only the pages written are ever memory, returned to the
      * system as soon as stage 3 has copied them (place_and_release).
      * About one leaf per 3 references. */
-    const uint32_t bound = (p->r.ext > p->r.end ? p->r.ext : p->r.end) - p->r.begin + 1;
+    const uint32_t bound = range_room_end(&p->r) - p->r.begin + 1;
     p->nodes = build_reserve((size_t)bound * p->bd->node_size);
     if (p->nodes) {
         p->nodes_mapped = (size_t)bound * p->bd->node_size;
@@ -1395,6 +1402,19 @@ static void place_subtree(void *data, uint32_t i)
     place_nodes(p, p->leaves ? &p->leaves[0].begin : NULL, sizeof *p->leaves / sizeof(uint32_t));
 }
 
+typedef struct refspan {
+    size_t lo, hi;                /* bytes into the references */
+    size_t first_page, end_page; /* the huge pages they lie on */
+} refspan;
+
+/* Where subtree p's references (and the room behind them) lie. */
+static refspan subtree_refs(const part *p)
+{
+    const size_t lo = (size_t)p->r.begin * sizeof *p->bd->refs, hi = (size_t)range_room_end(&p->r) * sizeof *p->bd->refs;
+    return (refspan){.lo = lo, .hi = hi, .first_page = lo / RTK_HUGE_PAGE,
+                     .end_page = hi > lo ? (hi - 1) / RTK_HUGE_PAGE + 1 : lo / RTK_HUGE_PAGE};
+}
+
 /* Gives back the pages of references only subtree p used, now placed.  On
  * huge pages, one given back in part would be split by the kernel (which
  * made stage 3 of San Miguel take 35 to 170 ms on one thread, rtktool
@@ -1402,14 +1422,13 @@ static void place_subtree(void *data, uint32_t i)
  * has been placed. */
 static void release_refs(const part *p)
 {
-    const uint32_t end = p->r.ext > p->r.end ? p->r.ext : p->r.end;
     char *base = (char *)p->bd->refs;
-    const size_t lo = (size_t)p->r.begin * sizeof *p->bd->refs, hi = (size_t)end * sizeof *p->bd->refs;
+    const refspan span = subtree_refs(p);
     if (!p->pages) {
-        build_release_pages(base + lo, hi - lo);
+        build_release_pages(base + span.lo, span.hi - span.lo);
         return;
     }
-    for (size_t k = lo / RTK_HUGE_PAGE; hi > lo && k <= (hi - 1) / RTK_HUGE_PAGE; k++)
+    for (size_t k = span.first_page; k < span.end_page; k++)
         if (atomic_fetch_sub_explicit(&p->pages->users[k], 1, memory_order_acq_rel) == 1) {
             const size_t at = k * RTK_HUGE_PAGE;
             build_release_pages(base + at, p->pages->bytes - at < RTK_HUGE_PAGE ? p->pages->bytes - at : RTK_HUGE_PAGE);
@@ -1434,9 +1453,8 @@ static void count_page_users(top *t, refpages *pages, size_t bytes)
         atomic_init(&pages->users[k], 0);
     for (uint32_t i = 0; i < t->subtree_count; i++) {
         part *p = &t->subtrees[i];
-        const uint32_t end = p->r.ext > p->r.end ? p->r.ext : p->r.end;
-        const size_t lo = (size_t)p->r.begin * sizeof *t->nodes.bd->refs, hi = (size_t)end * sizeof *t->nodes.bd->refs;
-        for (size_t k = lo / RTK_HUGE_PAGE; hi > lo && k <= (hi - 1) / RTK_HUGE_PAGE; k++)
+        const refspan span = subtree_refs(p);
+        for (size_t k = span.first_page; k < span.end_page; k++)
             atomic_fetch_add_explicit(&pages->users[k], 1, memory_order_relaxed);
         p->pages = pages;
     }
