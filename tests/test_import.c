@@ -158,6 +158,12 @@ static void test_malformed(void **state)
                  "line 4: expected f and three or more vertex references");
     expect_error(write_text("garbage.off", "OFF\nlots of words\n"), "malformed OFF: expected vertex, face and edge counts");
     expect_error(write_text("garbage2.off", "NOT AN OFF\n3 1 0\n"), "malformed OFF: the file does not start with OFF");
+    /* fuzz/fuzz_mesh: BINARY after OFF and a form feed, then more bytes, read
+     * here as text but by OpenMesh as binary (counts of billions: a hang) */
+    expect_error(write_text("binary_ff.off", "\x02OFF\fBINARY\xf6\xd8" "0 BINARY\n0 0 0\n0\n"),
+                 "malformed OFF: the first line must be [ST][C][N]OFF");
+    expect_error(write_text("binary_ff2.off", "OFF\fBINARY\n0 0 0\n0\n"), "malformed OFF: the first line must be");
+    expect_error(write_text("binary_two.off", "OFF  BINARY\n0 0 0\n"), "malformed OFF: the first line must be");
     /* counts the file cannot hold (OpenMesh read millions of empty vertices: fuzz_mesh) */
     expect_error(write_text("many.off", "OFF\n25555555 4 0\n0 0 0\n"), "need at least 153333362 bytes");
     /* What OpenMesh's OFF reader misreads (fuzz_mesh): a face declaring

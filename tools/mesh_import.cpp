@@ -230,6 +230,12 @@ bool is_count(const std::string &t, unsigned long &v)
     return v <= 0xffffffffu;
 }
 
+bool fail_keyword(std::string &why)
+{
+    why = "malformed OFF: the first line must be [ST][C][N]OFF, optionally followed by one space and BINARY";
+    return false;
+}
+
 bool off_ok(const char *path, std::string &why)
 {
     std::string data;
@@ -246,6 +252,16 @@ bool off_ok(const char *path, std::string &why)
         return false;
     }
     const std::string prefix = keyword.substr(0, keyword.size() - 3);
+    if (prefix.find_first_not_of("STCN4n") != std::string::npos)
+        return fail_keyword(why);
+    // OpenMesh reads the body as binary when BINARY follows OFF and one
+    // separator, whatever comes after it; refuse a line where that and the
+    // words read here could disagree (fuzz/fuzz_mesh: "OFF\fBINARY\xf6..."
+    // passed as text and was read as binary counts of billions, a hang)
+    if (first.find("BINARY") != std::string::npos &&
+        (second != "BINARY" || first.compare(0, keyword.size() + 7, keyword + " BINARY") != 0 ||
+         first.find_first_not_of(" \t\r", keyword.size() + 7) != std::string::npos))
+        return fail_keyword(why);
     const bool st = prefix.compare(0, 2, "ST") == 0;
     const bool color = prefix.find('C') != std::string::npos, normal = prefix.find('N') != std::string::npos;
     const auto fail = [&why](const std::string &text) {
