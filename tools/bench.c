@@ -409,8 +409,8 @@ static render_tracer scene_tracer(scene *sc, int coherent)
 
 /* ---- ray sets ---- */
 
-enum { SET_PRIMARY, SET_DIFFUSE, SET_SHADOW, NSETS };
-static const char *const set_names[NSETS] = {"primary", "diffuse", "shadow"};
+enum { SET_PRIMARY, SET_DIFFUSE, SET_SHADOW, SET_INCOHERENT, NSETS };
+static const char *const set_names[NSETS] = {"primary", "diffuse", "shadow", "incoherent"};
 static const int apis[4] = {1, 4, 8, 16};
 
 typedef struct rayset {
@@ -497,6 +497,24 @@ static void make_secondary(const rtk_mesh *m, scene *sc, const rayset *primary, 
     }
     diffuse->n &= ~(size_t)15;
     shadow->n &= ~(size_t)15;
+}
+
+/* The rays of `from` in a random (seeded) order: bounces from all over the
+ * scene one after the other, as a renderer's later bounces or a wavefront
+ * queue give them, where the neighbouring pixels' rays of the diffuse set
+ * share most of their path through the tree and find it in the caches. */
+static void make_shuffled(const rayset *from, rayset *to)
+{
+    to->rays = malloc((from->n ? from->n : 1) * sizeof(rtk_ray));
+    to->n = to->rays ? from->n : 0;
+    if (to->n)
+        memcpy(to->rays, from->rays, to->n * sizeof(rtk_ray));
+    for (size_t i = to->n; i > 1; i--) {
+        const size_t k = (size_t)(rnd() * (float)i) % i;
+        const rtk_ray r = to->rays[i - 1];
+        to->rays[i - 1] = to->rays[k];
+        to->rays[k] = r;
+    }
 }
 
 /* ---- tracing a set on 1..n threads ---- */
@@ -863,7 +881,7 @@ static void bench_usage(FILE *f)
     fprintf(f,
             "usage: rtktool bench MESH... [options]\n"
             "  rtk beside Embree 3 (at isa=avx2 and at its default) on the same meshes and rays, in one run:\n"
-            "  trace (primary, diffuse and shadow rays; single rays and packets; 1 and 2 threads), render\n"
+            "  trace (primary, diffuse, shadow and incoherent rays; single rays and packets; 1 and 2 threads), render\n"
             "  (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2 and 3), build (start\n"
             "  time at every quality, as in its Table 4, against the time to trace the tree), refit (a\n"
             "  deforming mesh: refit time, and the trace speed of the refitted tree), two levels (instances\n"
@@ -880,7 +898,8 @@ static void bench_usage(FILE *f)
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
-            "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow (default: all)\n"
+            "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow,incoherent (the diffuse\n"
+            "                    rays in random order) (default: all)\n"
             "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed\n"
             "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
@@ -924,6 +943,7 @@ static int make_sets(ctx *c, char *err, size_t err_size)
         return 1;
     make_secondary(c->m, &ref, &sets[SET_PRIMARY], &sets[SET_DIFFUSE], &sets[SET_SHADOW]);
     scene_release(&ref);
+    make_shuffled(&sets[SET_DIFFUSE], &sets[SET_INCOHERENT]);
     return 0;
 }
 
@@ -965,8 +985,8 @@ static int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     const rayset *sets = c->sets;
-    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow; best of %d passes; Mrays/s (ratio "
-           "to %s)\n",
+    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, the diffuse in random order "
+           "(incoherent); best of %d passes; Mrays/s (ratio to %s)\n",
            o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", sets[0].n,
            100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, o->repeat, c->libs[0].name);
     printf("  packets of primary rays are 2x2, 4x2, 4x4 pixel blocks, given Embree's coherent flag; packets of\n"
@@ -2589,7 +2609,8 @@ int cmd_bench(int argc, char **argv)
                     n = -1;
             }
             if (n < 1) {
-                fprintf(stderr, "rtktool bench: --rays wants a list of primary, diffuse, shadow (got '%s')\n", argv[i]);
+                fprintf(stderr, "rtktool bench: --rays wants a list of primary, diffuse, shadow, incoherent (got '%s')\n",
+                        argv[i]);
                 return 2;
             }
         } else if (!strcmp(a, "--only") && more) {
