@@ -499,22 +499,50 @@ static void make_secondary(const rtk_mesh *m, scene *sc, const rayset *primary, 
     shadow->n &= ~(size_t)15;
 }
 
-/* The rays of `from` in a random (seeded) order: bounces from all over the
- * scene one after the other, as a renderer's later bounces or a wavefront
- * queue give them, where the neighbouring pixels' rays of the diffuse set
- * share most of their path through the tree and find it in the caches. */
-static void make_shuffled(const rayset *from, rayset *to)
+/* n bounce rays from random points of the whole mesh (a random triangle,
+ * a random point on it), cosine-weighted about either side's normal at
+ * random: the rays of a path tracer's later bounces, from all over the
+ * scene one after the other, where the diffuse set's neighbouring pixels
+ * share most of their path through the tree.  Cut to a multiple of 16. */
+static void make_incoherent(const rtk_mesh *m, size_t n, rayset *set)
 {
-    to->rays = malloc((from->n ? from->n : 1) * sizeof(rtk_ray));
-    to->n = to->rays ? from->n : 0;
-    if (to->n)
-        memcpy(to->rays, from->rays, to->n * sizeof(rtk_ray));
-    for (size_t i = to->n; i > 1; i--) {
-        const size_t k = (size_t)(rnd() * (float)i) % i;
-        const rtk_ray r = to->rays[i - 1];
-        to->rays[i - 1] = to->rays[k];
-        to->rays[k] = r;
+    float lo[3], hi[3];
+    const float eps = 1e-4f * rtk_mesh_bounds(m, lo, hi);
+    set->rays = calloc(n ? n : 1, sizeof(rtk_ray));
+    set->n = 0;
+    for (size_t tries = 0; set->rays && set->n < n && m->triangle_count && tries < 4 * n; tries++) {
+        const size_t t = (size_t)(rnd() * (float)m->triangle_count) % m->triangle_count;
+        const uint32_t *ix = m->indices + 3 * t;
+        const float *a = m->vertices + 3 * (size_t)ix[0], *b = m->vertices + 3 * (size_t)ix[1],
+                    *c = m->vertices + 3 * (size_t)ix[2];
+        float e1[3], e2[3], nrm[3], d[3], p[3];
+        for (int k = 0; k < 3; k++) {
+            e1[k] = b[k] - a[k];
+            e2[k] = c[k] - a[k];
+        }
+        nrm[0] = e1[1] * e2[2] - e1[2] * e2[1];
+        nrm[1] = e1[2] * e2[0] - e1[0] * e2[2];
+        nrm[2] = e1[0] * e2[1] - e1[1] * e2[0];
+        float len = sqrtf(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
+        if (!(len > 0) || !isfinite(len))
+            continue;
+        if (rnd() < 0.5f)
+            len = -len;
+        float u = rnd(), v = rnd();
+        if (u + v > 1.0f) {
+            u = 1.0f - u;
+            v = 1.0f - v;
+        }
+        for (int k = 0; k < 3; k++) {
+            nrm[k] /= len;
+            p[k] = a[k] + u * e1[k] + v * e2[k] + eps * nrm[k];
+        }
+        const float u1 = rnd();
+        render_cosine_dir(nrm, u1, rnd(), d);
+        set->rays[set->n++] = (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = d[0], .dir_y = d[1],
+                                        .dir_z = d[2], .tfar = INFINITY, .mask = ~0u};
     }
+    set->n &= ~(size_t)15;
 }
 
 /* ---- tracing a set on 1..n threads ---- */
@@ -898,8 +926,8 @@ static void bench_usage(FILE *f)
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
-            "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow,incoherent (the diffuse\n"
-            "                    rays in random order) (default: all)\n"
+            "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow,incoherent (bounces from\n"
+            "                    random points of the whole mesh) (default: all)\n"
             "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed\n"
             "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
@@ -943,7 +971,7 @@ static int make_sets(ctx *c, char *err, size_t err_size)
         return 1;
     make_secondary(c->m, &ref, &sets[SET_PRIMARY], &sets[SET_DIFFUSE], &sets[SET_SHADOW]);
     scene_release(&ref);
-    make_shuffled(&sets[SET_DIFFUSE], &sets[SET_INCOHERENT]);
+    make_incoherent(c->m, sets[SET_DIFFUSE].n, &sets[SET_INCOHERENT]);
     return 0;
 }
 
@@ -985,12 +1013,13 @@ static int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     const rayset *sets = c->sets;
-    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, the diffuse in random order "
-           "(incoherent); best of %d passes; Mrays/s (ratio to %s)\n",
+    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, %zu incoherent; best of %d passes; "
+           "Mrays/s (ratio to %s)\n",
            o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", sets[0].n,
-           100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, o->repeat, c->libs[0].name);
+           100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, sets[3].n, o->repeat, c->libs[0].name);
     printf("  packets of primary rays are 2x2, 4x2, 4x4 pixel blocks, given Embree's coherent flag; packets of\n"
-           "  diffuse and shadow rays are those of neighbouring pixels, traced without it\n");
+           "  diffuse and shadow rays are those of neighbouring pixels, traced without it; incoherent rays bounce\n"
+           "  from random points of the whole mesh, one after the other\n");
     unsigned char *hits = malloc(sets[0].n), *ref_hits[NSETS];
     double rate[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* lib, threads index, set, api */
     size_t disagree[MAXLIBS] = {0};
@@ -1005,26 +1034,43 @@ static int section_trace(ctx *c, char *err, size_t err_size)
     int done = 0, ref_api = 0; /* the reference hits: the first library's first API asked for */
     while (ref_api < 3 && !o->api_on[ref_api])
         ref_api++;
-    for (int l = 0; l < c->nlibs; l++) {
-        scene sc;
-        if (scene_build(&sc, &c->libs[l], c->m, c->padded, o->trace_mode, 1, err, err_size))
-            return 1;
-        for (int ti = 0; ti < o->nthreads; ti++)
-            for (int s = 0; s < NSETS; s++)
-                for (int a = 0; a < 4; a++, done++) {
-                    if (!o->api_on[a] || !o->set_on[s] || !sets[s].n)
-                        continue;
-                    const render_tracer t = scene_tracer(&sc, s == SET_PRIMARY && a > 0);
-                    unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : hits;
-                    rate[l][ti][s][a] = trace_set(&t, &sets[s], apis[a], s == SET_SHADOW, o->threads[ti], o->repeat, h);
-                    if (h == hits)
-                        for (size_t i = 0; i < sets[s].n; i++)
-                            disagree[l] += hits[i] != ref_hits[s][i];
-                    progress_update(&bar, (double)done / work);
-                }
-        scene_release(&sc);
-    }
+    /* Every library's scene at once, and the passes taken in turns (one
+     * pass of each library, then the next), so that what slows the machine
+     * for a while (other guests of a VM) falls on all of them alike. */
+    scene sc[MAXLIBS];
+    int built = 0;
+    for (; built < c->nlibs; built++)
+        if (scene_build(&sc[built], &c->libs[built], c->m, c->padded, o->trace_mode, 1, err, err_size))
+            break;
+    for (int ti = 0; built == c->nlibs && ti < o->nthreads; ti++)
+        for (int s = 0; s < NSETS; s++)
+            for (int a = 0; a < 4; a++, done += c->nlibs) {
+                if (!o->api_on[a] || !o->set_on[s] || !sets[s].n)
+                    continue;
+                for (int r = 0; r < o->repeat; r++)
+                    for (int l = 0; l < c->nlibs; l++) {
+                        const render_tracer t = scene_tracer(&sc[l], s == SET_PRIMARY && a > 0);
+                        unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : hits;
+                        const double v = trace_set(&t, &sets[s], apis[a], s == SET_SHADOW, o->threads[ti], 1, h);
+                        if (v > rate[l][ti][s][a])
+                            rate[l][ti][s][a] = v;
+                        if (h == hits && r == o->repeat - 1)
+                            for (size_t i = 0; i < sets[s].n; i++)
+                                disagree[l] += hits[i] != ref_hits[s][i];
+                    }
+                progress_update(&bar, (double)(done + c->nlibs) / work);
+            }
     progress_end(&bar);
+    for (int l = 0; l < built; l++)
+        scene_release(&sc[l]);
+    if (built < c->nlibs) {
+        for (int s = 0; s < NSETS; s++)
+            free(ref_hits[s]);
+        free(hits);
+        if (dat)
+            fclose(dat);
+        return 1;
+    }
     for (int ti = 0; ti < o->nthreads; ti++) {
         printf("  %d thread%s\n", o->threads[ti], o->threads[ti] > 1 ? "s" : "");
         print_header(c);
@@ -2549,8 +2595,10 @@ static int section_features(ctx *c, char *err, size_t err_size)
 int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
-                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .set_on = {1, 1, 1}, .do_trace = 1, .do_render = 1,
-                    .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1, .do_accuracy = 1, .do_features = 1, .do_closed = 1, .render_w = 512, .render_h = 384, .render_spp = 1};
+                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .set_on = {1, 1, 1, 1},
+                    .do_trace = 1, .do_render = 1, .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1,
+                    .do_accuracy = 1, .do_features = 1, .do_closed = 1, .render_w = 512, .render_h = 384,
+                    .render_spp = 1};
     const char *meshes[64];
     int nmeshes = 0;
     for (int i = 0; i < argc; i++) {
