@@ -2,7 +2,8 @@
  * Parallel builds: the same tree, byte for byte, on any number of threads
  * and through an application's task system; hits that match brute force;
  * the device's pool shared by scenes committed from several threads at once
- * (also run under ThreadSanitizer); worker threads that end with the device.
+ * (also run under ThreadSanitizer); worker threads that end with the device;
+ * and each builder's tree quality (SAH cost) on shared meshes, pinned.
  */
 #include <dirent.h>
 #include <math.h>
@@ -791,6 +792,60 @@ static void workers_end_with_device(void **state)
     rtk_device_release(dev);
 }
 
+/* ---- tree quality: the SAH cost each builder reaches on real meshes ----
+ * A builder can change and still give correct hits with a worse tree, which
+ * only shows as slower tracing.  This pins each builder's SAH cost (as
+ * rtk_scene_info reports it: traversal step 1, block of four triangles 1,
+ * relative to the root) on four shared meshes, per node width (every backend
+ * of a width builds the same tree), to at most 0.5% above what it was when
+ * the table was written; and high quality never costs more than medium,
+ * nor medium than low.  A change that makes a tree cheaper, or one that
+ * trades tree quality for build speed on purpose, updates the table (the
+ * values are rtktool build's "SAH cost"). */
+typedef struct sah_pin {
+    const char *mesh;
+    double cost[2][3]; /* 4-wide, 8-wide nodes; low, medium, high */
+} sah_pin;
+static const sah_pin sah_pins[] = {
+    {"bunny.ply", {{17.236, 14.905, 14.883}, {12.287, 10.764, 10.738}}},
+    {"lucy100k.ply", {{19.058, 15.030, 14.876}, {13.864, 11.036, 10.923}}},
+    {"carriage.ply", {{28.233, 17.520, 16.130}, {20.651, 13.069, 11.891}}},
+    {"apartment.ply", {{25.244, 14.080, 11.429}, {20.138, 10.522, 8.554}}},
+};
+
+static void tree_quality_pinned(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t m = 0; m < sizeof sah_pins / sizeof *sah_pins; m++) {
+        rtk_mesh loaded;
+        assert_int_equal(test_load_shared_mesh(sah_pins[m].mesh, &loaded), 0);
+        const mesh x = {loaded.vertices, loaded.indices, loaded.vertex_count, loaded.triangle_count};
+        for (size_t b = 0; b < nb; b++) {
+            rtk_device dev = test_device_threads(names[b], 2);
+            double cost[QUALITIES];
+            for (size_t q = 0; q < QUALITIES; q++) {
+                rtk_scene s = scene_q(dev, &x, RTK_SCENE_FLAG_NONE, qualities[q]);
+                rtk_scene_info info = {.struct_size = sizeof info};
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                const int wide = !strncmp(info.layout, "bvh8", 4);
+                cost[q] = info.sah_cost;
+                const double pin = sah_pins[m].cost[wide][q];
+                if (!(cost[q] <= pin * 1.005))
+                    fail_msg("%s, %s, %s (%s): SAH cost %.3f, pinned at %.3f (+0.5%% allowed)", sah_pins[m].mesh,
+                             names[b], builder_names[q], info.layout, cost[q], pin);
+                rtk_scene_release(s);
+            }
+            if (!(cost[2] <= cost[1] && cost[1] <= cost[0]))
+                fail_msg("%s, %s: SAH cost low %.3f, medium %.3f, high %.3f", sah_pins[m].mesh, names[b], cost[0],
+                         cost[1], cost[2]);
+            rtk_device_release(dev);
+        }
+        rtk_mesh_free(&loaded);
+    }
+}
+
 int main(int argc, char **argv)
 {
     /* "quick": the concurrency tests only (the ThreadSanitizer run) */
@@ -800,7 +855,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(morton_edge_cases),       cmocka_unit_test(spatial_splits_vs_brute_force),
         cmocka_unit_test(application_task_system), cmocka_unit_test(concurrent_commits),
         cmocka_unit_test(concurrent_queries),      cmocka_unit_test(workers_end_with_device),
-        cmocka_unit_test(chosen_builder_and_layout),
+        cmocka_unit_test(chosen_builder_and_layout), cmocka_unit_test(tree_quality_pinned),
     };
     const struct CMUnitTest threads_only[] = {
         cmocka_unit_test(application_task_system),
