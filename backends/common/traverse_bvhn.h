@@ -486,6 +486,7 @@ static inline int push_children(const rtk_accel *accel, const uint32_t *child, u
     for (; mask; mask &= mask - 1) {
         const int i = __builtin_ctz(mask);
         const stack_entry e = {child[i], dist[i]};
+        prefetch_child(accel, e.ref);
         int j = sp++;
         while (j > base && stack[j - 1].dist < e.dist) { /* decreasing distance */
             stack[j] = stack[j - 1];
@@ -493,8 +494,6 @@ static inline int push_children(const rtk_accel *accel, const uint32_t *child, u
         }
         stack[j] = e;
     }
-    for (int k = base; k < sp - 1; k++) /* the nearest, on top, is visited next anyway */
-        prefetch_child(accel, stack[k].ref);
     return sp;
 }
 
@@ -881,6 +880,7 @@ static inline __attribute__((always_inline)) int next_leaf(const rtk_accel *acce
             if (!mask) { /* two children: push the far one, go to the near one */
                 const int near = dist[i1] < dist[i0] ? i1 : i0, far = i0 + i1 - near;
                 prefetch_child(accel, child[far]);
+                prefetch_child(accel, child[near]);
                 stack[sp++] = (stack_entry){child[far], dist[far]};
                 cur = child[near];
                 continue;
