@@ -499,6 +499,21 @@ static void make_secondary(const rtk_mesh *m, scene *sc, const rayset *primary, 
     shadow->n &= ~(size_t)15;
 }
 
+/* The unit normal of triangle t, in double (zero for no area). */
+static void tri_normal(const rtk_mesh *m, uint32_t t, double n[3])
+{
+    const float *v0 = &m->vertices[3 * m->indices[3 * t]], *v1 = &m->vertices[3 * m->indices[3 * t + 1]],
+                *v2 = &m->vertices[3 * m->indices[3 * t + 2]];
+    const double e1[3] = {v1[0] - (double)v0[0], v1[1] - (double)v0[1], v1[2] - (double)v0[2]};
+    const double e2[3] = {v2[0] - (double)v0[0], v2[1] - (double)v0[1], v2[2] - (double)v0[2]};
+    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
+    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
+    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
+    const double l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    for (int k = 0; k < 3; k++)
+        n[k] = l > 0 ? n[k] / l : 0.0;
+}
+
 /* n bounce rays from random points of the whole mesh (a random triangle,
  * a random point on it), cosine-weighted about either side's normal at
  * random: the rays of a path tracer's later bounces, from all over the
@@ -515,27 +530,20 @@ static void make_incoherent(const rtk_mesh *m, size_t n, rayset *set)
         const uint32_t *ix = m->indices + 3 * t;
         const float *a = m->vertices + 3 * (size_t)ix[0], *b = m->vertices + 3 * (size_t)ix[1],
                     *c = m->vertices + 3 * (size_t)ix[2];
-        float e1[3], e2[3], nrm[3], d[3], p[3];
-        for (int k = 0; k < 3; k++) {
-            e1[k] = b[k] - a[k];
-            e2[k] = c[k] - a[k];
-        }
-        nrm[0] = e1[1] * e2[2] - e1[2] * e2[1];
-        nrm[1] = e1[2] * e2[0] - e1[0] * e2[2];
-        nrm[2] = e1[0] * e2[1] - e1[1] * e2[0];
-        float len = sqrtf(nrm[0] * nrm[0] + nrm[1] * nrm[1] + nrm[2] * nrm[2]);
-        if (!(len > 0) || !isfinite(len))
+        double unit[3];
+        tri_normal(m, (uint32_t)t, unit);
+        if (!(unit[0] * unit[0] + unit[1] * unit[1] + unit[2] * unit[2] > 0.5)) /* no area, or not finite */
             continue;
-        if (rnd() < 0.5f)
-            len = -len;
+        const double side = rnd() < 0.5f ? -1.0 : 1.0;
         float u = rnd(), v = rnd();
         if (u + v > 1.0f) {
             u = 1.0f - u;
             v = 1.0f - v;
         }
+        float nrm[3], d[3], p[3];
         for (int k = 0; k < 3; k++) {
-            nrm[k] /= len;
-            p[k] = a[k] + u * e1[k] + v * e2[k] + eps * nrm[k];
+            nrm[k] = (float)(side * unit[k]);
+            p[k] = a[k] + u * (b[k] - a[k]) + v * (c[k] - a[k]) + eps * nrm[k];
         }
         const float u1 = rnd();
         render_cosine_dir(nrm, u1, rnd(), d);
@@ -617,20 +625,6 @@ static int edge_cmp(const void *x, const void *y)
     if (p->b != q->b)
         return p->b < q->b ? -1 : 1;
     return p->tri < q->tri ? -1 : p->tri > q->tri;
-}
-
-static void tri_normal(const rtk_mesh *m, uint32_t t, double n[3])
-{
-    const float *v0 = &m->vertices[3 * m->indices[3 * t]], *v1 = &m->vertices[3 * m->indices[3 * t + 1]],
-                *v2 = &m->vertices[3 * m->indices[3 * t + 2]];
-    const double e1[3] = {v1[0] - (double)v0[0], v1[1] - (double)v0[1], v1[2] - (double)v0[2]};
-    const double e2[3] = {v2[0] - (double)v0[0], v2[1] - (double)v0[1], v2[2] - (double)v0[2]};
-    n[0] = e1[1] * e2[2] - e1[2] * e2[1];
-    n[1] = e1[2] * e2[0] - e1[0] * e2[2];
-    n[2] = e1[0] * e2[1] - e1[1] * e2[0];
-    const double l = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-    for (int k = 0; k < 3; k++)
-        n[k] = l > 0 ? n[k] / l : 0.0;
 }
 
 /* The edges of exactly two triangles (distinct: only those of two distinct
