@@ -122,6 +122,8 @@ static void test_int(void **state)
     assert_true(r[0] == 5 && r[1] == 0 && r[2] == INT32_MAX && r[3] == 0);
     geti4(vi4_shr(vi4_set1(-1), 28), r);
     assert_true(r[0] == 15); /* logical shift */
+    geti4(vi4_shl(a, 5), r);
+    assert_true(r[0] == 160 && r[1] == -224 && r[2] == -32 && r[3] == 0); /* bits shifted out are lost */
     assert_int_equal(vb4_mask(vi4_lt(a, vi4_set1(0))), 0x2);
     assert_int_equal(vb4_mask(vi4_eq(a, vi4_set1(0))), 0x8);
     geti4(vi4_select(vb4_from_bits(0x3), a, vi4_set1(9)), r);

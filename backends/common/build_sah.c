@@ -165,43 +165,84 @@ static inline int bin_count(uint32_t n)
     return b < RTK_SAH_BINS ? (int)b : RTK_SAH_BINS;
 }
 
-/* Adds one reference's box to its bin on each axis (bin indices in lanes 0..2 of k). */
-static inline void bin_add(box4 bins[3][RTK_SAH_BINS], int32_t counts[RTK_SAH_BINS][4], vint4 k, vfloat4 lo,
-                           vfloat4 hi)
+/* ---- splitting a range ---- */
+
+/* The bins of one chunk of references: per axis and bin the box of the
+ * references in it, and their count in lane 3 of hi, an integer (as bits;
+ * lane 3 of a box is never a coordinate).  With the count there, adding a
+ * reference to a bin is one max and one integer add on the line its box
+ * is on, not an increment elsewhere. */
+typedef struct bins {
+    box4 box[3][RTK_SAH_BINS];
+} bins;
+
+/* A bin with nothing in it: an empty box, a count of 0. */
+static inline box4 bin_empty(void)
 {
-    const int x = vi4_lane(k, 0), y = vi4_lane(k, 1), z = vi4_lane(k, 2);
-    box_grow(&bins[0][x], lo, hi);
-    counts[x][0]++;
-    box_grow(&bins[1][y], lo, hi);
-    counts[y][1]++;
-    box_grow(&bins[2][z], lo, hi);
-    counts[z][2]++;
+    const box4 e = box_empty();
+    return (box4){e.lo, vf4_keep(vb4_from_bits(7), e.hi)};
 }
 
+static inline uint32_t bin_size(const box4 *bin)
+{
+    uint32_t n;
+    memcpy(&n, (const char *)&bin->hi + 3 * sizeof(float), sizeof n);
+    return n;
+}
+
+/* The byte offsets in a bins of a reference's bin on each axis, from its
+ * bin indices k (lanes 0..2), so that adding it takes no address
+ * arithmetic but three lane extracts. */
+static inline vint4 bin_offsets(vint4 k)
+{
+    _Static_assert(sizeof(box4) == 32, "bin_offsets shifts by 5");
+    static const _Alignas(16) int32_t axis[4] = {0, RTK_SAH_BINS * 32, 2 * RTK_SAH_BINS * 32, 0};
+    return vi4_add(vi4_shl(k, 5), vi4_load(axis));
+}
+
+/* Adds one reference's box (lo, hi) to its bins at offsets off
+ * (bin_offsets); hi0 is hi with lane 3 cleared (centroid computes it). */
+static inline void bin_add(bins *b, vint4 off, vfloat4 lo, vfloat4 hi0)
+{
+    static const _Alignas(16) int32_t one[4] = {0, 0, 0, 1};
+    const vint4 inc = vi4_load(one);
+    char *base = (char *)b->box;
+    /* (as unsigned: no sign extension) */
+    box4 *x = (box4 *)(base + (uint32_t)vi4_lane(off, 0)), *y = (box4 *)(base + (uint32_t)vi4_lane(off, 1)),
+         *z = (box4 *)(base + (uint32_t)vi4_lane(off, 2));
+    /* lane 3: max(count, +0.0) is the count (non-negative integers order as their floats do), then + 1 */
+    x->lo = vf4_min(x->lo, lo);
+    x->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(x->hi, hi0)), inc));
+    y->lo = vf4_min(y->lo, lo);
+    y->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(y->hi, hi0)), inc));
+    z->lo = vf4_min(z->lo, lo);
+    z->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(z->hi, hi0)), inc));
+}
+
+/* Bin a grows by bin b: boxes joined, counts added. */
+static inline void bin_join(box4 *a, const box4 *b)
+{
+    const vbool4 xyz = vb4_from_bits(7);
+    a->lo = vf4_min(a->lo, b->lo);
+    a->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(a->hi, vf4_keep(xyz, b->hi))),
+                                  vf4_bits(vf4_select(xyz, vf4_set1(0.0f), b->hi))));
+}
 
 /* ---- splitting a range ---- */
 
-/* The bins of one chunk of references. */
-typedef struct bins {
-    box4 box[3][RTK_SAH_BINS];
-    _Alignas(16) int32_t counts[RTK_SAH_BINS][4];
-} bins;
-
 static void bins_clear(bins *b, int nb)
 {
+    const box4 e = bin_empty();
     for (int a = 0; a < 3; a++)
         for (int k = 0; k < nb; k++)
-            b->box[a][k] = box_empty();
-    memset(b->counts, 0, (size_t)nb * sizeof b->counts[0]);
+            b->box[a][k] = e;
 }
 
 static void bins_merge(bins *into, const bins *b, int nb)
 {
     for (int a = 0; a < 3; a++)
         for (int k = 0; k < nb; k++)
-            box_grow(&into->box[a][k], b->box[a][k].lo, b->box[a][k].hi);
-    for (int k = 0; k < nb; k++)
-        vi4_store(into->counts[k], vi4_add(vi4_load(into->counts[k]), vi4_load(b->counts[k])));
+            bin_join(&into->box[a][k], &b->box[a][k]);
 }
 
 /* nb bins over box b (a range's centroids, or for spatial splits its
@@ -225,6 +266,7 @@ static int make_binmap(const box4 *b, int nb, binmap *map)
 #define RTK_BIN_TWO_SETS 256u
 static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const binmap *map, bins *b, int nb)
 {
+    const vbool4 xyz = vb4_from_bits(7);
     bins odd_bins;
     bins *odd = b;
     if (end - begin >= RTK_BIN_TWO_SETS) {
@@ -235,14 +277,14 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
     for (; i + 1 < end; i += 2) {
         vfloat4 lo0 = vf4_load(refs[i].lo), hi0 = vf4_load(refs[i].hi);
         vfloat4 lo1 = vf4_load(refs[i + 1].lo), hi1 = vf4_load(refs[i + 1].hi);
-        vint4 k0 = bin_of(map, centroid(lo0, hi0));
-        vint4 k1 = bin_of(map, centroid(lo1, hi1));
-        bin_add(b->box, b->counts, k0, lo0, hi0);
-        bin_add(odd->box, odd->counts, k1, lo1, hi1);
+        vint4 k0 = bin_offsets(bin_of(map, centroid(lo0, hi0)));
+        vint4 k1 = bin_offsets(bin_of(map, centroid(lo1, hi1)));
+        bin_add(b, k0, lo0, vf4_keep(xyz, hi0));
+        bin_add(odd, k1, lo1, vf4_keep(xyz, hi1));
     }
     if (i < end) {
         vfloat4 lo0 = vf4_load(refs[i].lo), hi0 = vf4_load(refs[i].hi);
-        bin_add(b->box, b->counts, bin_of(map, centroid(lo0, hi0)), lo0, hi0);
+        bin_add(b, bin_offsets(bin_of(map, centroid(lo0, hi0))), lo0, vf4_keep(xyz, hi0));
     }
     if (odd != b)
         bins_merge(b, odd, nb);
@@ -253,13 +295,19 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
 static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
 {
     split best = {.axis = -1};
+    _Alignas(16) int32_t counts[RTK_SAH_BINS][4];
+    for (int k = 0; k < nb; k++) {
+        for (int a = 0; a < 3; a++)
+            counts[k][a] = (int32_t)bin_size(&b->box[a][k]);
+        counts[k][3] = 0;
+    }
     vfloat4 right_cost[RTK_SAH_BINS];
     box4 acc[3] = {box_empty(), box_empty(), box_empty()};
     vint4 cnt = vi4_set1(0);
     for (int k = nb - 1; k > 0; k--) {
         for (int a = 0; a < 3; a++)
             box_grow(&acc[a], b->box[a][k].lo, b->box[a][k].hi);
-        cnt = vi4_add(cnt, vi4_load(b->counts[k]));
+        cnt = vi4_add(cnt, vi4_load(counts[k]));
         right_cost[k] = vf4_mul(half_areas3(acc), block_count(cnt));
     }
     const vint4 zero = vi4_set1(0), all = vi4_set1((int32_t)n);
@@ -271,7 +319,7 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
     for (int k = 1; k < nb; k++) {
         for (int a = 0; a < 3; a++)
             box_grow(&acc[a], b->box[a][k - 1].lo, b->box[a][k - 1].hi);
-        cnt = vi4_add(cnt, vi4_load(b->counts[k - 1]));
+        cnt = vi4_add(cnt, vi4_load(counts[k - 1]));
         vfloat4 cost = vf4_madd(half_areas3(acc), block_count(cnt), right_cost[k]);
         vbool4 ok = vb4_andnot(vb4_andnot(usable, vi4_eq(cnt, zero)), vi4_eq(cnt, all));
         vbool4 better = vb4_and(ok, vf4_lt(cost, best_cost));
@@ -297,7 +345,7 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
         uint32_t nl = 0;
         for (int k = 0; k < best.pos; k++) {
             box_grow(&l, b->box[a][k].lo, b->box[a][k].hi);
-            nl += (uint32_t)b->counts[k][a];
+            nl += (uint32_t)counts[k][a];
         }
         for (int k = best.pos; k < nb; k++)
             box_grow(&r, b->box[a][k].lo, b->box[a][k].hi);
@@ -456,6 +504,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
     bins *lb = with_bins ? to->left : NULL, *rb = with_bins ? to->right : NULL;
     const binmap lm = with_bins ? *to->left_map : map, rm = with_bins ? *to->right_map : map;
     const int bit = 1 << s->axis;
+    const vbool4 xyz = vb4_from_bits(7); /* as centroid clears lane 3 */
     uint32_t i = begin, j = end;
     box4 lc = box_empty(), rc = box_empty();
     vfloat4 lo_i, hi_i, lo_j, hi_j;
@@ -468,7 +517,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
                 break;
             cent_add(&lc, lo_i, hi_i);
             if (with_bins)
-                bin_add(lb->box, lb->counts, bin_of(&lm, c), lo_i, hi_i);
+                bin_add(lb, bin_offsets(bin_of(&lm, c)), lo_i, vf4_keep(xyz, hi_i));
         }
         for (; i < j; j--) {
             lo_j = vf4_load(refs[j - 1].lo);
@@ -478,7 +527,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
                 break;
             cent_add(&rc, lo_j, hi_j);
             if (with_bins)
-                bin_add(rb->box, rb->counts, bin_of(&rm, c), lo_j, hi_j);
+                bin_add(rb, bin_offsets(bin_of(&rm, c)), lo_j, vf4_keep(xyz, hi_j));
         }
         if (i >= j)
             break;
@@ -490,8 +539,8 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
         cent_add(&lc, lo_j, hi_j);
         cent_add(&rc, lo_i, hi_i);
         if (with_bins) {
-            bin_add(lb->box, lb->counts, bin_of(&lm, centroid(lo_j, hi_j)), lo_j, hi_j);
-            bin_add(rb->box, rb->counts, bin_of(&rm, centroid(lo_i, hi_i)), lo_i, hi_i);
+            bin_add(lb, bin_offsets(bin_of(&lm, centroid(lo_j, hi_j))), lo_j, vf4_keep(xyz, hi_j));
+            bin_add(rb, bin_offsets(bin_of(&rm, centroid(lo_i, hi_i))), lo_i, vf4_keep(xyz, hi_i));
         }
         i++;
         j--;

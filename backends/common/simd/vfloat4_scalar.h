@@ -106,6 +106,7 @@ RTK_INLINE vint4 vi4_add(vint4 a, vint4 b) { RTK_S4_I((int32_t)((uint32_t)a.i[k]
 RTK_INLINE vint4 vi4_min(vint4 a, vint4 b) { RTK_S4_I(a.i[k] < b.i[k] ? a.i[k] : b.i[k]); }
 RTK_INLINE vint4 vi4_max(vint4 a, vint4 b) { RTK_S4_I(a.i[k] > b.i[k] ? a.i[k] : b.i[k]); }
 RTK_INLINE vint4 vi4_shr(vint4 a, int n) { RTK_S4_I((int32_t)((uint32_t)a.i[k] >> n)); } /* logical */
+RTK_INLINE vint4 vi4_shl(vint4 a, int n) { RTK_S4_I((int32_t)((uint32_t)a.i[k] << n)); }
 RTK_INLINE vbool4 vi4_eq(vint4 a, vint4 b) { RTK_S4_I(-(a.i[k] == b.i[k])); }
 RTK_INLINE vint4 vi4_select(vbool4 m, vint4 a, vint4 b) { RTK_S4_I(m.i[k] ? a.i[k] : b.i[k]); }
 RTK_INLINE vfloat4 vf4_from_vi4(vint4 a) { RTK_S4_F((float)a.i[k]); }

@@ -115,6 +115,7 @@ RTK_INLINE vint4 vi4_add(vint4 a, vint4 b) { return _mm_add_epi32(a, b); }
 RTK_INLINE vint4 vi4_min(vint4 a, vint4 b) { return _mm_min_epi32(a, b); }
 RTK_INLINE vint4 vi4_max(vint4 a, vint4 b) { return _mm_max_epi32(a, b); }
 RTK_INLINE vint4 vi4_shr(vint4 a, int n) { return _mm_srli_epi32(a, n); } /* logical */
+RTK_INLINE vint4 vi4_shl(vint4 a, int n) { return _mm_slli_epi32(a, n); }
 RTK_INLINE vbool4 vi4_eq(vint4 a, vint4 b) { return _mm_castsi128_ps(_mm_cmpeq_epi32(a, b)); }
 RTK_INLINE vint4 vi4_select(vbool4 m, vint4 a, vint4 b)
 {
