@@ -200,6 +200,12 @@ static void test_width8(void **state)
     assert_true(r[0] == 1.0f && r[1] == -2.0f && r[2] == 0.0f && signbit(r[2]) && r[3] == 0.0f && !signbit(r[3]));
     vf4_store(r, vf8_low(va));
     assert_true(r[0] == 1.0f && r[1] == -2.0f && r[3] == 0.0f && signbit(r[3]));
+    vf8_store(r, vf8_from4(vf4_set(1.0f, 2.0f, 3.0f, 4.0f), vf4_set(5.0f, 6.0f, 7.0f, 8.0f)));
+    assert_true(r[0] == 1.0f && r[3] == 4.0f && r[4] == 5.0f && r[7] == 8.0f);
+#if defined(__AVX2__)
+    vf8_store(r, vf8_add_bits(vf8_set1(1.0f), vf8_set1(0x1p-149f))); /* + 1 as an integer: the next float */
+    assert_true(r[0] == nextafterf(1.0f, 2.0f) && r[7] == nextafterf(1.0f, 2.0f));
+#endif
 #if RTK_SIMD_HAS_FMA
     /* one rounding: (1 + 2^-12)^2 - 1 keeps its 2^-24 term */
     const float e = 1.0f + 0x1p-12f;

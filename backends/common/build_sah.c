@@ -168,26 +168,44 @@ static inline int bin_count(uint32_t n)
 /* ---- splitting a range ---- */
 
 /* The bins of one chunk of references: per axis and bin the box of the
- * references in it, and their count in lane 3 of hi, an integer (as bits;
- * lane 3 of a box is never a coordinate).  With the count there, adding a
- * reference to a bin is one max and one integer add on the line its box
- * is on, not an increment elsewhere. */
+ * references in it, kept as lo and -hi so that growing it is a min on both
+ * halves (one 8-wide min where the backend has AVX2; -max(a, b) is
+ * min(-a, -b) exactly, NaN and signed zeros included, so every backend
+ * bins to the same floats), and the number of references in it in lane 3
+ * of lo (lane 3 of a box is never a coordinate), as the bits of -0.0 plus
+ * the count: a negative float (or -0.0) which a min with the reference's
+ * +0.0 there leaves as it is (vminps returns its second operand, the bin,
+ * on a tie), then an integer + 1.  So adding a reference to a bin takes one
+ * line, not an increment elsewhere. */
+typedef struct bin {
+    _Alignas(32) vfloat4 lo; /* lane 3: the count, see above */
+    vfloat4 nhi;             /* -hi */
+} bin;
+
 typedef struct bins {
-    box4 box[3][RTK_SAH_BINS];
+    bin box[3][RTK_SAH_BINS];
 } bins;
 
+#define BIN_COUNT_ZERO 0x80000000u /* -0.0 */
+
 /* A bin with nothing in it: an empty box, a count of 0. */
-static inline box4 bin_empty(void)
+static inline bin bin_empty(void)
 {
     const box4 e = box_empty();
-    return (box4){e.lo, vf4_keep(vb4_from_bits(7), e.hi)};
+    return (bin){vf4_select(vb4_from_bits(7), e.lo, vf4_set1(-0.0f)), vf4_xor_sign(e.hi, vf4_set1(-1.0f))};
 }
 
-static inline uint32_t bin_size(const box4 *bin)
+static inline uint32_t bin_size(const bin *b)
 {
     uint32_t n;
-    memcpy(&n, (const char *)&bin->hi + 3 * sizeof(float), sizeof n);
-    return n;
+    memcpy(&n, (const char *)&b->lo + 3 * sizeof(float), sizeof n);
+    return n - BIN_COUNT_ZERO;
+}
+
+/* The bin's box (lane 3: garbage). */
+static inline box4 bin_box(const bin *b)
+{
+    return (box4){b->lo, vf4_xor_sign(b->nhi, vf4_set1(-1.0f))};
 }
 
 /* The byte offsets in a bins of a reference's bin on each axis, from its
@@ -195,44 +213,52 @@ static inline uint32_t bin_size(const box4 *bin)
  * arithmetic but three lane extracts. */
 static inline vint4 bin_offsets(vint4 k)
 {
-    _Static_assert(sizeof(box4) == 32, "bin_offsets shifts by 5");
+    _Static_assert(sizeof(bin) == 32, "bin_offsets shifts by 5");
     static const _Alignas(16) int32_t axis[4] = {0, RTK_SAH_BINS * 32, 2 * RTK_SAH_BINS * 32, 0};
     return vi4_add(vi4_shl(k, 5), vi4_load(axis));
 }
 
-/* Adds one reference's box (lo, hi) to its bins at offsets off
- * (bin_offsets); hi0 is hi with lane 3 cleared (centroid computes it). */
-static inline void bin_add(bins *b, vint4 off, vfloat4 lo, vfloat4 hi0)
+/* Adds one reference's box to its bins at offsets off (bin_offsets): lo0
+ * is its lo with lane 3 cleared (centroid computes it), hi its hi. */
+static inline void bin_add(bins *b, vint4 off, vfloat4 lo0, vfloat4 hi)
 {
-    static const _Alignas(16) int32_t one[4] = {0, 0, 0, 1};
-    const vint4 inc = vi4_load(one);
+    const vfloat4 nhi = vf4_xor_sign(hi, vf4_set1(-1.0f));
     char *base = (char *)b->box;
     /* (as unsigned: no sign extension) */
-    box4 *x = (box4 *)(base + (uint32_t)vi4_lane(off, 0)), *y = (box4 *)(base + (uint32_t)vi4_lane(off, 1)),
-         *z = (box4 *)(base + (uint32_t)vi4_lane(off, 2));
-    /* lane 3: max(count, +0.0) is the count (non-negative integers order as their floats do), then + 1 */
-    x->lo = vf4_min(x->lo, lo);
-    x->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(x->hi, hi0)), inc));
-    y->lo = vf4_min(y->lo, lo);
-    y->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(y->hi, hi0)), inc));
-    z->lo = vf4_min(z->lo, lo);
-    z->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(z->hi, hi0)), inc));
+    bin *x = (bin *)(base + (uint32_t)vi4_lane(off, 0)), *y = (bin *)(base + (uint32_t)vi4_lane(off, 1)),
+        *z = (bin *)(base + (uint32_t)vi4_lane(off, 2));
+    /* the bin second: it wins ties (see struct bin) */
+#if RTK_SIMD_HAS_8 && defined(__AVX2__)
+    const vfloat8 r = vf8_from4(lo0, nhi);
+    static const _Alignas(32) int32_t one[8] = {0, 0, 0, 1, 0, 0, 0, 0};
+    const vfloat8 inc = vf8_load((const float *)one);
+    vf8_store((float *)x, vf8_add_bits(vf8_min(r, vf8_load((const float *)x)), inc));
+    vf8_store((float *)y, vf8_add_bits(vf8_min(r, vf8_load((const float *)y)), inc));
+    vf8_store((float *)z, vf8_add_bits(vf8_min(r, vf8_load((const float *)z)), inc));
+#else
+    static const _Alignas(16) int32_t one[4] = {0, 0, 0, 1};
+    const vint4 inc = vi4_load(one);
+    x->lo = vf4_from_bits(vi4_add(vf4_bits(vf4_min(lo0, x->lo)), inc));
+    x->nhi = vf4_min(nhi, x->nhi);
+    y->lo = vf4_from_bits(vi4_add(vf4_bits(vf4_min(lo0, y->lo)), inc));
+    y->nhi = vf4_min(nhi, y->nhi);
+    z->lo = vf4_from_bits(vi4_add(vf4_bits(vf4_min(lo0, z->lo)), inc));
+    z->nhi = vf4_min(nhi, z->nhi);
+#endif
 }
 
 /* Bin a grows by bin b: boxes joined, counts added. */
-static inline void bin_join(box4 *a, const box4 *b)
+static inline void bin_join(bin *a, const bin *b)
 {
     const vbool4 xyz = vb4_from_bits(7);
-    a->lo = vf4_min(a->lo, b->lo);
-    a->hi = vf4_from_bits(vi4_add(vf4_bits(vf4_max(a->hi, vf4_keep(xyz, b->hi))),
-                                  vf4_bits(vf4_select(xyz, vf4_set1(0.0f), b->hi))));
+    const vint4 n = vf4_bits(vf4_select(xyz, vf4_set1(0.0f), vf4_from_bits(vi4_set1((int32_t)bin_size(b)))));
+    a->lo = vf4_from_bits(vi4_add(vf4_bits(vf4_min(vf4_keep(xyz, b->lo), a->lo)), n));
+    a->nhi = vf4_min(b->nhi, a->nhi);
 }
-
-/* ---- splitting a range ---- */
 
 static void bins_clear(bins *b, int nb)
 {
-    const box4 e = bin_empty();
+    const bin e = bin_empty();
     for (int a = 0; a < 3; a++)
         for (int k = 0; k < nb; k++)
             b->box[a][k] = e;
@@ -279,12 +305,12 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
         vfloat4 lo1 = vf4_load(refs[i + 1].lo), hi1 = vf4_load(refs[i + 1].hi);
         vint4 k0 = bin_offsets(bin_of(map, centroid(lo0, hi0)));
         vint4 k1 = bin_offsets(bin_of(map, centroid(lo1, hi1)));
-        bin_add(b, k0, lo0, vf4_keep(xyz, hi0));
-        bin_add(odd, k1, lo1, vf4_keep(xyz, hi1));
+        bin_add(b, k0, vf4_keep(xyz, lo0), hi0);
+        bin_add(odd, k1, vf4_keep(xyz, lo1), hi1);
     }
     if (i < end) {
         vfloat4 lo0 = vf4_load(refs[i].lo), hi0 = vf4_load(refs[i].hi);
-        bin_add(b, bin_offsets(bin_of(map, centroid(lo0, hi0))), lo0, vf4_keep(xyz, hi0));
+        bin_add(b, bin_offsets(bin_of(map, centroid(lo0, hi0))), vf4_keep(xyz, lo0), hi0);
     }
     if (odd != b)
         bins_merge(b, odd, nb);
@@ -305,8 +331,10 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
     box4 acc[3] = {box_empty(), box_empty(), box_empty()};
     vint4 cnt = vi4_set1(0);
     for (int k = nb - 1; k > 0; k--) {
-        for (int a = 0; a < 3; a++)
-            box_grow(&acc[a], b->box[a][k].lo, b->box[a][k].hi);
+        for (int a = 0; a < 3; a++) {
+            const box4 bx = bin_box(&b->box[a][k]);
+            box_grow(&acc[a], bx.lo, bx.hi);
+        }
         cnt = vi4_add(cnt, vi4_load(counts[k]));
         right_cost[k] = vf4_mul(half_areas3(acc), block_count(cnt));
     }
@@ -317,8 +345,10 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
     acc[0] = acc[1] = acc[2] = box_empty();
     cnt = zero;
     for (int k = 1; k < nb; k++) {
-        for (int a = 0; a < 3; a++)
-            box_grow(&acc[a], b->box[a][k - 1].lo, b->box[a][k - 1].hi);
+        for (int a = 0; a < 3; a++) {
+            const box4 bx = bin_box(&b->box[a][k - 1]);
+            box_grow(&acc[a], bx.lo, bx.hi);
+        }
         cnt = vi4_add(cnt, vi4_load(counts[k - 1]));
         vfloat4 cost = vf4_madd(half_areas3(acc), block_count(cnt), right_cost[k]);
         vbool4 ok = vb4_andnot(vb4_andnot(usable, vi4_eq(cnt, zero)), vi4_eq(cnt, all));
@@ -344,11 +374,14 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
         box4 l = box_empty(), r = box_empty();
         uint32_t nl = 0;
         for (int k = 0; k < best.pos; k++) {
-            box_grow(&l, b->box[a][k].lo, b->box[a][k].hi);
+            const box4 bx = bin_box(&b->box[a][k]);
+            box_grow(&l, bx.lo, bx.hi);
             nl += (uint32_t)counts[k][a];
         }
-        for (int k = best.pos; k < nb; k++)
-            box_grow(&r, b->box[a][k].lo, b->box[a][k].hi);
+        for (int k = best.pos; k < nb; k++) {
+            const box4 bx = bin_box(&b->box[a][k]);
+            box_grow(&r, bx.lo, bx.hi);
+        }
         best.left = l;
         best.right = r;
         best.n_left = nl;
@@ -381,7 +414,7 @@ static binned *pool_get(binpool *p)
         p->free = b->next_free;
         return b;
     }
-    b = malloc(sizeof *b);
+    b = aligned_alloc(_Alignof(binned), sizeof *b);
     if (b) {
         b->next_all = p->all;
         p->all = b;
@@ -517,7 +550,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
                 break;
             cent_add(&lc, lo_i, hi_i);
             if (with_bins)
-                bin_add(lb, bin_offsets(bin_of(&lm, c)), lo_i, vf4_keep(xyz, hi_i));
+                bin_add(lb, bin_offsets(bin_of(&lm, c)), vf4_keep(xyz, lo_i), hi_i);
         }
         for (; i < j; j--) {
             lo_j = vf4_load(refs[j - 1].lo);
@@ -527,7 +560,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
                 break;
             cent_add(&rc, lo_j, hi_j);
             if (with_bins)
-                bin_add(rb, bin_offsets(bin_of(&rm, c)), lo_j, vf4_keep(xyz, hi_j));
+                bin_add(rb, bin_offsets(bin_of(&rm, c)), vf4_keep(xyz, lo_j), hi_j);
         }
         if (i >= j)
             break;
@@ -539,8 +572,8 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
         cent_add(&lc, lo_j, hi_j);
         cent_add(&rc, lo_i, hi_i);
         if (with_bins) {
-            bin_add(lb, bin_offsets(bin_of(&lm, centroid(lo_j, hi_j))), lo_j, vf4_keep(xyz, hi_j));
-            bin_add(rb, bin_offsets(bin_of(&rm, centroid(lo_i, hi_i))), lo_i, vf4_keep(xyz, hi_i));
+            bin_add(lb, bin_offsets(bin_of(&lm, centroid(lo_j, hi_j))), vf4_keep(xyz, lo_j), hi_j);
+            bin_add(rb, bin_offsets(bin_of(&rm, centroid(lo_i, hi_i))), vf4_keep(xyz, lo_i), hi_i);
         }
         i++;
         j--;
@@ -1613,7 +1646,7 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     g.degenerate = malloc(nc * sizeof *g.degenerate);
     g.bounds = malloc(nc * sizeof *g.bounds);
     refpages pages = {0};
-    top t = {.nodes = {.bd = &bd}, .scratch = malloc(2 * RTK_CHUNKS_MAX * sizeof *t.scratch)};
+    top t = {.nodes = {.bd = &bd}, .scratch = aligned_alloc(_Alignof(bins), 2 * RTK_CHUNKS_MAX * sizeof *t.scratch)};
     if (bd.spatial)
         t.sscratch = malloc(RTK_CHUNKS_MAX * sizeof *t.sscratch);
     if (!bd.refs || !geom_first || !g.kept || !g.skipped || !g.degenerate || !g.bounds || !t.scratch ||

@@ -41,6 +41,18 @@ RTK_INLINE vfloat8 vf8_add_ulps(vfloat8 a, int n)
 #endif
 /* lanes 0..3 (free: the lower half of the same register) */
 RTK_INLINE vfloat4 vf8_low(vfloat8 a) { return _mm256_castps256_ps128(a); }
+/* lanes 0..3 from lo, 4..7 from hi */
+RTK_INLINE vfloat8 vf8_from4(vfloat4 lo, vfloat4 hi)
+{
+    return _mm256_insertf128_ps(_mm256_castps128_ps256(lo), hi, 1);
+}
+#if defined(__AVX2__)
+/* the lanes as int32, added (wrapping) and returned as the bits of floats */
+RTK_INLINE vfloat8 vf8_add_bits(vfloat8 a, vfloat8 b)
+{
+    return _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(a), _mm256_castps_si256(b)));
+}
+#endif
 RTK_INLINE vfloat8 vf8_div(vfloat8 a, vfloat8 b) { return _mm256_div_ps(a, b); }
 RTK_INLINE vfloat8 vf8_min(vfloat8 a, vfloat8 b) { return _mm256_min_ps(a, b); } /* b where either is NaN */
 RTK_INLINE vfloat8 vf8_max(vfloat8 a, vfloat8 b) { return _mm256_max_ps(a, b); }
