@@ -114,16 +114,19 @@ static inline uint32_t ref_prim(const primref *r)
 typedef struct node_view {
     float *lx, *ly, *lz, *ux, *uy, *uz;
     uint32_t *child;
+    int32_t *prefetch;
 } node_view;
 
 static inline node_view view_node(const build *bd, void *nodes, uint64_t index)
 {
     if (bd->width == 8) {
         rtk_bvh8_node *n = (rtk_bvh8_node *)nodes + index;
-        return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child};
+        return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child,
+                           n->prefetch};
     }
     rtk_bvh4_node *n = (rtk_bvh4_node *)nodes + index;
-    return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child};
+    return (node_view){n->lower_x, n->lower_y, n->lower_z, n->upper_x, n->upper_y, n->upper_z, n->child,
+                       n->prefetch};
 }
 
 static inline const float *vertex_at(const rtk_build_geometry *g, uint32_t index)
@@ -198,6 +201,7 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
 #define build_node_sah RTK_SYM(rtk_build_node_sah)
+#define build_set_prefetch RTK_SYM(rtk_build_set_prefetch)
 
 /* geom_id -> index of that geometry in in->geometries, UINT32_MAX for ids
  * not there (malloc'd, *max_id + 1 entries); NULL when out of memory. */
@@ -294,6 +298,10 @@ RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uin
  * `finite` is not NULL, *finite is set to 0 when a vertex of the block is
  * NaN or infinite (a refit's check; a build's triangles are finite).
  * Returns the number of never-hit lanes. */
+/* Sets every node's prefetch[] (rtk_bvh4_node) from its child references,
+ * once a build has placed its nodes and leaves. */
+RTK_HIDDEN void build_set_prefetch(const build *bd, struct rtk_accel *accel);
+
 RTK_HIDDEN uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
                                       uint32_t count, box4 *bounds, int *finite);
 

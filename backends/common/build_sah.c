@@ -1733,6 +1733,7 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
                               : root_local & EXT            ? roots[root_local & ~EXT]
                                                             : root_local;
     free(roots);
+    build_set_prefetch(&bd, accel);
     build_accel_finish(&bd, accel, root_ref, n, depth, &root.geom, out);
     if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
         out->refs = refs;
@@ -1876,6 +1877,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
     const uint32_t depth = t->root == RTK_BVH_EMPTY ? 0 : tree_depth(t, t->root, 1);
     part_free(&p);
     build_unreserve(bd.refs, ref_bytes);
+    build_set_prefetch(&bd, accel);
     build_accel_finish(&bd, accel, root, t->prim_count, depth, &bounds, out);
     return RTK_OK;
 }

@@ -11,19 +11,22 @@
 #include "kernels.h"
 
 /* A node's slot c: box and reference, whatever the node width. */
-static void read_slot(const struct rtk_accel *a, uint64_t node, int c, float lo[3], float hi[3], uint32_t *ref)
+/* A node's slot c: box and reference, whatever the node width; 0 when its
+ * prefetch offset (rtk_bvh4_node) is not the one its reference calls for. */
+static int read_slot(const struct rtk_accel *a, uint64_t node, int c, float lo[3], float hi[3], uint32_t *ref)
 {
     if (a->layout == RTK_LAYOUT_BVH8_TRIANGLE4 || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4V) {
         const rtk_bvh8_node *n = (const rtk_bvh8_node *)a->nodes + node;
         lo[0] = n->lower_x[c], lo[1] = n->lower_y[c], lo[2] = n->lower_z[c];
         hi[0] = n->upper_x[c], hi[1] = n->upper_y[c], hi[2] = n->upper_z[c];
         *ref = n->child[c];
-    } else {
-        const rtk_bvh4_node *n = (const rtk_bvh4_node *)a->nodes + node;
-        lo[0] = n->lower_x[c], lo[1] = n->lower_y[c], lo[2] = n->lower_z[c];
-        hi[0] = n->upper_x[c], hi[1] = n->upper_y[c], hi[2] = n->upper_z[c];
-        *ref = n->child[c];
+        return n->prefetch[c] == rtk_prefetch_units(a, n, *ref, sizeof *n);
     }
+    const rtk_bvh4_node *n = (const rtk_bvh4_node *)a->nodes + node;
+    lo[0] = n->lower_x[c], lo[1] = n->lower_y[c], lo[2] = n->lower_z[c];
+    hi[0] = n->upper_x[c], hi[1] = n->upper_y[c], hi[2] = n->upper_z[c];
+    *ref = n->child[c];
+    return n->prefetch[c] == rtk_prefetch_units(a, n, *ref, sizeof *n);
 }
 
 /* Appends the triangles of a leaf's blocks to t->prims. */
@@ -56,10 +59,14 @@ int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *t)
         return RTK_ERROR_OUT_OF_MEMORY;
     if (a->root != RTK_BVH4_EMPTY && (a->root & RTK_BVH4_LEAF_BIT))
         at[rtk_leaf_first(a->root)] = a->root;
+    /* (the prefetch offsets are checked on the way: they only ever cost
+     * speed when wrong, and this is where the tests can see them) */
+    int prefetch_ok = 1;
     for (uint64_t i = 0; i < a->node_count; i++)
         for (int c = 0; c < w; c++) {
             const uint64_t slot = i * (uint64_t)w + (uint64_t)c;
-            read_slot(a, i, c, t->child_lower + 3 * slot, t->child_upper + 3 * slot, &t->children[slot]);
+            prefetch_ok &= read_slot(a, i, c, t->child_lower + 3 * slot, t->child_upper + 3 * slot,
+                                     &t->children[slot]);
             const uint32_t ref = t->children[slot];
             if (ref != RTK_BVH4_EMPTY && (ref & RTK_BVH4_LEAF_BIT))
                 at[rtk_leaf_first(ref)] = ref;
@@ -81,5 +88,5 @@ int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *t)
     }
     t->root = a->root == RTK_BVH4_EMPTY || !(a->root & RTK_BVH4_LEAF_BIT) ? a->root : RTK_BVH_LEAF_BIT;
     free(at);
-    return RTK_OK;
+    return prefetch_ok ? RTK_OK : RTK_ERROR_UNKNOWN;
 }

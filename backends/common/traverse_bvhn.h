@@ -445,24 +445,29 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
 #endif
 }
 
-/* Asks for the memory of a child that was hit, as Embree does for every
+/* Asks for the memory of child i of node n, hit, as Embree does for every
  * child it is about to visit or push: the four cache lines from the node,
- * or from the leaf's first block (for index leaves, their indices), picked
- * without a branch (the addresses as integers: the one not taken may lie
- * outside its array).  On rays from random points of San Miguel's surface,
- * 6-10% faster (scratch program beside Embree, alternating passes); within
- * the noise on rtktool bench's sets, whose neighbouring rays find the tree
- * in the caches. */
-static inline __attribute__((always_inline)) void prefetch_child(const rtk_accel *accel, uint32_t ref)
+ * or from the leaf's first block (for index leaves, their indices).  On
+ * rays from random points of San Miguel's surface, 6-10% faster (scratch
+ * program beside Embree, alternating passes); within the noise on rtktool
+ * bench's sets, whose neighbouring rays find the tree in the caches.  The
+ * address is the node's own prefetch[i] away (build_set_prefetch): found
+ * from the reference it took a dozen instructions, the node or the leaf
+ * array's base and index, picked without a branch, which on the bunny's
+ * bounce rays were 11% of the instructions per ray (callgrind).  Motion
+ * blur nodes have no room for it and still do that. */
+static inline __attribute__((always_inline)) void prefetch_child(const rtk_accel *accel, const node_t *n, int i)
 {
-#if RTK_LEAF_INDEXED || RTK_MOTION
+#if RTK_MOTION
+    const uint32_t ref = n->child[i];
     const uintptr_t leaf = (uintptr_t)accel->trisi + rtk_leaf_first(ref) * (uintptr_t)sizeof *accel->trisi;
-#else
-    const uintptr_t leaf = (uintptr_t)accel->tris + rtk_leaf_first(ref) * (uintptr_t)sizeof(block_t);
-#endif
     const uintptr_t node = (uintptr_t)accel->nodes + (ref & ~RTK_BVH4_LEAF_BIT) * (uintptr_t)sizeof(node_t);
     const uintptr_t is_leaf = -(uintptr_t)(ref >> 31); /* all ones for a leaf */
     const char *a = (const char *)((leaf & is_leaf) | (node & ~is_leaf));
+#else
+    (void)accel;
+    const char *a = (const char *)n + (intptr_t)n->prefetch[i] * 16;
+#endif
     __builtin_prefetch(a);
     __builtin_prefetch(a + 64);
     __builtin_prefetch(a + 128);
@@ -477,16 +482,17 @@ typedef struct stack_entry {
 /* Pushes the hit children farthest first, so the nearest is popped next:
  * an insertion sort straight onto the stack (at most N entries); each is
  * prefetched. */
-static inline int push_children(const rtk_accel *accel, const uint32_t *child, unsigned mask, vnode dists,
+static inline int push_children(const rtk_accel *accel, const node_t *n, unsigned mask, vnode dists,
                                 stack_entry *stack, int sp)
 {
+    const uint32_t *child = n->child;
     _Alignas(32) float dist[RTK_BVHN];
     vn_store(dist, dists);
     const int base = sp;
     for (; mask; mask &= mask - 1) {
         const int i = __builtin_ctz(mask);
         const stack_entry e = {child[i], dist[i]};
-        prefetch_child(accel, e.ref);
+        prefetch_child(accel, n, i);
         int j = sp++;
         while (j > base && stack[j - 1].dist < e.dist) { /* decreasing distance */
             stack[j] = stack[j - 1];
@@ -865,8 +871,9 @@ static inline __attribute__((always_inline)) int next_leaf(const rtk_accel *acce
             const int last = 31 - __builtin_clz(mask);
             cur = child[last];
             for (mask ^= 1u << last; mask; mask &= mask - 1) {
-                stack[sp] = (stack_entry){child[__builtin_ctz(mask)], 0.0f};
-                prefetch_child(accel, stack[sp++].ref);
+                const int i = __builtin_ctz(mask);
+                stack[sp++] = (stack_entry){child[i], 0.0f};
+                prefetch_child(accel, n, i);
             }
             continue;
         }
@@ -879,13 +886,13 @@ static inline __attribute__((always_inline)) int next_leaf(const rtk_accel *acce
             mask &= mask - 1;
             if (!mask) { /* two children: push the far one, go to the near one */
                 const int near = dist[i1] < dist[i0] ? i1 : i0, far = i0 + i1 - near;
-                prefetch_child(accel, child[far]);
-                prefetch_child(accel, child[near]);
+                prefetch_child(accel, n, far);
+                prefetch_child(accel, n, near);
                 stack[sp++] = (stack_entry){child[far], dist[far]};
                 cur = child[near];
                 continue;
             }
-            sp = push_children(accel, child, (1u << i0) | (1u << i1) | mask, dists, stack, sp);
+            sp = push_children(accel, n, (1u << i0) | (1u << i1) | mask, dists, stack, sp);
         }
         if (!pop_in_range(stack, &sp, tfar_s, &cur))
             return 0;
