@@ -235,16 +235,6 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
     return accel;
 }
 
-void build_set_prefetch(const build *bd, struct rtk_accel *accel)
-{
-    for (uint64_t i = 0; i < accel->node_count; i++) {
-        const node_view v = view_node(bd, accel->nodes, i);
-        const char *at = (const char *)accel->nodes + i * bd->node_size;
-        for (int c = 0; c < bd->width; c++)
-            v.prefetch[c] = rtk_prefetch_units(accel, at, v.child[c], bd->node_size);
-    }
-}
-
 void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root, uint64_t prims, uint32_t depth,
                          const box4 *bounds, rtk_build_output *out)
 {

@@ -201,7 +201,6 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
 #define build_node_sah RTK_SYM(rtk_build_node_sah)
-#define build_set_prefetch RTK_SYM(rtk_build_set_prefetch)
 
 /* geom_id -> index of that geometry in in->geometries, UINT32_MAX for ids
  * not there (malloc'd, *max_id + 1 entries); NULL when out of memory. */
@@ -224,9 +223,19 @@ static inline int build_grow(void **array, uint32_t *cap, uint32_t need, size_t 
     return 1;
 }
 
+/* The prefetch[] value (rtk_bvh4_node) of final reference ref in the node
+ * at `node` of the final array bd->nodes. */
+static inline int32_t build_prefetch(const build *bd, const void *node, uint32_t ref)
+{
+    return rtk_prefetch_distance((uintptr_t)node, ref, (uintptr_t)bd->nodes, bd->node_size, (uintptr_t)bd->leaves,
+                                 bd->leaf_size);
+}
+
 /* Writes node `index` of the array `nodes` with nc children: box[i] and
  * ref[i] (ref NULL: every slot RTK_BVH4_EMPTY, for the caller to set).
- * Empty slots get inverted boxes and RTK_BVH4_EMPTY. */
+ * Empty slots get inverted boxes and RTK_BVH4_EMPTY.  With references
+ * into the final arrays (nodes is bd->nodes, and leaves are there), it
+ * sets the node's prefetch[] too. */
 static inline void build_store_node(const build *bd, void *nodes, uint64_t index, const box4 *box,
                                     const uint32_t *ref, int nc)
 {
@@ -246,6 +255,8 @@ static inline void build_store_node(const build *bd, void *nodes, uint64_t index
         v.uy[i] = hi[1];
         v.uz[i] = hi[2];
         v.child[i] = ref && i < nc ? ref[i] : RTK_BVH4_EMPTY;
+        if (ref && nodes == bd->nodes && bd->leaves)
+            v.prefetch[i] = build_prefetch(bd, (const char *)nodes + index * bd->node_size, v.child[i]);
     }
 }
 
@@ -298,10 +309,6 @@ RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uin
  * `finite` is not NULL, *finite is set to 0 when a vertex of the block is
  * NaN or infinite (a refit's check; a build's triangles are finite).
  * Returns the number of never-hit lanes. */
-/* Sets every node's prefetch[] (rtk_bvh4_node) from its child references,
- * once a build has placed its nodes and leaves. */
-RTK_HIDDEN void build_set_prefetch(const build *bd, struct rtk_accel *accel);
-
 RTK_HIDDEN uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
                                       uint32_t count, box4 *bounds, int *finite);
 

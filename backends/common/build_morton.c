@@ -623,7 +623,6 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     build_run_ordered(&m.bd, order, t.subtree_count, write_subtree, &t);
     box4 bounds = box_empty();
     const uint32_t root = root_local == RTK_BVH4_EMPTY ? RTK_BVH4_EMPTY : write_top(&t, root_local, &bounds);
-    build_set_prefetch(&m.bd, accel);
     build_accel_finish(&m.bd, accel, root, n, depth, &bounds, out);
     out->prims_skipped = skipped;
     out->prims_degenerate = degenerate;

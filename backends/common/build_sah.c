@@ -1419,8 +1419,8 @@ static void write_block(const build *bd, uint32_t first, uint32_t end, uint64_t 
 }
 
 /* Copies part p's nodes to the final array at p->node_base, turning its
- * references into final ones: ext[k * stride] is the final reference of
- * external child k. */
+ * references into final ones (and setting the nodes' prefetch[]): ext[k *
+ * stride] is the final reference of external child k. */
 static void place_nodes(const part *p, const uint32_t *ext, size_t stride)
 {
     const build *bd = p->bd;
@@ -1429,11 +1429,13 @@ static void place_nodes(const part *p, const uint32_t *ext, size_t stride)
     char *to = (char *)bd->nodes + p->node_base * bd->node_size;
     memcpy(to, p->nodes, (size_t)p->node_count * bd->node_size);
     for (uint32_t i = 0; i < p->node_count; i++) {
-        uint32_t *child = view_node(bd, to, i).child;
+        const node_view v = view_node(bd, to, i);
+        const char *node = to + (size_t)i * bd->node_size;
         for (int c = 0; c < bd->width; c++) {
-            const uint32_t ref = child[c];
+            const uint32_t ref = v.child[c];
             if (ref != RTK_BVH4_EMPTY)
-                child[c] = ref & EXT ? ext[(size_t)(ref & ~EXT) * stride] : (uint32_t)(p->node_base + ref);
+                v.child[c] = ref & EXT ? ext[(size_t)(ref & ~EXT) * stride] : (uint32_t)(p->node_base + ref);
+            v.prefetch[c] = build_prefetch(bd, node, v.child[c]);
         }
     }
 }
@@ -1733,7 +1735,6 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
                               : root_local & EXT            ? roots[root_local & ~EXT]
                                                             : root_local;
     free(roots);
-    build_set_prefetch(&bd, accel);
     build_accel_finish(&bd, accel, root_ref, n, depth, &root.geom, out);
     if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
         out->refs = refs;
@@ -1877,7 +1878,6 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
     const uint32_t depth = t->root == RTK_BVH_EMPTY ? 0 : tree_depth(t, t->root, 1);
     part_free(&p);
     build_unreserve(bd.refs, ref_bytes);
-    build_set_prefetch(&bd, accel);
     build_accel_finish(&bd, accel, root, t->prim_count, depth, &bounds, out);
     return RTK_OK;
 }

@@ -55,8 +55,9 @@ typedef struct rtk_bvh4_node {
      * from this node in 16-byte units (0 for an empty slot, or a distance
      * beyond 32 bits): what single-ray traversal prefetches, with two
      * instructions where the reference takes a dozen.  Never read for
-     * anything else, so a wrong value costs speed only.  Set by
-     * build_set_prefetch; it pads the node to two cache lines. */
+     * anything else, so a wrong value costs speed only.  Set where a
+     * builder gives the node its final references (build_store_node,
+     * place_nodes); it pads the node to two cache lines. */
     int32_t prefetch[4];
 } rtk_bvh4_node;
 
@@ -228,19 +229,26 @@ struct rtk_accel {
 };
 
 /* What a node's prefetch[] slot should hold for child reference ref (see
- * rtk_bvh4_node): the distance from the node at `node` to the child's node
- * or first leaf block, in 16-byte units, or 0. */
-static inline int32_t rtk_prefetch_units(const struct rtk_accel *a, const void *node, uint32_t ref, size_t node_size)
+ * rtk_bvh4_node): the distance from the node at address `node` to the
+ * child's node (in the array at `nodes`) or first leaf block (at
+ * `leaves`), in 16-byte units, or 0. */
+static inline int32_t rtk_prefetch_distance(uintptr_t node, uint32_t ref, uintptr_t nodes, uintptr_t node_size,
+                                            uintptr_t leaves, uintptr_t leaf_size)
 {
     if (ref == RTK_BVH4_EMPTY)
         return 0;
-    const uintptr_t leaves = a->tris ? (uintptr_t)a->tris : (uintptr_t)a->trisi;
-    const uintptr_t leaf_size = a->tris ? sizeof *a->tris : sizeof *a->trisi;
-    const uintptr_t to = ref & RTK_BVH4_LEAF_BIT ? leaves + rtk_leaf_first(ref) * leaf_size
-                                                 : (uintptr_t)a->nodes + (uintptr_t)ref * node_size;
+    const uintptr_t to = ref & RTK_BVH4_LEAF_BIT ? leaves + rtk_leaf_first(ref) * leaf_size : nodes + ref * node_size;
     /* both 16-byte aligned; the distance as a signed integer */
-    const intptr_t units = (intptr_t)(to - (uintptr_t)node) / 16;
+    const intptr_t units = (intptr_t)(to - node) / 16;
     return units >= INT32_MIN && units <= INT32_MAX ? (int32_t)units : 0;
+}
+
+static inline int32_t rtk_prefetch_units(const struct rtk_accel *a, const void *node, uint32_t ref, size_t node_size)
+{
+    return a->tris ? rtk_prefetch_distance((uintptr_t)node, ref, (uintptr_t)a->nodes, node_size, (uintptr_t)a->tris,
+                                           sizeof *a->tris)
+                   : rtk_prefetch_distance((uintptr_t)node, ref, (uintptr_t)a->nodes, node_size, (uintptr_t)a->trisi,
+                                           sizeof *a->trisi);
 }
 
 /* Copies in->attrs into accel->attrs, by geometry id; 0 when out of memory. */

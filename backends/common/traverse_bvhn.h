@@ -451,7 +451,7 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
  * rays from random points of San Miguel's surface, 6-10% faster (scratch
  * program beside Embree, alternating passes); within the noise on rtktool
  * bench's sets, whose neighbouring rays find the tree in the caches.  The
- * address is the node's own prefetch[i] away (build_set_prefetch): found
+ * address is the node's own prefetch[i] away (set by the builders): found
  * from the reference it took a dozen instructions, the node or the leaf
  * array's base and index, picked without a branch, which on the bunny's
  * bounce rays were 11% of the instructions per ray (callgrind).  Motion
