@@ -243,12 +243,12 @@ static inline int32_t rtk_prefetch_distance(uintptr_t node, uint32_t ref, uintpt
     return units >= INT32_MIN && units <= INT32_MAX ? (int32_t)units : 0;
 }
 
+/* The same for a finished accel (its own node and leaf arrays). */
 static inline int32_t rtk_prefetch_units(const struct rtk_accel *a, const void *node, uint32_t ref, size_t node_size)
 {
-    return a->tris ? rtk_prefetch_distance((uintptr_t)node, ref, (uintptr_t)a->nodes, node_size, (uintptr_t)a->tris,
-                                           sizeof *a->tris)
-                   : rtk_prefetch_distance((uintptr_t)node, ref, (uintptr_t)a->nodes, node_size, (uintptr_t)a->trisi,
-                                           sizeof *a->trisi);
+    const uintptr_t leaves = a->tris ? (uintptr_t)a->tris : (uintptr_t)a->trisi;
+    const uintptr_t leaf_size = a->tris ? sizeof *a->tris : sizeof *a->trisi;
+    return rtk_prefetch_distance((uintptr_t)node, ref, (uintptr_t)a->nodes, node_size, leaves, leaf_size);
 }
 
 /* Copies in->attrs into accel->attrs, by geometry id; 0 when out of memory. */

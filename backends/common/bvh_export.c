@@ -10,7 +10,6 @@
 #include "bvh4_triangle4.h"
 #include "kernels.h"
 
-/* A node's slot c: box and reference, whatever the node width. */
 /* A node's slot c: box and reference, whatever the node width; 0 when its
  * prefetch offset (rtk_bvh4_node) is not the one its reference calls for. */
 static int read_slot(const struct rtk_accel *a, uint64_t node, int c, float lo[3], float hi[3], uint32_t *ref)
