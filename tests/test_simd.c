@@ -66,6 +66,8 @@ static void test_compare_select_mask(void **state)
     assert_true(r[0] == 2.0f && r[1] == 2.0f && isnan(r[2]) && r[3] == 3.0f);
     get4(vf4_keep(vb4_from_bits(0x9), b), r);
     assert_true(r[0] == 2.0f && r[1] == 0.0f && r[2] == 0.0f && r[3] == 3.0f);
+    get4(vf4_clear3(vf4_set(-1.0f, 2.0f, -0.0f, -3.0f)), r);
+    assert_true(r[0] == -1.0f && r[1] == 2.0f && r[2] == 0.0f && signbit(r[2]) && r[3] == 0.0f && !signbit(r[3]));
 }
 
 static void test_arithmetic(void **state)

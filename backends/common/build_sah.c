@@ -109,9 +109,8 @@ typedef struct part {
  * denormals costs a microcode assist per instruction on x86. */
 static inline vfloat4 centroid(vfloat4 lo, vfloat4 hi)
 {
-    const vbool4 xyz = vb4_from_bits(7);
     const vfloat4 half = vf4_set1(0.5f);
-    return vf4_madd(vf4_keep(xyz, lo), half, vf4_mul(vf4_keep(xyz, hi), half));
+    return vf4_madd(vf4_clear3(lo), half, vf4_mul(vf4_clear3(hi), half));
 }
 
 /* Leaf blocks of four for counts in lanes 0..2, as floats. */
@@ -135,15 +134,20 @@ static inline vfloat4 half_areas3(const box4 box[3])
  * partitioning both go through bin_of, so they always agree. */
 typedef struct binmap {
     vfloat4 cmin, scale;
-    vfloat4 top; /* bins - 1 */
 } binmap;
 
-/* Clamped in float before the conversion, so NaN (0 * inf from a denormal
- * extent) and overflow land in a bin too. */
+/* The bin of c, a point inside the box the map was made over (make_binmap:
+ * a range's centroid bounds, or bounds known to hold them).  On an axis
+ * that can be split, c - cmin is at least 0 and at most the extent as
+ * rounded, and the scale (finite: make_binmap) takes that to at most
+ * nb * 0.99999 * (1 + 2^-24)^2 < nb, so no bin above the last comes out.
+ * On the others the scale is 0, and x is 0, or NaN where c - cmin
+ * overflowed (a mesh spanning more than the float range), which the
+ * maximum (its second operand on NaN) takes to bin 0. */
 static inline vint4 bin_of(const binmap *m, vfloat4 c)
 {
     vfloat4 x = vf4_mul(vf4_sub(c, m->cmin), m->scale);
-    return vi4_from_vf4_trunc(vf4_min(vf4_max(x, vf4_set1(0.0f)), m->top));
+    return vi4_from_vf4_trunc(vf4_max(x, vf4_set1(0.0f)));
 }
 
 typedef struct split {
@@ -277,14 +281,16 @@ static void bins_merge(bins *into, const bins *b, int nb)
 }
 
 /* nb bins over box b (a range's centroids, or for spatial splits its
- * triangles); 0 when no axis can be split (the box is flat in all three). */
+ * triangles); 0 when no axis can be split: the box is flat in all three,
+ * or its extents are so small (denormal) that the scale overflows. */
 static int make_binmap(const box4 *b, int nb, binmap *map)
 {
     const vfloat4 ext = vf4_sub(b->hi, b->lo);
-    const vbool4 ok = vb4_and(vb4_from_bits(7), vb4_and(vf4_gt(ext, vf4_set1(0.0f)), vf4_le(ext, vf4_set1(FLT_MAX))));
+    vbool4 ok = vb4_and(vb4_from_bits(7), vb4_and(vf4_gt(ext, vf4_set1(0.0f)), vf4_le(ext, vf4_set1(FLT_MAX))));
     /* the division in lanes without an extent gives what the mask drops */
-    const vfloat4 scale = vf4_keep(ok, vf4_div(vf4_set1((float)nb * 0.99999f), vf4_select(ok, ext, vf4_set1(1.0f))));
-    *map = (binmap){.cmin = b->lo, .scale = scale, .top = vf4_set1((float)(nb - 1))};
+    const vfloat4 scale = vf4_div(vf4_set1((float)nb * 0.99999f), vf4_select(ok, ext, vf4_set1(1.0f)));
+    ok = vb4_and(ok, vf4_le(scale, vf4_set1(FLT_MAX)));
+    *map = (binmap){.cmin = b->lo, .scale = vf4_keep(ok, scale)};
     return vb4_mask(ok) != 0;
 }
 
@@ -297,7 +303,6 @@ static int make_binmap(const box4 *b, int nb, binmap *map)
 #define RTK_BIN_TWO_SETS 256u
 static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const binmap *map, bins *b, int nb)
 {
-    const vbool4 xyz = vb4_from_bits(7);
     bins odd_bins;
     bins *odd = b;
     if (end - begin >= RTK_BIN_TWO_SETS) {
@@ -310,12 +315,12 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
         vfloat4 lo1 = vf4_load(refs[i + 1].lo), hi1 = vf4_load(refs[i + 1].hi);
         vint4 k0 = bin_offsets(bin_of(map, centroid(lo0, hi0)));
         vint4 k1 = bin_offsets(bin_of(map, centroid(lo1, hi1)));
-        bin_add(b, k0, vf4_keep(xyz, lo0), hi0);
-        bin_add(odd, k1, vf4_keep(xyz, lo1), hi1);
+        bin_add(b, k0, vf4_clear3(lo0), hi0);
+        bin_add(odd, k1, vf4_clear3(lo1), hi1);
     }
     if (i < end) {
         vfloat4 lo0 = vf4_load(refs[i].lo), hi0 = vf4_load(refs[i].hi);
-        bin_add(b, bin_offsets(bin_of(map, centroid(lo0, hi0))), vf4_keep(xyz, lo0), hi0);
+        bin_add(b, bin_offsets(bin_of(map, centroid(lo0, hi0))), vf4_clear3(lo0), hi0);
     }
     if (odd != b)
         bins_merge(b, odd, nb);
@@ -616,7 +621,6 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
     bins *lb = with_bins ? to->left : NULL, *rb = with_bins ? to->right : NULL;
     const binmap lm = with_bins ? *to->left_map : map, rm = with_bins ? *to->right_map : map;
     const int bit = 1 << s->axis;
-    const vbool4 xyz = vb4_from_bits(7); /* as centroid clears lane 3 */
     uint32_t i = begin, j = end;
     box4 lc = box_empty(), rc = box_empty();
     vfloat4 lo_i, hi_i, lo_j, hi_j;
@@ -629,7 +633,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
                 break;
             cent_add(&lc, lo_i, hi_i);
             if (with_bins)
-                bin_add(lb, bin_offsets(bin_of(&lm, c)), vf4_keep(xyz, lo_i), hi_i);
+                bin_add(lb, bin_offsets(bin_of(&lm, c)), vf4_clear3(lo_i), hi_i);
         }
         for (; i < j; j--) {
             lo_j = vf4_load(refs[j - 1].lo);
@@ -639,7 +643,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
                 break;
             cent_add(&rc, lo_j, hi_j);
             if (with_bins)
-                bin_add(rb, bin_offsets(bin_of(&rm, c)), vf4_keep(xyz, lo_j), hi_j);
+                bin_add(rb, bin_offsets(bin_of(&rm, c)), vf4_clear3(lo_j), hi_j);
         }
         if (i >= j)
             break;
@@ -651,8 +655,8 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
         cent_add(&lc, lo_j, hi_j);
         cent_add(&rc, lo_i, hi_i);
         if (with_bins) {
-            bin_add(lb, bin_offsets(bin_of(&lm, centroid(lo_j, hi_j))), vf4_keep(xyz, lo_j), hi_j);
-            bin_add(rb, bin_offsets(bin_of(&rm, centroid(lo_i, hi_i))), vf4_keep(xyz, lo_i), hi_i);
+            bin_add(lb, bin_offsets(bin_of(&lm, centroid(lo_j, hi_j))), vf4_clear3(lo_j), hi_j);
+            bin_add(rb, bin_offsets(bin_of(&rm, centroid(lo_i, hi_i))), vf4_clear3(lo_i), hi_i);
         }
         i++;
         j--;

@@ -70,6 +70,7 @@ RTK_INLINE vbool4 vf4_ge(vfloat4 a, vfloat4 b) { RTK_S4_I(-(a.f[k] >= b.f[k])); 
 RTK_INLINE vbool4 vf4_eq(vfloat4 a, vfloat4 b) { RTK_S4_I(-(a.f[k] == b.f[k])); }
 RTK_INLINE vfloat4 vf4_select(vbool4 m, vfloat4 a, vfloat4 b) { RTK_S4_F(m.i[k] ? a.f[k] : b.f[k]); }
 RTK_INLINE vfloat4 vf4_keep(vbool4 m, vfloat4 a) { RTK_S4_F(m.i[k] ? a.f[k] : 0.0f); }
+RTK_INLINE vfloat4 vf4_clear3(vfloat4 a) { RTK_S4_F(k < 3 ? a.f[k] : 0.0f); }
 RTK_INLINE vfloat4 vf4_abs(vfloat4 a) { RTK_S4_F(rtk_s_float(rtk_s_bits(a.f[k]) & INT32_MAX)); }
 RTK_INLINE vfloat4 vf4_xor_sign(vfloat4 a, vfloat4 s)
 {

@@ -72,6 +72,8 @@ RTK_INLINE vbool4 vf4_eq(vfloat4 a, vfloat4 b) { return _mm_cmpeq_ps(a, b); }
 RTK_INLINE vfloat4 vf4_select(vbool4 m, vfloat4 a, vfloat4 b) { return _mm_blendv_ps(b, a, m); }
 /* m ? a : +0.0, lane by lane (one and) */
 RTK_INLINE vfloat4 vf4_keep(vbool4 m, vfloat4 a) { return _mm_and_ps(m, a); }
+/* a with lane 3 made +0.0 (a blend with zero: no mask to keep in a register) */
+RTK_INLINE vfloat4 vf4_clear3(vfloat4 a) { return _mm_blend_ps(a, _mm_setzero_ps(), 8); }
 /* |a| and a with the sign of s applied (a ^ sign bit of s) */
 RTK_INLINE vfloat4 vf4_abs(vfloat4 a) { return _mm_andnot_ps(_mm_set1_ps(-0.0f), a); }
 RTK_INLINE vfloat4 vf4_xor_sign(vfloat4 a, vfloat4 s) { return _mm_xor_ps(a, _mm_and_ps(s, _mm_set1_ps(-0.0f))); }
