@@ -204,6 +204,8 @@ static void test_width8(void **state)
     assert_true(r[0] == 1.0f && r[1] == -2.0f && r[3] == 0.0f && signbit(r[3]));
     vf8_store(r, vf8_from4(vf4_set(1.0f, 2.0f, 3.0f, 4.0f), vf4_set(5.0f, 6.0f, 7.0f, 8.0f)));
     assert_true(r[0] == 1.0f && r[3] == 4.0f && r[4] == 5.0f && r[7] == 8.0f);
+    vf4_store(r, vf8_high(va));
+    assert_true(r[0] == INFINITY && r[1] == 3.0f && r[2] == 0x1p-149f && isnan(r[3]));
 #if defined(__AVX2__)
     vf8_store(r, vf8_add_bits(vf8_set1(1.0f), vf8_set1(0x1p-149f))); /* + 1 as an integer: the next float */
     assert_true(r[0] == nextafterf(1.0f, 2.0f) && r[7] == nextafterf(1.0f, 2.0f));

@@ -500,6 +500,40 @@ static inline void range_add(range *r, vfloat4 lo, vfloat4 hi)
     box_grow(&r->cent, c, c);
 }
 
+/* Centroid bounds gathered by a partition: on avx2 as lo and -hi in one
+ * 8-wide vector, grown by one min (as the bins are; -max(a, b) is
+ * min(-a, -b) exactly), so each side's bounds take one register. */
+#if RTK_SIMD_HAS_8 && defined(__AVX2__)
+typedef vfloat8 cbox;
+static inline cbox cbox_empty(void)
+{
+    return vf8_set1(FLT_MAX);
+}
+static inline cbox cbox_grow(cbox b, vfloat4 c)
+{
+    return vf8_min(vf8_from4(c, vf4_xor_sign(c, vf4_set1(-1.0f))), b);
+}
+static inline box4 cbox_box(cbox b)
+{
+    return (box4){vf8_low(b), vf4_xor_sign(vf8_high(b), vf4_set1(-1.0f))};
+}
+#else
+typedef box4 cbox;
+static inline cbox cbox_empty(void)
+{
+    return box_empty();
+}
+static inline cbox cbox_grow(cbox b, vfloat4 c)
+{
+    box_grow(&b, c, c);
+    return b;
+}
+static inline box4 cbox_box(cbox b)
+{
+    return b;
+}
+#endif
+
 static inline void cent_add(box4 *cent, vfloat4 lo, vfloat4 hi)
 {
     vfloat4 c = centroid(lo, hi);
@@ -622,7 +656,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
     const binmap lm = with_bins ? *to->left_map : map, rm = with_bins ? *to->right_map : map;
     const int bit = 1 << s->axis;
     uint32_t i = begin, j = end;
-    box4 lc = box_empty(), rc = box_empty();
+    cbox lc = cbox_empty(), rc = cbox_empty();
     vfloat4 lo_i, hi_i, lo_j, hi_j;
     for (;;) {
         for (; i < j; i++) {
@@ -631,7 +665,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
             const vfloat4 c = centroid(lo_i, hi_i);
             if (vb4_mask(vf4_ge(c, plane)) & bit)
                 break;
-            cent_add(&lc, lo_i, hi_i);
+            lc = cbox_grow(lc, c);
             if (with_bins)
                 bin_add(lb, bin_offsets(bin_of(&lm, c)), vf4_clear3(lo_i), hi_i);
         }
@@ -641,7 +675,7 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
             const vfloat4 c = centroid(lo_j, hi_j);
             if (!(vb4_mask(vf4_ge(c, plane)) & bit))
                 break;
-            cent_add(&rc, lo_j, hi_j);
+            rc = cbox_grow(rc, c);
             if (with_bins)
                 bin_add(rb, bin_offsets(bin_of(&rm, c)), vf4_clear3(lo_j), hi_j);
         }
@@ -652,8 +686,8 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
         vf4_store(refs[i].hi, hi_j);
         vf4_store(refs[j - 1].lo, lo_i);
         vf4_store(refs[j - 1].hi, hi_i);
-        cent_add(&lc, lo_j, hi_j);
-        cent_add(&rc, lo_i, hi_i);
+        lc = cbox_grow(lc, centroid(lo_j, hi_j));
+        rc = cbox_grow(rc, centroid(lo_i, hi_i));
         if (with_bins) {
             bin_add(lb, bin_offsets(bin_of(&lm, centroid(lo_j, hi_j))), vf4_clear3(lo_j), hi_j);
             bin_add(rb, bin_offsets(bin_of(&rm, centroid(lo_i, hi_i))), vf4_clear3(lo_i), hi_i);
@@ -664,9 +698,9 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
     range_init(left, 0, 0);
     range_init(right, 0, 0);
     left->geom = s->left;
-    left->cent = lc;
+    left->cent = cbox_box(lc);
     right->geom = s->right;
-    right->cent = rc;
+    right->cent = cbox_box(rc);
     return i;
 }
 

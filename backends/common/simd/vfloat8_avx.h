@@ -41,6 +41,8 @@ RTK_INLINE vfloat8 vf8_add_ulps(vfloat8 a, int n)
 #endif
 /* lanes 0..3 (free: the lower half of the same register) */
 RTK_INLINE vfloat4 vf8_low(vfloat8 a) { return _mm256_castps256_ps128(a); }
+/* lanes 4..7 */
+RTK_INLINE vfloat4 vf8_high(vfloat8 a) { return _mm256_extractf128_ps(a, 1); }
 /* lanes 0..3 from lo, 4..7 from hi */
 RTK_INLINE vfloat8 vf8_from4(vfloat4 lo, vfloat4 hi)
 {
