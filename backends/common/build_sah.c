@@ -326,11 +326,30 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
         bins_merge(b, odd, nb);
 }
 
+/* Half surface areas of three boxes given as lo and -hi (the bins' form), one
+ * per lane: lo + -hi is -(hi - lo) exactly (0 for a flat side, not -0), and
+ * the products of two negated extents are those of the extents, so the
+ * areas are half_areas3's.  Lane 3 of the boxes (the bins' counts and ids,
+ * denormal as floats) goes to the fourth row of the transposition, which no
+ * arithmetic reads: only the addition sees it. */
+static inline vfloat4 half_areas3_neg(const vfloat4 lo[3], const vfloat4 nhi[3])
+{
+    vfloat4 dx = vf4_add(lo[0], nhi[0]), dy = vf4_add(lo[1], nhi[1]), dz = vf4_add(lo[2], nhi[2]), dw = dz;
+    vf4_transpose(&dx, &dy, &dz, &dw); /* now dx = the three boxes' negated x extents */
+    vfloat4 area = vf4_madd(dx, dy, vf4_madd(dy, dz, vf4_mul(dz, dx)));
+    /* an empty box (lo > hi) has no area; its negated extents are positive */
+    return vf4_keep(vf4_le(dx, vf4_set1(0.0f)), area);
+}
+
 /* The best split of n references from their bins: the three axes at once in
- * lanes 0..2.  right_cost[k] is the cost of bins [k, nb) as one child. */
+ * lanes 0..2.  right_cost[k] is the cost of bins [k, nb) as one child.  The
+ * bins are swept as they are, lo and -hi grown by minima. */
 static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
 {
-    split best = {.axis = -1};
+    split best; /* (not zeroed whole: a store loop per sweep) */
+    best.axis = -1;
+    best.pos = 0;
+    best.n_left = 0;
     _Alignas(16) int32_t counts[RTK_SAH_BINS][4];
     for (int k = 0; k < nb; k++) {
         for (int a = 0; a < 3; a++)
@@ -338,29 +357,31 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
         counts[k][3] = 0;
     }
     vfloat4 right_cost[RTK_SAH_BINS];
-    box4 acc[3] = {box_empty(), box_empty(), box_empty()};
+    const vfloat4 empty = vf4_set1(FLT_MAX); /* lo and -hi of an empty box */
+    vfloat4 lo[3] = {empty, empty, empty}, nhi[3] = {empty, empty, empty};
     vint4 cnt = vi4_set1(0);
     for (int k = nb - 1; k > 0; k--) {
         for (int a = 0; a < 3; a++) {
-            const box4 bx = bin_box(&b->box[a][k]);
-            box_grow(&acc[a], bx.lo, bx.hi);
+            lo[a] = vf4_min(lo[a], b->box[a][k].lo); /* the bin on a tie, as box_grow */
+            nhi[a] = vf4_min(nhi[a], b->box[a][k].nhi);
         }
         cnt = vi4_add(cnt, vi4_load(counts[k]));
-        right_cost[k] = vf4_mul(half_areas3(acc), block_count(cnt));
+        right_cost[k] = vf4_mul(half_areas3_neg(lo, nhi), block_count(cnt));
     }
     const vint4 zero = vi4_set1(0), all = vi4_set1((int32_t)n);
     const vbool4 usable = vf4_gt(map->scale, vf4_set1(0.0f)); /* lane 3: scale 0 */
     vfloat4 best_cost = vf4_set1(INFINITY);
     vint4 best_pos = zero;
-    acc[0] = acc[1] = acc[2] = box_empty();
+    for (int a = 0; a < 3; a++)
+        lo[a] = nhi[a] = empty;
     cnt = zero;
     for (int k = 1; k < nb; k++) {
         for (int a = 0; a < 3; a++) {
-            const box4 bx = bin_box(&b->box[a][k - 1]);
-            box_grow(&acc[a], bx.lo, bx.hi);
+            lo[a] = vf4_min(lo[a], b->box[a][k - 1].lo); /* the bin on a tie, as box_grow */
+            nhi[a] = vf4_min(nhi[a], b->box[a][k - 1].nhi);
         }
         cnt = vi4_add(cnt, vi4_load(counts[k - 1]));
-        vfloat4 cost = vf4_madd(half_areas3(acc), block_count(cnt), right_cost[k]);
+        vfloat4 cost = vf4_madd(half_areas3_neg(lo, nhi), block_count(cnt), right_cost[k]);
         vbool4 ok = vb4_andnot(vb4_andnot(usable, vi4_eq(cnt, zero)), vi4_eq(cnt, all));
         vbool4 better = vb4_and(ok, vf4_lt(cost, best_cost));
         best_cost = vf4_select(better, cost, best_cost);
@@ -395,6 +416,8 @@ static split sweep(const bins *b, int nb, uint32_t n, const binmap *map)
         best.left = l;
         best.right = r;
         best.n_left = nl;
+    } else {
+        best.left = best.right = box_empty();
     }
     return best;
 }
