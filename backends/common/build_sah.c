@@ -119,17 +119,6 @@ static inline vfloat4 block_count(vint4 n)
     return vf4_from_vi4(vi4_shr(vi4_add(n, vi4_set1(3)), 2));
 }
 
-/* Half surface areas of three boxes, one per lane (lane 3 unspecified). */
-static inline vfloat4 half_areas3(const box4 box[3])
-{
-    vfloat4 dx = vf4_sub(box[0].hi, box[0].lo), dy = vf4_sub(box[1].hi, box[1].lo);
-    vfloat4 dz = vf4_sub(box[2].hi, box[2].lo), dw = dz;
-    vf4_transpose(&dx, &dy, &dz, &dw); /* now dx = the three boxes' x extents */
-    vfloat4 area = vf4_madd(dx, dy, vf4_madd(dy, dz, vf4_mul(dz, dx)));
-    /* an empty box (lo > hi) has no area; its extents are negative */
-    return vf4_keep(vf4_ge(dx, vf4_set1(0.0f)), area);
-}
-
 /* The mapping from centroids to bins, per axis in lanes 0..2.  Binning and
  * partitioning both go through bin_of, so they always agree. */
 typedef struct binmap {
@@ -327,9 +316,9 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
 }
 
 /* Half surface areas of three boxes given as lo and -hi (the bins' form), one
- * per lane: lo + -hi is -(hi - lo) exactly (0 for a flat side, not -0), and
- * the products of two negated extents are those of the extents, so the
- * areas are half_areas3's.  Lane 3 of the boxes (the bins' counts and ids,
+ * per lane (lane 3 unspecified): lo + -hi is -(hi - lo) exactly (0 for a
+ * flat side, not -0), and the products of two negated extents are those of
+ * the extents, so the areas are those of the extents hi - lo.  Lane 3 of the boxes (the bins' counts and ids,
  * denormal as floats) goes to the fourth row of the transposition, which no
  * arithmetic reads: only the addition sees it. */
 static inline vfloat4 half_areas3_neg(const vfloat4 lo[3], const vfloat4 nhi[3])
@@ -556,12 +545,6 @@ static inline box4 cbox_box(cbox b)
     return b;
 }
 #endif
-
-static inline void cent_add(box4 *cent, vfloat4 lo, vfloat4 hi)
-{
-    vfloat4 c = centroid(lo, hi);
-    box_grow(cent, c, c);
-}
 
 static void range_merge(range *into, const range *r)
 {
