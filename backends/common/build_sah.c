@@ -202,8 +202,7 @@ static inline uint32_t bin_size(const bin *b)
  * longer with the count left in). */
 static inline box4 bin_box(const bin *b)
 {
-    const vbool4 xyz = vb4_from_bits(7);
-    return (box4){vf4_keep(xyz, b->lo), vf4_keep(xyz, vf4_xor_sign(b->nhi, vf4_set1(-1.0f)))};
+    return (box4){vf4_clear3(b->lo), vf4_clear3(vf4_xor_sign(b->nhi, vf4_set1(-1.0f)))};
 }
 
 /* The byte offsets in a bins of a reference's bin on each axis, from its
@@ -250,7 +249,7 @@ static inline void bin_join(bin *a, const bin *b)
 {
     const vbool4 xyz = vb4_from_bits(7);
     const vint4 n = vf4_bits(vf4_select(xyz, vf4_set1(0.0f), vf4_from_bits(vi4_set1((int32_t)bin_size(b)))));
-    a->lo = vf4_from_bits(vi4_add(vf4_bits(vf4_min(vf4_keep(xyz, b->lo), a->lo)), n));
+    a->lo = vf4_from_bits(vi4_add(vf4_bits(vf4_min(vf4_clear3(b->lo), a->lo)), n));
     a->nhi = vf4_min(b->nhi, a->nhi);
 }
 
@@ -318,9 +317,10 @@ static void bin_refs(const primref *refs, uint32_t begin, uint32_t end, const bi
 /* Half surface areas of three boxes given as lo and -hi (the bins' form), one
  * per lane (lane 3 unspecified): lo + -hi is -(hi - lo) exactly (0 for a
  * flat side, not -0), and the products of two negated extents are those of
- * the extents, so the areas are those of the extents hi - lo.  Lane 3 of the boxes (the bins' counts and ids,
- * denormal as floats) goes to the fourth row of the transposition, which no
- * arithmetic reads: only the addition sees it. */
+ * the extents, so the areas are those of the extents hi - lo.  Lane 3 of
+ * the boxes (the bins' counts and ids, denormal as floats) goes to the
+ * fourth row of the transposition, which no arithmetic reads: only the
+ * addition sees it. */
 static inline vfloat4 half_areas3_neg(const vfloat4 lo[3], const vfloat4 nhi[3])
 {
     vfloat4 dx = vf4_add(lo[0], nhi[0]), dy = vf4_add(lo[1], nhi[1]), dz = vf4_add(lo[2], nhi[2]), dw = dz;
@@ -651,11 +651,10 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
 {
     /* All in locals: the stores below could alias *s, *to, *left and *right
      * for all the compiler knows. */
-    /* bin_of(c) < pos on the split axis, without the clamp and conversion:
-     * x = (c - cmin) * scale is below pos (or NaN, which bin_of puts in bin
-     * 0); the clamp at the top bin cannot take an x >= pos below pos.  And
-     * that is c below the split's plane (split_plane), one comparison on
-     * the path the loops' branches wait for instead of three operations. */
+    /* bin_of(c) < pos on the split axis is x = (c - cmin) * scale below pos
+     * (or NaN, which bin_of puts in bin 0), and that is c below the split's
+     * plane (split_plane): one comparison on the path the loops' branches
+     * wait for, instead of three operations and a conversion. */
     const vfloat4 plane = vf4_set1(split_plane(s));
     const binmap map = s->map;
     bins *lb = with_bins ? to->left : NULL, *rb = with_bins ? to->right : NULL;
@@ -692,11 +691,12 @@ static inline uint32_t partition_with(primref *refs, uint32_t begin, uint32_t en
         vf4_store(refs[i].hi, hi_j);
         vf4_store(refs[j - 1].lo, lo_i);
         vf4_store(refs[j - 1].hi, hi_i);
-        lc = cbox_grow(lc, centroid(lo_j, hi_j));
-        rc = cbox_grow(rc, centroid(lo_i, hi_i));
+        const vfloat4 cj = centroid(lo_j, hi_j), ci = centroid(lo_i, hi_i);
+        lc = cbox_grow(lc, cj);
+        rc = cbox_grow(rc, ci);
         if (with_bins) {
-            bin_add(lb, bin_offsets(bin_of(&lm, centroid(lo_j, hi_j))), vf4_clear3(lo_j), hi_j);
-            bin_add(rb, bin_offsets(bin_of(&rm, centroid(lo_i, hi_i))), vf4_clear3(lo_i), hi_i);
+            bin_add(lb, bin_offsets(bin_of(&lm, cj)), vf4_clear3(lo_j), hi_j);
+            bin_add(rb, bin_offsets(bin_of(&rm, ci)), vf4_clear3(lo_i), hi_i);
         }
         i++;
         j--;
