@@ -861,13 +861,15 @@ static inline __attribute__((always_inline)) int next_leaf(const rtk_accel *acce
             /* any hit ends the ray wherever it is: no sorting (tfar never
              * shrinks, so nothing pushed is ever out of range).  The last
              * child hit goes first, then the others from the second last
-             * down, Embree's order: the builders put the upper half of each
-             * split after the lower, and first-slot-first took twice the
-             * instructions and ten times the L1 misses of Embree per ray on
-             * San Miguel's shadow rays (callgrind, 20,000 rays along
-             * (0.3, 0.8, 0.5) from points on the surface: 1266 against 594;
-             * last first: 751), and 1.15 times them on the dragon's (now
-             * 1.01 times). */
+             * down, Embree's order.  The SAH builder's 8-wide nodes end with
+             * the children with the fewest triangles per box area
+             * (build_sah.c, child_slots), its 4-wide ones with the upper
+             * half of each split.  First-slot-first (in 4-wide and 8-wide
+             * nodes then both in split order) took twice the instructions
+             * and ten times the L1 misses of Embree per ray on San Miguel's
+             * shadow rays (callgrind, 20,000 rays along (0.3, 0.8, 0.5)
+             * from points on the surface: 1266 against 594; last first:
+             * 751), and 1.15 times them on the dragon's. */
             const int last = 31 - __builtin_clz(mask);
             cur = child[last];
             for (mask ^= 1u << last; mask; mask &= mask - 1) {
