@@ -1402,19 +1402,27 @@ static void set_child(part *p, uint32_t index, int i, uint32_t ref)
  * the child tried first is the one with the most box to stop the ray per
  * triangle to test: a wall of San Miguel made of a few large triangles
  * before a subtree of ornaments.  Embree's builders order the children by
- * count alone, for the same reason.  Rays along (0.3, 0.8, 0.5) from
- * random points of each mesh (scratch program, both libraries on the same
- * rays, best of 5 passes), against Embree isa=avx2: San Miguel 0.73x ->
- * 1.04x (by count alone 1.07x), apartment 0.83x -> 0.97x (0.94x), carriage
- * 0.97x -> 0.94x (0.98x), dragon 1.11x -> 1.01x (0.97x).  rtktool bench's
- * shadow rays (to a point light, 1 thread): San Miguel single rays
- * 0.90x-0.92x -> 0.96x-1.02x, packets of 8 0.82x -> 0.88x; carriage 1.01x
- * -> 0.96x, motorbike's packets 1.33x -> 1.27x; camera rays on
- * lamborghini and dragon lost 2-4% (slot order changes the ties between
- * equal entry distances), the other sets moved within the noise.  In
- * 4-wide nodes (sse41, scalar) the same order lost 5-8% on San Miguel's
- * and carriage's shadow rays, so they keep the builder's order (each
- * split's lower side before its upper side). */
+ * count alone, for the same reason (measured the same within the noise,
+ * but for the bunny's sun rays, 0.95x by count against 0.89x).  The
+ * nodes are still allocated in the builder's order.  rtktool bench, avx2
+ * against Embree isa=avx2, 1 thread, the split order -> this one:
+ *   - the sun set (shadow rays along one direction from random points):
+ *     San Miguel single rays 0.77x -> 1.03x, packets of 8 0.54x -> 0.89x;
+ *     apartment 0.85x -> 0.98x and 0.67x -> 0.80x; lucy100k, lamborghini
+ *     and carriage within 0.03x; but the scanned meshes, where the split
+ *     order kept a subtree's near half together, lose: bunny 1.01x ->
+ *     0.89x and 0.79x -> 0.69x, dragon about 1.2x -> 1.05x and 0.95x ->
+ *     0.85x, motorbike 0.96x -> 0.93x and 0.85x -> 0.76x;
+ *   - the shadow set (to a point light): San Miguel 0.91x -> 0.98x and
+ *     0.82x -> 0.88x, carriage 1.01x -> 0.96x, the others within 0.03x;
+ *   - camera rays on lamborghini and dragon lost 2-4% (the slot order
+ *     decides between children entered at equal distances), the other
+ *     sets moved within the noise.
+ * The worst ratios among the shared meshes go up: single sun rays 0.77x
+ * -> 0.89x, packets 0.54x -> 0.69x.  In 4-wide nodes (sse41, scalar) the
+ * same order lost 5-8% on San Miguel's and carriage's shadow rays and
+ * gained nothing, so they keep the builder's order (each split's lower
+ * side before its upper side). */
 static void child_slots(const build *bd, const range *child, int nc, int slot[8])
 {
     if (bd->width != 8) {
