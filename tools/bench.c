@@ -409,8 +409,8 @@ static render_tracer scene_tracer(scene *sc, int coherent)
 
 /* ---- ray sets ---- */
 
-enum { SET_PRIMARY, SET_DIFFUSE, SET_SHADOW, SET_INCOHERENT, NSETS };
-static const char *const set_names[NSETS] = {"primary", "diffuse", "shadow", "incoherent"};
+enum { SET_PRIMARY, SET_DIFFUSE, SET_SHADOW, SET_INCOHERENT, SET_SUN, NSETS };
+static const char *const set_names[NSETS] = {"primary", "diffuse", "shadow", "incoherent", "sun"};
 static const int apis[4] = {1, 4, 8, 16};
 
 typedef struct rayset {
@@ -549,6 +549,46 @@ static void make_incoherent(const rtk_mesh *m, size_t n, rayset *set)
         render_cosine_dir(nrm, u1, rnd(), d);
         set->rays[set->n++] = (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = d[0], .dir_y = d[1],
                                         .dir_z = d[2], .tfar = INFINITY, .mask = ~0u};
+    }
+    set->n &= ~(size_t)15;
+}
+
+/* n shadow rays to the sun (a directional light, as rtktool trace's
+ * path tracer has) from random points of the whole mesh, on the side of
+ * their triangle that faces it (the other side is in shadow without a
+ * ray), one after the other as a path tracer's later bounces ask for
+ * them: any-hit queries whose order of visiting children decides their
+ * cost, where the point light's set mostly leaves the mesh's top.  Cut
+ * to a multiple of 16. */
+static void make_sun(const rtk_mesh *m, size_t n, rayset *set)
+{
+    float lo[3], hi[3];
+    const float eps = 1e-4f * rtk_mesh_bounds(m, lo, hi);
+    const double len = sqrt(0.3 * 0.3 + 0.8 * 0.8 + 0.5 * 0.5);
+    const double sun[3] = {0.3 / len, 0.8 / len, 0.5 / len};
+    set->rays = calloc(n ? n : 1, sizeof(rtk_ray));
+    set->n = 0;
+    for (size_t tries = 0; set->rays && set->n < n && m->triangle_count && tries < 4 * n; tries++) {
+        const size_t t = (size_t)(rnd() * (float)m->triangle_count) % m->triangle_count;
+        const uint32_t *ix = m->indices + 3 * t;
+        const float *a = m->vertices + 3 * (size_t)ix[0], *b = m->vertices + 3 * (size_t)ix[1],
+                    *c = m->vertices + 3 * (size_t)ix[2];
+        double unit[3];
+        tri_normal(m, (uint32_t)t, unit);
+        const double facing = unit[0] * sun[0] + unit[1] * sun[1] + unit[2] * sun[2];
+        if (!(facing * facing > 1e-6)) /* no area, not finite, or edge-on to the sun */
+            continue;
+        const double side = facing > 0 ? 1.0 : -1.0;
+        float u = rnd(), v = rnd();
+        if (u + v > 1.0f) {
+            u = 1.0f - u;
+            v = 1.0f - v;
+        }
+        float p[3];
+        for (int k = 0; k < 3; k++)
+            p[k] = a[k] + u * (b[k] - a[k]) + v * (c[k] - a[k]) + eps * (float)(side * unit[k]);
+        set->rays[set->n++] = (rtk_ray){.org_x = p[0], .org_y = p[1], .org_z = p[2], .dir_x = (float)sun[0],
+                                        .dir_y = (float)sun[1], .dir_z = (float)sun[2], .tfar = INFINITY, .mask = ~0u};
     }
     set->n &= ~(size_t)15;
 }
@@ -903,16 +943,17 @@ static void bench_usage(FILE *f)
     fprintf(f,
             "usage: rtktool bench MESH... [options]\n"
             "  rtk beside Embree 3 (at isa=avx2 and at its default) on the same meshes and rays, in one run:\n"
-            "  trace (primary, diffuse, shadow and incoherent rays; single rays and packets; 1 and 2 threads), render\n"
-            "  (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2 and 3), build (start\n"
-            "  time at every quality, as in its Table 4, against the time to trace the tree), refit (a\n"
-            "  deforming mesh: refit time, and the trace speed of the refitted tree), two levels (instances\n"
-            "  and a dynamic scene: commit times and trace speed), motion blur (2 and 5 time steps: start\n"
-            "  time, memory, trace speed at random ray times), accuracy (rays aimed at shared edges\n"
-            "  that leak through, beside speed) and, once per run, closed (the accuracy harness: rays aimed\n"
-            "  at the vertices and edges of closed procedural meshes moved to 10^0..10^8 and sized\n"
-            "  1e-8..1e8, needles and zero-area triangles, grazing rays; false misses, double hits, t error\n"
-            "  in ulps, each library's default and robust mode; no MESH needed for --only closed).\n"
+            "  trace (primary, diffuse, shadow, incoherent and sun rays; single rays and packets; 1 and 2\n"
+            "  threads), render (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2\n"
+            "  and 3), build (start time at every quality, as in its Table 4, against the time to trace the\n"
+            "  tree), refit (a deforming mesh: refit time, and the trace speed of the refitted tree), two\n"
+            "  levels (instances and a dynamic scene: commit times and trace speed), motion blur (2 and 5\n"
+            "  time steps: start time, memory, trace speed at random ray times), accuracy (rays aimed at\n"
+            "  shared edges that leak through, beside speed) and, once per run, closed (the accuracy\n"
+            "  harness: rays aimed at the vertices and edges of closed procedural meshes moved to\n"
+            "  10^0..10^8 and sized 1e-8..1e8, needles and zero-area triangles, grazing rays; false misses,\n"
+            "  double hits, t error in ulps, each library's default and robust mode; no MESH needed for\n"
+            "  --only closed).\n"
             "  Ratios are to Embree isa=avx2.  A MESH named\n"
             "  procedural:N (e.g. procedural:10M) is a bumpy sphere of about N triangles made on the spot.\n"
             "  -o, --output DIR  bench.csv, the charts (PNG, drawn by gnuplot when installed) and their\n"
@@ -921,6 +962,7 @@ static void bench_usage(FILE *f)
             "  --isa LIST        rtk backends (default: every usable one)\n"
             "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
             "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow,incoherent (bounces from\n"
+            "                    random points of the whole mesh),sun (shadow rays along one direction from\n"
             "                    random points of the whole mesh) (default: all)\n"
             "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed\n"
             "                    (default: all)\n"
@@ -966,6 +1008,7 @@ static int make_sets(ctx *c, char *err, size_t err_size)
     make_secondary(c->m, &ref, &sets[SET_PRIMARY], &sets[SET_DIFFUSE], &sets[SET_SHADOW]);
     scene_release(&ref);
     make_incoherent(c->m, sets[SET_DIFFUSE].n, &sets[SET_INCOHERENT]);
+    make_sun(c->m, sets[SET_DIFFUSE].n, &sets[SET_SUN]);
     return 0;
 }
 
@@ -1007,13 +1050,15 @@ static int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     const rayset *sets = c->sets;
-    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, %zu incoherent; best of %d passes; "
-           "Mrays/s (ratio to %s)\n",
+    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, %zu incoherent, %zu sun; best of %d "
+           "passes; Mrays/s (ratio to %s)\n",
            o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", sets[0].n,
-           100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, sets[3].n, o->repeat, c->libs[0].name);
+           100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, sets[3].n, sets[4].n, o->repeat,
+           c->libs[0].name);
     printf("  packets of primary rays are 2x2, 4x2, 4x4 pixel blocks, given Embree's coherent flag; packets of\n"
            "  diffuse and shadow rays are those of neighbouring pixels, traced without it; incoherent rays bounce\n"
-           "  from random points of the whole mesh, one after the other\n");
+           "  from random points of the whole mesh, one after the other; sun rays are shadow rays to a\n"
+           "  directional light from random points of the whole mesh\n");
     unsigned char *hits = malloc(sets[0].n), *ref_hits[NSETS];
     double rate[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* lib, threads index, set, api */
     size_t disagree[MAXLIBS] = {0};
@@ -1045,7 +1090,7 @@ static int section_trace(ctx *c, char *err, size_t err_size)
                     for (int l = 0; l < c->nlibs; l++) {
                         const render_tracer t = scene_tracer(&sc[l], s == SET_PRIMARY && a > 0);
                         unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : hits;
-                        const double v = trace_set(&t, &sets[s], apis[a], s == SET_SHADOW, o->threads[ti], 1, h);
+                        const double v = trace_set(&t, &sets[s], apis[a], s == SET_SHADOW || s == SET_SUN, o->threads[ti], 1, h);
                         if (v > rate[l][ti][s][a])
                             rate[l][ti][s][a] = v;
                         if (h == hits && r == o->repeat - 1)
@@ -2651,7 +2696,7 @@ int cmd_bench(int argc, char **argv)
                     n = -1;
             }
             if (n < 1) {
-                fprintf(stderr, "rtktool bench: --rays wants a list of primary, diffuse, shadow, incoherent (got '%s')\n",
+                fprintf(stderr, "rtktool bench: --rays wants a list of primary, diffuse, shadow, incoherent, sun (got '%s')\n",
                         argv[i]);
                 return 2;
             }
