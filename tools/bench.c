@@ -2634,7 +2634,7 @@ static int section_features(ctx *c, char *err, size_t err_size)
 int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
-                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .set_on = {1, 1, 1, 1},
+                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .set_on = {1, 1, 1, 1, 1},
                     .do_trace = 1, .do_render = 1, .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1,
                     .do_accuracy = 1, .do_features = 1, .do_closed = 1, .render_w = 512, .render_h = 384,
                     .render_spp = 1};
