@@ -224,6 +224,9 @@ struct rtk_accel {
     /* some geometry has a mask or a filter: the rays take the features'
      * traversal (attrs may be there for quads alone, which need none) */
     uint32_t attr_feat;
+    /* some geometry has a filter (else attr_feat means masks alone, which
+     * the single-ray kernels test inline, traverse_bvhn.h) */
+    uint32_t attr_filter;
     /* some geometry is quads (RTK_GEOMETRY_ATTR_QUAD): hits are translated */
     uint32_t quads;
 };
@@ -257,6 +260,7 @@ static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_
     accel->attrs = NULL;
     accel->attr_count = 0;
     accel->attr_feat = 0;
+    accel->attr_filter = 0;
     accel->quads = 0;
     if (in->struct_size < offsetof(rtk_build_input, attrs) + sizeof in->attrs || !in->attrs)
         return 1;
@@ -272,6 +276,7 @@ static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_
         const rtk_geometry_attrs *x = &in->attrs[g];
         a[in->geometries[g].geom_id] = *x;
         accel->attr_feat |= x->mask != ~0u || x->intersect_filter || x->occluded_filter;
+        accel->attr_filter |= x->intersect_filter || x->occluded_filter;
         accel->quads |= x->flags & RTK_GEOMETRY_ATTR_QUAD;
     }
     accel->attrs = a;

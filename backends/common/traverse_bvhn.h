@@ -816,6 +816,22 @@ static __attribute__((noinline)) int accept_any(const block_t *t, const feat_ctx
     return 0;
 }
 
+/* The lanes of `mask` whose geometry's mask shares a bit with the ray's:
+ * a ray without culling in a tree with masks but no filters, whose
+ * candidates need no call (a call in the loop makes the compiler keep the
+ * ray's vectors in memory).  Whether a candidate passes does not depend on
+ * its distance, so the closest hit is the nearest lane left. */
+static inline unsigned mask_lanes(const block_t *t, unsigned mask, const feat_ctx *f)
+{
+    const uint32_t rmask = f->ray->mask;
+    unsigned keep = 0;
+    for (unsigned m = mask; m; m &= m - 1) {
+        const int i = __builtin_ctz(m);
+        keep |= (f->attrs[t->geom[i]].mask & rmask) ? 1u << i : 0u;
+    }
+    return keep;
+}
+
 /* Pops the nearest pending entry whose entry distance is within tfar into
  * *cur, dropping those beyond it; 0 when the stack runs out. */
 static inline int pop_in_range(const stack_entry *stack, int *sp, float tfar_s, uint32_t *cur)
@@ -917,7 +933,8 @@ typedef struct closest_hit {
  * finish alone. */
 static inline __attribute__((always_inline)) void closest_from_(const rtk_accel *accel, uint32_t root,
                                                                   const ray_pre *p, float tnear_s, float *tfar_io,
-                                                                  closest_hit *best, int fused, const feat_ctx *f)
+                                                                  closest_hit *best, int fused, const feat_ctx *f,
+                                                                  int masks_only)
 {
     /* The triangle tests take the lower lanes of the node tests' interval
      * (-0.0 made +0.0 there, which compares the same): two vectors fewer
@@ -941,7 +958,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             tri4_hit h;
             unsigned mask = triangle4_intersect(t, p, tnear, tfar, &h);
             if (f && mask)
-                mask = accept_closest(t, f, &h, mask, tnear_s, tfar_s);
+                mask = masks_only ? mask_lanes(t, mask, f) : accept_closest(t, f, &h, mask, tnear_s, tfar_s);
             if (mask) {
                 /* the nearest of the lanes hit; the reciprocals of |det|
                  * in one division for the four lanes (the same quotients) */
@@ -1015,6 +1032,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
     }
 RTK_ANY_FROM(any_from_usual_, 1)
 RTK_ANY_FROM(any_from_features_, accept_any(t, f, &h, mask, tnear_s, tfar_s))
+RTK_ANY_FROM(any_from_masks_, mask_lanes(t, mask, f) != 0)
 
 /* The traversals, specialised once for the fused node test and once for
  * the subtract-then-multiply one (ray_pre.fma), so the choice is made once
@@ -1028,9 +1046,9 @@ static __attribute__((noinline)) void closest_from_feat(const rtk_accel *accel, 
                                                         const feat_ctx *f)
 {
 #if RTK_SIMD_HAS_FMA
-    closest_from_(accel, root, p, tnear_s, tfar_io, best, p->fma, f);
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, p->fma, f, 0);
 #else
-    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, f);
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, f, 0);
 #endif
 }
 
@@ -1049,11 +1067,11 @@ static void closest_from_plain(const rtk_accel *accel, uint32_t root, const ray_
 {
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(p->fma, 1)) {
-        closest_from_(accel, root, p, tnear_s, tfar_io, best, 1, NULL);
+        closest_from_(accel, root, p, tnear_s, tfar_io, best, 1, NULL, 0);
         return;
     }
 #endif
-    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, NULL);
+    closest_from_(accel, root, p, tnear_s, tfar_io, best, 0, NULL, 0);
 }
 
 static int any_from_plain(const rtk_accel *accel, uint32_t root, const ray_pre *p, float tnear_s, float tfar_s)
@@ -1174,7 +1192,12 @@ static __attribute__((noinline)) void occluded1_other(const rtk_accel *accel, rt
 }
 #endif
 
-static __attribute__((noinline)) void intersect1_feat(const rtk_accel *accel, rtk_rayhit *rayhit, const feat_ctx *f)
+/* A ray with masks, culling or filters (f): the usual entry's inlined
+ * traversal with the features' test, made once with masks alone tested
+ * inline (masks_only: no culling, no filters in the tree) and once with
+ * the test that calls out */
+static inline __attribute__((always_inline)) void intersect1_feat_(const rtk_accel *accel, rtk_rayhit *rayhit,
+                                                                   const feat_ctx *f, int masks_only)
 {
     ray_pre p;
     ray_pre_init(&p, &rayhit->ray, accel);
@@ -1186,11 +1209,22 @@ static __attribute__((noinline)) void intersect1_feat(const rtk_accel *accel, rt
 #endif
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
-    closest_from_(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, BVHN_FUSED, f);
+    closest_from_(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, BVHN_FUSED, f, masks_only);
     closest_hit_write(accel, accel, &best, &p, tfar, rayhit);
 }
 
-static __attribute__((noinline)) void occluded1_feat(const rtk_accel *accel, rtk_ray *ray, const feat_ctx *f)
+static __attribute__((noinline)) void intersect1_masks(const rtk_accel *accel, rtk_rayhit *rayhit, const feat_ctx *f)
+{
+    intersect1_feat_(accel, rayhit, f, 1);
+}
+
+static __attribute__((noinline)) void intersect1_feat(const rtk_accel *accel, rtk_rayhit *rayhit, const feat_ctx *f)
+{
+    intersect1_feat_(accel, rayhit, f, 0);
+}
+
+static inline __attribute__((always_inline)) void occluded1_feat_(const rtk_accel *accel, rtk_ray *ray,
+                                                                  const feat_ctx *f, int masks_only)
 {
     ray_pre p;
     ray_pre_init(&p, ray, accel);
@@ -1200,8 +1234,25 @@ static __attribute__((noinline)) void occluded1_feat(const rtk_accel *accel, rtk
         return;
     }
 #endif
-    if (any_from_features_(accel, accel->root, &p, ray->tnear, ray->tfar, BVHN_FUSED, f))
+    if (masks_only ? any_from_masks_(accel, accel->root, &p, ray->tnear, ray->tfar, BVHN_FUSED, f)
+                   : any_from_features_(accel, accel->root, &p, ray->tnear, ray->tfar, BVHN_FUSED, f))
         ray->tfar = -INFINITY;
+}
+
+static __attribute__((noinline)) void occluded1_masks(const rtk_accel *accel, rtk_ray *ray, const feat_ctx *f)
+{
+    occluded1_feat_(accel, ray, f, 1);
+}
+
+static __attribute__((noinline)) void occluded1_feat(const rtk_accel *accel, rtk_ray *ray, const feat_ctx *f)
+{
+    occluded1_feat_(accel, ray, f, 0);
+}
+
+/* masks alone: no culling asked by the ray, no filter in the tree */
+static inline int masks_alone(const rtk_accel *accel, const feat_ctx *f)
+{
+    return !(f->feat & RTK_FEAT_CULL) && !accel->attr_filter;
 }
 
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
@@ -1211,7 +1262,10 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
     feat_ctx fc;
     const feat_ctx *f = feat_init(&fc, &rayhit->ray, accel, q);
     if (__builtin_expect(f != NULL, 0)) {
-        intersect1_feat(accel, rayhit, f);
+        if (masks_alone(accel, f))
+            intersect1_masks(accel, rayhit, f);
+        else
+            intersect1_feat(accel, rayhit, f);
         return;
     }
     ray_pre p;
@@ -1224,7 +1278,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
 #endif
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
-    closest_from_(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, BVHN_FUSED, NULL);
+    closest_from_(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, BVHN_FUSED, NULL, 0);
     closest_hit_write(accel, accel, &best, &p, tfar, rayhit);
 }
 
@@ -1235,7 +1289,10 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
     feat_ctx fc;
     const feat_ctx *f = feat_init(&fc, ray, accel, q);
     if (__builtin_expect(f != NULL, 0)) {
-        occluded1_feat(accel, ray, f);
+        if (masks_alone(accel, f))
+            occluded1_masks(accel, ray, f);
+        else
+            occluded1_feat(accel, ray, f);
         return;
     }
     ray_pre p;
