@@ -1192,10 +1192,10 @@ static __attribute__((noinline)) void occluded1_other(const rtk_accel *accel, rt
 }
 #endif
 
-/* A ray with masks, culling or filters (f): the usual entry's inlined
- * traversal with the features' test, made once with masks alone tested
- * inline (masks_only: no culling, no filters in the tree) and once with
- * the test that calls out */
+/* The inlined traversal of the entry points, for the usual ray (f NULL)
+ * and for a ray with masks, culling or filters (f), which is made once with
+ * masks alone tested inline (masks_only: no culling, no filters in the
+ * tree) and once with the test that calls out */
 static inline __attribute__((always_inline)) void intersect1_feat_(const rtk_accel *accel, rtk_rayhit *rayhit,
                                                                    const feat_ctx *f, int masks_only)
 {
@@ -1268,18 +1268,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
             intersect1_feat(accel, rayhit, f);
         return;
     }
-    ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel);
-#if RTK_SIMD_HAS_FMA
-    if (__builtin_expect(!p.fma, 0)) {
-        intersect1_other(accel, rayhit, NULL);
-        return;
-    }
-#endif
-    closest_hit best = CLOSEST_HIT_NONE;
-    float tfar = rayhit->ray.tfar;
-    closest_from_(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, BVHN_FUSED, NULL, 0);
-    closest_hit_write(accel, accel, &best, &p, tfar, rayhit);
+    intersect1_feat_(accel, rayhit, NULL, 0); /* the usual ray: no features' test at all */
 }
 
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
