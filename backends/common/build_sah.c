@@ -1723,8 +1723,8 @@ static void make_refs(void *data, uint32_t k)
     const uint64_t begin = (uint64_t)k * RTK_REF_CHUNK;
     const uint64_t end = begin + RTK_REF_CHUNK < g->total ? begin + RTK_REF_CHUNK : g->total;
     uint32_t gi = build_geometry_of(g->geom_first, in->geometry_count, begin);
-    range *r = &g->bounds[k];
-    range_init(r, 0, 0);
+    range bounds; /* on the stack: chunks' entries in g->bounds share cache lines */
+    range_init(&bounds, 0, 0);
     primref *out = g->bd->refs + begin;
     uint32_t n = 0;
     uint64_t skipped = 0, degenerate = 0;
@@ -1740,12 +1740,13 @@ static void make_refs(void *data, uint32_t k)
         vfloat4 p1 = vf4_set(v[1][0], v[1][1], v[1][2], 0.0f);
         vfloat4 p2 = vf4_set(v[2][0], v[2][1], v[2][2], 0.0f);
         vfloat4 blo = vf4_min(vf4_min(p0, p1), p2), bhi = vf4_max(vf4_max(p0, p1), p2);
-        range_add(r, blo, bhi);
+        range_add(&bounds, blo, bhi);
         vf4_store(ref->lo, blo);
         vf4_store(ref->hi, bhi);
         ref->lo[3] = rtk_bits_float(gi);
         ref->hi[3] = rtk_bits_float((uint32_t)prim);
     }
+    g->bounds[k] = bounds;
     g->kept[k] = n;
     g->skipped[k] = skipped;
     g->degenerate[k] = degenerate;
