@@ -43,10 +43,17 @@
 #define MORTON_QUALITIES (1u << RTK_BUILD_QUALITY_LOW)
 
 /* The core takes the first builder that serves a scene's quality, and that
- * builder's layout: with 8-wide vectors (avx, avx2) that is bvh8.triangle4.
+ * builder's layout: with 8-wide vectors (sse41, avx, avx2) that is bvh8.triangle4.
  * Measured on dragon (bench_vs_embree, 1 thread, avx2): primary rays 4.25 ->
  * 5.37 Mrays/s against bvh4, random and shadow rays within 2%, memory 66.6 ->
- * 70.2 bytes/triangle (Embree's default is about 70).  Low quality is the
+ * 70.2 bytes/triangle (Embree's default is about 70).  On sse41 (8 lanes
+ * as two SSE halves, vfloat8_sse41.h) since 8-wide nodes measured faster
+ * there too: rtktool bench dragon.ply sanmiguel_building.ply --only trace
+ * --isa scalar,sse41 --threads 1, two rounds against bvh4.triangle4, diffuse
+ * single rays on dragon 3.36-3.45 -> 3.58-4.10 Mrays/s, San Miguel
+ * 15.4-16.5 -> 17.9-18.7, packets of 8 (no longer two of 4) camera rays
+ * 9.0-9.3 -> 11.7-12.1 and 23.1-23.9 -> 29.2-29.3, packets of 4 within 5%
+ * either way.  Low quality is the
  * Morton builder, medium the binned SAH builder and high the same with
  * spatial splits; rtk_scene_info names the builder used. */
 static const rtk_builder_entry builders[] = {

@@ -1,6 +1,6 @@
 /* Traversal of bvh4.triangle4: the single-ray template at width 4 and the
  * packet template for 4-ray packets (and 8-ray ones where the SIMD layer has
- * 8-wide vectors: avx, avx2). */
+ * 8-wide vectors: sse41, avx, avx2). */
 #define RTK_BVHN 4
 #include "traverse_bvhn.h"
 #define RTK_PACKET 4

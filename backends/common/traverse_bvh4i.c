@@ -1,6 +1,6 @@
 /* Traversal of bvh4.triangle4i (compact scenes): the single-ray template at
  * width 4 and the packet template for 4-ray packets (and 8-ray ones where
- * the SIMD layer has 8-wide vectors: avx, avx2), with leaves that read
+ * the SIMD layer has 8-wide vectors: sse41, avx, avx2), with leaves that read
  * their vertices from the geometries' buffers. */
 #define RTK_BVHN 4
 #define RTK_LEAF_INDEXED 1

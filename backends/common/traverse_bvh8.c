@@ -1,5 +1,5 @@
 /* Traversal of bvh8.triangle4, in the backends whose SIMD layer has 8-wide
- * vectors (avx, avx2): the single-ray template at width 8 and the packet
+ * vectors (sse41 as two halves, avx, avx2): the single-ray template at width 8 and the packet
  * template for 4- and 8-ray packets. */
 #include "simd/simd.h"
 #ifdef RTK_SIMD_HAS_8

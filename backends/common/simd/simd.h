@@ -7,8 +7,11 @@
  *                              backends; in the scalar backend the width-1
  *                              version (vfloat4_scalar.h), plain C run one
  *                              lane at a time with the vectorizers off
- *   vfloat8 / vbool8           8 lanes, AVX (avx and avx2 backends only;
- *                              RTK_SIMD_HAS_8 says they exist)
+ *   vfloat8 / vbool8           8 lanes: AVX in the avx and avx2 backends,
+ *                              two SSE4.1 halves in the sse41 backend
+ *                              (vfloat8_sse41.h, for 8-wide nodes and
+ *                              8-ray packets); none in the scalar backend
+ *                              (RTK_SIMD_HAS_8 says they exist)
  *
  * Which header implements a width is decided here from the compiler's ISA
  * macros, which come from the backend's flags (backends/<name>/CMakeLists.txt),
@@ -62,6 +65,9 @@
 #if defined(__AVX__)
 #define RTK_SIMD_HAS_8 1
 #include "vfloat8_avx.h"
+#else
+#define RTK_SIMD_HAS_8 1
+#include "vfloat8_sse41.h"
 #endif
 #if defined(__AVX2__)
 #define RTK_SIMD_INT_ORDER_8 1
