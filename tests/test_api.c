@@ -400,11 +400,10 @@ static void test_packet_arguments(void **state)
          * halves), wider packets split; scalar has none and goes ray by ray */
         rtk_scene_info info = {.struct_size = sizeof info};
         assert_int_equal(rtk_scene_get_info(scene, &info), RTK_OK);
-        const int wide = strcmp(names[b], "scalar") != 0;
-        const unsigned narrow = strcmp(names[b], "scalar") ? 4 : 1;
-        assert_int_equal(info.packet_width[0], narrow);
-        assert_int_equal(info.packet_width[1], wide ? 8 : narrow);
-        assert_int_equal(info.packet_width[2], wide ? 8 : narrow);
+        const int simd = strcmp(names[b], "scalar") != 0;
+        assert_int_equal(info.packet_width[0], simd ? 4 : 1);
+        assert_int_equal(info.packet_width[1], simd ? 8 : 1);
+        assert_int_equal(info.packet_width[2], simd ? 8 : 1);
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }

@@ -286,7 +286,8 @@ static inline void build_store_node(const build *bd, void *nodes, uint64_t index
  *     0.89x (either order by density); the others within the noise.
  * Ordering every node by count alone measured as every node by density
  * but for the bunny's sun rays (0.95x against 0.88x).  In 4-wide nodes
- * (sse41, scalar) ordering every node lost 5-8% on San Miguel's and
+ * (scalar's, compact scenes', and sse41's default until it took 8-wide
+ * ones) ordering every node lost 5-8% on San Miguel's and
  * carriage's shadow rays and gained nothing; they keep the builder's
  * order. */
 #define RTK_SLOT_DENSITY_SPREAD 16.0f

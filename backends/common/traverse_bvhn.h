@@ -5,8 +5,8 @@
  * RTK_LEAF_INDEXED) and include it, so all share this one source.
  *
  * Written once with the types of simd/ (4-wide: SSE4.1 in the sse41, avx
- * and avx2 backends, the width-1 version in the scalar one; 8-wide AVX for the
- * bvh8 nodes).  A node's N children are tested at once against slabs whose
+ * and avx2 backends, the width-1 version in the scalar one; 8-wide AVX, or
+ * two SSE4.1 halves in sse41, for the bvh8 nodes).  A node's N children are tested at once against slabs whose
  * near and far planes are picked once per ray from the signs of the
  * direction (so -0.0 behaves as a negative direction, consistently with its
  * reciprocal), visited nearest

@@ -59,7 +59,8 @@
  * with 8 rays it measures best staying together until at most 2 rays are
  * left (bench primary8 on dragon.ply, avx2: 10.9 Mrays/s at 0 or 2, 10.5 at
  * 4, 10.0 at 7; compact scenes, 4-wide nodes: 9.0 at 2, 8.9 at 3, 8.2 at
- * 5); 4 rays on 4-wide nodes (sse41) keep the usual threshold. */
+ * 5); 4 rays on 4-wide nodes (compact scenes, and sse41's default tree when
+ * this was measured) keep the usual threshold. */
 #define PK_SWITCH_FRUSTUM (RTK_BVHN == 8 || RTK_PACKET == 8 ? 2 : PK_SWITCH)
 
 #define PK_NAME_(n, k, what) rtk_bvh##n##_##what##k

@@ -62,11 +62,10 @@
 #define RTK_SIMD_ISA "sse4.1"
 #include "vfloat4_sse41.h"
 #define RTK_SIMD_INT_ORDER_4 1
-#if defined(__AVX__)
 #define RTK_SIMD_HAS_8 1
+#if defined(__AVX__)
 #include "vfloat8_avx.h"
 #else
-#define RTK_SIMD_HAS_8 1
 #include "vfloat8_sse41.h"
 #endif
 #if defined(__AVX2__)
