@@ -75,6 +75,7 @@
  * the direction) scaled by RTK_BOX_FAR_SCALE, as inv_far in ray_pre. */
 typedef struct PK_(packet_pre) {
     vk org[3], dir[3], rinv_lo[3], rinv_hi[3];
+    vk rinv_exact[3]; /* 1 / dir (tiny components raised as in ray_pre_init), before the scales */
     /* the origins for the lower and upper planes: org, or in robust layouts
      * org moved by the padding (ray_pre_init): + for the lower, - for the
      * upper */
@@ -120,6 +121,13 @@ typedef struct PK_(packet_pre) {
  * The bounds are lane reductions with the inactive lanes set to the
  * reduction's identity (none of the active lanes is NaN: the core passes
  * only valid rays). */
+#if RTK_ROBUST
+#define PK_NEAR_SCALE (1.0f - RTK_ROBUST_REL)
+#define PK_FAR_SCALE (RTK_BOX_FAR_SCALE + RTK_ROBUST_REL)
+#else
+#define PK_NEAR_SCALE 1.0f
+#define PK_FAR_SCALE RTK_BOX_FAR_SCALE
+#endif
 static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 {
     static const size_t lower[3] = {offsetof(node_t, lower_x), offsetof(node_t, lower_y), offsetof(node_t, lower_z)};
@@ -152,10 +160,16 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 #endif
     }
     for (int k = 0; k < 3; k++) {
-        p->fr_rn_min[k] = vn_set1(VK(reduce_min)(VK(select)(active, p->rn[k], pinf)));
-        p->fr_rn_max[k] = vn_set1(VK(reduce_max)(VK(select)(active, p->rn[k], ninf)));
-        p->fr_rf_min[k] = vn_set1(VK(reduce_min)(VK(select)(active, p->rf[k], pinf)));
-        p->fr_rf_max[k] = vn_set1(VK(reduce_max)(VK(select)(active, p->rf[k], ninf)));
+        /* rn and rf are the exact reciprocal times the near and the far
+         * scale (positive constants) in every active lane, whatever its
+         * sign, and rounding is monotone: their extremes are the exact
+         * reciprocal's times the scales, two reductions instead of four */
+        const float inv_min = VK(reduce_min)(VK(select)(active, p->rinv_exact[k], pinf));
+        const float inv_max = VK(reduce_max)(VK(select)(active, p->rinv_exact[k], ninf));
+        p->fr_rn_min[k] = vn_set1(inv_min * PK_NEAR_SCALE);
+        p->fr_rn_max[k] = vn_set1(inv_max * PK_NEAR_SCALE);
+        p->fr_rf_min[k] = vn_set1(inv_min * PK_FAR_SCALE);
+        p->fr_rf_max[k] = vn_set1(inv_max * PK_FAR_SCALE);
 #if RTK_SIMD_HAS_FMA
         /* near = plane * rn - cn: least with the greatest cn; far the other way */
         p->fr_cn_max[k] = vn_set1(VK(reduce_max)(VK(select)(active, p->cn[k], ninf)));
@@ -229,11 +243,7 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
     (void)accel;
     const float *org[3] = {r->org_x, r->org_y, r->org_z}, *dir[3] = {r->dir_x, r->dir_y, r->dir_z};
     const vk tiny = VK(set1)(1e-18f), one = VK(set1)(1.0f), zero = VK(set1)(0.0f);
-#if RTK_ROBUST
-    const vk scale = VK(set1)(RTK_BOX_FAR_SCALE + RTK_ROBUST_REL), near_scale = VK(set1)(1.0f - RTK_ROBUST_REL);
-#else
-    const vk scale = VK(set1)(RTK_BOX_FAR_SCALE), near_scale = one;
-#endif
+    const vk scale = VK(set1)(PK_FAR_SCALE), near_scale = VK(set1)(PK_NEAR_SCALE);
     for (int k = 0; k < 3; k++) {
         p->org[k] = VK(load)(org[k]);
         p->dir[k] = VK(load)(dir[k]);
@@ -248,6 +258,7 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
         /* as in ray_pre_init: components below 1e-18 in magnitude become +-1e-18 */
         const vk d = VK(select)(VK(lt)(VK(abs)(p->dir[k]), tiny), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
         const vk rinv_exact = VK(div)(one, d);
+        p->rinv_exact[k] = rinv_exact;
         const vk rinv = VK(mul)(rinv_exact, near_scale), rinv_far = VK(mul)(rinv_exact, scale);
         const vkb neg = VK(lt)(rinv, zero);
         p->rinv_lo[k] = VK(select)(neg, rinv_far, rinv);
@@ -460,7 +471,10 @@ static inline const feat_ctx *PK_(lane_ray_pre)(ray_pre *p, rtk_ray *one, feat_c
                                                 const rtk_accel *accel, const rtk_query *q)
 {
     *one = PK_(lane_ray)(r, i);
-    ray_pre_init(p, one, accel);
+    /* the vectors from the packet's rows, not from *one: a 16-byte load of
+     * fields just stored one by one would stall on store forwarding */
+    ray_pre_init_v(p, vf4_set(r->org_x[i], r->org_y[i], r->org_z[i], r->tnear[i]),
+                   vf4_set(r->dir_x[i], r->dir_y[i], r->dir_z[i], r->time[i]), accel);
     return feat_init(fc, one, accel, q);
 }
 
@@ -570,35 +584,35 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         if (!want)
             continue;
         if (__builtin_popcount(want) <= (p.frustum ? PK_SWITCH_FRUSTUM : PK_SWITCH)) {
-            /* few rays want this subtree: each finishes it alone */
-            VK(store)(h->t, tfar);
-            VK(store)(h->u, hu);
-            VK(store)(h->v, hv);
+            /* few rays want this subtree: each finishes it alone.  Its
+             * results go back into the vectors by blends: lane stores and a
+             * vector load of them would stall on store forwarding */
+            _Alignas(64) float tf[RTK_PACKET];
+            VK(store)(tf, tfar);
             for (unsigned m = want; m; m &= m - 1) {
                 const int i = __builtin_ctz(m);
+                const vkb lane = PK_(lanes_mask)(1u << i);
                 ray_pre rp;
                 rtk_ray one;
                 feat_ctx fc;
                 const feat_ctx *f = PK_(lane_ray_pre)(&rp, &one, &fc, ray, i, accel, q);
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
-                    closest_from(accel, cur, &rp, ray->tnear[i], &h->t[i], &best, f);
+                    float ti = tf[i];
+                    closest_from(accel, cur, &rp, ray->tnear[i], &ti, &best, f);
                     if (best.lane >= 0) {
                         block_t scratch;
-                        h->u[i] = best.u;
-                        h->v[i] = best.v;
-                        PK_(record_triangle)(h, PK_(lanes_mask)(1u << i), leaf_block(accel, best.leaf, &scratch),
-                                             best.lane);
+                        tfar = VK(select)(lane, VK(set1)(ti), tfar);
+                        hu = VK(select)(lane, VK(set1)(best.u), hu);
+                        hv = VK(select)(lane, VK(set1)(best.v), hv);
+                        PK_(record_triangle)(h, lane, leaf_block(accel, best.leaf, &scratch), best.lane);
                         done |= 1u << i;
                     }
-                } else if (any_from(accel, cur, &rp, ray->tnear[i], h->t[i], f)) {
-                    h->t[i] = -INFINITY;
+                } else if (any_from(accel, cur, &rp, ray->tnear[i], tf[i], f)) {
+                    tfar = VK(select)(lane, VK(set1)(-INFINITY), tfar);
                     done |= 1u << i;
                 }
             }
-            tfar = VK(load)(h->t);
-            hu = VK(load)(h->u);
-            hv = VK(load)(h->v);
             if (!closest && done == all)
                 break;
             if (p.frustum)
@@ -775,12 +789,12 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
     VK(store)(rh->hit.Ng_z, VK(select)(m, VK(load)(h.ng[2]), VK(load)(rh->hit.Ng_z)));
     VK(store)(rh->hit.u, VK(select)(m, VK(load)(h.u), VK(load)(rh->hit.u)));
     VK(store)(rh->hit.v, VK(select)(m, VK(load)(h.v), VK(load)(rh->hit.v)));
-    for (unsigned b = h.hit; b; b &= b - 1) {
-        const int i = __builtin_ctz(b);
-        memcpy(&rh->hit.primID[i], &h.prim[i], sizeof(uint32_t));
-        memcpy(&rh->hit.geomID[i], &h.geom[i], sizeof(uint32_t));
-        rh->hit.instID[i] = RTK_INVALID_GEOMETRY_ID;
-    }
+    /* the ids as the bits of floats (h.prim, h.geom hold them so): blends
+     * move bits unchanged, and a row at a time, not a lane */
+    VK(store)((float *)rh->hit.primID, VK(select)(m, VK(load)(h.prim), VK(load)((const float *)rh->hit.primID)));
+    VK(store)((float *)rh->hit.geomID, VK(select)(m, VK(load)(h.geom), VK(load)((const float *)rh->hit.geomID)));
+    VK(store)((float *)rh->hit.instID,
+              VK(select)(m, VK(set1)(PK_(bits_float)(RTK_INVALID_GEOMETRY_ID)), VK(load)((const float *)rh->hit.instID)));
 }
 
 void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
@@ -803,8 +817,8 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
 #endif
     PK_(hits) h;
     PK_(traverse)(accel, valid, r, 0, &h, q);
-    for (unsigned m = h.hit; m; m &= m - 1)
-        r->tfar[__builtin_ctz(m)] = -INFINITY;
+    if (h.hit) /* a row, not lane by lane (see PK_INTERSECT) */
+        VK(store)(r->tfar, VK(select)(PK_(lanes_mask)(h.hit), VK(set1)(-INFINITY), VK(load)(r->tfar)));
 }
 
 #undef vk
@@ -815,6 +829,8 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
 #undef VKB
 #undef PK_SWITCH
 #undef PK_SWITCH_FRUSTUM
+#undef PK_NEAR_SCALE
+#undef PK_FAR_SCALE
 #undef PK_NAME_
 #undef PK_NAME
 #undef PK_INTERSECT
