@@ -465,6 +465,17 @@ static inline rtk_ray PK_(lane_ray)(const rayK *r, int i)
                      .tfar = r->tfar[i], .mask = r->mask[i], .id = r->id[i], .flags = r->flags[i]};
 }
 
+/* Lane i as a single ray in *out for a single-ray entry point, org and
+ * tnear, dir and time each written as one vector: the entry point reads
+ * them as vectors, and a 16-byte load of four 4-byte stores would stall on
+ * store forwarding. */
+static inline void PK_(lane_ray_to)(const rayK *r, int i, rtk_ray *out)
+{
+    *out = PK_(lane_ray)(r, i);
+    vf4_storeu(&out->org_x, vf4_set(r->org_x[i], r->org_y[i], r->org_z[i], r->tnear[i]));
+    vf4_storeu(&out->dir_x, vf4_set(r->dir_x[i], r->dir_y[i], r->dir_z[i], r->time[i]));
+}
+
 /* A lane as a single ray, for finishing a subtree alone: *one holds the
  * ray, and the features' context (if it needs them) is made in *fc. */
 static inline const feat_ctx *PK_(lane_ray_pre)(ray_pre *p, rtk_ray *one, feat_ctx *fc, const rayK *r, int i,
@@ -751,7 +762,8 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
         for (int i = 0; i < RTK_PACKET; i++) {
             if (!valid[i])
                 continue;
-            _Alignas(16) rtk_rayhit one = {.ray = PK_(lane_ray)(&rh->ray, i), .hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+            _Alignas(16) rtk_rayhit one = {.hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
+            PK_(lane_ray_to)(&rh->ray, i, &one.ray);
             BVHN_INTERSECT1(accel, &one, q);
             if (one.hit.geomID == RTK_INVALID_GEOMETRY_ID)
                 continue;
@@ -807,7 +819,8 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
         for (int i = 0; i < RTK_PACKET; i++) {
             if (!valid[i])
                 continue;
-            rtk_ray one = PK_(lane_ray)(r, i);
+            _Alignas(16) rtk_ray one;
+            PK_(lane_ray_to)(r, i, &one);
             BVHN_OCCLUDED1(accel, &one, q);
             if (one.tfar == -INFINITY)
                 r->tfar[i] = -INFINITY;
