@@ -397,14 +397,18 @@ static int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local
     if (o->flags & RTK_BUILD_OBJECT_IDENTITY)
         return 1;
     const float *m = o->world_to_object;
-    local->org_x = m[0] * r->org_x + m[1] * r->org_y + m[2] * r->org_z + m[3];
-    local->org_y = m[4] * r->org_x + m[5] * r->org_y + m[6] * r->org_z + m[7];
-    local->org_z = m[8] * r->org_x + m[9] * r->org_y + m[10] * r->org_z + m[11];
-    local->dir_x = m[0] * r->dir_x + m[1] * r->dir_y + m[2] * r->dir_z;
-    local->dir_y = m[4] * r->dir_x + m[5] * r->dir_y + m[6] * r->dir_z;
-    local->dir_z = m[8] * r->dir_x + m[9] * r->dir_y + m[10] * r->dir_z;
-    const float f = 0.0f * local->org_x + 0.0f * local->org_y + 0.0f * local->org_z + 0.0f * local->dir_x +
-                    0.0f * local->dir_y + 0.0f * local->dir_z;
+    const float ox = m[0] * r->org_x + m[1] * r->org_y + m[2] * r->org_z + m[3];
+    const float oy = m[4] * r->org_x + m[5] * r->org_y + m[6] * r->org_z + m[7];
+    const float oz = m[8] * r->org_x + m[9] * r->org_y + m[10] * r->org_z + m[11];
+    const float dx = m[0] * r->dir_x + m[1] * r->dir_y + m[2] * r->dir_z;
+    const float dy = m[4] * r->dir_x + m[5] * r->dir_y + m[6] * r->dir_z;
+    const float dz = m[8] * r->dir_x + m[9] * r->dir_y + m[10] * r->dir_z;
+    /* org and tnear, dir and time each stored as one vector: the kernels
+     * load them so, and a 16-byte load over four 4-byte stores would stall
+     * on store forwarding */
+    vf4_storeu(&local->org_x, vf4_set(ox, oy, oz, r->tnear));
+    vf4_storeu(&local->dir_x, vf4_set(dx, dy, dz, r->time));
+    const float f = 0.0f * ox + 0.0f * oy + 0.0f * oz + 0.0f * dx + 0.0f * dy + 0.0f * dz;
     return f == 0.0f;
 }
 
