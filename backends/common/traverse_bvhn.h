@@ -250,9 +250,10 @@ static const size_t plane_offsets[8][2][3] = {PLANE_OFFSETS(0), PLANE_OFFSETS(1)
  * ray's instructions on dragon.ply: 176 of 1648, callgrind).  The values
  * are those of per-axis arithmetic bit for bit (the same IEEE operations
  * lane by lane). */
-static inline void ray_pre_init_v(ray_pre *p, vfloat4 org, vfloat4 dir, const rtk_accel *accel)
+static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel)
 {
     (void)accel;
+    const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
     /* a component below 1e-18 in magnitude becomes +-1e-18, its sign kept */
     const vfloat4 tiny = vf4_set1(1e-18f);
     const vfloat4 d = vf4_select(vf4_lt(vf4_abs(dir), tiny), vf4_xor_sign(tiny, dir), dir);
@@ -338,13 +339,6 @@ static inline void ray_pre_init_v(ray_pre *p, vfloat4 org, vfloat4 dir, const rt
     p->sy = vf4_set1(p->w.sy);
     p->sz = vf4_set1(p->w.sz);
 #endif
-}
-
-/* The ray's org and tnear, dir and time as the two vectors ray_pre_init_v
- * takes (lane 3: tnear, time). */
-static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel)
-{
-    ray_pre_init_v(p, vf4_loadu(&r->org_x), vf4_loadu(&r->dir_x), accel);
 }
 
 static inline vnode plane(const node_t *n, size_t off)

@@ -481,11 +481,8 @@ static inline void PK_(lane_ray_to)(const rayK *r, int i, rtk_ray *out)
 static inline const feat_ctx *PK_(lane_ray_pre)(ray_pre *p, rtk_ray *one, feat_ctx *fc, const rayK *r, int i,
                                                 const rtk_accel *accel, const rtk_query *q)
 {
-    *one = PK_(lane_ray)(r, i);
-    /* the vectors from the packet's rows, not from *one: a 16-byte load of
-     * fields just stored one by one would stall on store forwarding */
-    ray_pre_init_v(p, vf4_set(r->org_x[i], r->org_y[i], r->org_z[i], r->tnear[i]),
-                   vf4_set(r->dir_x[i], r->dir_y[i], r->dir_z[i], r->time[i]), accel);
+    PK_(lane_ray_to)(r, i, one);
+    ray_pre_init(p, one, accel);
     return feat_init(fc, one, accel, q);
 }
 
