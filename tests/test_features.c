@@ -22,9 +22,18 @@ enum { GEOMS = 4, PER_GEOM = 600, RAYS = 3000 };
 
 /* geometry g: its mask, and which filters it has */
 static const uint32_t geom_mask[GEOMS] = {1u, 2u, 3u, 4u};
+/* A bit every geometry's mask also has (0: none), as a renderer's
+ * "visible to everything" bit: rays with it pass every mask, and the
+ * kernels take their usual path for them (rtk_accel.mask_pass_all); the
+ * other rays still have their candidates tested. */
+static uint32_t shared_bit;
+static uint32_t mask_of(uint32_t g)
+{
+    return geom_mask[g] | shared_bit;
+}
 static const int has_ifilter[GEOMS] = {0, 1, 0, 1};
 static const int has_ofilter[GEOMS] = {0, 1, 1, 0};
-static const uint32_t ray_masks[] = {~0u, 1u, 2u, 4u, 5u, 6u, 0x80000000u, 0u};
+static const uint32_t ray_masks[] = {~0u, 1u, 2u, 4u, 5u, 6u, 0x80000000u, 0u, 8u, 9u};
 static const uint32_t ray_flags[] = {0u, RTK_RAY_FLAG_CULL_BACK, RTK_RAY_FLAG_CULL_FRONT, 0u};
 
 /* What a filter says: depends on the candidate and the ray only. */
@@ -68,7 +77,7 @@ static int filter(const rtk_filter_args *a, int occluded)
         bad(log, "t outside [tnear, tfar]");
     if (!(a->hit->u >= 0.0f && a->hit->v >= 0.0f && a->hit->u + a->hit->v <= 1.0001f))
         bad(log, "barycentrics out of range");
-    if (!log->collect && !(a->ray->mask & geom_mask[a->hit->geomID]))
+    if (!log->collect && !(a->ray->mask & mask_of(a->hit->geomID)))
         bad(log, "a filter called for a masked-out geometry");
     if (a->hit->instID != log->inst)
         bad(log, "the hit's instID is not the instance's");
@@ -133,7 +142,7 @@ static rtk_scene world_scene(rtk_device dev, world *w, unsigned flags, int motio
         assert_int_equal(rtk_geometry_set_shared_buffer(geo, RTK_BUFFER_TYPE_INDEX, w->idx,
                                                         (size_t)g * PER_GEOM * 12, 12, PER_GEOM),
                          RTK_OK);
-        assert_int_equal(rtk_geometry_set_mask(geo, geom_mask[g]), RTK_OK);
+        assert_int_equal(rtk_geometry_set_mask(geo, mask_of(g)), RTK_OK);
         assert_int_equal(rtk_geometry_set_user_data(geo, &w->users[g]), RTK_OK);
         if (w->filters && has_ifilter[g])
             assert_int_equal(rtk_geometry_set_intersect_filter(geo, ifilter), RTK_OK);
@@ -153,7 +162,7 @@ static rtk_scene world_scene(rtk_device dev, world *w, unsigned flags, int motio
 static int counts(const world *w, uint32_t p, const rtk_ray *ray, const rtk_tri_hit *h, int occluded)
 {
     const uint32_t g = p / PER_GEOM, prim = p % PER_GEOM;
-    if (!(ray->mask & geom_mask[g]))
+    if (!(ray->mask & mask_of(g)))
         return 0;
     const float *t = w->ref.tri[p]; /* v0, e1, e2 */
     const float ng[3] = {t[4] * t[8] - t[5] * t[7], t[5] * t[6] - t[3] * t[8], t[3] * t[7] - t[4] * t[6]};
@@ -318,12 +327,22 @@ static void test_rules_every_backend_and_layout(void **state)
             snprintf(what, sizeof what, "%s %s", names[b], info.layout);
             run_scene(&w, s, 0.0, what);
             rtk_scene_release(s);
-            /* masks alone */
+            /* masks alone; then with a bit all the masks share, which
+             * rays of masks ~0u, 8 and 9 have (filters or not) */
             w.filters = 0;
             s = world_scene(dev, &w, flag_sets[f], 0);
             snprintf(what, sizeof what, "%s %s, masks alone", names[b], info.layout);
             run_scene(&w, s, 0.0, what);
             rtk_scene_release(s);
+            shared_bit = 8u;
+            for (w.filters = 0; w.filters <= 1; w.filters++) {
+                s = world_scene(dev, &w, flag_sets[f], 0);
+                snprintf(what, sizeof what, "%s %s, a shared mask bit%s", names[b], info.layout,
+                         w.filters ? ", filters" : "");
+                run_scene(&w, s, 0.0, what);
+                rtk_scene_release(s);
+            }
+            shared_bit = 0;
             w.filters = 1;
         }
         /* motion blur: one geometry in a tree of its own, below a top level */

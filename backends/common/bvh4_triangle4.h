@@ -221,12 +221,16 @@ struct rtk_accel {
      * kernels never look (traverse_bvhn.h, ray_pre.feat) */
     rtk_geometry_attrs *attrs;
     uint32_t attr_count;
-    /* some geometry has a mask or a filter: the rays take the features'
-     * traversal (attrs may be there for quads alone, which need none) */
-    uint32_t attr_feat;
-    /* some geometry has a filter (else attr_feat means masks alone, which
-     * the single-ray kernels test inline, traverse_bvhn.h) */
+    /* some geometry has a filter (else a ray that needs the attributes
+     * needs its masks alone, which the single-ray kernels test inline,
+     * traverse_bvhn.h) */
     uint32_t attr_filter;
+    /* A ray whose mask shares a bit with this one passes every geometry's
+     * mask in the tree and meets no filter, so it takes the usual path
+     * (feat_init): all ones in a tree without masks or filters, the AND of
+     * its geometries' masks when it has masks alone, 0 when a geometry has
+     * a filter.  (The core passes no ray of mask 0.) */
+    uint32_t mask_pass_all;
     /* some geometry is quads (RTK_GEOMETRY_ATTR_QUAD): hits are translated */
     uint32_t quads;
 };
@@ -259,8 +263,8 @@ static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_
 {
     accel->attrs = NULL;
     accel->attr_count = 0;
-    accel->attr_feat = 0;
     accel->attr_filter = 0;
+    accel->mask_pass_all = ~0u;
     accel->quads = 0;
     if (in->struct_size < offsetof(rtk_build_input, attrs) + sizeof in->attrs || !in->attrs)
         return 1;
@@ -275,10 +279,12 @@ static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_
     for (uint32_t g = 0; g < in->geometry_count; g++) {
         const rtk_geometry_attrs *x = &in->attrs[g];
         a[in->geometries[g].geom_id] = *x;
-        accel->attr_feat |= x->mask != ~0u || x->intersect_filter || x->occluded_filter;
         accel->attr_filter |= x->intersect_filter || x->occluded_filter;
+        accel->mask_pass_all &= x->mask;
         accel->quads |= x->flags & RTK_GEOMETRY_ATTR_QUAD;
     }
+    if (accel->attr_filter)
+        accel->mask_pass_all = 0;
     accel->attrs = a;
     accel->attr_count = count;
     return 1;

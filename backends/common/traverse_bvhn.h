@@ -221,10 +221,20 @@ typedef struct feat_ctx {
 #define RTK_FEAT_CULL (RTK_RAY_FLAG_CULL_BACK | RTK_RAY_FLAG_CULL_FRONT)
 #define RTK_FEAT_ATTRS (1u << 8)
 
+/* Whether a ray of mask `mask` needs the tree's attributes: some geometry
+ * in it has a filter, or a mask the ray's does not share a bit with (see
+ * rtk_accel.mask_pass_all).  A ray that passes every mask takes the usual
+ * path: a scene whose geometries all share a visibility bit with the rays
+ * pays nothing for its masks. */
+static inline unsigned feat_attrs(const rtk_accel *accel, uint32_t mask)
+{
+    return (mask & accel->mask_pass_all) ? 0u : RTK_FEAT_ATTRS;
+}
+
 /* f filled for the ray, or NULL when it needs none of the features. */
 static inline const feat_ctx *feat_init(feat_ctx *f, const rtk_ray *r, const rtk_accel *accel, const rtk_query *q)
 {
-    const unsigned feat = (r->flags & RTK_FEAT_CULL) | (accel->attr_feat ? RTK_FEAT_ATTRS : 0u);
+    const unsigned feat = (r->flags & RTK_FEAT_CULL) | feat_attrs(accel, r->mask);
     if (__builtin_expect(!feat, 1))
         return NULL;
     *f = (feat_ctx){feat, accel->attrs, r, q};

@@ -560,11 +560,11 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                                                                 const rtk_query *q)
 {
     const vkb active = VKB(load)(valid);
-    /* masks, culling, filters (ray_pre.feat): some ray asks for culling or
-     * the tree holds attributes */
-    unsigned feat = accel->attr_feat != 0;
+    /* masks, culling, filters (feat_init): some ray asks for culling, or
+     * for the tree's attributes */
+    unsigned feat = 0;
     for (int i = 0; i < RTK_PACKET; i++)
-        feat |= valid[i] ? ray->flags[i] & RTK_FEAT_CULL : 0u;
+        feat |= valid[i] ? (ray->flags[i] & RTK_FEAT_CULL) | feat_attrs(accel, ray->mask[i]) : 0u;
     PK_(packet_pre) p;
     PK_(packet_pre_init)(&p, ray, active, accel);
     vk tfar = VK(select)(active, VK(load)(ray->tfar), VK(set1)(-INFINITY));
