@@ -126,11 +126,14 @@ static render_tracer embree_tracer(embree_target *e)
 /* MODE_REFIT: a geometry that deforms (quality REFIT): rtk's scene at the
  * given quality, Embree's at low quality and flagged dynamic, the two-level
  * mode in which alone Embree refits. */
-enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST, MODE_REFIT, MODE_MASK, MODE_FILTER, MODE_QUAD };
+enum { MODE_DEFAULT, MODE_COMPACT, MODE_ROBUST, MODE_REFIT, MODE_MASK, MODE_FILTER, MODE_QUAD, MODE_MASKS2 };
 /* MODE_MASK: the geometry's mask set to 1 (the rays' is all ones, so every
- * hit passes); MODE_FILTER: intersection and occlusion filters that accept
- * every candidate.  The same hits as the default, so what they cost. */
-static const char *const mode_names[] = {"default", "compact", "robust", "refit", "mask", "filter", "quad"};
+ * hit passes); MODE_MASKS2: the mesh as two geometries, its first half of
+ * triangles with mask 1 and the rest with mask 2 (the rays pass both, but
+ * no bit is in every geometry's mask, so rtk tests each candidate's);
+ * MODE_FILTER: intersection and occlusion filters that accept every
+ * candidate.  The same hits as the default, so what they cost. */
+static const char *const mode_names[] = {"default", "compact", "robust", "refit", "mask", "filter", "quad", "masks2"};
 
 /* MODE_QUAD: the mesh's triangles as quads, each paired with a neighbour
  * across an edge where one is free (the shared edge the diagonal), the
@@ -350,8 +353,22 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtcSetSceneBuildQuality(s, q[quality]);
         RTCGeometry g = rtcNewGeometry(l->edev, mode == MODE_QUAD ? RTC_GEOMETRY_TYPE_QUAD : RTC_GEOMETRY_TYPE_TRIANGLE);
         rtcSetGeometryBuildQuality(g, q[quality]);
-        if (mode == MODE_MASK)
+        rtk_mesh half = *m; /* MODE_MASKS2: g's triangles, the first half */
+        if (mode == MODE_MASK || mode == MODE_MASKS2)
             rtcSetGeometryMask(g, 1);
+        if (mode == MODE_MASKS2) {
+            half.triangle_count = m->triangle_count / 2;
+            RTCGeometry g2 = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_TRIANGLE);
+            rtcSetGeometryBuildQuality(g2, q[quality]);
+            rtcSetGeometryMask(g2, 2);
+            rtcSetSharedGeometryBuffer(g2, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded, 0, 12,
+                                       m->vertex_count);
+            rtcSetSharedGeometryBuffer(g2, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, m->indices + 3 * half.triangle_count,
+                                       0, 12, m->triangle_count - half.triangle_count);
+            rtcCommitGeometry(g2);
+            rtcAttachGeometry(s, g2);
+            rtcReleaseGeometry(g2);
+        }
         if (mode == MODE_FILTER) {
             rtcSetGeometryIntersectFilterFunction(g, e_accept);
             rtcSetGeometryOccludedFilterFunction(g, e_accept);
@@ -364,8 +381,9 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
             rtcSetGeometryBuildQuality(g, RTC_BUILD_QUALITY_REFIT);
         }
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, padded, 0, 12, m->vertex_count);
-        if (embree_mesh_commit(sc, s, g, m, mode == MODE_QUAD, t0, bytes0, "the scene", err, err_size))
+        if (embree_mesh_commit(sc, s, g, &half, mode == MODE_QUAD, t0, bytes0, "the scene", err, err_size))
             return 1;
+        sc->bytes_per_tri *= (double)half.triangle_count / (double)m->triangle_count;
         snprintf(sc->layout, sizeof sc->layout, "embree %s", mode_names[mode]);
         /* Embree 3 (rtcSetSceneBuildQuality(3)): low builds a two-level
          * structure, each mesh by the Morton builder; medium is its binned
@@ -377,7 +395,10 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
     static const rtk_build_quality q[3] = {RTK_BUILD_QUALITY_LOW, RTK_BUILD_QUALITY_MEDIUM, RTK_BUILD_QUALITY_HIGH};
     const double t0 = now();
     rtk_scene s = NULL;
-    rtk_geometry g = NULL;
+    rtk_geometry g = NULL, g2 = NULL;
+    rtk_mesh half = *m; /* MODE_MASKS2: g's triangles, the first half */
+    if (mode == MODE_MASKS2)
+        half.triangle_count = m->triangle_count / 2;
     const int bad =
         rtk_scene_new(l->rdev, &s) ||
         rtk_scene_set_flags(s, mode == MODE_COMPACT ? RTK_SCENE_FLAG_COMPACT
@@ -387,11 +408,22 @@ static int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded
         rtk_geometry_new(l->rdev, mode == MODE_QUAD ? RTK_GEOMETRY_TYPE_QUAD : RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
         rtk_geometry_set_build_quality(g, mode == MODE_REFIT ? RTK_BUILD_QUALITY_REFIT : q[quality]) ||
         rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
-        (mode == MODE_MASK && rtk_geometry_set_mask(g, 1)) ||
+        ((mode == MODE_MASK || mode == MODE_MASKS2) && rtk_geometry_set_mask(g, 1)) ||
+        (mode == MODE_MASKS2 &&
+         (rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g2) ||
+          rtk_geometry_set_build_quality(g2, q[quality]) || rtk_geometry_set_mask(g2, 2) ||
+          rtk_geometry_set_shared_buffer(g2, RTK_BUFFER_TYPE_VERTEX, m->vertices, 0, 12, m->vertex_count) ||
+          rtk_geometry_set_shared_buffer(g2, RTK_BUFFER_TYPE_INDEX, m->indices + 3 * half.triangle_count, 0, 12,
+                                         m->triangle_count - half.triangle_count) ||
+          rtk_geometry_commit(g2) || rtk_scene_attach_geometry(s, g2, NULL))) ||
         (mode == MODE_FILTER &&
          (rtk_geometry_set_intersect_filter(g, rtk_accept) || rtk_geometry_set_occluded_filter(g, rtk_accept))) ||
         (bench_collect && rtk_geometry_set_intersect_filter(g, rtk_collect));
-    return rtk_mesh_commit(sc, s, g, m, mode == MODE_QUAD, bad, t0, err, err_size);
+    rtk_geometry_release(g2);
+    if (rtk_mesh_commit(sc, s, g, &half, mode == MODE_QUAD, bad, t0, err, err_size))
+        return 1;
+    sc->bytes_per_tri *= (double)half.triangle_count / (double)m->triangle_count;
+    return 0;
 }
 
 static void scene_release(scene *sc)
@@ -2561,21 +2593,24 @@ done:
 }
 
 /* What masks, filters and quads cost when a scene uses them: the default
- * scene, one whose geometry has a mask, one with filters that accept every
- * candidate (the same hits), and the same triangles as quads (MODE_QUAD),
+ * scene, one whose geometry has a mask every ray passes (MODE_MASK), the
+ * mesh as two geometries of different masks (MODE_MASKS2: each candidate's
+ * mask tested), one with filters that accept every candidate (the same
+ * hits), and the same triangles as quads (MODE_QUAD),
  * each library against its own default and rtk against Embree in the same
  * mode; 1 thread. */
-enum { NFEAT = 4 };
+enum { NFEAT = 5 };
 static int section_features(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
-    static const int modes[NFEAT] = {MODE_DEFAULT, MODE_MASK, MODE_FILTER, MODE_QUAD};
+    static const int modes[NFEAT] = {MODE_DEFAULT, MODE_MASK, MODE_MASKS2, MODE_FILTER, MODE_QUAD};
     static const int sets[2] = {SET_DIFFUSE, SET_SHADOW};
     if (quads_make(c->m, &bench_quads)) {
         snprintf(err, err_size, "out of memory for the quads");
         return 1;
     }
-    printf("\nfeatures: a geometry mask, filters accepting every hit, and the triangles as quads (%zu, %zu of them "
+    printf("\nfeatures: a geometry mask (mask: one geometry of mask 1; masks2: the mesh's two halves, masks 1 and 2; "
+           "the rays' all ones), filters accepting every hit, and the triangles as quads (%zu, %zu of them "
            "two triangles; the same surfaces as default); Mrays/s, 1 thread (ratio to the same library's default) "
            "[ratio to %s in the same mode]\n",
            bench_quads.n, bench_quads.paired, c->libs[0].name);
