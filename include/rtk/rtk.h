@@ -660,10 +660,12 @@ RTK_API void rtk_offset_ray_origin(const float p[3], const float n[3], float out
  * leaves), always with a single ray, also during packet queries, on the
  * thread of the query.  It must not change or commit the scene.
  *
- * Scenes pay for these only when they use them: a ray without flags in a
- * scene whose geometries have the default mask and no filter runs the
- * kernels' usual path (docs/BENCHMARKS.md measures it); otherwise the
- * single-ray kernels take a path of their own that tests each candidate.
+ * Scenes pay for these only when they use them: a ray without flags, in a
+ * scene without filters whose geometries' masks all share a bit with the
+ * ray's (the default masks do, and so does a "visible to every ray" bit set
+ * in every mask), runs the kernels' usual path (docs/BENCHMARKS.md measures
+ * it); otherwise the single-ray kernels take a path of their own that tests
+ * each candidate.
  * A geometry's mask, filters and user data (as the filters see it) are
  * read at the scene's commit: set them, commit the geometry, then the
  * scene (which then builds its tree afresh). */
