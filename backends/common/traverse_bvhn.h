@@ -1249,6 +1249,14 @@ static __attribute__((noinline)) void intersect1_feat(const rtk_accel *accel, rt
     intersect1_feat_(accel, rayhit, feat_init(&fc, &rayhit->ray, accel, q), 0);
 }
 
+/* The usual ray: no features' test at all.  A function of its own, which
+ * the entry point jumps to: inlined there, GCC set up its frame before the
+ * entry point's test for the features (occluded1's it sets up after). */
+static __attribute__((noinline)) void intersect1_usual(const rtk_accel *accel, rtk_rayhit *rayhit)
+{
+    intersect1_feat_(accel, rayhit, NULL, 0);
+}
+
 static inline __attribute__((always_inline)) void occluded1_feat_(const rtk_accel *accel, rtk_ray *ray,
                                                                   const feat_ctx *f, int masks_only)
 {
@@ -1296,7 +1304,7 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
             intersect1_feat(accel, rayhit, q);
         return;
     }
-    intersect1_feat_(accel, rayhit, NULL, 0); /* the usual ray: no features' test at all */
+    intersect1_usual(accel, rayhit);
 }
 
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
