@@ -561,10 +561,16 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
 {
     const vkb active = VKB(load)(valid);
     /* masks, culling, filters (feat_init): some ray asks for culling, or
-     * for the tree's attributes */
-    unsigned feat = 0;
-    for (int i = 0; i < RTK_PACKET; i++)
-        feat |= valid[i] ? (ray->flags[i] & RTK_FEAT_CULL) | feat_attrs(accel, ray->mask[i]) : 0u;
+     * for the tree's attributes (feat_attrs; written as a loop of ands and
+     * ors over the lanes, which the compiler does in vectors) */
+    const uint32_t pass_all = accel->mask_pass_all;
+    uint32_t cull = 0, attrs = 0;
+    for (int i = 0; i < RTK_PACKET; i++) {
+        const uint32_t on = valid[i] ? ~0u : 0u;
+        cull |= ray->flags[i] & on;
+        attrs |= (uint32_t)((ray->mask[i] & pass_all) == 0) & on;
+    }
+    const unsigned feat = (cull & RTK_FEAT_CULL) | (attrs ? RTK_FEAT_ATTRS : 0u);
     PK_(packet_pre) p;
     PK_(packet_pre_init)(&p, ray, active, accel);
     vk tfar = VK(select)(active, VK(load)(ray->tfar), VK(set1)(-INFINITY));
