@@ -221,14 +221,20 @@ typedef struct feat_ctx {
 #define RTK_FEAT_CULL (RTK_RAY_FLAG_CULL_BACK | RTK_RAY_FLAG_CULL_FRONT)
 #define RTK_FEAT_ATTRS (1u << 8)
 
-/* Whether a ray of mask `mask` needs the tree's attributes: some geometry
- * in it has a filter, or a mask the ray's does not share a bit with (see
- * rtk_accel.mask_pass_all).  A ray that passes every mask takes the usual
- * path: a scene whose geometries all share a visibility bit with the rays
- * pays nothing for its masks. */
+/* 1 when a ray of mask `mask` needs the attributes of a tree whose
+ * rtk_accel.mask_pass_all is pass_all: some geometry in it has a filter, or
+ * a mask the ray's does not share a bit with.  A ray that passes every mask
+ * takes the usual path: a scene whose geometries all share a visibility bit
+ * with the rays pays nothing for its masks.  (Plain arithmetic on values,
+ * so the packets' loop over the lanes stays in vectors.) */
+static inline uint32_t mask_needs_attrs(uint32_t pass_all, uint32_t mask)
+{
+    return (mask & pass_all) == 0;
+}
+
 static inline unsigned feat_attrs(const rtk_accel *accel, uint32_t mask)
 {
-    return (mask & accel->mask_pass_all) ? 0u : RTK_FEAT_ATTRS;
+    return mask_needs_attrs(accel->mask_pass_all, mask) ? RTK_FEAT_ATTRS : 0u;
 }
 
 /* The features (RTK_FEAT_*) ray r needs in the tree: 0 for the usual path. */

@@ -561,14 +561,15 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
 {
     const vkb active = VKB(load)(valid);
     /* masks, culling, filters (feat_init): some ray asks for culling, or
-     * for the tree's attributes (feat_attrs; written as a loop of ands and
-     * ors over the lanes, which the compiler does in vectors) */
+     * for the tree's attributes (a loop of ands and ors over the lanes,
+     * which the compiler does in vectors; through feat_attrs, reloading the
+     * tree in every lane, it did not) */
     const uint32_t pass_all = accel->mask_pass_all;
     uint32_t cull = 0, attrs = 0;
     for (int i = 0; i < RTK_PACKET; i++) {
         const uint32_t on = valid[i] ? ~0u : 0u;
         cull |= ray->flags[i] & on;
-        attrs |= (uint32_t)((ray->mask[i] & pass_all) == 0) & on;
+        attrs |= mask_needs_attrs(pass_all, ray->mask[i]) & on;
     }
     const unsigned feat = (cull & RTK_FEAT_CULL) | (attrs ? RTK_FEAT_ATTRS : 0u);
     PK_(packet_pre) p;
