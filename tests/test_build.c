@@ -476,7 +476,8 @@ static void morton_edge_cases(void **state)
 /* ---- an application's task system ---- */
 
 /* A task system of the test's own: `threads` pthreads per call, taking the
- * indices from the top down (another order than rtk's pool). */
+ * indices from the top down (another order than rtk's pool); with 0, every
+ * index on the caller's thread, one after another. */
 typedef struct app_tasks {
     atomic_uint calls, indices;
     unsigned threads;
@@ -507,6 +508,10 @@ static void app_parallel_for(void *user, uint32_t count, rtk_task_fn fn, void *d
     assert_true(count > 0);
     app_job j = {.sys = sys, .count = count, .fn = fn, .data = data};
     atomic_init(&j.next, (int)count - 1);
+    if (!sys->threads) {
+        app_worker(&j);
+        return;
+    }
     pthread_t t[8];
     for (unsigned k = 0; k < sys->threads; k++)
         assert_int_equal(pthread_create(&t[k], NULL, app_worker, &j), 0);
@@ -547,6 +552,18 @@ static void application_task_system(void **state)
     assert_same_build(s, &want, &want_info);
     assert_int_equal(atomic_load(&sys.calls), calls);
     rtk_scene_release(s);
+
+    /* A system that says 4 threads but runs the indices one after another
+     * on the caller's: the builder's tasks that wait for others' work (the
+     * SAH builder's queue) must not wait on a thread that never comes. */
+    app_tasks serial = {.threads = 0};
+    rtk_task_system one_by_one = {.struct_size = sizeof ts, .threads = 4, .user = &serial, .parallel_for = app_parallel_for};
+    assert_int_equal(rtk_device_set_task_system(dev, &one_by_one), RTK_OK);
+    s = test_scene(dev, sphere.v, sphere.nv, sphere.idx, sphere.nt);
+    assert_same_build(s, &want, &want_info);
+    assert_true(atomic_load(&serial.calls) > 0);
+    rtk_scene_release(s);
+    assert_int_equal(rtk_device_set_task_system(dev, NULL), RTK_OK);
 
     /* what is refused */
     rtk_task_system bad = ts;

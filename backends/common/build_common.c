@@ -201,6 +201,104 @@ void build_run_ordered(const build *bd, const uint64_t *order, uint32_t count, r
     run_parallel(bd, count, run_one_ordered, &o);
 }
 
+int build_queue_init(build_queue *q, build_queue_fn fn, void *data)
+{
+    *q = (build_queue){.fn = fn, .data = data};
+    if (pthread_mutex_init(&q->lock, NULL))
+        return 0;
+    if (pthread_cond_init(&q->idle, NULL)) {
+        pthread_mutex_destroy(&q->lock);
+        return 0;
+    }
+    return 1;
+}
+
+void build_queue_free(build_queue *q)
+{
+    pthread_cond_destroy(&q->idle);
+    pthread_mutex_destroy(&q->lock);
+    free(q->heap);
+    q->heap = NULL;
+}
+
+/* Under the lock: a max-heap on the keys. */
+static int queue_add(build_queue *q, uint64_t key, void *item)
+{
+    if (!build_grow((void **)&q->heap, &q->cap, q->count + 1, sizeof *q->heap)) {
+        q->oom = 1;
+        return 0;
+    }
+    uint32_t i = q->count++;
+    while (i && q->heap[(i - 1) / 2].key < key) {
+        q->heap[i] = q->heap[(i - 1) / 2];
+        i = (i - 1) / 2;
+    }
+    q->heap[i] = (build_task){key, item};
+    return 1;
+}
+
+static build_task queue_take(build_queue *q)
+{
+    const build_task top = q->heap[0], last = q->heap[--q->count];
+    uint32_t i = 0;
+    for (;;) {
+        uint32_t c = 2 * i + 1;
+        if (c >= q->count)
+            break;
+        if (c + 1 < q->count && q->heap[c + 1].key > q->heap[c].key)
+            c++;
+        if (q->heap[c].key <= last.key)
+            break;
+        q->heap[i] = q->heap[c];
+        i = c;
+    }
+    if (q->count)
+        q->heap[i] = last;
+    return top;
+}
+
+int build_queue_push(build_queue *q, uint64_t key, void *item)
+{
+    pthread_mutex_lock(&q->lock);
+    const int ok = queue_add(q, key, item);
+    if (ok)
+        pthread_cond_signal(&q->idle);
+    pthread_mutex_unlock(&q->lock);
+    return ok;
+}
+
+void *build_queue_pop_top(build_queue *q, uint64_t min)
+{
+    return q->count && q->heap[0].key >= min ? queue_take(q).item : NULL;
+}
+
+static void queue_worker(void *data, uint32_t worker)
+{
+    build_queue *q = data;
+    pthread_mutex_lock(&q->lock);
+    for (;;) {
+        if (q->count) {
+            const build_task t = queue_take(q);
+            q->running++;
+            pthread_mutex_unlock(&q->lock);
+            q->fn(q, t.key, t.item, worker);
+            pthread_mutex_lock(&q->lock);
+            if (!--q->running && !q->count)
+                pthread_cond_broadcast(&q->idle);
+            continue;
+        }
+        if (!q->running)
+            break;
+        pthread_cond_wait(&q->idle, &q->lock);
+    }
+    pthread_mutex_unlock(&q->lock);
+}
+
+void build_queue_run(const build *bd, build_queue *q)
+{
+    run_parallel(bd, build_threads(bd), queue_worker, q);
+}
+
 struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
 {
     const rtk_build_input *in = bd->in;

@@ -12,6 +12,7 @@
 #include <math.h>
 #include <string.h>
 #include <stddef.h>
+#include <pthread.h>
 #include <stdint.h>
 #include <stdlib.h>
 
@@ -198,6 +199,11 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_largest_first RTK_SYM(rtk_build_largest_first)
 #define build_run_ordered RTK_SYM(rtk_build_run_ordered)
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
+#define build_queue_init RTK_SYM(rtk_build_queue_init)
+#define build_queue_push RTK_SYM(rtk_build_queue_push)
+#define build_queue_pop_top RTK_SYM(rtk_build_queue_pop_top)
+#define build_queue_run RTK_SYM(rtk_build_queue_run)
+#define build_queue_free RTK_SYM(rtk_build_queue_free)
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
 #define build_node_sah RTK_SYM(rtk_build_node_sah)
@@ -343,6 +349,47 @@ RTK_HIDDEN void build_largest_first(uint64_t *order, uint32_t count);
 /* Runs fn(data, k) for every task k, in build_largest_first's order, on the
  * build's threads. */
 RTK_HIDDEN void build_run_ordered(const build *bd, const uint64_t *order, uint32_t count, rtk_task_fn fn, void *data);
+/* A queue of tasks that make more tasks (the SAH builder's top nodes make
+ * their children's), run on the build's threads: each thread takes the
+ * largest task left, and waits while the queue is empty but another still
+ * runs one that may add more.  A thread waits only on a task that is
+ * running, so a task system that runs the workers one after another (or
+ * fewer at once than it has threads) still gets through them all.  The
+ * order the tasks run in must change nothing in the result. */
+typedef struct build_task {
+    uint64_t key; /* larger first */
+    void *item;
+} build_task;
+typedef struct build_queue build_queue;
+/* Runs one task (its key and item as pushed); `worker` (below the build's
+ * thread count) tells the threads apart, for scratch memory of their own. */
+typedef void (*build_queue_fn)(build_queue *q, uint64_t key, void *item, uint32_t worker);
+struct build_queue {
+    pthread_mutex_t lock;
+    pthread_cond_t idle; /* a task was added, or the last running one ended */
+    build_task *heap;
+    uint32_t count, cap;
+    uint32_t running;
+    int oom; /* a push found no memory: the task was not added */
+    build_queue_fn fn;
+    void *data;
+};
+/* 0 when the lock or condition cannot be made. */
+RTK_HIDDEN int build_queue_init(build_queue *q, build_queue_fn fn, void *data);
+/* Adds a task; 0 (and q->oom set) when out of memory. */
+RTK_HIDDEN int build_queue_push(build_queue *q, uint64_t key, void *item);
+/* Before build_queue_run only (no lock taken): takes the largest task if
+ * its key is at least `min`; NULL otherwise. */
+RTK_HIDDEN void *build_queue_pop_top(build_queue *q, uint64_t min);
+/* Runs the tasks, and those they add, on the build's threads until none
+ * is left. */
+RTK_HIDDEN void build_queue_run(const build *bd, build_queue *q);
+RTK_HIDDEN void build_queue_free(build_queue *q);
+/* The threads a build runs on. */
+static inline uint32_t build_threads(const build *bd)
+{
+    return bd->tasks && bd->tasks->threads ? bd->tasks->threads : 1;
+}
 /* An accel with node and leaf arrays for exactly `nodes` and `blocks` (in
  * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
  * NULL when out of memory. */

@@ -11,17 +11,23 @@
  * up to four triangles always becomes a leaf.
  *
  * The three stages of the Embree paper, on in->tasks (rtk_task_system):
- *  1. Nodes over RTK_TOP_MIN or more triangles are built one at a time by
- *     all threads: the references are binned and partitioned in chunks.
- *  2. Every child under that size is a subtree task, built by one thread
- *     into arrays of its own (nodes with local references, leaves as
- *     ranges of references).
+ *  1. Nodes over RTK_TOP_MIN or more triangles (top nodes) are split with
+ *     the references binned and partitioned in chunks.  While fewer top
+ *     nodes are waiting than there are threads (the root, on two threads),
+ *     all threads run the chunks of one; the rest are tasks of a queue
+ *     (build_queue), each split by one thread, largest first.
+ *  2. Every child under that size is a subtree task in the same queue,
+ *     built by one thread into arrays of its own (nodes with local
+ *     references, leaves as ranges of references), while other threads
+ *     still split top nodes.
  *  3. Once the sizes are known, each subtree is copied to its place in the
- *     final arrays (the top nodes first, then the subtrees in order) and its
- *     leaf blocks written, again in parallel.
+ *     final arrays (the top nodes first, in the order of a depth-first walk,
+ *     then the subtrees in the order that walk meets them) and its leaf
+ *     blocks written, again in parallel.
  * The chunks, the stage a node falls in and the place of every subtree depend
  * on the triangle counts alone, and chunk results are combined in chunk
- * order, so the tree is the same, byte for byte, on any number of threads.
+ * order whichever threads ran them, so the tree is the same, byte for byte,
+ * on any number of threads.
  *
  * Past depth RTK_SAH_MEDIAN_DEPTH the builder falls back to median splits,
  * so no tree is deeper than RTK_BVH4_MAX_DEPTH whatever the input.
@@ -1504,44 +1510,179 @@ static void build_subtree(void *data, uint32_t i)
     pool_release(&p->pool); /* (its root's bins are the top's, which frees them) */
 }
 
-/* ---- stage 1: the top nodes, on every thread ---- */
+/* ---- stage 1: the top nodes, as tasks ---- */
+
+/* A top node: its references, and once split its children, each another
+ * top node or a subtree (kid[i], a tnode where bit i of tops is set, else
+ * a part). */
+typedef struct tnode {
+    range r;
+    uint32_t depth;
+    int nc;
+    unsigned tops;
+    range child[8];
+    int slot[8];
+    void *kid[8];
+    binpool pool; /* its ranges' bins (its subtrees' roots take some): freed after stage 2 */
+} tnode;
+
+/* A worker's scratch for stage 1's splits. */
+typedef struct scratch {
+    bins *bins;    /* 2 * RTK_CHUNKS_MAX of them */
+    sbins *sbins;  /* the same, for spatial splits */
+} scratch;
 
 typedef struct top {
     part nodes; /* the top nodes; EXT | k is subtree k */
     part *subtrees;
     uint32_t subtree_count, subtree_cap;
-    bins *scratch;   /* 2 * RTK_CHUNKS_MAX of them */
-    sbins *sscratch; /* the same, for spatial splits */
+    build serial;     /* the build, without its threads: a task's splits run on its own */
+    build_queue queue;
+    int queue_ready;
+    scratch *scratch; /* one per thread, and the main thread's (all threads) last */
 } top;
 
-static uint32_t add_subtree(top *t, const range *r, uint32_t depth)
+/* Bit 0 of a queued task's key: a top node (else a subtree). */
+static uint64_t task_key(const range *r, int is_top)
 {
-    if (t->nodes.oom || !build_grow((void **)&t->subtrees, &t->subtree_cap, t->subtree_count + 1, sizeof *t->subtrees)) {
+    return (uint64_t)(r->end - r->begin) << 1 | (uint64_t)is_top;
+}
+
+static int scratch_get(top *t, scratch *s)
+{
+    if (!s->bins)
+        s->bins = aligned_alloc(_Alignof(bins), 2 * RTK_CHUNKS_MAX * sizeof *s->bins);
+    if (t->nodes.bd->spatial && !s->sbins)
+        s->sbins = malloc(RTK_CHUNKS_MAX * sizeof *s->sbins);
+    return s->bins && (s->sbins || !t->nodes.bd->spatial);
+}
+
+/* Splits top node n into its children (on bd's threads) and queues them:
+ * each a top node of its own while it has RTK_TOP_MIN references or more,
+ * else a subtree task.  The chunks of a split, and so the split, are the
+ * same whichever threads run them. */
+static void top_split(top *t, const build *bd, scratch *s, tnode *n)
+{
+    build_queue *q = &t->queue;
+    if (!scratch_get(t, s)) {
+        pthread_mutex_lock(&q->lock);
+        q->oom = 1;
+        pthread_mutex_unlock(&q->lock);
+        return;
+    }
+    n->nc = split_children(bd, &n->pool, s->bins, s->sbins, &n->r, n->depth >= RTK_SAH_MEDIAN_DEPTH, NULL, 1, n->child);
+    for (int i = 0; i < 8; i++)
+        n->slot[i] = i;
+    child_slots(bd, n->child, n->nc, n->slot);
+    for (int i = 0; i < n->nc; i++) {
+        const int is_top = n->child[i].end - n->child[i].begin >= RTK_TOP_MIN;
+        void *kid;
+        if (is_top) {
+            tnode *k = calloc(1, sizeof *k);
+            if (k)
+                *k = (tnode){.r = n->child[i], .depth = n->depth + 1};
+            kid = k;
+        } else {
+            part *k = malloc(sizeof *k);
+            if (k)
+                *k = (part){.bd = t->nodes.bd, .r = n->child[i], .depth0 = n->depth + 1};
+            kid = k;
+        }
+        if (!kid || !build_queue_push(q, task_key(&n->child[i], is_top), kid)) {
+            free(kid);
+            pthread_mutex_lock(&q->lock);
+            q->oom = 1;
+            pthread_mutex_unlock(&q->lock);
+            continue;
+        }
+        n->kid[i] = kid;
+        n->tops |= (unsigned)is_top << i;
+    }
+}
+
+static void top_task(build_queue *q, uint64_t key, void *item, uint32_t worker)
+{
+    top *t = q->data;
+    if (key & 1)
+        top_split(t, &t->serial, &t->scratch[worker], item);
+    else
+        build_subtree(item, 0);
+}
+
+/* Subtree p (built) as the next of t's subtrees; frees p. */
+static uint32_t add_subtree(top *t, part *p)
+{
+    if (!p || t->nodes.oom ||
+        !build_grow((void **)&t->subtrees, &t->subtree_cap, t->subtree_count + 1, sizeof *t->subtrees)) {
         t->nodes.oom = 1;
+        if (p)
+            part_free(p);
+        free(p);
         return EXT;
     }
-    t->subtrees[t->subtree_count] = (part){.bd = t->nodes.bd, .r = *r, .depth0 = depth};
+    t->subtrees[t->subtree_count] = *p;
+    free(p);
     return EXT | t->subtree_count++;
 }
 
-static uint32_t top_node(top *t, const range *r, uint32_t depth)
+/* The top nodes in the order of a depth-first walk (a node before its
+ * children, in split order), and the subtrees in the order it meets them:
+ * the order of one thread splitting them one after another.  Frees the
+ * tnodes. */
+static uint32_t top_place(top *t, tnode *n)
 {
     part *p = &t->nodes;
-    if (depth > p->depth)
-        p->depth = depth;
-    range child[8];
-    const int nc =
-        split_children(p->bd, &p->pool, t->scratch, t->sscratch, r, depth >= RTK_SAH_MEDIAN_DEPTH, NULL, 1, child);
+    if (n->depth > p->depth)
+        p->depth = n->depth;
     const uint32_t index = part_node(p);
-    int slot[8] = {0, 1, 2, 3, 4, 5, 6, 7};
-    child_slots(p->bd, child, nc, slot);
-    write_node(p, index, child, nc, slot);
-    for (int i = 0; i < nc; i++) {
-        const uint32_t ref = child[i].end - child[i].begin >= RTK_TOP_MIN ? top_node(t, &child[i], depth + 1)
-                                                                           : add_subtree(t, &child[i], depth + 1);
-        set_child(p, index, slot[i], ref);
+    write_node(p, index, n->child, n->nc, n->slot);
+    for (int i = 0; i < n->nc; i++) {
+        const uint32_t ref = (n->tops >> i & 1) ? top_place(t, n->kid[i]) : add_subtree(t, n->kid[i]);
+        set_child(p, index, n->slot[i], ref);
     }
+    pool_release(&n->pool);
+    free(n);
     return index;
+}
+
+/* Stages 1 and 2 of the tree over root: the top nodes split with every
+ * thread while fewer of them are left than threads (the root, on two
+ * threads), then the rest as tasks, each on one thread, beside the
+ * subtrees as they come.  Returns the root's part-local reference. */
+static uint32_t top_build(top *t, const build *bd, const range *root)
+{
+    const uint32_t threads = build_threads(bd);
+    const int is_top = root->end - root->begin >= RTK_TOP_MIN;
+    void *item;
+    if (is_top) {
+        tnode *n = calloc(1, sizeof *n);
+        if (n)
+            *n = (tnode){.r = *root, .depth = 1};
+        item = n;
+    } else {
+        part *p = malloc(sizeof *p);
+        if (p)
+            *p = (part){.bd = bd, .r = *root, .depth0 = 1};
+        item = p;
+    }
+    if (!item || !build_queue_push(&t->queue, task_key(root, is_top), item)) {
+        free(item);
+        t->nodes.oom = 1;
+        return EXT;
+    }
+    for (;;) {
+        uint32_t tops = 0;
+        for (uint32_t i = 0; i < t->queue.count; i++)
+            tops += (uint32_t)(t->queue.heap[i].key & 1);
+        if (!tops || tops >= threads)
+            break;
+        /* the largest task is a top node: those have RTK_TOP_MIN references or more, subtrees fewer */
+        top_split(t, bd, &t->scratch[threads], build_queue_pop_top(&t->queue, 1));
+    }
+    build_queue_run(bd, &t->queue);
+    if (t->queue.oom)
+        t->nodes.oom = 1;
+    return is_top ? top_place(t, item) : add_subtree(t, item);
 }
 
 /* ---- stage 3: the final arrays ---- */
@@ -1778,8 +1919,14 @@ static void free_parts(top *t)
     for (uint32_t i = 0; i < t->subtree_count; i++)
         part_free(&t->subtrees[i]);
     free(t->subtrees);
+    if (t->scratch)
+        for (uint32_t i = 0; i <= build_threads(t->nodes.bd); i++) {
+            free(t->scratch[i].bins);
+            free(t->scratch[i].sbins);
+        }
     free(t->scratch);
-    free(t->sscratch);
+    if (t->queue_ready)
+        build_queue_free(&t->queue);
 }
 
 static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spatial)
@@ -1806,11 +1953,10 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     g.degenerate = malloc(nc * sizeof *g.degenerate);
     g.bounds = malloc(nc * sizeof *g.bounds);
     refpages pages = {0};
-    top t = {.nodes = {.bd = &bd}, .scratch = aligned_alloc(_Alignof(bins), 2 * RTK_CHUNKS_MAX * sizeof *t.scratch)};
-    if (bd.spatial)
-        t.sscratch = malloc(RTK_CHUNKS_MAX * sizeof *t.sscratch);
+    top t = {.nodes = {.bd = &bd}, .scratch = calloc(build_threads(&bd) + 1, sizeof *t.scratch)};
+    t.queue_ready = build_queue_init(&t.queue, top_task, &t);
     if (!bd.refs || !geom_first || !g.kept || !g.skipped || !g.degenerate || !g.bounds || !t.scratch ||
-        (bd.spatial && !t.sscratch)) {
+        !t.queue_ready) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the build's primitive references");
         goto done;
@@ -1837,23 +1983,17 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     root.ext = n + (uint32_t)(room * n / (total ? total : 1));
     bd.spatial_overlap = RTK_SPATIAL_ALPHA * box_half_area(&root.geom);
 
-    /* Stage 1, then the subtrees (largest first, for the balance). */
+    /* Stages 1 and 2. */
     uint32_t root_local = RTK_BVH4_EMPTY;
-    if (n >= RTK_TOP_MIN)
-        root_local = top_node(&t, &root, 1);
-    else if (n)
-        root_local = add_subtree(&t, &root, 1);
-    uint64_t *order = malloc((t.subtree_count ? t.subtree_count : 1) * sizeof *order);
-    if (!order || t.nodes.oom) {
-        free(order);
+    t.serial = bd;
+    t.serial.tasks = NULL;
+    if (n)
+        root_local = top_build(&t, &bd, &root);
+    if (t.nodes.oom) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the BVH");
         goto done;
     }
-    for (uint32_t i = 0; i < t.subtree_count; i++)
-        order[i] = t.subtrees[i].r.end - t.subtrees[i].r.begin;
-    build_largest_first(order, t.subtree_count);
-    build_run_ordered(&bd, order, t.subtree_count, build_subtree, t.subtrees);
 
     /* Places: the top nodes, then the subtrees in the order stage 1 found them. */
     uint64_t nodes = t.nodes.node_count, blocks = 0, refs = 0;
@@ -1871,14 +2011,12 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     }
     struct rtk_accel *accel = oom ? NULL : build_accel_alloc(&bd, nodes, blocks);
     if (!accel) {
-        free(order);
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the BVH");
         goto done;
     }
     count_page_users(&t, &pages, ref_bytes);
     run_parallel(&bd, t.subtree_count, place_and_release, t.subtrees);
-    free(order);
     uint32_t *roots = malloc((t.subtree_count ? t.subtree_count : 1) * sizeof *roots);
     if (!roots) {
         RTK_SYM(rtk_bvh4_release)(accel);
