@@ -59,6 +59,13 @@ static void test_compare_select_mask(void **state)
     assert_int_equal(vb4_mask(vf4_ge(a, b)), 0xa);
     assert_int_equal(vb4_mask(vf4_eq(a, b)), 0x2);
     assert_int_equal(vb4_mask(vb4_from_bits(0x5)), 0x5);
+    for (int m = 0; m < 16; m++) { /* every pattern, each lane all ones (the and keeps all of -1.5) or zeros */
+        float kept[4];
+        assert_int_equal(vb4_mask(vb4_from_bits(m)), m);
+        get4(vf4_keep(vb4_from_bits(m), vf4_set1(-1.5f)), kept);
+        for (int k = 0; k < 4; k++)
+            assert_true(kept[k] == ((m >> k & 1) ? -1.5f : 0.0f));
+    }
     assert_int_equal(vb4_mask(vb4_andnot(vb4_from_bits(0x7), vb4_from_bits(0x2))), 0x5);
     assert_int_equal(vb4_mask(vb4_or(vb4_from_bits(0x1), vb4_from_bits(0x8))), 0x9);
     float r[4];
@@ -181,6 +188,41 @@ static void test_reduce(void **state)
         assert_true(vf8_reduce_min(vf8_load(x)) == (i == 0 ? -3.0f : -4.0f));
     }
 #endif
+    /* several reductions at once: lane j that of argument j, each with its
+     * extreme in another lane, infinities as the packets' inactive lanes */
+    {
+        float r[4];
+        get4(vf4_reduce4_min(vf4_set(5.0f, 1.0f, 2.0f, 3.0f), vf4_set(4.0f, 6.0f, -2.0f, INFINITY),
+                             vf4_set(INFINITY, INFINITY, INFINITY, 7.0f), vf4_set(-1.0f, 0.0f, 0.0f, 0.0f)),
+             r);
+        assert_true(r[0] == 1.0f && r[1] == -2.0f && r[2] == 7.0f && r[3] == -1.0f);
+        get4(vf4_reduce4_max(vf4_set(5.0f, 1.0f, 2.0f, 3.0f), vf4_set(4.0f, 6.0f, -2.0f, -INFINITY),
+                             vf4_set(-INFINITY, -INFINITY, -INFINITY, 7.0f), vf4_set(-1.0f, 0.0f, 0.0f, 9.0f)),
+             r);
+        assert_true(r[0] == 5.0f && r[1] == 6.0f && r[2] == 7.0f && r[3] == 9.0f);
+    }
+#if RTK_SIMD_HAS_8
+    {
+        /* vector j holds j + 1 in every lane but lane (3 * j + 1) % 8, which
+         * holds -(j + 1) for the minimum and 100 + j for the maximum */
+        _Alignas(32) float x[8], r[8];
+        vfloat8 lo[8], hi[8];
+        for (int j = 0; j < 8; j++) {
+            for (int k = 0; k < 8; k++)
+                x[k] = (float)(j + 1);
+            x[(3 * j + 1) % 8] = -(float)(j + 1);
+            lo[j] = vf8_load(x);
+            x[(3 * j + 1) % 8] = 100.0f + (float)j;
+            hi[j] = vf8_load(x);
+        }
+        vf8_store(r, vf8_reduce8_min(lo));
+        for (int j = 0; j < 8; j++)
+            assert_true(r[j] == -(float)(j + 1));
+        vf8_store(r, vf8_reduce8_max(hi));
+        for (int j = 0; j < 8; j++)
+            assert_true(r[j] == 100.0f + (float)j);
+    }
+#endif
 }
 
 #if RTK_SIMD_HAS_8
@@ -209,6 +251,11 @@ static void test_width8(void **state)
         }
         const vbool8 sel = vf8_gt(vf8_load(x), vf8_load(lim));
         assert_int_equal(vb8_mask(sel), m);
+        assert_int_equal(vb8_mask(vb8_from_bits(m)), m);
+        /* all ones where set: a select through it takes whole lanes */
+        vf8_store(r, vf8_select(vb8_from_bits(m), vf8_set1(NAN), vf8_load(y)));
+        for (int k = 0; k < 8; k++)
+            assert_true((m >> k & 1) ? isnan(r[k]) : r[k] == y[k]);
         vf8_store(r, vf8_select(sel, vf8_load(x), vf8_load(y)));
         for (int k = 0; k < 8; k++)
             assert_true(r[k] == ((m >> k & 1) ? x[k] : y[k]));

@@ -159,32 +159,59 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
         p->of[k] = n ? p->org_lo[k] : p->org_hi[k];
 #endif
     }
+    /* The bounds are lane reductions, done several at a time (lane j of a
+     * batch's result: the reduction of its j-th vector): least, the exact
+     * reciprocals, then per axis the c (or origin) whose least value counts,
+     * then tnear; greatest, the exact reciprocals, then the other c. */
+    vk mn[8], mx[8];
+    for (int k = 0; k < 3; k++) {
+        mn[k] = VK(select)(active, p->rinv_exact[k], pinf);
+        mx[k] = VK(select)(active, p->rinv_exact[k], ninf);
+#if RTK_SIMD_HAS_FMA
+        /* near = plane * rn - cn: least with the greatest cn; far the other way */
+        mn[3 + k] = VK(select)(active, p->cf[k], pinf);
+        mx[3 + k] = VK(select)(active, p->cn[k], ninf);
+#else
+        /* near = (plane - org) * rn: least with the origin farthest along
+         * the direction (the greatest where it is positive); far the other
+         * way */
+        const int n = p->near_off[k] == upper[k];
+        mn[3 + k] = VK(select)(active, n ? p->on[k] : p->of[k], pinf);
+        mx[3 + k] = VK(select)(active, n ? p->of[k] : p->on[k], ninf);
+#endif
+    }
+    mn[6] = p->tnear; /* +inf in the inactive lanes */
+    mn[7] = pinf;
+    mx[6] = mx[7] = ninf;
+    _Alignas(64) float lo[8], hi[8];
+#if RTK_PACKET == 8
+    VK(store)(lo, vf8_reduce8_min(mn));
+    VK(store)(hi, vf8_reduce8_max(mx));
+#else
+    for (int b = 0; b < 8; b += 4) {
+        VK(store)(lo + b, vf4_reduce4_min(mn[b], mn[b + 1], mn[b + 2], mn[b + 3]));
+        VK(store)(hi + b, vf4_reduce4_max(mx[b], mx[b + 1], mx[b + 2], mx[b + 3]));
+    }
+#endif
     for (int k = 0; k < 3; k++) {
         /* rn and rf are the exact reciprocal times the near and the far
          * scale (positive constants) in every active lane, whatever its
          * sign, and rounding is monotone: their extremes are the exact
-         * reciprocal's times the scales, two reductions instead of four */
-        const float inv_min = VK(reduce_min)(VK(select)(active, p->rinv_exact[k], pinf));
-        const float inv_max = VK(reduce_max)(VK(select)(active, p->rinv_exact[k], ninf));
-        p->fr_rn_min[k] = vn_set1(inv_min * PK_NEAR_SCALE);
-        p->fr_rn_max[k] = vn_set1(inv_max * PK_NEAR_SCALE);
-        p->fr_rf_min[k] = vn_set1(inv_min * PK_FAR_SCALE);
-        p->fr_rf_max[k] = vn_set1(inv_max * PK_FAR_SCALE);
+         * reciprocal's times the scales */
+        p->fr_rn_min[k] = vn_set1(lo[k] * PK_NEAR_SCALE);
+        p->fr_rn_max[k] = vn_set1(hi[k] * PK_NEAR_SCALE);
+        p->fr_rf_min[k] = vn_set1(lo[k] * PK_FAR_SCALE);
+        p->fr_rf_max[k] = vn_set1(hi[k] * PK_FAR_SCALE);
 #if RTK_SIMD_HAS_FMA
-        /* near = plane * rn - cn: least with the greatest cn; far the other way */
-        p->fr_cn_max[k] = vn_set1(VK(reduce_max)(VK(select)(active, p->cn[k], ninf)));
-        p->fr_cf_min[k] = vn_set1(VK(reduce_min)(VK(select)(active, p->cf[k], pinf)));
+        p->fr_cn_max[k] = vn_set1(hi[3 + k]);
+        p->fr_cf_min[k] = vn_set1(lo[3 + k]);
 #else
-        /* near = (plane - org) * rn: least with the origin farthest along the
-         * direction (the greatest where it is positive); far the other way */
         const int n = p->near_off[k] == upper[k];
-        p->fr_on[k] = vn_set1(n ? VK(reduce_min)(VK(select)(active, p->on[k], pinf))
-                                : VK(reduce_max)(VK(select)(active, p->on[k], ninf)));
-        p->fr_of[k] = vn_set1(n ? VK(reduce_max)(VK(select)(active, p->of[k], ninf))
-                                : VK(reduce_min)(VK(select)(active, p->of[k], pinf)));
+        p->fr_on[k] = vn_set1(n ? lo[3 + k] : hi[3 + k]);
+        p->fr_of[k] = vn_set1(n ? hi[3 + k] : lo[3 + k]);
 #endif
     }
-    p->fr_tnear = vn_set1(VK(reduce_min)(p->tnear)); /* +inf in the inactive lanes */
+    p->fr_tnear = vn_set1(lo[6]);
     p->frustum = 1;
 }
 
@@ -512,10 +539,7 @@ static __attribute__((noinline)) unsigned PK_(accept)(const rtk_accel *accel, co
 
 static inline vkb PK_(lanes_mask)(unsigned bits)
 {
-    _Alignas(64) int32_t m[RTK_PACKET];
-    for (int i = 0; i < RTK_PACKET; i++)
-        m[i] = bits >> i & 1 ? -1 : 0;
-    return VKB(load)(m);
+    return VKB(from_bits)((int)bits);
 }
 
 /* What a packet query found, per ray: the distance (tfar), and for the

@@ -108,6 +108,18 @@ RTK_INLINE void vf4_transpose(vfloat4 *a, vfloat4 *b, vfloat4 *c, vfloat4 *d)
 {
     _MM_TRANSPOSE4_PS(*a, *b, *c, *d);
 }
+/* Four reductions at once: lane i the least (greatest) lane of the i-th
+ * argument. */
+RTK_INLINE vfloat4 vf4_reduce4_min(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
+{
+    vf4_transpose(&a, &b, &c, &d);
+    return vf4_min(vf4_min(a, b), vf4_min(c, d));
+}
+RTK_INLINE vfloat4 vf4_reduce4_max(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
+{
+    vf4_transpose(&a, &b, &c, &d);
+    return vf4_max(vf4_max(a, b), vf4_max(c, d));
+}
 
 /* ---- vint4 ------------------------------------------------------------ */
 RTK_INLINE vint4 vi4_load(const int32_t *p) { return _mm_load_si128((const __m128i *)p); }
@@ -136,9 +148,10 @@ RTK_INLINE vbool4 vb4_and(vbool4 a, vbool4 b) { return _mm_and_ps(a, b); }
 RTK_INLINE vbool4 vb4_or(vbool4 a, vbool4 b) { return _mm_or_ps(a, b); }
 RTK_INLINE vbool4 vb4_andnot(vbool4 a, vbool4 b) { return _mm_andnot_ps(b, a); } /* a & ~b */
 /* lanes set where bit i of the constant mask is set */
-RTK_INLINE vbool4 vb4_from_bits(int m)
+RTK_INLINE vbool4 vb4_from_bits(int m) /* lane i all ones where bit i of m is set */
 {
-    return _mm_castsi128_ps(_mm_setr_epi32(-(m & 1), -((m >> 1) & 1), -((m >> 2) & 1), -((m >> 3) & 1)));
+    const __m128i bit = _mm_setr_epi32(1, 2, 4, 8);
+    return _mm_castsi128_ps(_mm_cmpeq_epi32(_mm_and_si128(_mm_set1_epi32(m), bit), bit));
 }
 RTK_INLINE int vb4_mask(vbool4 a) { return _mm_movemask_ps(a); }            /* bit i = lane i */
 /* four int32 lanes (16-byte aligned), each 0 or -1, as a mask */

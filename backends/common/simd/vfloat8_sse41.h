@@ -49,5 +49,21 @@ RTK_INLINE float vf8_reduce_min(vfloat8 a) { return vf4_reduce_min(vf4_min(a.lo,
 RTK_INLINE float vf8_reduce_max(vfloat8 a) { return vf4_reduce_max(vf4_max(a.lo, a.hi)); }
 RTK_INLINE int vb8_mask(vbool8 a) { return vb4_mask(a.lo) | vb4_mask(a.hi) << 4; } /* bit i = lane i */
 RTK_INLINE vbool8 vb8_load(const int32_t *p) { return (vbool8){vb4_load(p), vb4_load(p + 4)}; }
+/* Eight reductions at once: lane i the least (greatest) lane of v[i]. */
+RTK_INLINE vfloat8 vf8_reduce8_min(const vfloat8 *v)
+{
+    vfloat4 h[8];
+    for (int i = 0; i < 8; i++)
+        h[i] = vf4_min(v[i].lo, v[i].hi);
+    return (vfloat8){vf4_reduce4_min(h[0], h[1], h[2], h[3]), vf4_reduce4_min(h[4], h[5], h[6], h[7])};
+}
+RTK_INLINE vfloat8 vf8_reduce8_max(const vfloat8 *v)
+{
+    vfloat4 h[8];
+    for (int i = 0; i < 8; i++)
+        h[i] = vf4_max(v[i].lo, v[i].hi);
+    return (vfloat8){vf4_reduce4_max(h[0], h[1], h[2], h[3]), vf4_reduce4_max(h[4], h[5], h[6], h[7])};
+}
+RTK_INLINE vbool8 vb8_from_bits(int m) { return (vbool8){vb4_from_bits(m & 15), vb4_from_bits(m >> 4 & 15)}; } /* lane i: bit i */
 
 #endif
