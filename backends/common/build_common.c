@@ -27,17 +27,49 @@ __attribute__((noinline)) double build_node_sah(const build *bd, uint64_t index)
     return sah;
 }
 
-/* The SAH cost of the final tree, summed in node order, so a tree and its
- * export imported again get the same figure to the bit: the root's box
- * (an inner node or a leaf of some blocks), then every node's terms
- * (build_node_sah, or bd->node_sah where a refit kept them). */
+/* The SAH cost of the final tree: the root's box (an inner node or a leaf
+ * of some blocks), then every node's terms (build_node_sah, or
+ * bd->node_sah where a refit kept them), summed in node order in chunks of
+ * RTK_SAH_CHUNK nodes on the build's threads, the chunks' sums added in
+ * order.  The chunks depend on the node count alone, so a tree gets the
+ * same figure to the bit on any number of threads, and so does its export
+ * imported again.  (One thread summing a 10M-triangle tree took 15 ms.) */
+#define RTK_SAH_CHUNK 16384u
+
+typedef struct sah_sum {
+    const build *bd;
+    uint64_t node_count;
+    double *chunk;
+} sah_sum;
+
+static double sah_chunk_sum(const build *bd, uint64_t node_count, uint32_t k)
+{
+    const uint64_t begin = (uint64_t)k * RTK_SAH_CHUNK;
+    const uint64_t end = begin + RTK_SAH_CHUNK < node_count ? begin + RTK_SAH_CHUNK : node_count;
+    double sum = 0.0;
+    for (uint64_t i = begin; i < end; i++)
+        sum += bd->node_sah ? bd->node_sah[i] : build_node_sah(bd, i);
+    return sum;
+}
+
+static void sah_chunk_task(void *data, uint32_t k)
+{
+    sah_sum *s = data;
+    s->chunk[k] = sah_chunk_sum(s->bd, s->node_count, k);
+}
+
 static double tree_sah(const build *bd, uint64_t node_count, uint32_t root, const box4 *bounds)
 {
     if (root == RTK_BVH4_EMPTY)
         return 0.0;
     double sah = (double)box_half_area(bounds) * (root & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(root) : 1);
-    for (uint64_t i = 0; i < node_count; i++)
-        sah += bd->node_sah ? bd->node_sah[i] : build_node_sah(bd, i);
+    const uint32_t chunks = (uint32_t)((node_count + RTK_SAH_CHUNK - 1) / RTK_SAH_CHUNK);
+    sah_sum s = {bd, node_count, chunks > 1 ? malloc(chunks * sizeof *s.chunk) : NULL};
+    if (s.chunk)
+        run_parallel(bd, chunks, sah_chunk_task, &s);
+    for (uint32_t k = 0; k < chunks; k++) /* without the array (one chunk, or no memory): the same sums here */
+        sah += s.chunk ? s.chunk[k] : sah_chunk_sum(bd, node_count, k);
+    free(s.chunk);
     return sah;
 }
 
