@@ -1557,6 +1557,22 @@ static int scratch_get(top *t, scratch *s)
     return s->bins && (s->sbins || !t->nodes.bd->spatial);
 }
 
+/* A task over r at `depth`: a top node to split, or a subtree to build;
+ * NULL when out of memory. */
+static void *new_task(const build *bd, const range *r, uint32_t depth, int is_top)
+{
+    if (is_top) {
+        tnode *n = malloc(sizeof *n);
+        if (n)
+            *n = (tnode){.r = *r, .depth = depth};
+        return n;
+    }
+    part *p = malloc(sizeof *p);
+    if (p)
+        *p = (part){.bd = bd, .r = *r, .depth0 = depth};
+    return p;
+}
+
 /* Splits top node n into its children (on bd's threads) and queues them:
  * each a top node of its own while it has RTK_TOP_MIN references or more,
  * else a subtree task.  The chunks of a split, and so the split, are the
@@ -1576,18 +1592,7 @@ static void top_split(top *t, const build *bd, scratch *s, tnode *n)
     child_slots(bd, n->child, n->nc, n->slot);
     for (int i = 0; i < n->nc; i++) {
         const int is_top = n->child[i].end - n->child[i].begin >= RTK_TOP_MIN;
-        void *kid;
-        if (is_top) {
-            tnode *k = calloc(1, sizeof *k);
-            if (k)
-                *k = (tnode){.r = n->child[i], .depth = n->depth + 1};
-            kid = k;
-        } else {
-            part *k = malloc(sizeof *k);
-            if (k)
-                *k = (part){.bd = t->nodes.bd, .r = n->child[i], .depth0 = n->depth + 1};
-            kid = k;
-        }
+        void *kid = new_task(t->nodes.bd, &n->child[i], n->depth + 1, is_top);
         if (!kid || !build_queue_push(q, task_key(&n->child[i], is_top), kid)) {
             free(kid);
             pthread_mutex_lock(&q->lock);
@@ -1653,18 +1658,7 @@ static uint32_t top_build(top *t, const build *bd, const range *root)
 {
     const uint32_t threads = build_threads(bd);
     const int is_top = root->end - root->begin >= RTK_TOP_MIN;
-    void *item;
-    if (is_top) {
-        tnode *n = calloc(1, sizeof *n);
-        if (n)
-            *n = (tnode){.r = *root, .depth = 1};
-        item = n;
-    } else {
-        part *p = malloc(sizeof *p);
-        if (p)
-            *p = (part){.bd = bd, .r = *root, .depth0 = 1};
-        item = p;
-    }
+    void *item = new_task(bd, root, 1, is_top);
     if (!item || !build_queue_push(&t->queue, task_key(root, is_top), item)) {
         free(item);
         t->nodes.oom = 1;

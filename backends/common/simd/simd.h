@@ -61,6 +61,7 @@
 #if defined(__SSE4_1__)
 #define RTK_SIMD_ISA "sse4.1"
 #include "vfloat4_sse41.h"
+#include "vfloat4_common.h"
 #define RTK_SIMD_INT_ORDER_4 1
 #define RTK_SIMD_HAS_8 1
 #if defined(__AVX__)
@@ -74,6 +75,7 @@
 #else
 #define RTK_SIMD_ISA "scalar"
 #include "vfloat4_scalar.h"
+#include "vfloat4_common.h"
 #endif
 #ifndef RTK_SIMD_INT_ORDER_4
 #define RTK_SIMD_INT_ORDER_4 0

@@ -98,18 +98,6 @@ RTK_INLINE void vf4_transpose(vfloat4 *a, vfloat4 *b, vfloat4 *c, vfloat4 *d)
     *c = (vfloat4){{r0.f[2], r1.f[2], r2.f[2], r3.f[2]}};
     *d = (vfloat4){{r0.f[3], r1.f[3], r2.f[3], r3.f[3]}};
 }
-/* Four reductions at once: lane i the least (greatest) lane of the i-th
- * argument. */
-RTK_INLINE vfloat4 vf4_reduce4_min(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
-{
-    vf4_transpose(&a, &b, &c, &d);
-    return vf4_min(vf4_min(a, b), vf4_min(c, d));
-}
-RTK_INLINE vfloat4 vf4_reduce4_max(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
-{
-    vf4_transpose(&a, &b, &c, &d);
-    return vf4_max(vf4_max(a, b), vf4_max(c, d));
-}
 
 /* ---- vint4 ------------------------------------------------------------ */
 RTK_INLINE vint4 vi4_load(const int32_t *p) { vint4 r; memcpy(r.i, p, sizeof r); return r; }

@@ -108,18 +108,6 @@ RTK_INLINE void vf4_transpose(vfloat4 *a, vfloat4 *b, vfloat4 *c, vfloat4 *d)
 {
     _MM_TRANSPOSE4_PS(*a, *b, *c, *d);
 }
-/* Four reductions at once: lane i the least (greatest) lane of the i-th
- * argument. */
-RTK_INLINE vfloat4 vf4_reduce4_min(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
-{
-    vf4_transpose(&a, &b, &c, &d);
-    return vf4_min(vf4_min(a, b), vf4_min(c, d));
-}
-RTK_INLINE vfloat4 vf4_reduce4_max(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
-{
-    vf4_transpose(&a, &b, &c, &d);
-    return vf4_max(vf4_max(a, b), vf4_max(c, d));
-}
 
 /* ---- vint4 ------------------------------------------------------------ */
 RTK_INLINE vint4 vi4_load(const int32_t *p) { return _mm_load_si128((const __m128i *)p); }

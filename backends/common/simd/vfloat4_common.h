@@ -1,0 +1,19 @@
+/* 4-wide operations written once over the others, for every vfloat4
+ * implementation (included by simd.h after it). */
+#ifndef RTK_VFLOAT4_COMMON_H
+#define RTK_VFLOAT4_COMMON_H
+
+/* Four reductions at once: lane i the least (greatest) lane of the i-th
+ * argument. */
+RTK_INLINE vfloat4 vf4_reduce4_min(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
+{
+    vf4_transpose(&a, &b, &c, &d);
+    return vf4_min(vf4_min(a, b), vf4_min(c, d));
+}
+RTK_INLINE vfloat4 vf4_reduce4_max(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
+{
+    vf4_transpose(&a, &b, &c, &d);
+    return vf4_max(vf4_max(a, b), vf4_max(c, d));
+}
+
+#endif
