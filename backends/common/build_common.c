@@ -299,6 +299,13 @@ int build_queue_push(build_queue *q, uint64_t key, void *item)
     return ok;
 }
 
+void build_queue_fail(build_queue *q)
+{
+    pthread_mutex_lock(&q->lock);
+    q->oom = 1;
+    pthread_mutex_unlock(&q->lock);
+}
+
 void *build_queue_pop_top(build_queue *q, uint64_t min)
 {
     return q->count && q->heap[0].key >= min ? queue_take(q).item : NULL;

@@ -201,6 +201,7 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
 #define build_queue_init RTK_SYM(rtk_build_queue_init)
 #define build_queue_push RTK_SYM(rtk_build_queue_push)
+#define build_queue_fail RTK_SYM(rtk_build_queue_fail)
 #define build_queue_pop_top RTK_SYM(rtk_build_queue_pop_top)
 #define build_queue_run RTK_SYM(rtk_build_queue_run)
 #define build_queue_free RTK_SYM(rtk_build_queue_free)
@@ -378,6 +379,8 @@ struct build_queue {
 RTK_HIDDEN int build_queue_init(build_queue *q, build_queue_fn fn, void *data);
 /* Adds a task; 0 (and q->oom set) when out of memory. */
 RTK_HIDDEN int build_queue_push(build_queue *q, uint64_t key, void *item);
+/* Marks q out of memory from inside a task (one it could not make). */
+RTK_HIDDEN void build_queue_fail(build_queue *q);
 /* Before build_queue_run only (no lock taken): takes the largest task if
  * its key is at least `min`; NULL otherwise. */
 RTK_HIDDEN void *build_queue_pop_top(build_queue *q, uint64_t min);

@@ -1581,9 +1581,7 @@ static void top_split(top *t, const build *bd, scratch *s, tnode *n)
 {
     build_queue *q = &t->queue;
     if (!scratch_get(t, s)) {
-        pthread_mutex_lock(&q->lock);
-        q->oom = 1;
-        pthread_mutex_unlock(&q->lock);
+        build_queue_fail(q);
         return;
     }
     n->nc = split_children(bd, &n->pool, s->bins, s->sbins, &n->r, n->depth >= RTK_SAH_MEDIAN_DEPTH, NULL, 1, n->child);
@@ -1593,11 +1591,12 @@ static void top_split(top *t, const build *bd, scratch *s, tnode *n)
     for (int i = 0; i < n->nc; i++) {
         const int is_top = n->child[i].end - n->child[i].begin >= RTK_TOP_MIN;
         void *kid = new_task(t->nodes.bd, &n->child[i], n->depth + 1, is_top);
-        if (!kid || !build_queue_push(q, task_key(&n->child[i], is_top), kid)) {
+        if (!kid) {
+            build_queue_fail(q);
+            continue;
+        }
+        if (!build_queue_push(q, task_key(&n->child[i], is_top), kid)) { /* (which marks q out of memory) */
             free(kid);
-            pthread_mutex_lock(&q->lock);
-            q->oom = 1;
-            pthread_mutex_unlock(&q->lock);
             continue;
         }
         n->kid[i] = kid;
