@@ -780,6 +780,17 @@ static void scene_drop_accel(rtk_scene s)
     s->occluded1 = NULL;
 }
 
+/* The scene's tree when it is one tree of triangles that nothing else
+ * holds (no scene instances it, no top level has it): a build may take its
+ * memory for the scene's next tree (rtk_build_input.recycle); else NULL. */
+static rtk_accel *recyclable(rtk_scene s)
+{
+    accel_ref *r = s->ref;
+    if (!r || !r->accel || r->children || r->user_prims || r->depth || atomic_load(&r->refs) != 1)
+        return NULL;
+    return r->accel;
+}
+
 /* Whether `target` is `from` or is placed, through instances attached to
  * it, by `from` (the scenes' current attachments, not their trees).  1 also
  * when out of memory (a caller then refuses). */
@@ -1263,8 +1274,8 @@ static const rtk_builder_entry *pick_builder(const rtk_backend_desc *bk, const r
  * with the builder and layout the scene calls for: *ref_out, with the
  * build's output, the builder's name and the time taken. */
 static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms, size_t n, rtk_build_quality quality,
-                                 const rtk_bvh *tree, const char *fn, accel_ref **ref_out, rtk_build_output *out_io,
-                                 const char **builder_name, double *seconds)
+                                 const rtk_bvh *tree, rtk_accel *recycle, const char *fn, accel_ref **ref_out,
+                                 rtk_build_output *out_io, const char **builder_name, double *seconds)
 {
     rtk_device dev = s->device;
     const rtk_backend_desc *bk = dev->backend;
@@ -1315,6 +1326,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
 
     rtk_task_system task_copy;
     rtk_build_input in = build_input(quality, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
+    in.recycle = tree ? NULL : recycle;
     /* masks, filters and quads: passed only when some geometry has one, so
      * a scene without any builds a tree whose kernels test nothing more */
     rtk_geometry_attrs *attrs = NULL;
@@ -1385,6 +1397,11 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     double t1 = now_seconds();
     free(time_vertices);
     free(attrs);
+    if (rc != 0 && out.recycled) {
+        /* the failed build wrote into the scene's tree: it is gone */
+        scene_drop_accel(s);
+        rtk_log(dev, 1, "scene: the failed build took the memory of the scene's previous tree; the scene has none now");
+    }
     if (rc != 0)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
@@ -1680,7 +1697,8 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
             /* (indices were checked in range when the tree is not kept) */
             const char *name;
             double t = 0.0;
-            err = build_triangles(s, &geoms[k], 1, tree_quality(g), NULL, fn, &nd[i].ref, &nd[i].out, &name, &t);
+            err = build_triangles(s, &geoms[k], 1, tree_quality(g), NULL, NULL, fn, &nd[i].ref, &nd[i].out, &name,
+                                  &t);
             nd[i].b = now;
             built++;
             seconds += t;
@@ -1867,8 +1885,11 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
             end++;
         double t = 0.0;
         own_out[own_count] = (rtk_build_output){.struct_size = sizeof own_out[0]};
-        err = build_triangles(s, in_geoms + k, end - k, s->quality, tree, fn, &own[own_count], &own_out[own_count],
-                              &own_builder[own_count], &t);
+        /* a scene of one tree rebuilt as one tree: the old one's memory
+         * may serve the new one (recyclable) */
+        rtk_accel *recycle = !own_count && end == n && !ni && !nug ? recyclable(s) : NULL;
+        err = build_triangles(s, in_geoms + k, end - k, s->quality, tree, recycle, fn, &own[own_count],
+                              &own_out[own_count], &own_builder[own_count], &t);
         if (err)
             break;
         add_output(&total, &motion, &own_out[own_count], own[own_count]);

@@ -3,7 +3,8 @@
  * and through an application's task system; hits that match brute force;
  * the device's pool shared by scenes committed from several threads at once
  * (also run under ThreadSanitizer); worker threads that end with the device;
- * and each builder's tree quality (SAH cost) on shared meshes, pinned.
+ * each builder's tree quality (SAH cost) on shared meshes, pinned; and a
+ * scene built again in its old tree's memory.
  */
 #include <dirent.h>
 #include <math.h>
@@ -226,6 +227,154 @@ static void hits_match_brute_force(void **state)
                 rtk_device_release(dev);
             }
     ref_free(&ref);
+}
+
+/* ---- a scene built again in its old tree's memory ----
+ * A scene committed again builds its new tree in the memory of its old one
+ * when nothing else holds that (rtk_build_input.recycle).  Every step below
+ * must give the tree a fresh scene over the same buffers gets, to the bit,
+ * and hits that match brute force: the vertices moved (the old arrays fit),
+ * a mesh of a quarter of the triangles (the old arrays far too large: given
+ * back), then the first again (the old ones too small).  A scene that an
+ * instance holds keeps its old tree intact for the instancing scene. */
+static void twist(float *dst, const float *src, size_t nv, float angle)
+{
+    for (size_t i = 0; i < nv; i++) {
+        const float *p = src + 3 * i;
+        const float a = angle * p[2], c = cosf(a), sn = sinf(a);
+        dst[3 * i] = c * p[0] - sn * p[1];
+        dst[3 * i + 1] = sn * p[0] + c * p[1];
+        dst[3 * i + 2] = p[2];
+    }
+}
+
+/* 100 rays towards the middle of the unit cube (where the meshes are) */
+static rtk_ray middle_ray(rng *r)
+{
+    float o[3], d[3];
+    for (int k = 0; k < 3; k++) {
+        o[k] = 4.0f * rng_float(r) - 2.0f;
+        d[k] = 0.4f * rng_float(r) - 0.2f - o[k];
+    }
+    return test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+}
+
+static void rays_vs_reference(rtk_scene s, const float *v, const uint32_t *idx, size_t nt, uint32_t seed)
+{
+    ref_mesh ref = ref_prepare(v, idx, nt);
+    rng r = {seed};
+    for (int i = 0; i < 100; i++)
+        test_ray_vs_reference(s, &ref, middle_ray(&r));
+    ref_free(&ref);
+}
+
+/* a and b give every ray the same answer, to the bit */
+static void same_answers(rtk_scene a, rtk_scene b, uint32_t seed)
+{
+    rng r = {seed};
+    for (int i = 0; i < 300; i++) {
+        rtk_rayhit h[2];
+        rtk_ray o[2];
+        const rtk_scene sc[2] = {a, b};
+        const rtk_ray ray = middle_ray(&r);
+        for (int k = 0; k < 2; k++) {
+            h[k] = (rtk_rayhit){.ray = ray};
+            h[k].hit.geomID = h[k].hit.primID = RTK_INVALID_GEOMETRY_ID;
+            assert_int_equal(rtk_intersect1(sc[k], &h[k]), RTK_OK);
+            o[k] = ray;
+            assert_int_equal(rtk_occluded1(sc[k], &o[k]), RTK_OK);
+        }
+        assert_memory_equal(&h[0], &h[1], sizeof h[0]);
+        assert_true(o[0].tfar == o[1].tfar);
+    }
+}
+
+static void rebuild_in_old_memory(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    float *v = malloc(sphere.nv * 3 * sizeof *v);
+    assert_non_null(v);
+    const struct {
+        const float *v;
+        const uint32_t *idx;
+        size_t nv, nt;
+        float angle;
+    } steps[] = {{v, sphere.idx, sphere.nv, sphere.nt, 0.4f},
+                 {sticks.v, sticks.idx, sticks.nv, sticks.nt, 0.0f},
+                 {v, sphere.idx, sphere.nv, sphere.nt, -0.3f}};
+    const int layouts = getenv("RTK_TEST_SANITIZED") ? 1 : 2; /* (CI's time, as above) */
+    for (size_t b = 0; b < nb; b++)
+        for (size_t q = 0; q < QUALITIES; q++)
+            for (int f = 0; f < layouts; f++) {
+                const unsigned flags = f ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE;
+                rtk_device dev = test_device_threads(names[b], 2);
+                memcpy(v, sphere.v, sphere.nv * 3 * sizeof *v);
+                const mesh first = {v, sphere.idx, sphere.nv, sphere.nt};
+                rtk_scene s = scene_q(dev, &first, flags, qualities[q]);
+                rtk_geometry g = rtk_scene_get_geometry(s, 0);
+                assert_non_null(g);
+                for (size_t k = 0; k < sizeof steps / sizeof *steps; k++) {
+                    if (steps[k].v == v)
+                        twist(v, sphere.v, sphere.nv, steps[k].angle);
+                    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, steps[k].v, 0, 12,
+                                                                    steps[k].nv),
+                                     RTK_OK);
+                    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, steps[k].idx, 0, 12,
+                                                                    steps[k].nt),
+                                     RTK_OK);
+                    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                    if (rtk_scene_commit(s) != RTK_OK)
+                        fail_msg("%s, step %zu: %s", names[b], k, rtk_device_get_error_message(dev));
+                    const mesh now = {(float *)steps[k].v, (uint32_t *)steps[k].idx, steps[k].nv, steps[k].nt};
+                    rtk_scene fresh = scene_q(dev, &now, flags, qualities[q]);
+                    rtk_bvh want = tree_of(fresh);
+                    rtk_scene_info want_info = {.struct_size = sizeof want_info};
+                    assert_int_equal(rtk_scene_get_info(fresh, &want_info), RTK_OK);
+                    assert_same_build(s, &want, &want_info);
+                    rtk_bvh_free(&want);
+                    same_answers(s, fresh, (uint32_t)(7 + k));
+                    rtk_scene_release(fresh);
+                    if (!f && q == 0)
+                        rays_vs_reference(s, steps[k].v, steps[k].idx, steps[k].nt, (uint32_t)(7 + k));
+                }
+                rtk_scene_release(s);
+                rtk_device_release(dev);
+            }
+    /* an instanced scene committed again: the instancing scene still
+     * traces the old tree, whole */
+    float *old = malloc(sphere.nv * 3 * sizeof *old);
+    assert_non_null(old);
+    for (size_t b = 0; b < nb; b++)
+        for (size_t q = 0; q < 2; q++) {
+            rtk_device dev = test_device_threads(names[b], 2);
+            memcpy(v, sphere.v, sphere.nv * 3 * sizeof *v);
+            const mesh first = {v, sphere.idx, sphere.nv, sphere.nt};
+            rtk_scene inner = scene_q(dev, &first, RTK_SCENE_FLAG_NONE, qualities[q]);
+            rtk_scene outer;
+            rtk_geometry inst;
+            assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
+            assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
+            assert_int_equal(rtk_geometry_set_instanced_scene(inst, inner), RTK_OK);
+            assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+            assert_int_equal(rtk_scene_attach_geometry(outer, inst, NULL), RTK_OK);
+            rtk_geometry_release(inst);
+            assert_int_equal(rtk_scene_commit(outer), RTK_OK);
+            memcpy(old, v, sphere.nv * 3 * sizeof *old);
+            twist(v, sphere.v, sphere.nv, 0.5f);
+            rtk_geometry g = rtk_scene_get_geometry(inner, 0);
+            assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+            assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+            assert_int_equal(rtk_scene_commit(inner), RTK_OK);
+            rays_vs_reference(inner, v, sphere.idx, sphere.nt, 11);
+            rays_vs_reference(outer, old, sphere.idx, sphere.nt, 12);
+            rtk_scene_release(outer);
+            rtk_scene_release(inner);
+            rtk_device_release(dev);
+        }
+    free(old);
+    free(v);
 }
 
 /* ---- a builder and layout chosen in the device config ----
@@ -960,7 +1109,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(application_task_system), cmocka_unit_test(concurrent_commits),
         cmocka_unit_test(concurrent_queries),      cmocka_unit_test(workers_end_with_device),
         cmocka_unit_test(chosen_builder_and_layout), cmocka_unit_test(tree_quality_pinned),
-        cmocka_unit_test(anyhit_slot_order),
+        cmocka_unit_test(anyhit_slot_order),        cmocka_unit_test(rebuild_in_old_memory),
     };
     const struct CMUnitTest threads_only[] = {
         cmocka_unit_test(application_task_system),

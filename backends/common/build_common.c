@@ -161,6 +161,10 @@ int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *o
     if (in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks && in->tasks &&
         in->tasks->threads > 1)
         bd->tasks = in->tasks;
+    bd->out = out;
+    rtk_accel *r = in->struct_size >= offsetof(rtk_build_input, recycle) + sizeof in->recycle ? in->recycle : NULL;
+    if (r && r->layout == in->layout && !r->segments && !r->objects)
+        bd->recycle = r;
     return RTK_OK;
 }
 
@@ -338,17 +342,71 @@ void build_queue_run(const build *bd, build_queue *q)
     run_parallel(bd, build_threads(bd), queue_worker, q);
 }
 
+void *build_recycle_take(build *bd, int leaves, size_t size, size_t *mapped)
+{
+    rtk_accel *r = bd->recycle;
+    if (!r)
+        return NULL;
+    void *p = leaves ? (r->tris ? (void *)r->tris : (void *)r->trisi) : r->nodes;
+    const size_t have = leaves ? r->tris_mapped : r->nodes_mapped;
+    if (!p || have < size)
+        return NULL;
+    if (leaves) {
+        r->tris = NULL;
+        r->trisi = NULL;
+        r->tris_mapped = 0;
+    } else {
+        r->nodes = NULL;
+        r->nodes_mapped = 0;
+    }
+    if (bd->out->struct_size >= offsetof(rtk_build_output, recycled) + sizeof bd->out->recycled)
+        bd->out->recycled = 1;
+    *mapped = have;
+    return p;
+}
+
+/* An array of `size` bytes for the new tree: p (of `mapped` bytes, or
+ * NULL) when it holds them and not much more (memory of a tree that shrank
+ * a lot goes back), else fresh; *mapped is then its size.  Whole huge pages
+ * past `size` are given back (the mapping stays). */
+static void *tree_array(void *p, size_t *mapped, size_t size)
+{
+    if (p && (*mapped < size || *mapped - size > size + RTK_HUGE_PAGE)) {
+        build_unreserve(p, *mapped);
+        p = NULL;
+    }
+    if (!p) {
+        *mapped = size;
+        return build_reserve_huge(size);
+    }
+    const size_t keep = (size + RTK_HUGE_PAGE - 1) / RTK_HUGE_PAGE * RTK_HUGE_PAGE;
+    if (*mapped > keep)
+        build_release_pages((char *)p + keep, *mapped - keep);
+    return p;
+}
+
 struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
 {
     const rtk_build_input *in = bd->in;
     struct rtk_accel *accel = calloc(1, sizeof *accel);
-    if (!accel)
+    size_t nodes_size = page_round((nodes ? nodes : 1) * bd->node_size);
+    size_t tris_size = page_round((blocks ? blocks : 1) * bd->leaf_size);
+    void *spare = bd->spare;
+    size_t spare_mapped = bd->spare_mapped;
+    bd->spare = NULL;
+    if (!accel) {
+        build_unreserve(spare, spare_mapped);
         return NULL;
+    }
     accel->layout = in->layout;
-    accel->nodes_mapped = page_round((nodes ? nodes : 1) * bd->node_size);
-    accel->tris_mapped = page_round((blocks ? blocks : 1) * bd->leaf_size);
-    bd->nodes = build_reserve_huge(accel->nodes_mapped);
-    bd->leaves = build_reserve_huge(accel->tris_mapped);
+    /* the previous tree's arrays (build_recycle_take), else fresh ones */
+    accel->nodes_mapped = 0;
+    void *old_nodes = build_recycle_take(bd, 0, nodes_size, &accel->nodes_mapped);
+    bd->nodes = tree_array(old_nodes, &accel->nodes_mapped, nodes_size);
+    accel->tris_mapped = spare_mapped;
+    if (!spare)
+        spare = build_recycle_take(bd, 1, tris_size, &accel->tris_mapped);
+    bd->leaves = tree_array(spare, &accel->tris_mapped, tris_size);
     if (bd->indexed)
         accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
     if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms) || !rtk_accel_copy_attrs(accel, in)) {

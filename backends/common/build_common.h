@@ -53,6 +53,15 @@ typedef struct build {
     void *leaves;
     const double *node_sah; /* NULL, or each node's build_node_sah (a refit's) */
     int ids_kept;           /* a refit: the leaf blocks hold their ids already, and only their vertex data is written */
+    /* in->recycle when its memory can serve this build (the same layout,
+     * arrays from build_accel_alloc), else NULL: build_recycle_take hands
+     * out its arrays */
+    struct rtk_accel *recycle;
+    rtk_build_output *out;
+    /* a builder's scratch taken from recycle's leaves, offered back for the
+     * new leaves (build_accel_alloc takes it, or gives it back) */
+    void *spare;
+    size_t spare_mapped;
 } build;
 
 /* Runs fn(data, i) for i in [0, count) on the build's threads. */
@@ -199,6 +208,7 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_largest_first RTK_SYM(rtk_build_largest_first)
 #define build_run_ordered RTK_SYM(rtk_build_run_ordered)
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
+#define build_recycle_take RTK_SYM(rtk_build_recycle_take)
 #define build_queue_init RTK_SYM(rtk_build_queue_init)
 #define build_queue_push RTK_SYM(rtk_build_queue_push)
 #define build_queue_fail RTK_SYM(rtk_build_queue_fail)
@@ -397,6 +407,10 @@ static inline uint32_t build_threads(const build *bd)
  * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
  * NULL when out of memory. */
 RTK_HIDDEN struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks);
+/* bd->recycle's leaf (leaves 1) or node array when it holds `size` bytes:
+ * the build's from now on (an unreservation of *mapped bytes), and
+ * out->recycled set; else NULL.  build_accel_alloc takes them itself. */
+RTK_HIDDEN void *build_recycle_take(build *bd, int leaves, size_t size, size_t *mapped);
 /* The SAH terms of node `index`'s slots (each slot's half-area, times its
  * blocks for a leaf), summed in slot order; the tree's SAH cost adds them
  * in node order. */

@@ -526,7 +526,12 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     m.chunks = (uint32_t)((total + RTK_MORTON_CHUNK - 1) / RTK_MORTON_CHUNK);
     const size_t nc = m.chunks ? m.chunks : 1;
     const size_t item_bytes = (total ? total : 1) * sizeof *m.items, rec_bytes = (total ? total : 1) * 4 * sizeof(float);
-    m.rec = build_reserve_huge(rec_bytes);
+    /* the records in the previous tree's leaves when the scene is rebuilt
+     * (they serve the new leaves after: no fresh pages for either) */
+    size_t rec_mapped = rec_bytes;
+    m.rec = build_recycle_take(&m.bd, 1, rec_bytes, &rec_mapped);
+    if (!m.rec)
+        m.rec = build_reserve_huge(rec_bytes);
     m.items = build_reserve_huge(item_bytes);
     uint64_t *geom_first = build_geom_first(in);
     m.geom_first = geom_first;
@@ -611,10 +616,16 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
         depth = s->depth > depth ? s->depth : depth;
         oom |= s->oom;
     }
-    /* the sort's other array is free now: give it back before the BVH's */
-    build_unreserve(m.rec, rec_bytes);
+    /* the sort's other array is free now: it may serve the leaves
+     * (build_accel_alloc gives it back otherwise) */
+    m.bd.spare = m.rec;
+    m.bd.spare_mapped = rec_mapped;
     m.rec = NULL;
-    struct rtk_accel *accel = oom ? NULL : build_accel_alloc(&m.bd, nodes, blocks);
+    struct rtk_accel *accel = NULL;
+    if (oom)
+        build_unreserve(m.bd.spare, m.bd.spare_mapped);
+    else
+        accel = build_accel_alloc(&m.bd, nodes, blocks);
     if (!accel) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the BVH");
@@ -640,7 +651,7 @@ done:
     free(m.first);
     free(m.cent);
     free(m.hist);
-    build_unreserve(m.rec, rec_bytes);
+    build_unreserve(m.rec, rec_mapped);
     build_unreserve(m.items, item_bytes);
     return rc;
 }

@@ -319,7 +319,16 @@ RTK_API rtk_geometry rtk_scene_get_geometry(rtk_scene scene, uint32_t geom_id);
  * Triangles with a NaN or infinite vertex are left out of the BVH (they can
  * never be hit) and counted in rtk_scene_info.triangles_skipped; triangles of
  * zero area (collinear or coincident vertices) likewise, counted in
- * rtk_scene_info.triangles_degenerate. */
+ * rtk_scene_info.triangles_degenerate.
+ *
+ * A scene of triangles alone (no instances, user geometry, motion blur or
+ * RTK_SCENE_FLAG_DYNAMIC) committed again, whose tree no other scene holds
+ * (no instance of it in a committed scene), builds its new tree in the old
+ * one's memory, which then needs no fresh pages: geometry rebuilt every
+ * frame pays for its memory once.  A commit that fails after its build has started
+ * (out of memory) may leave such a scene without a tree, as if never
+ * committed; a failed check of the geometry (an index out of range)
+ * leaves the previous tree in place. */
 RTK_API rtk_error rtk_scene_commit(rtk_scene scene);
 
 typedef struct rtk_scene_info {

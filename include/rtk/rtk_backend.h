@@ -176,6 +176,15 @@ typedef struct rtk_build_input {
      * filter, no quads), and then the kernels test nothing beyond the
      * ray's flags. */
     const struct rtk_geometry_attrs *attrs;
+    /* Added after rtk 0.2.0 (interface version 2, read only when struct_size
+     * covers it): NULL, or a tree this backend made earlier that nothing
+     * will read again (the previous tree of the scene being rebuilt, which
+     * the caller releases after this build, whether it succeeds or not).
+     * The builder may take its memory for the new tree, which then needs no
+     * fresh pages (the system zeroes those at first touch: a sixth of a low
+     * quality rebuild of dragon.ply on 2 threads).  It reports that it did
+     * in rtk_build_output.recycled. */
+    rtk_accel *recycle;
 } rtk_build_input;
 
 /* What a triangle geometry asks of the kernels beyond its triangles
@@ -222,6 +231,10 @@ typedef struct rtk_build_output {
      * leaves, more than prims where spatial splits put a triangle in
      * several leaves; 0 from an older backend means prims. */
     uint64_t refs;
+    /* Added after rtk 0.2.0 (the same way): 1 when the builder wrote into
+     * in->recycle's memory; after a failed build that tree is then gone. */
+    uint32_t recycled;
+    uint32_t reserved;
 } rtk_build_output;
 
 RTK_BACKEND_FN(int, rtk_build, (const rtk_build_input *in, rtk_build_output *out));
