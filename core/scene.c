@@ -1272,10 +1272,14 @@ static const rtk_builder_entry *pick_builder(const rtk_backend_desc *bk, const r
 
 /* Builds (or, with `tree`, imports) a tree over the triangles of geoms[0, n)
  * with the builder and layout the scene calls for: *ref_out, with the
- * build's output, the builder's name and the time taken. */
+ * build's output, the builder's name and the time taken.  `recycle`: a tree
+ * of the scene's that nothing will read again, whose memory the builder may
+ * take (recyclable); *wrote_old is then 1 if it did (after a failure, the
+ * caller drops the trees that hold it). */
 static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms, size_t n, rtk_build_quality quality,
-                                 const rtk_bvh *tree, rtk_accel *recycle, const char *fn, accel_ref **ref_out,
-                                 rtk_build_output *out_io, const char **builder_name, double *seconds)
+                                 const rtk_bvh *tree, rtk_accel *recycle, int *wrote_old, const char *fn,
+                                 accel_ref **ref_out, rtk_build_output *out_io, const char **builder_name,
+                                 double *seconds)
 {
     rtk_device dev = s->device;
     const rtk_backend_desc *bk = dev->backend;
@@ -1397,11 +1401,9 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     double t1 = now_seconds();
     free(time_vertices);
     free(attrs);
-    if (rc != 0 && out.recycled) {
-        /* the failed build wrote into the scene's tree: it is gone */
-        scene_drop_accel(s);
+    *wrote_old = out.recycled != 0;
+    if (rc != 0 && out.recycled)
         rtk_log(dev, 1, "scene: the failed build took the memory of the scene's previous tree; the scene has none now");
-    }
     if (rc != 0)
         return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
@@ -1669,7 +1671,7 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
     uint64_t motion = 0;
     double seconds = 0.0;
     uint32_t built = 0, refitted = 0;
-    int touched = 0; /* an old tree refitted or rewritten in place */
+    int touched = 0; /* an old tree refitted, rewritten in place or recycled */
     rtk_error err = RTK_OK;
     for (size_t k = 0; k < n && !err; k++) {
         const uint32_t i = geoms[k].geom_id;
@@ -1694,11 +1696,17 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
             }
         }
         if (!nd[i].ref && !err) {
-            /* (indices were checked in range when the tree is not kept) */
+            /* (indices were checked in range when the tree is not kept;
+             * an old tree only this scene holds may give its memory) */
             const char *name;
             double t = 0.0;
-            err = build_triangles(s, &geoms[k], 1, tree_quality(g), NULL, NULL, fn, &nd[i].ref, &nd[i].out, &name,
-                                  &t);
+            int wrote_old = 0;
+            rtk_accel *recycle = old && own_refs && atomic_load(&old->ref->refs) == own_refs && !old->ref->children
+                                     ? old->ref->accel
+                                     : NULL;
+            err = build_triangles(s, &geoms[k], 1, tree_quality(g), NULL, recycle, &wrote_old, fn, &nd[i].ref,
+                                  &nd[i].out, &name, &t);
+            touched |= wrote_old;
             nd[i].b = now;
             built++;
             seconds += t;
@@ -1888,8 +1896,11 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         /* a scene of one tree rebuilt as one tree: the old one's memory
          * may serve the new one (recyclable) */
         rtk_accel *recycle = !own_count && end == n && !ni && !nug ? recyclable(s) : NULL;
-        err = build_triangles(s, in_geoms + k, end - k, s->quality, tree, recycle, fn, &own[own_count],
+        int wrote_old = 0;
+        err = build_triangles(s, in_geoms + k, end - k, s->quality, tree, recycle, &wrote_old, fn, &own[own_count],
                               &own_out[own_count], &own_builder[own_count], &t);
+        if (err && wrote_old) /* the failed build wrote into the scene's tree */
+            scene_drop_accel(s);
         if (err)
             break;
         add_output(&total, &motion, &own_out[own_count], own[own_count]);

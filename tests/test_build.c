@@ -236,7 +236,9 @@ static void hits_match_brute_force(void **state)
  * and hits that match brute force: the vertices moved (the old arrays fit),
  * a mesh of a quarter of the triangles (the old arrays far too large: given
  * back), then the first again (the old ones too small).  A scene that an
- * instance holds keeps its old tree intact for the instancing scene. */
+ * instance holds keeps its old tree intact for the instancing scene.  A
+ * dynamic scene builds a moved geometry's tree again in its old memory,
+ * unless an instancing scene holds it. */
 static void twist(float *dst, const float *src, size_t nv, float angle)
 {
     for (size_t i = 0; i < nv; i++) {
@@ -284,9 +286,27 @@ static void same_answers(rtk_scene a, rtk_scene b, uint32_t seed)
             o[k] = ray;
             assert_int_equal(rtk_occluded1(sc[k], &o[k]), RTK_OK);
         }
+        h[0].hit.instID = h[1].hit.instID = 0; /* (a and b may differ in the instance level alone) */
         assert_memory_equal(&h[0], &h[1], sizeof h[0]);
         assert_true(o[0].tfar == o[1].tfar);
     }
+}
+
+/* A dynamic scene: the sphere (vertices v) as geometry 0, the sticks as 1. */
+static rtk_scene dynamic_scene(rtk_device dev, const float *v, rtk_build_quality quality)
+{
+    rtk_scene s = test_scene_uncommitted(dev, v, sphere.nv, sphere.idx, sphere.nt, RTK_SCENE_FLAG_DYNAMIC);
+    rtk_geometry g;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, sticks.v, 0, 12, sticks.nv), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, sticks.idx, 0, 12, sticks.nt), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
+    rtk_geometry_release(g);
+    assert_int_equal(rtk_geometry_set_build_quality(rtk_scene_get_geometry(s, 0), quality), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(rtk_scene_get_geometry(s, 0)), RTK_OK);
+    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    return s;
 }
 
 static void rebuild_in_old_memory(void **state)
@@ -371,6 +391,47 @@ static void rebuild_in_old_memory(void **state)
             rays_vs_reference(outer, old, sphere.idx, sphere.nt, 12);
             rtk_scene_release(outer);
             rtk_scene_release(inner);
+            rtk_device_release(dev);
+        }
+    /* a dynamic scene: the moved geometry's tree is built again in its
+     * old memory, the other kept; an instancing scene keeps the old ones */
+    for (size_t b = 0; b < nb; b++)
+        for (size_t q = 0; q < QUALITIES; q++) {
+            rtk_device dev = test_device_threads(names[b], 2);
+            memcpy(v, sphere.v, sphere.nv * 3 * sizeof *v);
+            rtk_scene dyn = dynamic_scene(dev, v, qualities[q]);
+            rtk_scene outer;
+            rtk_geometry inst;
+            assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
+            assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
+            assert_int_equal(rtk_geometry_set_instanced_scene(inst, dyn), RTK_OK);
+            assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+            assert_int_equal(rtk_scene_attach_geometry(outer, inst, NULL), RTK_OK);
+            rtk_geometry_release(inst);
+            rtk_scene frozen = NULL;
+            for (int k = 1; k <= 3; k++) {
+                if (k == 2) { /* the instancing scene holds the dynamic scene's trees from here */
+                    memcpy(old, v, sphere.nv * 3 * sizeof *old);
+                    frozen = dynamic_scene(dev, old, qualities[q]);
+                    assert_int_equal(rtk_scene_commit(outer), RTK_OK);
+                }
+                twist(v, sphere.v, sphere.nv, 0.2f * (float)k);
+                rtk_geometry g = rtk_scene_get_geometry(dyn, 0);
+                assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                assert_int_equal(rtk_scene_commit(dyn), RTK_OK);
+                rtk_scene_info info = {.struct_size = sizeof info};
+                assert_int_equal(rtk_scene_get_info(dyn, &info), RTK_OK);
+                assert_int_equal(info.trees_built, 1);
+                rtk_scene fresh = dynamic_scene(dev, v, qualities[q]);
+                same_answers(dyn, fresh, (uint32_t)(20 + k));
+                rtk_scene_release(fresh);
+                if (frozen)
+                    same_answers(outer, frozen, (uint32_t)(30 + k));
+            }
+            rtk_scene_release(frozen);
+            rtk_scene_release(outer);
+            rtk_scene_release(dyn);
             rtk_device_release(dev);
         }
     free(old);

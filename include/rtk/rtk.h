@@ -321,11 +321,12 @@ RTK_API rtk_geometry rtk_scene_get_geometry(rtk_scene scene, uint32_t geom_id);
  * zero area (collinear or coincident vertices) likewise, counted in
  * rtk_scene_info.triangles_degenerate.
  *
- * A scene of triangles alone (no instances, user geometry, motion blur or
- * RTK_SCENE_FLAG_DYNAMIC) committed again, whose tree no other scene holds
- * (no instance of it in a committed scene), builds its new tree in the old
- * one's memory, which then needs no fresh pages: geometry rebuilt every
- * frame pays for its memory once.  A commit that fails after its build has started
+ * A scene of triangles alone (no instances, user geometry or motion blur)
+ * committed again, whose tree no other scene holds (no instance of it in a
+ * committed scene), builds its new tree in the old one's memory, which then
+ * needs no fresh pages: geometry rebuilt every frame pays for its memory
+ * once.  So does each rebuilt geometry's tree in a RTK_SCENE_FLAG_DYNAMIC
+ * scene that no other scene holds.  A commit that fails after its build has started
  * (out of memory) may leave such a scene without a tree, as if never
  * committed; a failed check of the geometry (an index out of range)
  * leaves the previous tree in place. */
