@@ -292,6 +292,15 @@ static void same_answers(rtk_scene a, rtk_scene b, uint32_t seed)
     }
 }
 
+/* Geometry 0 of s has new vertex positions in its buffer: s committed again. */
+static void vertices_moved(rtk_scene s)
+{
+    rtk_geometry g = rtk_scene_get_geometry(s, 0);
+    assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+}
+
 /* A dynamic scene: the sphere (vertices v) as geometry 0, the sticks as 1. */
 static rtk_scene dynamic_scene(rtk_device dev, const float *v, rtk_build_quality quality)
 {
@@ -372,21 +381,11 @@ static void rebuild_in_old_memory(void **state)
             memcpy(v, sphere.v, sphere.nv * 3 * sizeof *v);
             const mesh first = {v, sphere.idx, sphere.nv, sphere.nt};
             rtk_scene inner = scene_q(dev, &first, RTK_SCENE_FLAG_NONE, qualities[q]);
-            rtk_scene outer;
-            rtk_geometry inst;
-            assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
-            assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
-            assert_int_equal(rtk_geometry_set_instanced_scene(inst, inner), RTK_OK);
-            assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
-            assert_int_equal(rtk_scene_attach_geometry(outer, inst, NULL), RTK_OK);
-            rtk_geometry_release(inst);
+            rtk_scene outer = test_instancing_scene(dev, inner);
             assert_int_equal(rtk_scene_commit(outer), RTK_OK);
             memcpy(old, v, sphere.nv * 3 * sizeof *old);
             twist(v, sphere.v, sphere.nv, 0.5f);
-            rtk_geometry g = rtk_scene_get_geometry(inner, 0);
-            assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
-            assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-            assert_int_equal(rtk_scene_commit(inner), RTK_OK);
+            vertices_moved(inner);
             rays_vs_reference(inner, v, sphere.idx, sphere.nt, 11);
             rays_vs_reference(outer, old, sphere.idx, sphere.nt, 12);
             rtk_scene_release(outer);
@@ -400,14 +399,7 @@ static void rebuild_in_old_memory(void **state)
             rtk_device dev = test_device_threads(names[b], 2);
             memcpy(v, sphere.v, sphere.nv * 3 * sizeof *v);
             rtk_scene dyn = dynamic_scene(dev, v, qualities[q]);
-            rtk_scene outer;
-            rtk_geometry inst;
-            assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
-            assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
-            assert_int_equal(rtk_geometry_set_instanced_scene(inst, dyn), RTK_OK);
-            assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
-            assert_int_equal(rtk_scene_attach_geometry(outer, inst, NULL), RTK_OK);
-            rtk_geometry_release(inst);
+            rtk_scene outer = test_instancing_scene(dev, dyn);
             rtk_scene frozen = NULL;
             for (int k = 1; k <= 3; k++) {
                 if (k == 2) { /* the instancing scene holds the dynamic scene's trees from here */
@@ -416,10 +408,7 @@ static void rebuild_in_old_memory(void **state)
                     assert_int_equal(rtk_scene_commit(outer), RTK_OK);
                 }
                 twist(v, sphere.v, sphere.nv, 0.2f * (float)k);
-                rtk_geometry g = rtk_scene_get_geometry(dyn, 0);
-                assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
-                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-                assert_int_equal(rtk_scene_commit(dyn), RTK_OK);
+                vertices_moved(dyn);
                 rtk_scene_info info = {.struct_size = sizeof info};
                 assert_int_equal(rtk_scene_get_info(dyn, &info), RTK_OK);
                 assert_int_equal(info.trees_built, 1);

@@ -89,6 +89,19 @@ rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, cons
     return scene;
 }
 
+rtk_scene test_instancing_scene(rtk_device dev, rtk_scene inner)
+{
+    rtk_scene outer;
+    rtk_geometry inst;
+    assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
+    assert_int_equal(rtk_geometry_set_instanced_scene(inst, inner), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+    assert_int_equal(rtk_scene_attach_geometry(outer, inst, NULL), RTK_OK);
+    rtk_geometry_release(inst);
+    return outer;
+}
+
 rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags)
 {
     rtk_scene scene = test_scene_uncommitted(dev, v, nv, idx, nt, flags);

@@ -29,6 +29,9 @@ rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint
 rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt,
                                  unsigned flags);
 
+/* A scene, not committed yet, of one instance of `inner` (identity). */
+rtk_scene test_instancing_scene(rtk_device dev, rtk_scene inner);
+
 /* Two exported trees are the same, array for array (fails the test otherwise). */
 void test_assert_same_tree(const rtk_bvh *a, const rtk_bvh *b);
 
