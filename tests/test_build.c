@@ -233,8 +233,9 @@ static void hits_match_brute_force(void **state)
  * A scene committed again builds its new tree in the memory of its old one
  * when nothing else holds that (rtk_build_input.recycle).  Every step below
  * must give the tree a fresh scene over the same buffers gets, to the bit,
- * and hits that match brute force: the vertices moved (the old arrays fit),
- * a mesh of a quarter of the triangles (the old arrays far too large: given
+ * and the same answer to every ray (at low quality in the default layout,
+ * brute force's too): the vertices moved (the old arrays fit), a mesh of
+ * about a quarter of the triangles (the old arrays far too large: given
  * back), then the first again (the old ones too small).  A scene that an
  * instance holds keeps its old tree intact for the instancing scene.  A
  * dynamic scene builds a moved geometry's tree again in its old memory,
@@ -250,7 +251,7 @@ static void twist(float *dst, const float *src, size_t nv, float angle)
     }
 }
 
-/* 100 rays towards the middle of the unit cube (where the meshes are) */
+/* A ray towards the middle of the unit cube (where the meshes are). */
 static rtk_ray middle_ray(rng *r)
 {
     float o[3], d[3];
