@@ -365,6 +365,15 @@ void *build_recycle_take(build *bd, int leaves, size_t size, size_t *mapped)
     return p;
 }
 
+void build_recycle_give_back(build *bd, void *p, size_t mapped)
+{
+    if (bd->indexed)
+        bd->recycle->trisi = p;
+    else
+        bd->recycle->tris = p;
+    bd->recycle->tris_mapped = mapped;
+}
+
 /* An array of `size` bytes for the new tree: p (of `mapped` bytes, or
  * NULL) when it holds them and not much more (memory of a tree that shrank
  * a lot goes back), else fresh; *mapped is then its size.  Whole huge pages
@@ -389,24 +398,16 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
 {
     const rtk_build_input *in = bd->in;
     struct rtk_accel *accel = calloc(1, sizeof *accel);
-    size_t nodes_size = page_round((nodes ? nodes : 1) * bd->node_size);
-    size_t tris_size = page_round((blocks ? blocks : 1) * bd->leaf_size);
-    void *spare = bd->spare;
-    size_t spare_mapped = bd->spare_mapped;
-    bd->spare = NULL;
-    if (!accel) {
-        build_unreserve(spare, spare_mapped);
+    if (!accel)
         return NULL;
-    }
     accel->layout = in->layout;
     /* the previous tree's arrays (build_recycle_take), else fresh ones */
-    accel->nodes_mapped = 0;
+    const size_t nodes_size = page_round((nodes ? nodes : 1) * bd->node_size);
+    const size_t tris_size = page_round((blocks ? blocks : 1) * bd->leaf_size);
     void *old_nodes = build_recycle_take(bd, 0, nodes_size, &accel->nodes_mapped);
     bd->nodes = tree_array(old_nodes, &accel->nodes_mapped, nodes_size);
-    accel->tris_mapped = spare_mapped;
-    if (!spare)
-        spare = build_recycle_take(bd, 1, tris_size, &accel->tris_mapped);
-    bd->leaves = tree_array(spare, &accel->tris_mapped, tris_size);
+    void *old_leaves = build_recycle_take(bd, 1, tris_size, &accel->tris_mapped);
+    bd->leaves = tree_array(old_leaves, &accel->tris_mapped, tris_size);
     if (bd->indexed)
         accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
     if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms) || !rtk_accel_copy_attrs(accel, in)) {

@@ -58,10 +58,6 @@ typedef struct build {
      * out its arrays */
     struct rtk_accel *recycle;
     rtk_build_output *out;
-    /* a builder's scratch taken from recycle's leaves, offered back for the
-     * new leaves (build_accel_alloc takes it, or gives it back) */
-    void *spare;
-    size_t spare_mapped;
 } build;
 
 /* Runs fn(data, i) for i in [0, count) on the build's threads. */
@@ -209,6 +205,7 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_run_ordered RTK_SYM(rtk_build_run_ordered)
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
 #define build_recycle_take RTK_SYM(rtk_build_recycle_take)
+#define build_recycle_give_back RTK_SYM(rtk_build_recycle_give_back)
 #define build_queue_init RTK_SYM(rtk_build_queue_init)
 #define build_queue_push RTK_SYM(rtk_build_queue_push)
 #define build_queue_fail RTK_SYM(rtk_build_queue_fail)
@@ -411,6 +408,10 @@ RTK_HIDDEN struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64
  * the build's from now on (an unreservation of *mapped bytes), and
  * out->recycled set; else NULL.  build_accel_alloc takes them itself. */
 RTK_HIDDEN void *build_recycle_take(build *bd, int leaves, size_t size, size_t *mapped);
+/* Leaf memory a builder took for scratch (build_recycle_take, leaves 1),
+ * handed back once read: build_accel_alloc may then take it for the new
+ * leaves, or the caller releases it with the old tree. */
+RTK_HIDDEN void build_recycle_give_back(build *bd, void *p, size_t mapped);
 /* The SAH terms of node `index`'s slots (each slot's half-area, times its
  * blocks for a leaf), summed in slot order; the tree's SAH cost adds them
  * in node order. */

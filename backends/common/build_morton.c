@@ -530,7 +530,8 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
      * (they serve the new leaves after: no fresh pages for either) */
     size_t rec_mapped = rec_bytes;
     m.rec = build_recycle_take(&m.bd, 1, rec_bytes, &rec_mapped);
-    if (!m.rec)
+    const int rec_recycled = m.rec != NULL;
+    if (!rec_recycled)
         m.rec = build_reserve_huge(rec_bytes);
     m.items = build_reserve_huge(item_bytes);
     uint64_t *geom_first = build_geom_first(in);
@@ -616,16 +617,15 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
         depth = s->depth > depth ? s->depth : depth;
         oom |= s->oom;
     }
-    /* the sort's other array is free now: it may serve the leaves
-     * (build_accel_alloc gives it back otherwise) */
-    m.bd.spare = m.rec;
-    m.bd.spare_mapped = rec_mapped;
-    m.rec = NULL;
-    struct rtk_accel *accel = NULL;
-    if (oom)
-        build_unreserve(m.bd.spare, m.bd.spare_mapped);
+    /* the sort's other array is free now: back to the previous tree when
+     * it is that tree's leaves (build_accel_alloc may take them for the new
+     * ones), else given back before the BVH's */
+    if (rec_recycled)
+        build_recycle_give_back(&m.bd, m.rec, rec_mapped);
     else
-        accel = build_accel_alloc(&m.bd, nodes, blocks);
+        build_unreserve(m.rec, rec_mapped);
+    m.rec = NULL;
+    struct rtk_accel *accel = oom ? NULL : build_accel_alloc(&m.bd, nodes, blocks);
     if (!accel) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the BVH");
