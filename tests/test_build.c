@@ -262,15 +262,6 @@ static rtk_ray middle_ray(rng *r)
     return test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
 }
 
-static void rays_vs_reference(rtk_scene s, const float *v, const uint32_t *idx, size_t nt, uint32_t seed)
-{
-    ref_mesh ref = ref_prepare(v, idx, nt);
-    rng r = {seed};
-    for (int i = 0; i < 100; i++)
-        test_ray_vs_reference(s, &ref, middle_ray(&r));
-    ref_free(&ref);
-}
-
 /* a and b give every ray the same answer, to the bit */
 static void same_answers(rtk_scene a, rtk_scene b, uint32_t seed)
 {
@@ -291,15 +282,6 @@ static void same_answers(rtk_scene a, rtk_scene b, uint32_t seed)
         assert_memory_equal(&h[0], &h[1], sizeof h[0]);
         assert_true(o[0].tfar == o[1].tfar);
     }
-}
-
-/* Geometry 0 of s has new vertex positions in its buffer: s committed again. */
-static void vertices_moved(rtk_scene s)
-{
-    rtk_geometry g = rtk_scene_get_geometry(s, 0);
-    assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
-    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-    assert_int_equal(rtk_scene_commit(s), RTK_OK);
 }
 
 /* A dynamic scene: the sphere (vertices v) as geometry 0, the sticks as 1. */
@@ -367,7 +349,7 @@ static void rebuild_in_old_memory(void **state)
                     same_answers(s, fresh, (uint32_t)(7 + k));
                     rtk_scene_release(fresh);
                     if (!f && q == 0)
-                        rays_vs_reference(s, steps[k].v, steps[k].idx, steps[k].nt, (uint32_t)(7 + k));
+                        test_rays_vs_brute_force(s, steps[k].v, steps[k].idx, steps[k].nt, 100, 7 + k);
                 }
                 rtk_scene_release(s);
                 rtk_device_release(dev);
@@ -386,9 +368,9 @@ static void rebuild_in_old_memory(void **state)
             assert_int_equal(rtk_scene_commit(outer), RTK_OK);
             memcpy(old, v, sphere.nv * 3 * sizeof *old);
             twist(v, sphere.v, sphere.nv, 0.5f);
-            vertices_moved(inner);
-            rays_vs_reference(inner, v, sphere.idx, sphere.nt, 11);
-            rays_vs_reference(outer, old, sphere.idx, sphere.nt, 12);
+            test_commit_moved(inner, rtk_scene_get_geometry(inner, 0));
+            test_rays_vs_brute_force(inner, v, sphere.idx, sphere.nt, 100, 11);
+            test_rays_vs_brute_force(outer, old, sphere.idx, sphere.nt, 100, 12);
             rtk_scene_release(outer);
             rtk_scene_release(inner);
             rtk_device_release(dev);
@@ -409,7 +391,7 @@ static void rebuild_in_old_memory(void **state)
                     assert_int_equal(rtk_scene_commit(outer), RTK_OK);
                 }
                 twist(v, sphere.v, sphere.nv, 0.2f * (float)k);
-                vertices_moved(dyn);
+                test_commit_moved(dyn, rtk_scene_get_geometry(dyn, 0));
                 rtk_scene_info info = {.struct_size = sizeof info};
                 assert_int_equal(rtk_scene_get_info(dyn, &info), RTK_OK);
                 assert_int_equal(info.trees_built, 1);

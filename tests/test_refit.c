@@ -76,14 +76,6 @@ static rtk_scene refit_scene(rtk_device dev, float *v, const uint32_t *idx, size
     return s;
 }
 
-/* The vertex buffer changed: update, commit the geometry and the scene. */
-static void commit_moved(rtk_scene s, rtk_geometry g)
-{
-    assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
-    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-    assert_int_equal(rtk_scene_commit(s), RTK_OK);
-}
-
 static rtk_scene_info info_of(rtk_scene s)
 {
     rtk_scene_info info = {.struct_size = sizeof info};
@@ -129,28 +121,6 @@ static void check_tight(const rtk_bvh *t, uint32_t ref, const float *v, const ui
     }
 }
 
-/* Random rays from around the scene's box towards its middle, against
- * brute force over the triangles now in v; returns the hits. */
-static int rays_vs_brute_force(rtk_scene s, const float *v, const uint32_t *idx, size_t nt, int count, uint64_t seed)
-{
-    const rtk_scene_info info = info_of(s);
-    ref_mesh ref = ref_prepare(v, idx, nt);
-    rng r = {seed};
-    int hits = 0;
-    for (int i = 0; i < count; i++) {
-        float o[3], d[3];
-        for (int k = 0; k < 3; k++) {
-            const float mid = 0.5f * (info.bounds_lower[k] + info.bounds_upper[k]);
-            const float size = info.bounds_upper[k] - info.bounds_lower[k];
-            o[k] = mid + size * (2.0f * rng_float(&r) - 1.0f);
-            d[k] = mid + 0.3f * size * (rng_float(&r) - 0.5f) - o[k];
-        }
-        hits += test_ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
-    }
-    ref_free(&ref);
-    return hits;
-}
-
 /* ---- refitted trees answer as brute force does, on every backend,
  * builder and layout, and their boxes are tight ---- */
 
@@ -175,7 +145,7 @@ static void refit_matches_brute_force(void **state)
                 assert_int_equal(built.refits, 0);
                 for (int step = 1; step <= 2; step++) {
                     deform(v, (float)step);
-                    commit_moved(s, g);
+                    test_commit_moved(s, g);
                     const rtk_scene_info info = info_of(s);
                     assert_int_equal(info.refits, step);
                     assert_string_equal(info.builder, built.builder);
@@ -186,7 +156,7 @@ static void refit_matches_brute_force(void **state)
                     /* the box moved with the bunny's twist */
                     assert_true(info.bounds_lower[0] != built.bounds_lower[0] ||
                                 info.bounds_upper[0] != built.bounds_upper[0]);
-                    const int hits = rays_vs_brute_force(s, v, bunny.indices, bunny.triangle_count, 300, 7 + step);
+                    const int hits = test_rays_vs_brute_force(s, v, bunny.indices, bunny.triangle_count, 300, 7 + step);
                     assert_true(hits > 60);
                 }
                 /* exact boxes, and a tree that loads back over the same vertices */
@@ -237,7 +207,7 @@ static void refit_same_tree_any_threads(void **state)
             rtk_scene s = refit_scene(dev, v, bunny.indices, bunny.vertex_count, bunny.triangle_count, 0,
                                       RTK_BUILD_QUALITY_MEDIUM, &g);
             deform(v, 1.5f);
-            commit_moved(s, g);
+            test_commit_moved(s, g);
             assert_int_equal(info_of(s).refits, 1);
             rtk_bvh t = {.struct_size = sizeof t};
             assert_int_equal(rtk_scene_get_bvh(s, &t), RTK_OK);
@@ -293,7 +263,7 @@ static void wave(float *v, int n, float t)
 
 static void check_grid_hits(rtk_scene s, const float *v, const uint32_t *idx, size_t nt)
 {
-    assert_true(rays_vs_brute_force(s, v, idx, nt, 200, 3) > 20);
+    assert_true(test_rays_vs_brute_force(s, v, idx, nt, 200, 3) > 20);
 }
 
 static void refit_or_build(void **state)
@@ -312,7 +282,7 @@ static void refit_or_build(void **state)
         rtk_scene s = refit_scene(dev, v, idx, nv, nt, 0, RTK_BUILD_QUALITY_MEDIUM, &g);
 
         wave(v, n, 0.5f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 1);
         check_grid_hits(s, v, idx, nt);
 
@@ -320,7 +290,7 @@ static void refit_or_build(void **state)
          * across the edge they share): they stay in the tree, never hit */
         const float keep[3] = {v[3 * idx[5]], v[3 * idx[5] + 1], v[3 * idx[5] + 2]};
         memcpy(v + 3 * idx[5], v + 3 * idx[4], 3 * sizeof *v);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         rtk_scene_info info = info_of(s);
         assert_int_equal(info.refits, 2);
         assert_int_equal(info.triangles_degenerate, 2);
@@ -329,7 +299,7 @@ static void refit_or_build(void **state)
 
         /* and get it back */
         memcpy(v + 3 * idx[5], keep, sizeof keep);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         info = info_of(s);
         assert_int_equal(info.refits, 3);
         assert_int_equal(info.triangles_degenerate, 0);
@@ -338,20 +308,20 @@ static void refit_or_build(void **state)
         /* a NaN vertex: built afresh, its triangles left out and counted */
         const float y = v[3 * 7 + 1];
         v[3 * 7 + 1] = NAN;
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         info = info_of(s);
         assert_int_equal(info.refits, 0);
         assert_true(info.triangles_skipped > 0);
         check_grid_hits(s, v, idx, nt);
         v[3 * 7 + 1] = y;
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         info = info_of(s);
         assert_int_equal(info.refits, 0);
         assert_int_equal(info.triangles, nt);
 
         /* refits again while the valid triangles stay the same */
         wave(v, n, 1.0f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 1);
 
         /* a commit with nothing updated builds (the application may have
@@ -367,30 +337,30 @@ static void refit_or_build(void **state)
         }
         assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_INDEX), RTK_OK);
         wave(v, n, 1.5f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 0);
         check_grid_hits(s, v, idx, nt);
 
         /* the scene's flags or quality changed: built afresh */
         wave(v, n, 2.0f);
         assert_int_equal(rtk_scene_set_build_quality(s, RTK_BUILD_QUALITY_LOW), RTK_OK);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         info = info_of(s);
         assert_int_equal(info.refits, 0);
         assert_string_equal(info.builder, "morton");
         wave(v, n, 2.5f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 1);
         check_grid_hits(s, v, idx, nt);
         assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_COMPACT), RTK_OK);
         wave(v, n, 3.0f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 0);
 
         /* a geometry that is not REFIT builds on any change */
         assert_int_equal(rtk_geometry_set_build_quality(g, RTK_BUILD_QUALITY_MEDIUM), RTK_OK);
         wave(v, n, 3.5f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 0);
         assert_int_equal(rtk_geometry_set_build_quality(g, RTK_BUILD_QUALITY_REFIT), RTK_OK);
 
@@ -411,7 +381,7 @@ static void refit_or_build(void **state)
         assert_int_equal(rtk_scene_attach_geometry(s, g2, &id2), RTK_OK);
         assert_int_equal(rtk_scene_commit(s), RTK_OK); /* attached: built */
         wave(v, n, 4.0f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 1);
         assert_int_equal(info_of(s).triangles, 2 * nt);
         /* straight down at a cell's middle: the wave, not the copy below */
@@ -427,18 +397,18 @@ static void refit_or_build(void **state)
         /* disabled, then enabled again: built both times */
         assert_int_equal(rtk_geometry_disable(g2), RTK_OK);
         wave(v, n, 4.5f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 0);
         assert_int_equal(info_of(s).triangles, nt);
         assert_int_equal(rtk_geometry_enable(g2), RTK_OK);
         wave(v, n, 5.0f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 0);
         assert_int_equal(info_of(s).triangles, 2 * nt);
         /* detached: built */
         assert_int_equal(rtk_scene_detach_geometry(s, id2), RTK_OK);
         wave(v, n, 5.5f);
-        commit_moved(s, g);
+        test_commit_moved(s, g);
         assert_int_equal(info_of(s).refits, 0);
         rtk_geometry_release(g2);
         free(v2);
@@ -569,7 +539,7 @@ static void zero_area_never_hit(void **state)
                     rays[t].org_y += 1.0f;
                     rays[t].org_z += 1.0f;
                 }
-                commit_moved(s, g);
+                test_commit_moved(s, g);
                 assert_int_equal(info_of(s).refits, step + 1);
             }
             /* given area: refitted, and hit as brute force says */
@@ -579,11 +549,11 @@ static void zero_area_never_hit(void **state)
                 still_flat += (uint64_t)rtk_triangle_is_degenerate(v + 9 * t, v + 9 * t + 3, v + 9 * t + 6);
             }
             assert_true(still_flat < NT / 50);
-            commit_moved(s, g);
+            test_commit_moved(s, g);
             info = info_of(s);
             assert_int_equal(info.refits, 3);
             assert_int_equal(info.triangles_degenerate, still_flat);
-            assert_true(rays_vs_brute_force(s, v, idx, NT, 300, 11) > 30);
+            assert_true(test_rays_vs_brute_force(s, v, idx, NT, 300, 11) > 30);
             rtk_scene_release(s);
             rtk_device_release(dev);
             for (size_t i = 0; i < 9 * (size_t)NT; i++) /* back to where the rays aim */
@@ -709,7 +679,7 @@ static void zero_area_at_every_scale(void **state)
                 rtk_scene s = refit_scene(dev, v, idx, 3 * NT, NT, layouts[l], RTK_BUILD_QUALITY_MEDIUM, &g);
                 assert_int_equal(info_of(s).triangles_degenerate, 0);
                 memcpy(v, odd, NT * 9 * sizeof *v);
-                commit_moved(s, g);
+                test_commit_moved(s, g);
                 rtk_scene_info info = info_of(s);
                 assert_int_equal(info.refits, 1);
                 if (info.triangles_degenerate != expect)
@@ -717,7 +687,7 @@ static void zero_area_at_every_scale(void **state)
                              names[b], layouts[l], exps[e], (unsigned long long)info.triangles_degenerate,
                              (unsigned long long)expect);
                 memcpy(v, generic, NT * 9 * sizeof *v);
-                commit_moved(s, g);
+                test_commit_moved(s, g);
                 info = info_of(s);
                 assert_int_equal(info.refits, 2);
                 assert_int_equal(info.triangles_degenerate, 0);

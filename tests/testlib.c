@@ -102,6 +102,34 @@ rtk_scene test_instancing_scene(rtk_device dev, rtk_scene inner)
     return outer;
 }
 
+void test_commit_moved(rtk_scene s, rtk_geometry g)
+{
+    assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+}
+
+int test_rays_vs_brute_force(rtk_scene s, const float *v, const uint32_t *idx, size_t nt, int count, uint64_t seed)
+{
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+    ref_mesh ref = ref_prepare(v, idx, nt);
+    rng r = {seed};
+    int hits = 0;
+    for (int i = 0; i < count; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            const float mid = 0.5f * (info.bounds_lower[k] + info.bounds_upper[k]);
+            const float size = info.bounds_upper[k] - info.bounds_lower[k];
+            o[k] = mid + size * (2.0f * rng_float(&r) - 1.0f);
+            d[k] = mid + 0.3f * size * (rng_float(&r) - 0.5f) - o[k];
+        }
+        hits += test_ray_vs_reference(s, &ref, test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY));
+    }
+    ref_free(&ref);
+    return hits;
+}
+
 rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint32_t *idx, size_t nt, unsigned flags)
 {
     rtk_scene scene = test_scene_uncommitted(dev, v, nv, idx, nt, flags);

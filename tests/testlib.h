@@ -31,6 +31,9 @@ rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, cons
 
 /* A scene, not committed yet, of one instance of `inner` (identity). */
 rtk_scene test_instancing_scene(rtk_device dev, rtk_scene inner);
+/* Geometry g of s has new vertex positions in its buffer: update it, commit
+ * it and the scene. */
+void test_commit_moved(rtk_scene s, rtk_geometry g);
 
 /* Two exported trees are the same, array for array (fails the test otherwise). */
 void test_assert_same_tree(const rtk_bvh *a, const rtk_bvh *b);
@@ -59,6 +62,11 @@ int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *ray, rtk_tri_hit *h
 int test_ray_vs_reference(rtk_scene s, const ref_mesh *ref, rtk_ray ray);
 
 rtk_ray test_ray(float ox, float oy, float oz, float dx, float dy, float dz, float tnear, float tfar);
+
+/* `count` random rays from around the scene's box towards its middle,
+ * test_ray_vs_reference against brute force over the triangles now in v
+ * (idx, nt); returns the hits. */
+int test_rays_vs_brute_force(rtk_scene s, const float *v, const uint32_t *idx, size_t nt, int count, uint64_t seed);
 
 /* A sphere, the tests' user geometry: the nearest root of |o + t d - c| = r
  * in [tnear, tfar], computed in double and rounded to float; 0 when none.
