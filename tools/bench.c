@@ -1335,27 +1335,37 @@ static double peak_end(long base_kb)
 static void twist(const rtk_mesh *m, float t, float *dst);
 static void vertices_commit(scene *sc);
 
-/* A scene over the mesh at quality q whose vertices move in each of
- * `frames` frames, built again each time: the best time of a frame, from
- * the update calls to the committed scene (v: the mesh's padded vertices,
- * its moving copy); -1 with err on a failure. */
-static double rebuild_time(lib *bl, const ctx *c, float *v, int q, int frames, char *err, size_t err_size)
+/* A scene over the mesh's moving copy v (refilled from the mesh first) in
+ * `mode` at quality q, then `frames` frames of it twisted a little more
+ * each and committed again: the best frame's time, from the update calls
+ * to the committed scene; -1 (err set) when the scene could not be built. */
+static double moving_frames(scene *sc, lib *bl, const ctx *c, float *v, int mode, int q, int frames, char *err,
+                            size_t err_size)
 {
-    const size_t floats = c->m->vertex_count * 3 + 4;
     rtk_mesh moved = *c->m;
     moved.vertices = v;
-    memcpy(v, c->padded, floats * sizeof *v);
-    scene sc;
-    if (scene_build(&sc, bl, &moved, v, MODE_REBUILD, q, err, err_size))
+    memcpy(v, c->padded, (c->m->vertex_count * 3 + 4) * sizeof *v);
+    if (scene_build(sc, bl, &moved, v, mode, q, err, err_size))
         return -1;
     double best = 1e30;
     for (int f = 1; f <= frames; f++) {
         twist(c->m, 0.6f * (float)f / (float)frames, v);
         const double t0 = now();
-        vertices_commit(&sc);
+        vertices_commit(sc);
         const double dt = now() - t0;
         best = dt < best ? dt : best;
     }
+    return best;
+}
+
+/* The same scene built again in each frame (MODE_REBUILD): the best
+ * frame's time; -1 with err on a failure. */
+static double rebuild_time(lib *bl, const ctx *c, float *v, int q, int frames, char *err, size_t err_size)
+{
+    scene sc;
+    const double best = moving_frames(&sc, bl, c, v, MODE_REBUILD, q, frames, err, err_size);
+    if (best < 0)
+        return -1;
     int bad = 0;
     if (sc.rscene) {
         rtk_scene_info info = {.struct_size = sizeof info};
@@ -1566,17 +1576,9 @@ static int section_refit(ctx *c, char *err, size_t err_size)
             rc = lib_open(&bl, c->libs[l].name, c->libs[l].embree, c->libs[l].config, o->threads[ti], err, err_size);
             if (rc)
                 break;
-            memcpy(v, c->padded, floats * sizeof *v);
             scene sc;
-            rc = scene_build(&sc, &bl, &moved, v, MODE_REFIT, 1, err, err_size);
-            double best = 1e30;
-            for (int f = 1; f <= frames && !rc; f++) {
-                twist(c->m, 0.6f * (float)f / (float)frames, v);
-                const double t0 = now();
-                vertices_commit(&sc);
-                const double dt = now() - t0;
-                best = dt < best ? dt : best;
-            }
+            const double best = moving_frames(&sc, &bl, c, v, MODE_REFIT, 1, frames, err, err_size);
+            rc = best < 0;
             if (!rc && sc.rscene) {
                 rtk_scene_info info = {.struct_size = sizeof info};
                 if (rtk_scene_get_info(sc.rscene, &info) || info.refits != (uint32_t)frames) {
