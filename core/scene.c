@@ -780,13 +780,14 @@ static void scene_drop_accel(rtk_scene s)
     s->occluded1 = NULL;
 }
 
-/* The scene's tree when it is one tree of triangles that nothing else
- * holds (no scene instances it, no top level has it): a build may take its
- * memory for the scene's next tree (rtk_build_input.recycle); else NULL. */
-static rtk_accel *recyclable(rtk_scene s)
+/* r's tree when it is a tree of triangles (no top level) that nothing but
+ * its `own_refs` references of the scene being committed hold (no other
+ * scene instances it): a build may take its memory for the scene's next
+ * tree (rtk_build_input.recycle); else NULL. */
+static rtk_accel *recyclable(const accel_ref *r, int own_refs)
 {
-    accel_ref *r = s->ref;
-    if (!r || !r->accel || r->children || r->user_prims || r->depth || atomic_load(&r->refs) != 1)
+    if (!r || !r->accel || r->children || r->user_prims || r->depth || !own_refs ||
+        atomic_load(&r->refs) != own_refs)
         return NULL;
     return r->accel;
 }
@@ -1701,11 +1702,8 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
             const char *name;
             double t = 0.0;
             int wrote_old = 0;
-            rtk_accel *recycle = old && own_refs && atomic_load(&old->ref->refs) == own_refs && !old->ref->children
-                                     ? old->ref->accel
-                                     : NULL;
-            err = build_triangles(s, &geoms[k], 1, tree_quality(g), NULL, recycle, &wrote_old, fn, &nd[i].ref,
-                                  &nd[i].out, &name, &t);
+            err = build_triangles(s, &geoms[k], 1, tree_quality(g), NULL, recyclable(old ? old->ref : NULL, own_refs),
+                                  &wrote_old, fn, &nd[i].ref, &nd[i].out, &name, &t);
             touched |= wrote_old;
             nd[i].b = now;
             built++;
@@ -1895,7 +1893,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         own_out[own_count] = (rtk_build_output){.struct_size = sizeof own_out[0]};
         /* a scene of one tree rebuilt as one tree: the old one's memory
          * may serve the new one (recyclable) */
-        rtk_accel *recycle = !own_count && end == n && !ni && !nug ? recyclable(s) : NULL;
+        rtk_accel *recycle = !own_count && end == n && !ni && !nug ? recyclable(s->ref, 1) : NULL;
         int wrote_old = 0;
         err = build_triangles(s, in_geoms + k, end - k, s->quality, tree, recycle, &wrote_old, fn, &own[own_count],
                               &own_out[own_count], &own_builder[own_count], &t);
