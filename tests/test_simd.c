@@ -58,6 +58,8 @@ static void test_compare_select_mask(void **state)
     assert_int_equal(vb4_mask(vf4_gt(a, b)), 0x8);
     assert_int_equal(vb4_mask(vf4_ge(a, b)), 0xa);
     assert_int_equal(vb4_mask(vf4_eq(a, b)), 0x2);
+    assert_int_equal(vf4_signs(vf4_set(-1.0f, 0.0f, -0.0f, -NAN)), 0xd);
+    assert_int_equal(vf4_signs(vf4_set(INFINITY, -INFINITY, 1e-30f, NAN)), 0x2);
     assert_int_equal(vb4_mask(vb4_from_bits(0x5)), 0x5);
     for (int m = 0; m < 16; m++) { /* every pattern, each lane all ones (the and keeps all of -1.5) or zeros */
         float kept[4];

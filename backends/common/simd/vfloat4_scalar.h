@@ -76,6 +76,14 @@ RTK_INLINE vfloat4 vf4_xor_sign(vfloat4 a, vfloat4 s)
 {
     RTK_S4_F(rtk_s_float(rtk_s_bits(a.f[k]) ^ (rtk_s_bits(s.f[k]) & INT32_MIN)));
 }
+/* bit k = lane k's sign bit (-0.0 and negative NaNs included) */
+RTK_INLINE int vf4_signs(vfloat4 a)
+{
+    int m = 0;
+    for (int k = 0; k < 4; k++)
+        m |= (int)((uint32_t)rtk_s_bits(a.f[k]) >> 31) << k;
+    return m;
+}
 RTK_INLINE float vf4_reduce_min(vfloat4 a)
 {
     return rtk_s_min(rtk_s_min(a.f[0], a.f[1]), rtk_s_min(a.f[2], a.f[3]));
