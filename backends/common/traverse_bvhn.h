@@ -304,10 +304,8 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
     (void)fused_inv_far;
     (void)org_far; /* (unused without FMA or robustness) */
     /* inv has dir's sign (d keeps it, -0.0 becoming -1e-18, and inv is never
-     * +-0), so the planes are chosen from dir's sign bits as loaded: the
-     * node test's first loads then wait for one movmskps, not for the
-     * division (their addresses were the longest chain from the ray to its
-     * first node test) */
+     * +-0), so the planes are chosen from dir's sign bits as loaded: one
+     * movmskps, no comparison with a zero vector */
     const unsigned neg = (unsigned)vf4_signs(dir) & 7; /* (lane 3: time or tnear) */
     _Alignas(16) float o[4], on[4], dd[4], in[4], inf[4];
     vf4_store(o, org);
