@@ -100,7 +100,16 @@ typedef struct world {
      * masks alone (no filter anywhere: the kernels' masks-only path for rays
      * without culling) */
     int filters;
+    /* the reference's answers to run_scene's rays, per rule set
+     * (answers_of): the same for every backend and layout */
+    struct answer *answers[8];
 } world;
+
+typedef struct answer {
+    int hit, any; /* closest counting hit; whether any counts (occluded) */
+    uint32_t p; /* its triangle (global index) */
+    rtk_tri_hit want;
+} answer;
 
 /* GEOMS * PER_GEOM random triangles of about a tenth of the unit cube,
  * facing every way. */
@@ -112,10 +121,14 @@ static void world_make(world *w, uint64_t seed)
     for (uint32_t g = 0; g < GEOMS; g++)
         w->users[g].geom = g;
     w->filters = 1;
+    for (int k = 0; k < 8; k++)
+        w->answers[k] = NULL;
 }
 
 static void world_free(world *w)
 {
+    for (int k = 0; k < 8; k++)
+        free(w->answers[k]);
     ref_free(&w->ref);
     free(w->v);
     free(w->idx);
@@ -208,16 +221,30 @@ static rtk_ray random_ray(rng *r, uint32_t id)
     return ray;
 }
 
-/* One ray's answers (single or in a packet lane) against the reference:
- * exact t where the layout is the reference's arithmetic, else within
- * tol (motion blur interpolates). */
-static void check(const world *w, const rtk_ray *ray, const rtk_rayhit *got, int occluded_hit, double tol,
-                  const char *what)
+/* The reference's answers to rays[0, RAYS) under the rules of now (the
+ * filters, the shared mask bit, watertight or not), computed once for
+ * each rule set: the brute force took most of this test's time. */
+static const answer *answers_of(world *w, const rtk_ray *rays)
 {
-    rtk_tri_hit want;
-    uint32_t p = 0;
-    int any;
-    const int hit = ref_query(w, ray, &want, &p, &any);
+    answer **a = &w->answers[(w->filters ? 4 : 0) | (shared_bit ? 2 : 0) | (w->ref.watertight ? 1 : 0)];
+    if (!*a) {
+        *a = calloc(RAYS, sizeof **a);
+        assert_non_null(*a);
+        for (uint32_t i = 0; i < RAYS; i++)
+            (*a)[i].hit = ref_query(w, &rays[i], &(*a)[i].want, &(*a)[i].p, &(*a)[i].any);
+    }
+    return *a;
+}
+
+/* One ray's answers (single or in a packet lane) against the reference's
+ * (ref): exact t where the layout is the reference's arithmetic, else
+ * within tol (motion blur interpolates). */
+static void check(const world *w, const rtk_ray *ray, const answer *ref, const rtk_rayhit *got, int occluded_hit,
+                  double tol, const char *what)
+{
+    const rtk_tri_hit want = ref->want;
+    const uint32_t p = ref->p;
+    const int hit = ref->hit, any = ref->any;
     if ((got->hit.geomID != RTK_INVALID_GEOMETRY_ID) != hit || occluded_hit != any)
         fail_msg("%s ray %u (mask 0x%x flags %u): intersect %s (ref %s), occluded %d (ref %d)", what, ray->id,
                  ray->mask, ray->flags, got->hit.geomID != RTK_INVALID_GEOMETRY_ID ? "hit" : "miss",
@@ -235,12 +262,13 @@ static void check(const world *w, const rtk_ray *ray, const rtk_rayhit *got, int
         fail_msg("%s ray %u: instID %u in a scene without instances", what, ray->id, got->hit.instID);
 }
 
-static void run_scene(const world *w, rtk_scene s, double tol, const char *what)
+static void run_scene(world *w, rtk_scene s, double tol, const char *what)
 {
     rng r = {77};
     rtk_ray rays[RAYS];
     for (uint32_t i = 0; i < RAYS; i++)
         rays[i] = random_ray(&r, i);
+    const answer *ref = answers_of(w, rays);
     filter_log log = {.inst = RTK_INVALID_GEOMETRY_ID};
     /* single rays, with and without a context */
     for (uint32_t i = 0; i < RAYS; i++) {
@@ -254,7 +282,7 @@ static void run_scene(const world *w, rtk_scene s, double tol, const char *what)
             assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
             assert_int_equal(rtk_occluded1(s, &o), RTK_OK);
         }
-        check(w, &rays[i], &rh, o.tfar == -INFINITY, tol, what);
+        check(w, &rays[i], &ref[i], &rh, o.tfar == -INFINITY, tol, what);
     }
     /* packets of every width, some lanes invalid */
     static const unsigned widths[] = {4, 8, 16};
@@ -294,7 +322,7 @@ static void run_scene(const world *w, rtk_scene s, double tol, const char *what)
                 }
                 char name[96];
                 snprintf(name, sizeof name, "%s packet%u", what, n);
-                check(w, &rays[base + l], &got, o.ray.tfar == -INFINITY, tol, name);
+                check(w, &rays[base + l], &ref[base + l], &got, o.ray.tfar == -INFINITY, tol, name);
             }
         }
     }
