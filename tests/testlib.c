@@ -357,7 +357,7 @@ size_t test_mesh_files(char *files[], size_t max, const char *only)
     struct dirent *e;
     while ((e = readdir(d)) && n < max) {
         size_t len = strlen(e->d_name);
-        if (len > 4 && !strcmp(e->d_name + len - 4, ".ply") && (!only || !*only || !strcmp(only, e->d_name))) {
+        if (len > 4 && !strcmp(e->d_name + len - 4, ".ply") && (all || !strcmp(only, e->d_name))) {
             files[n] = malloc(strlen(RTK_TEST_MESHES) + len + 2);
             assert_non_null(files[n]);
             sprintf(files[n], "%s/%s", RTK_TEST_MESHES, e->d_name);
