@@ -1453,40 +1453,79 @@ static int split_children(const build *bd, binpool *pool, bins *scratch, sbins *
 
 /* ---- stage 2: a subtree on one thread ---- */
 
-static uint32_t build_node(part *p, const range *r, uint32_t depth)
+/* Whether r becomes one leaf: up to four references, or a small range
+ * where the SAH says an inner node over its best split would cost more
+ * than one leaf of several blocks (one box test, at the price of one block
+ * of triangles, as in Embree: an inner node over a handful of triangles
+ * would mostly hold empty slots).  Otherwise *first is that best split
+ * when it was computed, else its axis is -1. */
+static int leaf_range(part *p, const range *r, uint32_t depth, split *first)
+{
+    const uint32_t n = r->end - r->begin;
+    first->axis = -1;
+    if (n <= 4)
+        return 1;
+    if (n <= 4 * RTK_LEAF_MAX_BLOCKS && depth < RTK_SAH_MEDIAN_DEPTH) {
+        *first = find_split(p->bd, r);
+        const float area = box_half_area(&r->geom);
+        if (first->axis < 0 || (float)((n + 3) / 4) * area <= area + first->cost) {
+            pool_put(&p->pool, r->bn);
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/* The inner node over r (not a leaf by leaf_range, which gave `first`) and
+ * its subtree.  Its leaf children are placed first, slot by slot, and only
+ * then its inner children's subtrees, so the blocks of a node's leaves lie
+ * side by side, ahead of its descendants', and the nodes follow in the same
+ * depth-first order (the plain recursion strewed a node's leaves among its
+ * descendants').  The same tree otherwise.  On rays from random points of
+ * the mesh (a scratch driver, rtk avx2 and Embree isa=avx2 in turns) it
+ * measured 1-2% faster on San Miguel and within the noise on the dragon;
+ * with the nodes' offset (build_common.c, node_offset) 4-5% on both. */
+static uint32_t build_inner(part *p, const range *r, uint32_t depth, const split *first)
 {
     const build *bd = p->bd;
     if (depth > p->depth)
         p->depth = depth;
-    const uint32_t n = r->end - r->begin;
-    if (n <= 4)
-        return part_leaf(p, r->begin, r->end);
-
-    const int median = depth >= RTK_SAH_MEDIAN_DEPTH;
-    /* A small range becomes one leaf of several blocks where the SAH says
-     * an inner node over its best split would cost more (one box test, at
-     * the price of one block of triangles, as in Embree): an inner node
-     * over a handful of triangles would mostly hold empty slots. */
-    split first = {.axis = -1};
-    int have_first = 0;
-    if (n <= 4 * RTK_LEAF_MAX_BLOCKS && !median) {
-        first = find_split(bd, r);
-        const float area = box_half_area(&r->geom);
-        if (first.axis < 0 || (float)((n + 3) / 4) * area <= area + first.cost) {
-            pool_put(&p->pool, r->bn);
-            return part_leaf(p, r->begin, r->end);
-        }
-        have_first = 1;
-    }
     range child[8];
-    const int nc = split_children(bd, &p->pool, NULL, NULL, r, median, have_first ? &first : NULL, 0, child);
+    const int nc = split_children(bd, &p->pool, NULL, NULL, r, depth >= RTK_SAH_MEDIAN_DEPTH,
+                                  first->axis >= 0 ? first : NULL, 0, child);
     const uint32_t index = part_node(p);
-    int slot[8] = {0, 1, 2, 3, 4, 5, 6, 7};
+    int slot[8] = {0, 1, 2, 3, 4, 5, 6, 7}, in_slot[8];
     child_slots(bd, child, nc, slot);
     write_node(p, index, child, nc, slot);
     for (int i = 0; i < nc; i++)
-        set_child(p, index, slot[i], build_node(p, &child[i], depth + 1));
+        in_slot[slot[i]] = i;
+    split firsts[8];
+    unsigned inner = 0;
+    for (int s = 0; s < nc; s++) {
+        const int i = in_slot[s];
+        if (!leaf_range(p, &child[i], depth + 1, &firsts[i])) {
+            inner |= 1u << s;
+            continue;
+        }
+        if (depth + 1 > p->depth)
+            p->depth = depth + 1;
+        set_child(p, index, s, part_leaf(p, child[i].begin, child[i].end));
+    }
+    for (; inner; inner &= inner - 1) {
+        const int s = __builtin_ctz(inner), i = in_slot[s];
+        set_child(p, index, s, build_inner(p, &child[i], depth + 1, &firsts[i]));
+    }
     return index;
+}
+
+static uint32_t build_node(part *p, const range *r, uint32_t depth)
+{
+    split first;
+    if (!leaf_range(p, r, depth, &first))
+        return build_inner(p, r, depth, &first);
+    if (depth > p->depth)
+        p->depth = depth;
+    return part_leaf(p, r->begin, r->end);
 }
 
 static void build_subtree(void *data, uint32_t i)
