@@ -201,6 +201,7 @@ struct rtk_accel {
     rtk_leaf_geometry *geoms; /* bvh4.triangle4i: one per geometry in the build input */
     uint64_t node_count, leaf_count;
     size_t nodes_mapped, tris_mapped; /* bytes mapped for the node and leaf arrays (page-rounded) */
+    size_t nodes_offset; /* the node array starts this many bytes into its mapping (build_common.c) */
     /* bvh4.object (objects.c): the objects in leaf order, else NULL */
     struct rtk_build_object *objects;
     uint64_t object_count;
