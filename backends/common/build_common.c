@@ -398,15 +398,15 @@ static void *tree_array(void *p, size_t *mapped, size_t size, size_t offset)
 }
 
 /* Where an 8-wide node array starts in its mapping: 64 bytes in, so every
- * node lies 64 bytes past a multiple of 256.  The nodes' four cache lines
- * are then the last three of one 256-byte block and the first of the next
- * (the child references, with the next node's x planes beside them; in
- * depth-first order that is often the node a ray visits next).  Rays from
+ * node lies 64 bytes past a multiple of 256 (its four cache lines the last
+ * three of one 256-byte block and the first of the next).  Rays from
  * random points of the whole mesh (a scratch driver tracing them through
- * rtk avx2 and Embree isa=avx2 in turns) ran 3-7% faster on the dragon and
- * San Miguel than with the nodes at multiples of 256 or of 256 plus 128
- * or 192; the bench's diffuse rays, whose neighbours find the tree in the
- * caches, within the noise.  4-wide nodes keep offset 0 (not measured). */
+ * rtk avx2 and Embree isa=avx2 in turns, the development VM's AMD EPYC)
+ * ran 3-6% faster on the dragon and San Miguel than with the nodes at
+ * multiples of 256, or of 256 plus 128 or 192; the bench's diffuse rays,
+ * whose neighbours find the tree in the caches, within the noise.  Why
+ * that CPU prefers it is not known (docs/BENCHMARKS.md).  4-wide nodes
+ * keep offset 0 (not measured). */
 static size_t node_offset(const build *bd)
 {
     return bd->node_size == sizeof(rtk_bvh8_node) ? 64 : 0;
