@@ -1482,9 +1482,11 @@ static int leaf_range(part *p, const range *r, uint32_t depth, split *first)
  * side by side, ahead of its descendants', and the nodes follow in the same
  * depth-first order (the plain recursion strewed a node's leaves among its
  * descendants').  The same tree otherwise.  On rays from random points of
- * the mesh (a scratch driver, rtk avx2 and Embree isa=avx2 in turns) it
- * measured 1-2% faster on San Miguel and within the noise on the dragon;
- * with the nodes' offset (build_common.c, node_offset) 4-5% on both. */
+ * the mesh (a scratch driver, rtk avx2 and Embree isa=avx2 in turns) this
+ * order alone measured within the noise (+0.5% on average over nine paired
+ * runs on the dragon and on San Miguel); with the nodes' offset
+ * (build_common.c, node_offset) 4-5% on both, which is the order that was
+ * measured and kept. */
 static uint32_t build_inner(part *p, const range *r, uint32_t depth, const split *first)
 {
     const build *bd = p->bd;
