@@ -374,6 +374,14 @@ void build_recycle_give_back(build *bd, void *p, size_t mapped)
     bd->recycle->tris_mapped = mapped;
 }
 
+/* Gives back the mapping of a tree's array p (tree_array's, `offset` bytes
+ * into its mapping of `mapped` bytes; NULL: nothing). */
+static void tree_array_unreserve(void *p, size_t mapped, size_t offset)
+{
+    if (p)
+        build_unreserve((char *)p - offset, mapped);
+}
+
 /* An array of `size` bytes for the new tree, `offset` bytes into its
  * mapping: p (the old array of `mapped` bytes of mapping, or NULL) when it
  * holds them and not much more (memory of a tree that shrank a lot goes
@@ -383,7 +391,7 @@ static void *tree_array(void *p, size_t *mapped, size_t size, size_t offset)
 {
     size += offset;
     if (p && (*mapped < size || *mapped - size > size + RTK_HUGE_PAGE)) {
-        build_unreserve((char *)p - offset, *mapped);
+        tree_array_unreserve(p, *mapped, offset);
         p = NULL;
     }
     if (!p) {
@@ -430,9 +438,8 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
     if (bd->indexed)
         accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
     if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms) || !rtk_accel_copy_attrs(accel, in)) {
-        if (bd->nodes)
-            build_unreserve((char *)bd->nodes - accel->nodes_offset, accel->nodes_mapped);
-        build_unreserve(bd->leaves, accel->tris_mapped);
+        tree_array_unreserve(bd->nodes, accel->nodes_mapped, accel->nodes_offset);
+        tree_array_unreserve(bd->leaves, accel->tris_mapped, 0);
         free(accel->geoms);
         free(accel->attrs);
         free(accel);
@@ -614,9 +621,8 @@ void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
 {
     if (!accel)
         return;
-    if (accel->nodes)
-        build_unreserve((char *)accel->nodes - accel->nodes_offset, accel->nodes_mapped);
-    build_unreserve(accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped);
+    tree_array_unreserve(accel->nodes, accel->nodes_mapped, accel->nodes_offset);
+    tree_array_unreserve(accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped, 0);
     free(accel->geoms);
     free(accel->attrs);
     free(accel);

@@ -1476,6 +1476,14 @@ static int leaf_range(part *p, const range *r, uint32_t depth, split *first)
     return 0;
 }
 
+/* The leaf over r at `depth` (counted in the subtree's depth). */
+static uint32_t depth_leaf(part *p, const range *r, uint32_t depth)
+{
+    if (depth > p->depth)
+        p->depth = depth;
+    return part_leaf(p, r->begin, r->end);
+}
+
 /* The inner node over r (not a leaf by leaf_range, which gave `first`) and
  * its subtree.  Its leaf children are placed first, slot by slot, and only
  * then its inner children's subtrees, so the blocks of a node's leaves lie
@@ -1509,9 +1517,7 @@ static uint32_t build_inner(part *p, const range *r, uint32_t depth, const split
             inner |= 1u << s;
             continue;
         }
-        if (depth + 1 > p->depth)
-            p->depth = depth + 1;
-        set_child(p, index, s, part_leaf(p, child[i].begin, child[i].end));
+        set_child(p, index, s, depth_leaf(p, &child[i], depth + 1));
     }
     for (; inner; inner &= inner - 1) {
         const int s = __builtin_ctz(inner), i = in_slot[s];
@@ -1523,11 +1529,7 @@ static uint32_t build_inner(part *p, const range *r, uint32_t depth, const split
 static uint32_t build_node(part *p, const range *r, uint32_t depth)
 {
     split first;
-    if (!leaf_range(p, r, depth, &first))
-        return build_inner(p, r, depth, &first);
-    if (depth > p->depth)
-        p->depth = depth;
-    return part_leaf(p, r->begin, r->end);
+    return leaf_range(p, r, depth, &first) ? depth_leaf(p, r, depth) : build_inner(p, r, depth, &first);
 }
 
 static void build_subtree(void *data, uint32_t i)
