@@ -77,6 +77,10 @@ static void test_compare_select_mask(void **state)
     assert_true(r[0] == 2.0f && r[1] == 0.0f && r[2] == 0.0f && r[3] == 3.0f);
     get4(vf4_clear3(vf4_set(-1.0f, 2.0f, -0.0f, -3.0f)), r);
     assert_true(r[0] == -1.0f && r[1] == 2.0f && r[2] == 0.0f && signbit(r[2]) && r[3] == 0.0f && !signbit(r[3]));
+    get4(vf4_yzx(vf4_set(1.0f, 2.0f, 3.0f, 4.0f)), r);
+    assert_true(r[0] == 2.0f && r[1] == 3.0f && r[2] == 1.0f && r[3] == 4.0f);
+    get4(vf4_zxy(vf4_set(1.0f, 2.0f, 3.0f, 4.0f)), r);
+    assert_true(r[0] == 3.0f && r[1] == 1.0f && r[2] == 2.0f && r[3] == 4.0f);
 }
 
 static void test_arithmetic(void **state)

@@ -487,25 +487,15 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
 
 /* The lanes of `live` (a mask) whose triangle has zero area by
  * rtk_triangle_is_degenerate, given the float edges a = v1 - v0 and
- * b = v2 - v0 of four triangles across the lanes.  A lane where some
- * component a_i b_j - a_j b_i of the float cross product is far from zero
- * next to its rounding error (4 float ulps of |a_i b_j| + |a_j b_i| at
- * most) has a nonzero cross product in double precision too; only the
- * other lanes take the exact test.  The terms' sum must be at least 2^-60,
- * where subnormal rounding is far below the margin; a sum that overflowed
- * fails the comparison by itself. */
+ * b = v2 - v0 of four triangles across the lanes: only the lanes where no
+ * component of the float cross product is surely nonzero
+ * (build_cross_nonzero) take the exact test. */
 static uint32_t zero_area_lanes(uint32_t live, vfloat4 ax, vfloat4 ay, vfloat4 az, vfloat4 bx, vfloat4 by,
                                 vfloat4 bz, const float *const (*v)[3])
 {
-    const vfloat4 rel = vf4_set1(0x1p-16f), tiny = vf4_set1(0x1p-60f);
-    const vfloat4 p[3] = {vf4_mul(ay, bz), vf4_mul(az, bx), vf4_mul(ax, by)};
-    const vfloat4 q[3] = {vf4_mul(az, by), vf4_mul(ax, bz), vf4_mul(ay, bx)};
-    vbool4 sure = vb4_from_bits(0);
-    for (int i = 0; i < 3; i++) {
-        const vfloat4 sum = vf4_add(vf4_abs(p[i]), vf4_abs(q[i]));
-        const vbool4 clear = vf4_gt(vf4_abs(vf4_sub(p[i], q[i])), vf4_mul(rel, sum));
-        sure = vb4_or(sure, vb4_and(clear, vf4_gt(sum, tiny)));
-    }
+    const vbool4 sure = vb4_or(vb4_or(build_cross_nonzero(vf4_mul(ay, bz), vf4_mul(az, by)),
+                                      build_cross_nonzero(vf4_mul(az, bx), vf4_mul(ax, bz))),
+                               build_cross_nonzero(vf4_mul(ax, by), vf4_mul(ay, bx)));
     uint32_t zero = 0;
     for (uint32_t unsure = live & ~(uint32_t)vb4_mask(sure); unsure; unsure &= unsure - 1) {
         const int lane = __builtin_ctz(unsure);

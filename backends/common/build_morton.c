@@ -73,11 +73,9 @@ typedef struct morton {
 } morton;
 
 /* The centre of a triangle's box, as lo/2 + hi/2 (no overflow for finite boxes). */
-static inline vfloat4 centroid3(const float *v0, const float *v1, const float *v2)
+static inline vfloat4 centroid3(const vfloat4 p[3])
 {
-    const vfloat4 p0 = vf4_set(v0[0], v0[1], v0[2], 0.0f), p1 = vf4_set(v1[0], v1[1], v1[2], 0.0f);
-    const vfloat4 p2 = vf4_set(v2[0], v2[1], v2[2], 0.0f);
-    const vfloat4 lo = vf4_min(vf4_min(p0, p1), p2), hi = vf4_max(vf4_max(p0, p1), p2);
+    const vfloat4 lo = vf4_min(vf4_min(p[0], p[1]), p[2]), hi = vf4_max(vf4_max(p[0], p[1]), p[2]);
     const vfloat4 half = vf4_set1(0.5f);
     return vf4_madd(lo, half, vf4_mul(hi, half));
 }
@@ -117,10 +115,10 @@ static void scan_chunk(void *data, uint32_t k)
     for (uint64_t i = begin; i < end; i++) {
         while (i >= m->geom_first[gi + 1])
             gi++;
-        const float *v[3];
-        if (!build_hittable(&in->geometries[gi], (size_t)(i - m->geom_first[gi]), v, &skipped, &degenerate))
+        vfloat4 p[3];
+        if (!build_hittable(&in->geometries[gi], (size_t)(i - m->geom_first[gi]), p, &skipped, &degenerate))
             continue;
-        const vfloat4 c = centroid3(v[0], v[1], v[2]);
+        const vfloat4 c = centroid3(p);
         box_grow(&cent, c, c);
         vf4_store(out + 4 * (size_t)n++, c);
         out[4 * (size_t)n - 1] = rtk_bits_float((uint32_t)i);

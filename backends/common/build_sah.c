@@ -1927,14 +1927,11 @@ static void make_refs(void *data, uint32_t k)
         while (i >= g->geom_first[gi + 1])
             gi++;
         const size_t prim = (size_t)(i - g->geom_first[gi]);
-        const float *v[3];
-        if (!build_hittable(&in->geometries[gi], prim, v, &skipped, &degenerate))
+        vfloat4 p[3];
+        if (!build_hittable(&in->geometries[gi], prim, p, &skipped, &degenerate))
             continue;
         primref *ref = &out[n++];
-        vfloat4 p0 = vf4_set(v[0][0], v[0][1], v[0][2], 0.0f);
-        vfloat4 p1 = vf4_set(v[1][0], v[1][1], v[1][2], 0.0f);
-        vfloat4 p2 = vf4_set(v[2][0], v[2][1], v[2][2], 0.0f);
-        vfloat4 blo = vf4_min(vf4_min(p0, p1), p2), bhi = vf4_max(vf4_max(p0, p1), p2);
+        const vfloat4 blo = vf4_min(vf4_min(p[0], p[1]), p[2]), bhi = vf4_max(vf4_max(p[0], p[1]), p[2]);
         range_add(&bounds, blo, bhi);
         vf4_store(ref->lo, blo);
         vf4_store(ref->hi, bhi);

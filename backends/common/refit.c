@@ -68,8 +68,8 @@ static void mark_kept(void *data, uint32_t chunk)
     for (uint64_t i = begin; i < end; i++) {
         while (i >= r->geom_first[gi + 1])
             gi++;
-        const float *v[3];
-        if (build_hittable(&in->geometries[gi], i - r->geom_first[gi], v, &skipped, &degenerate)) {
+        vfloat4 p[3];
+        if (build_hittable(&in->geometries[gi], i - r->geom_first[gi], p, &skipped, &degenerate)) {
             r->kept[i / 64] |= (uint64_t)1 << (i % 64);
             kept++;
         }

@@ -72,6 +72,8 @@ RTK_INLINE vfloat4 vf4_select(vbool4 m, vfloat4 a, vfloat4 b) { RTK_S4_F(m.i[k] 
 RTK_INLINE vfloat4 vf4_keep(vbool4 m, vfloat4 a) { RTK_S4_F(m.i[k] ? a.f[k] : 0.0f); }
 RTK_INLINE vfloat4 vf4_clear3(vfloat4 a) { RTK_S4_F(k < 3 ? a.f[k] : 0.0f); }
 RTK_INLINE vfloat4 vf4_abs(vfloat4 a) { RTK_S4_F(rtk_s_float(rtk_s_bits(a.f[k]) & INT32_MAX)); }
+RTK_INLINE vfloat4 vf4_yzx(vfloat4 a) { return (vfloat4){{a.f[1], a.f[2], a.f[0], a.f[3]}}; }
+RTK_INLINE vfloat4 vf4_zxy(vfloat4 a) { return (vfloat4){{a.f[2], a.f[0], a.f[1], a.f[3]}}; }
 RTK_INLINE vfloat4 vf4_xor_sign(vfloat4 a, vfloat4 s)
 {
     RTK_S4_F(rtk_s_float(rtk_s_bits(a.f[k]) ^ (rtk_s_bits(s.f[k]) & INT32_MIN)));

@@ -76,6 +76,9 @@ RTK_INLINE vfloat4 vf4_keep(vbool4 m, vfloat4 a) { return _mm_and_ps(m, a); }
 RTK_INLINE vfloat4 vf4_clear3(vfloat4 a) { return _mm_blend_ps(a, _mm_setzero_ps(), 8); }
 /* |a| and a with the sign of s applied (a ^ sign bit of s) */
 RTK_INLINE vfloat4 vf4_abs(vfloat4 a) { return _mm_andnot_ps(_mm_set1_ps(-0.0f), a); }
+/* lanes 0..2 rotated, lane 3 kept: (y, z, x, w) and (z, x, y, w) */
+RTK_INLINE vfloat4 vf4_yzx(vfloat4 a) { return _mm_shuffle_ps(a, a, _MM_SHUFFLE(3, 0, 2, 1)); }
+RTK_INLINE vfloat4 vf4_zxy(vfloat4 a) { return _mm_shuffle_ps(a, a, _MM_SHUFFLE(3, 1, 0, 2)); }
 RTK_INLINE vfloat4 vf4_xor_sign(vfloat4 a, vfloat4 s) { return _mm_xor_ps(a, _mm_and_ps(s, _mm_set1_ps(-0.0f))); }
 /* bit i = lane i's sign bit (-0.0 and negative NaNs included): one movmskps, no comparison */
 RTK_INLINE int vf4_signs(vfloat4 a) { return _mm_movemask_ps(a); }
