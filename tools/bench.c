@@ -1379,13 +1379,69 @@ static double rebuild_time(lib *bl, const ctx *c, float *v, int q, int frames, c
     return bad ? -1 : best;
 }
 
+/* What the build section measured of one library at one quality and
+ * thread count. */
+typedef struct build_result {
+    double best, bytes, peak, trace_rate, rebuild; /* seconds; bytes and peak per triangle */
+    char builder[32];
+} build_result;
+
+/* Quality q on o->threads[ti] threads, every library on a fresh device:
+ * the builds in turns (each round builds every library once, so a machine
+ * whose speed drifts over the minutes of the section moves every library's
+ * best alike; with each library's builds in a block, Embree's own times
+ * moved by a quarter between two runs on one VM), then each library's
+ * rebuild frames.  res[l] for library l; 0, or 1 with err set. */
+static int build_turns(ctx *c, int q, int ti, float *moving, unsigned char *hits, build_result *res, char *err,
+                       size_t err_size)
+{
+    const bench_opts *o = c->o;
+    lib bl[MAXLIBS];
+    int opened = 0, rc = 0;
+    for (; opened < c->nlibs; opened++)
+        if (lib_open(&bl[opened], c->libs[opened].name, c->libs[opened].embree, c->libs[opened].config,
+                     o->threads[ti], err, err_size)) {
+            rc = 1;
+            break;
+        }
+    for (int l = 0; l < c->nlibs; l++)
+        res[l] = (build_result){.best = 1e30, .peak = -1.0};
+    for (int b = 0; !rc && b < o->builds; b++)
+        for (int l = 0; !rc && l < c->nlibs; l++) {
+            scene sc;
+            const long base = b == 0 ? peak_begin() : -1;
+            if (scene_build(&sc, &bl[l], c->m, c->padded, MODE_DEFAULT, q, err, err_size)) {
+                rc = 1;
+                break;
+            }
+            if (b == 0)
+                res[l].peak = peak_end(base) / (double)c->m->triangle_count;
+            res[l].best = sc.seconds < res[l].best ? sc.seconds : res[l].best;
+            res[l].bytes = sc.bytes_per_tri;
+            memcpy(res[l].builder, sc.builder, sizeof res[l].builder);
+            if (b == o->builds - 1 && ti == 0) {
+                const render_tracer t = scene_tracer(&sc, 0);
+                res[l].trace_rate = trace_set(&t, &c->sets[SET_DIFFUSE], 1, 0, 1, o->repeat, hits);
+            }
+            scene_release(&sc);
+        }
+    for (int l = 0; !rc && l < c->nlibs; l++) {
+        res[l].rebuild = rebuild_time(&bl[l], c, moving, q, o->builds + 1, err, err_size);
+        rc = res[l].rebuild < 0;
+    }
+    for (int l = 0; l < opened; l++)
+        lib_close(&bl[l]);
+    return rc;
+}
+
 static int section_build(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     static const char *const qn[3] = {"low", "medium", "high"};
     const int frames = o->builds + 1;
     printf("\nbuild (Table 4 of the Embree paper): start time from the first scene call to a committed scene (API "
-           "calls, allocation, build), best of %d, at each quality; rebuild: a scene built again after its "
+           "calls, allocation, build), best of %d, the libraries' builds in turns, at each quality; rebuild: a "
+           "scene built again after its "
            "vertices move (the mesh twisted a little more in each of %d frames; Embree's flagged dynamic), best of "
            "the frames, from the update calls to the committed scene; bytes per triangle of the tree and at the peak of the first build "
            "(the growth of resident memory during it, a fresh device each time); then the diffuse rays of the "
@@ -1396,75 +1452,53 @@ static int section_build(ctx *c, char *err, size_t err_size)
     const rayset diff = c->sets[SET_DIFFUSE];
     unsigned char *hits = malloc(diff.n + 1);
     float *moving = calloc(c->m->vertex_count * 3 + 4, sizeof *moving);
-    if (!hits || !moving) {
+    /* res[(q * nthreads + ti) * nlibs + l] */
+    build_result *res = calloc((size_t)3 * (size_t)o->nthreads * (size_t)c->nlibs, sizeof *res);
+    if (!hits || !moving || !res) {
         free(hits);
         free(moving);
+        free(res);
         snprintf(err, err_size, "out of memory");
         return 1;
     }
+    progress bar;
+    progress_begin(&bar, "rtktool bench: build");
+    for (int q = 0; q < 3; q++)
+        for (int ti = 0; ti < o->nthreads; ti++) {
+            if (build_turns(c, q, ti, moving, hits, &res[((size_t)q * o->nthreads + ti) * c->nlibs], err,
+                            err_size)) {
+                progress_end(&bar);
+                free(hits);
+                free(moving);
+                free(res);
+                return 1;
+            }
+            progress_update(&bar, (double)(q * o->nthreads + ti + 1) / (3 * o->nthreads));
+        }
+    progress_end(&bar);
     char path[600];
     snprintf(path, sizeof path, "%s/%s-build.dat", o->outdir, c->stem);
     FILE *dat = fopen(path, "w");
-    double ref_start[3][4] = {{0}}, ref_rebuild[3][4] = {{0}};
-    progress bar;
-    progress_begin(&bar, "rtktool bench: build");
     for (int l = 0; l < c->nlibs; l++) {
         for (int q = 0; q < 3; q++) {
             for (int ti = 0; ti < o->nthreads; ti++) {
-                lib bl;
-                if (lib_open(&bl, c->libs[l].name, c->libs[l].embree, c->libs[l].config, o->threads[ti], err,
-                             err_size)) {
-                    free(hits);
-                    free(moving);
-                    return 1;
-                }
-                double best = 1e30, bytes = 0, trace_rate = 0, peak = -1.0;
-                char builder[32] = "";
-                for (int b = 0; b < o->builds; b++) {
-                    scene sc;
-                    const long base = b == 0 ? peak_begin() : -1;
-                    if (scene_build(&sc, &bl, c->m, c->padded, MODE_DEFAULT, q, err, err_size)) {
-                        lib_close(&bl);
-                        free(hits);
-                        free(moving);
-                        return 1;
-                    }
-                    if (b == 0)
-                        peak = peak_end(base) / (double)c->m->triangle_count;
-                    best = sc.seconds < best ? sc.seconds : best;
-                    bytes = sc.bytes_per_tri;
-                    memcpy(builder, sc.builder, sizeof builder);
-                    if (b == o->builds - 1 && ti == 0) {
-                        const render_tracer t = scene_tracer(&sc, 0);
-                        trace_rate = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits);
-                    }
-                    scene_release(&sc);
-                }
-                const double rebuild = rebuild_time(&bl, c, moving, q, frames, err, err_size);
-                lib_close(&bl);
-                if (rebuild < 0) {
-                    free(hits);
-                    free(moving);
-                    return 1;
-                }
-                if (l == 0) {
-                    ref_start[q][ti] = best;
-                    ref_rebuild[q][ti] = rebuild;
-                }
+                const build_result *r = &res[((size_t)q * o->nthreads + ti) * c->nlibs + l];
+                const build_result *ref = &res[((size_t)q * o->nthreads + ti) * c->nlibs];
+                const double best = r->best, rebuild = r->rebuild, trace_rate = r->trace_rate;
                 printf("  %-20s %-8s %-14s %7d %9.1f %7.2fx %10.1f %7.2fx %9.2f %7.1f %7.1f", c->libs[l].name, qn[q],
-                       builder, o->threads[ti], best * 1e3, ratio(ref_start[q][ti], best), rebuild * 1e3,
-                       ratio(ref_rebuild[q][ti], rebuild), (double)c->m->triangle_count / best * 1e-6, bytes, peak);
+                       r->builder, o->threads[ti], best * 1e3, ratio(ref->best, best), rebuild * 1e3,
+                       ratio(ref->rebuild, rebuild), (double)c->m->triangle_count / best * 1e-6, r->bytes, r->peak);
                 if (ti == 0)
                     printf("  %.2f", trace_rate);
                 printf("\n");
                 char variant[48]; /* quality:builder */
-                snprintf(variant, sizeof variant, "%s:%s", qn[q], builder);
+                snprintf(variant, sizeof variant, "%s:%s", qn[q], r->builder);
                 csv_row(&c->csv, "build", c->libs[l].name, variant, "start", "", o->threads[ti], best * 1e3, "ms",
-                        ratio(ref_start[q][ti], best));
+                        ratio(ref->best, best));
                 csv_row(&c->csv, "build", c->libs[l].name, variant, "rebuild", "", o->threads[ti], rebuild * 1e3,
-                        "ms", ratio(ref_rebuild[q][ti], rebuild));
-                if (peak >= 0)
-                    csv_row(&c->csv, "build", c->libs[l].name, variant, "peak memory", "", o->threads[ti], peak,
+                        "ms", ratio(ref->rebuild, rebuild));
+                if (r->peak >= 0)
+                    csv_row(&c->csv, "build", c->libs[l].name, variant, "peak memory", "", o->threads[ti], r->peak,
                             "bytes per triangle", 0);
                 if (ti == 0) {
                     csv_row(&c->csv, "build", c->libs[l].name, variant, "diffuse", "single", 1, trace_rate, "Mrays/s",
@@ -1474,11 +1508,10 @@ static int section_build(ctx *c, char *err, size_t err_size)
                                 trace_rate > 0 ? (double)diff.n / trace_rate * 1e-3 : 0.0, variant,
                                 q == 2 ? "\n\n\n" : "\n");
                 }
-                progress_update(&bar, (double)(l * 3 + q + 1) / (c->nlibs * 3));
             }
         }
     }
-    progress_end(&bar);
+    free(res);
     if (dat) {
         fclose(dat);
         snprintf(path, sizeof path, "%s/%s-build.gp", o->outdir, c->stem);
