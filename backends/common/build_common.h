@@ -184,8 +184,9 @@ static inline vbool4 build_cross_nonzero(vfloat4 p, vfloat4 q)
  * area in *degenerate (left out unless the geometry deforms).  The answers
  * are rtk_triangle_is_finite's and rtk_triangle_is_degenerate's, decided in
  * vectors: the exact test of area runs only for a triangle whose float
- * cross product cannot tell (on dragon's Morton build, a quarter of the
- * first pass's time went in the two scalar tests). */
+ * cross product cannot tell (the first pass of the dragon's Morton build,
+ * which had spent most of its time in the two scalar tests, took 18% less
+ * time; docs/BENCHMARKS.md). */
 static inline int build_hittable(const rtk_build_geometry *g, size_t prim, vfloat4 p[3], uint64_t *skipped,
                                  uint64_t *degenerate)
 {
