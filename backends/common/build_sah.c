@@ -1476,11 +1476,17 @@ static int leaf_range(part *p, const range *r, uint32_t depth, split *first)
     return 0;
 }
 
-/* The leaf over r at `depth` (counted in the subtree's depth). */
-static uint32_t depth_leaf(part *p, const range *r, uint32_t depth)
+/* A node or leaf at `depth`: the subtree's depth is at least that. */
+static void part_reach(part *p, uint32_t depth)
 {
     if (depth > p->depth)
         p->depth = depth;
+}
+
+/* The leaf over r at `depth`. */
+static uint32_t depth_leaf(part *p, const range *r, uint32_t depth)
+{
+    part_reach(p, depth);
     return part_leaf(p, r->begin, r->end);
 }
 
@@ -1498,8 +1504,7 @@ static uint32_t depth_leaf(part *p, const range *r, uint32_t depth)
 static uint32_t build_inner(part *p, const range *r, uint32_t depth, const split *first)
 {
     const build *bd = p->bd;
-    if (depth > p->depth)
-        p->depth = depth;
+    part_reach(p, depth);
     range child[8];
     const int nc = split_children(bd, &p->pool, NULL, NULL, r, depth >= RTK_SAH_MEDIAN_DEPTH,
                                   first->axis >= 0 ? first : NULL, 0, child);
@@ -1679,8 +1684,7 @@ static uint32_t add_subtree(top *t, part *p)
 static uint32_t top_place(top *t, tnode *n)
 {
     part *p = &t->nodes;
-    if (n->depth > p->depth)
-        p->depth = n->depth;
+    part_reach(p, n->depth);
     const uint32_t index = part_node(p);
     write_node(p, index, n->child, n->nc, n->slot);
     for (int i = 0; i < n->nc; i++) {
