@@ -1434,6 +1434,12 @@ static int build_turns(ctx *c, int q, int ti, float *moving, unsigned char *hits
     return rc;
 }
 
+/* The results of quality q on o->threads[ti] threads, one per library. */
+static build_result *build_row(const ctx *c, build_result *res, int q, int ti)
+{
+    return &res[((size_t)q * (size_t)c->o->nthreads + (size_t)ti) * (size_t)c->nlibs];
+}
+
 static int section_build(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
@@ -1452,7 +1458,7 @@ static int section_build(ctx *c, char *err, size_t err_size)
     const rayset diff = c->sets[SET_DIFFUSE];
     unsigned char *hits = malloc(diff.n + 1);
     float *moving = calloc(c->m->vertex_count * 3 + 4, sizeof *moving);
-    /* res[(q * nthreads + ti) * nlibs + l] */
+    /* row (q * nthreads + ti) of nlibs results: quality q on threads[ti], a result per library */
     build_result *res = calloc((size_t)3 * (size_t)o->nthreads * (size_t)c->nlibs, sizeof *res);
     if (!hits || !moving || !res) {
         free(hits);
@@ -1465,8 +1471,7 @@ static int section_build(ctx *c, char *err, size_t err_size)
     progress_begin(&bar, "rtktool bench: build");
     for (int q = 0; q < 3; q++)
         for (int ti = 0; ti < o->nthreads; ti++) {
-            if (build_turns(c, q, ti, moving, hits, &res[((size_t)q * o->nthreads + ti) * c->nlibs], err,
-                            err_size)) {
+            if (build_turns(c, q, ti, moving, hits, build_row(c, res, q, ti), err, err_size)) {
                 progress_end(&bar);
                 free(hits);
                 free(moving);
@@ -1482,8 +1487,7 @@ static int section_build(ctx *c, char *err, size_t err_size)
     for (int l = 0; l < c->nlibs; l++) {
         for (int q = 0; q < 3; q++) {
             for (int ti = 0; ti < o->nthreads; ti++) {
-                const build_result *r = &res[((size_t)q * o->nthreads + ti) * c->nlibs + l];
-                const build_result *ref = &res[((size_t)q * o->nthreads + ti) * c->nlibs];
+                const build_result *ref = build_row(c, res, q, ti), *r = &ref[l];
                 const double best = r->best, rebuild = r->rebuild, trace_rate = r->trace_rate;
                 printf("  %-20s %-8s %-14s %7d %9.1f %7.2fx %10.1f %7.2fx %9.2f %7.1f %7.1f", c->libs[l].name, qn[q],
                        r->builder, o->threads[ti], best * 1e3, ratio(ref->best, best), rebuild * 1e3,
