@@ -133,11 +133,11 @@ static const char *const builder_names[] = {"morton", "sah-binned", "sah-spatial
 /* Under the sanitizers, the scalar backend's spatial splits: left out of the
  * tests that build them again and again (same_tree_any_threads,
  * rebuild_in_old_memory, chosen_builder_and_layout).  There its
- * split_triangle took half of those tests' samples (perf, ASan+UBSan: 51%
- * of same_tree_any_threads', 34% of rebuild_in_old_memory's), against 5%
- * for each SIMD backend's whole build.  hits_match_brute_force and
- * spatial_splits_vs_brute_force still build them under the sanitizers, and
- * the optimised build runs every test with them. */
+ * split_triangle took a third to a half of those tests' samples (perf,
+ * ASan+UBSan), against 5% for each SIMD backend's whole build;
+ * same_tree_any_threads took 34 s with them, 18 s without.
+ * hits_match_brute_force and spatial_splits_vs_brute_force still build them
+ * under the sanitizers, and the optimised build runs every test with them. */
 static int scalar_splits_left_out(const char *backend, size_t q)
 {
     return test_sanitized() && qualities[q] == RTK_BUILD_QUALITY_HIGH && !strcmp(backend, "scalar");
