@@ -365,15 +365,6 @@ void *build_recycle_take(build *bd, int leaves, size_t size, size_t *mapped)
     return p;
 }
 
-void build_recycle_give_back(build *bd, void *p, size_t mapped)
-{
-    if (bd->indexed)
-        bd->recycle->trisi = p;
-    else
-        bd->recycle->tris = p;
-    bd->recycle->tris_mapped = mapped;
-}
-
 /* Gives back the mapping of a tree's array p (tree_array's, `offset` bytes
  * into its mapping of `mapped` bytes; NULL: nothing). */
 static void tree_array_unreserve(void *p, size_t mapped, size_t offset)
@@ -383,14 +374,16 @@ static void tree_array_unreserve(void *p, size_t mapped, size_t offset)
 }
 
 /* An array of `size` bytes for the new tree, `offset` bytes into its
- * mapping: p (the old array of `mapped` bytes of mapping, or NULL) when it
- * holds them and not much more (memory of a tree that shrank a lot goes
- * back), else fresh; *mapped is then the mapping's size.  Whole huge pages
- * past the array are given back (the mapping stays). */
+ * mapping: p (an old array or a builder's spare leaves, `mapped` bytes of
+ * mapping, or NULL) when it holds them, else fresh; *mapped is then the
+ * mapping's size.  Whole huge pages past the array are given back: the
+ * mapping stays for the next rebuild, unless it is more than twice the
+ * array (a tree that shrank a lot, or a builder's reservation for the
+ * most leaves it could need), which is cut where the array ends. */
 static void *tree_array(void *p, size_t *mapped, size_t size, size_t offset)
 {
     size += offset;
-    if (p && (*mapped < size || *mapped - size > size + RTK_HUGE_PAGE)) {
+    if (p && *mapped < size) {
         tree_array_unreserve(p, *mapped, offset);
         p = NULL;
     }
@@ -398,6 +391,14 @@ static void *tree_array(void *p, size_t *mapped, size_t size, size_t offset)
         char *fresh = build_reserve_huge(size);
         *mapped = size;
         return fresh ? fresh + offset : NULL;
+    }
+    if (*mapped - size > size + RTK_HUGE_PAGE) {
+        /* to the array's last page, as a fresh one would end: the mapping
+         * then ends inside the last huge page, which stays in small ones */
+        const size_t cut = page_round(size);
+        build_unreserve((char *)p - offset + cut, *mapped - cut);
+        *mapped = cut;
+        return p;
     }
     const size_t keep = (size + RTK_HUGE_PAGE - 1) / RTK_HUGE_PAGE * RTK_HUGE_PAGE;
     if (*mapped > keep)
@@ -433,7 +434,11 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
     void *old_nodes = build_recycle_take(bd, 0, nodes_size, &accel->nodes_mapped);
     accel->nodes_offset = node_offset(bd);
     bd->nodes = tree_array(old_nodes, &accel->nodes_mapped, nodes_size, accel->nodes_offset);
-    void *old_leaves = build_recycle_take(bd, 1, tris_size, &accel->tris_mapped);
+    void *old_leaves = bd->spare_leaves;
+    accel->tris_mapped = bd->spare_mapped;
+    bd->spare_leaves = NULL;
+    if (!old_leaves)
+        old_leaves = build_recycle_take(bd, 1, tris_size, &accel->tris_mapped);
     bd->leaves = tree_array(old_leaves, &accel->tris_mapped, tris_size, 0);
     if (bd->indexed)
         accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);

@@ -57,6 +57,12 @@ typedef struct build {
      * arrays from build_accel_alloc), else NULL: build_recycle_take hands
      * out its arrays */
     struct rtk_accel *recycle;
+    /* Leaf memory a builder has used for scratch and read (mapped in
+     * already), or NULL: build_accel_alloc takes it for the new leaves
+     * before the recycled tree's or fresh pages, spare_mapped bytes of
+     * mapping from build_reserve_huge or build_recycle_take. */
+    void *spare_leaves;
+    size_t spare_mapped;
     rtk_build_output *out;
 } build;
 
@@ -233,7 +239,6 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_run_ordered RTK_SYM(rtk_build_run_ordered)
 #define build_accel_alloc RTK_SYM(rtk_build_accel_alloc)
 #define build_recycle_take RTK_SYM(rtk_build_recycle_take)
-#define build_recycle_give_back RTK_SYM(rtk_build_recycle_give_back)
 #define build_queue_init RTK_SYM(rtk_build_queue_init)
 #define build_queue_push RTK_SYM(rtk_build_queue_push)
 #define build_queue_fail RTK_SYM(rtk_build_queue_fail)
@@ -436,10 +441,6 @@ RTK_HIDDEN struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64
  * the build's from now on (an unreservation of *mapped bytes), and
  * out->recycled set; else NULL.  build_accel_alloc takes them itself. */
 RTK_HIDDEN void *build_recycle_take(build *bd, int leaves, size_t size, size_t *mapped);
-/* Leaf memory a builder took for scratch (build_recycle_take, leaves 1),
- * handed back once read: build_accel_alloc may then take it for the new
- * leaves, or the caller releases it with the old tree. */
-RTK_HIDDEN void build_recycle_give_back(build *bd, void *p, size_t mapped);
 /* The SAH terms of node `index`'s slots (each slot's half-area, times its
  * blocks for a leaf), summed in slot order; the tree's SAH cost adds them
  * in node order. */

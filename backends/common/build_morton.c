@@ -524,13 +524,21 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     m.chunks = (uint32_t)((total + RTK_MORTON_CHUNK - 1) / RTK_MORTON_CHUNK);
     const size_t nc = m.chunks ? m.chunks : 1;
     const size_t item_bytes = (total ? total : 1) * sizeof *m.items, rec_bytes = (total ? total : 1) * 4 * sizeof(float);
-    /* the records in the previous tree's leaves when the scene is rebuilt
-     * (they serve the new leaves after: no fresh pages for either) */
+    /* The records in the previous tree's leaves when the scene is rebuilt,
+     * else at the start of a reservation for the most leaf blocks the tree
+     * could have (one per triangle; address space only): the new leaves
+     * are written over them, into pages mapped in already. */
     size_t rec_mapped = rec_bytes;
     m.rec = build_recycle_take(&m.bd, 1, rec_bytes, &rec_mapped);
-    const int rec_recycled = m.rec != NULL;
-    if (!rec_recycled)
-        m.rec = build_reserve_huge(rec_bytes);
+    if (!m.rec) {
+        const size_t most = (total ? total : 1) * m.bd.leaf_size;
+        rec_mapped = most > rec_bytes ? most : rec_bytes;
+        m.rec = build_reserve_huge(rec_mapped);
+        if (!m.rec) {
+            rec_mapped = rec_bytes;
+            m.rec = build_reserve_huge(rec_bytes);
+        }
+    }
     m.items = build_reserve_huge(item_bytes);
     uint64_t *geom_first = build_geom_first(in);
     m.geom_first = geom_first;
@@ -615,15 +623,14 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
         depth = s->depth > depth ? s->depth : depth;
         oom |= s->oom;
     }
-    /* the sort's other array is free now: back to the previous tree when
-     * it is that tree's leaves (build_accel_alloc may take them for the new
-     * ones), else given back before the BVH's */
-    if (rec_recycled)
-        build_recycle_give_back(&m.bd, m.rec, rec_mapped);
-    else
-        build_unreserve(m.rec, rec_mapped);
-    m.rec = NULL;
-    struct rtk_accel *accel = oom ? NULL : build_accel_alloc(&m.bd, nodes, blocks);
+    /* the sort's other array is free now: the new leaves' memory */
+    struct rtk_accel *accel = NULL;
+    if (!oom) {
+        m.bd.spare_leaves = m.rec;
+        m.bd.spare_mapped = rec_mapped;
+        m.rec = NULL;
+        accel = build_accel_alloc(&m.bd, nodes, blocks);
+    }
     if (!accel) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the BVH");
