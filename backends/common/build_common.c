@@ -425,8 +425,11 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
 {
     const rtk_build_input *in = bd->in;
     struct rtk_accel *accel = calloc(1, sizeof *accel);
-    if (!accel)
+    if (!accel) {
+        build_unreserve(bd->spare_leaves, bd->spare_mapped);
+        bd->spare_leaves = NULL;
         return NULL;
+    }
     accel->layout = in->layout;
     /* the previous tree's arrays (build_recycle_take), else fresh ones */
     const size_t nodes_size = page_round((nodes ? nodes : 1) * bd->node_size);

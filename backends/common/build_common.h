@@ -435,7 +435,8 @@ static inline uint32_t build_threads(const build *bd)
 }
 /* An accel with node and leaf arrays for exactly `nodes` and `blocks` (in
  * bd->nodes and bd->leaves), and the geometry table of bvh4.triangle4i;
- * NULL when out of memory. */
+ * NULL when out of memory.  It takes bd->spare_leaves either way (into the
+ * accel, or given back). */
 RTK_HIDDEN struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks);
 /* bd->recycle's leaf (leaves 1) or node array when it holds `size` bytes:
  * the build's from now on (an unreservation of *mapped bytes), and
