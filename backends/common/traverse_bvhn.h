@@ -453,14 +453,14 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
 #endif
     }
 #if RTK_NODE_INT_ORDER
+    /* tmin <= tmax as integers is tmax + 1 > tmin: the mask of the boxes
+     * entered in one comparison, with no inversion after it on the path
+     * every node visit waits for (the one addition also takes the far
+     * padding; the bits of tmax, at most those of +inf, cannot overflow). */
     const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, tnear));
-    vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
-#if RTK_FUSED_FAR_ULPS
-    if (fused)
-        tmax = vn_add_ulps(tmax, RTK_FAR_ULPS);
-#endif
+    const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, tfar));
     *dist = tmin;
-    return (unsigned)vn_mask(vn_gti(tmin, tmax)) ^ ((1u << RTK_BVHN) - 1);
+    return (unsigned)vn_mask(vn_gti(vn_add_ulps(tmax, fused ? RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1 : 1), tmin));
 #else
     const vnode tmin = vn_max(vn_max(t0x, t0y), vn_max(t0z, tnear));
     const vnode tmax = vn_min(vn_min(t1x, t1y), vn_min(t1z, tfar));
