@@ -327,12 +327,10 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
      * +-0), so the planes are chosen from dir's sign bits as loaded: one
      * movmskps, no comparison with a zero vector */
     const unsigned neg = (unsigned)vf4_signs(dir) & 7; /* (lane 3: time or tnear) */
-    _Alignas(16) float o[4], on[4], dd[4], in[4], inf[4];
-    vf4_store(o, org);
+    _Alignas(16) float on[4], in[4], inf[4];
     vf4_store(p->os, org);
     vf4_store(p->ds, dir);
     vf4_store(on, org_near);
-    vf4_store(dd, dir);
     vf4_store(in, inv);
     vf4_store(inf, inv_far);
 #if RTK_SIMD_HAS_FMA
@@ -373,10 +371,10 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
     memcpy(p->near_off, plane_offsets[neg][0], sizeof p->near_off);
     memcpy(p->far_off, plane_offsets[neg][1], sizeof p->far_off);
 #if RTK_ROBUST
-    rtk_watertight_ray_init(dd, &p->w);
+    rtk_watertight_ray_init(p->ds, &p->w);
     const int axes[3] = {p->w.kx, p->w.ky, p->w.kz};
     for (int k = 0; k < 3; k++) {
-        p->worg[k] = vf4_set1(o[axes[k]]);
+        p->worg[k] = vf4_set1(p->os[axes[k]]);
         p->axis_off[k] = 4 * axes[k];
     }
     p->sx = vf4_set1(p->w.sx);
