@@ -658,30 +658,37 @@ static void *run_job(void *arg)
     return NULL;
 }
 
+/* Seconds of one pass over the set on `threads` threads; hits[i]: ray i hit. */
+static double trace_pass(const render_tracer *t, const rayset *set, int api, int occluded, int threads,
+                         unsigned char *hits)
+{
+    job jobs[16];
+    pthread_t tid[16];
+    const size_t share = (set->n / 16 + (size_t)threads - 1) / (size_t)threads * 16;
+    const double t0 = now();
+    int started = 1;
+    for (int k = 0; k < threads; k++) {
+        const size_t b = (size_t)k * share, e = b + share;
+        jobs[k] = (job){*t, set, api, occluded, hits, b < set->n ? b : set->n, e < set->n ? e : set->n};
+    }
+    for (; started < threads; started++)
+        if (pthread_create(&tid[started], NULL, run_job, &jobs[started]))
+            break;
+    run_job(&jobs[0]);
+    for (int k = 1; k < started; k++)
+        pthread_join(tid[k], NULL);
+    for (int k = started; k < threads; k++)
+        run_job(&jobs[k]);
+    return now() - t0;
+}
+
 /* Mrays/s, best of `repeat` passes; hits[i]: ray i hit. */
 static double trace_set(const render_tracer *t, const rayset *set, int api, int occluded, int threads, int repeat,
                         unsigned char *hits)
 {
     double best = 1e30;
     for (int r = 0; r < repeat; r++) {
-        job jobs[16];
-        pthread_t tid[16];
-        const size_t share = (set->n / 16 + (size_t)threads - 1) / (size_t)threads * 16;
-        const double t0 = now();
-        int started = 1;
-        for (int k = 0; k < threads; k++) {
-            const size_t b = (size_t)k * share, e = b + share;
-            jobs[k] = (job){*t, set, api, occluded, hits, b < set->n ? b : set->n, e < set->n ? e : set->n};
-        }
-        for (; started < threads; started++)
-            if (pthread_create(&tid[started], NULL, run_job, &jobs[started]))
-                break;
-        run_job(&jobs[0]);
-        for (int k = 1; k < started; k++)
-            pthread_join(tid[k], NULL);
-        for (int k = started; k < threads; k++)
-            run_job(&jobs[k]);
-        const double el = now() - t0;
+        const double el = trace_pass(t, set, api, occluded, threads, hits);
         best = el < best ? el : best;
     }
     return (double)set->n / best * 1e-6;
@@ -1004,7 +1011,8 @@ static void bench_usage(FILE *f)
             "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed\n"
             "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
-            "  --repeat N        best of N passes per measurement (default: 3)\n"
+            "  --repeat N        passes per measurement (default: 3); trace: every pass cut into 8 pieces\n"
+            "                    traced by each library in turn, the ratios the median of the pieces'\n"
             "  --builds N        best of N builds per start time (default: 3)\n"
             "  --edge-rays N     rays aimed at edges per mesh (default: 200000)\n"
             "  --render WxHxS    path tracer image and samples per pixel (default: 512x384x1)\n"
@@ -1083,22 +1091,34 @@ static void print_header(const ctx *c)
     printf("\n");
 }
 
+/* The pieces each pass over a ray set is cut into (section_trace). */
+enum { TRACE_CHUNKS = 8 };
+
+static int cmp_double(const void *x, const void *y);
+
 static int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     const rayset *sets = c->sets;
-    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, %zu incoherent, %zu sun; best of %d "
-           "passes; Mrays/s (ratio to %s)\n",
+    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, %zu incoherent, %zu sun; %d "
+           "passes, each cut into %d pieces that every library traces in turn; Mrays/s (best pass), then the\n"
+           "  ratio to %s: the median of the %d pieces' time ratios [and their quartiles]\n",
            o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", sets[0].n,
            100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, sets[3].n, sets[4].n, o->repeat,
-           c->libs[0].name);
+           TRACE_CHUNKS, c->libs[0].name, o->repeat * TRACE_CHUNKS);
     printf("  packets of primary rays are 2x2, 4x2, 4x4 pixel blocks, given Embree's coherent flag; packets of\n"
            "  diffuse and shadow rays are those of neighbouring pixels, traced without it; incoherent rays bounce\n"
            "  from random points of the whole mesh, one after the other; sun rays are shadow rays to a\n"
            "  directional light from random points of the whole mesh\n");
-    unsigned char *hits = malloc(sets[0].n), *ref_hits[NSETS];
-    double rate[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* lib, threads index, set, api */
+    unsigned char *lhits[MAXLIBS], *ref_hits[NSETS];
+    double rate[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* lib, threads index, set, api: the best pass */
+    double med[MAXLIBS][4][NSETS][4] = {{{{0}}}}, lo[MAXLIBS][4][NSETS][4] = {{{{0}}}},
+           hi[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* the paired ratios' median and quartiles */
+    const int npairs = o->repeat * TRACE_CHUNKS;
+    double *pairs = malloc(sizeof(double) * (size_t)(npairs * c->nlibs));
     size_t disagree[MAXLIBS] = {0};
+    for (int l = 0; l < c->nlibs; l++)
+        lhits[l] = malloc(sets[0].n ? sets[0].n : 1);
     for (int s = 0; s < NSETS; s++)
         ref_hits[s] = calloc(sets[s].n ? sets[s].n : 1, 1);
     char plot_data[512];
@@ -1110,9 +1130,12 @@ static int section_trace(ctx *c, char *err, size_t err_size)
     int done = 0, ref_api = 0; /* the reference hits: the first library's first API asked for */
     while (ref_api < 3 && !o->api_on[ref_api])
         ref_api++;
-    /* Every library's scene at once, and the passes taken in turns (one
-     * pass of each library, then the next), so that what slows the machine
-     * for a while (other guests of a VM) falls on all of them alike. */
+    /* Every library's scene at once.  Each pass over a set is cut into
+     * TRACE_CHUNKS pieces, and each piece is traced by every library in
+     * turn (the order rotated from piece to piece), so that what slows the
+     * machine for a while (other guests of a VM) falls on all of them
+     * alike: the ratio of two libraries is the median of the pieces' time
+     * ratios, with their quartiles; the rate is the best pass. */
     scene sc[MAXLIBS];
     int built = 0;
     for (; built < c->nlibs; built++)
@@ -1123,33 +1146,67 @@ static int section_trace(ctx *c, char *err, size_t err_size)
             for (int a = 0; a < 4; a++, done += c->nlibs) {
                 if (!o->api_on[a] || !o->set_on[s] || !sets[s].n)
                     continue;
-                for (int r = 0; r < o->repeat; r++)
+                const int occluded = s == SET_SHADOW || s == SET_SUN;
+                const size_t blocks = sets[s].n / 16;
+                int np = 0;
+                for (int r = 0; r < o->repeat; r++) {
+                    double pass[MAXLIBS] = {0};
+                    for (int k = 0; k < TRACE_CHUNKS; k++) {
+                        const size_t b = blocks * (size_t)k / TRACE_CHUNKS * 16,
+                                     e = blocks * (size_t)(k + 1) / TRACE_CHUNKS * 16;
+                        if (e == b)
+                            continue;
+                        const rayset part = {sets[s].rays + b, e - b, NULL};
+                        double secs[MAXLIBS];
+                        for (int j = 0; j < c->nlibs; j++) {
+                            const int l = (j + r * TRACE_CHUNKS + k) % c->nlibs;
+                            const render_tracer t = scene_tracer(&sc[l], s == SET_PRIMARY && a > 0);
+                            unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : lhits[l];
+                            secs[l] = trace_pass(&t, &part, apis[a], occluded, o->threads[ti], h + b);
+                            pass[l] += secs[l];
+                        }
+                        for (int l = 0; l < c->nlibs; l++) {
+                            pairs[l * npairs + np] = secs[l] > 0 ? secs[0] / secs[l] : 0.0;
+                            if (r == o->repeat - 1 && !(l == 0 && ti == 0 && a == ref_api))
+                                for (size_t i = b; i < e; i++)
+                                    disagree[l] += lhits[l][i] != ref_hits[s][i];
+                        }
+                        np++;
+                    }
                     for (int l = 0; l < c->nlibs; l++) {
-                        const render_tracer t = scene_tracer(&sc[l], s == SET_PRIMARY && a > 0);
-                        unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : hits;
-                        const double v = trace_set(&t, &sets[s], apis[a], s == SET_SHADOW || s == SET_SUN, o->threads[ti], 1, h);
+                        const double v = pass[l] > 0 ? (double)sets[s].n / pass[l] * 1e-6 : 0.0;
                         if (v > rate[l][ti][s][a])
                             rate[l][ti][s][a] = v;
-                        if (h == hits && r == o->repeat - 1)
-                            for (size_t i = 0; i < sets[s].n; i++)
-                                disagree[l] += hits[i] != ref_hits[s][i];
                     }
+                }
+                for (int l = 0; l < c->nlibs; l++) {
+                    double *pl = pairs + l * npairs;
+                    qsort(pl, (size_t)np, sizeof *pl, cmp_double);
+                    med[l][ti][s][a] = np ? 0.5 * (pl[(np - 1) / 2] + pl[np / 2]) : 0.0;
+                    lo[l][ti][s][a] = np ? pl[(np - 1) / 4] : 0.0;
+                    hi[l][ti][s][a] = np ? pl[np - 1 - (np - 1) / 4] : 0.0;
+                }
                 progress_update(&bar, (double)(done + c->nlibs) / work);
             }
     progress_end(&bar);
+    free(pairs);
+    for (int l = 0; l < c->nlibs; l++)
+        free(lhits[l]);
     for (int l = 0; l < built; l++)
         scene_release(&sc[l]);
     if (built < c->nlibs) {
         for (int s = 0; s < NSETS; s++)
             free(ref_hits[s]);
-        free(hits);
         if (dat)
             fclose(dat);
         return 1;
     }
     for (int ti = 0; ti < o->nthreads; ti++) {
         printf("  %d thread%s\n", o->threads[ti], o->threads[ti] > 1 ? "s" : "");
-        print_header(c);
+        print_row_label("");
+        for (int l = 0; l < c->nlibs; l++)
+            printf(" %-30s", c->libs[l].name);
+        printf("\n");
         for (int s = 0; s < NSETS; s++)
             for (int a = 0; a < 4; a++) {
                 if (!o->api_on[a] || !o->set_on[s])
@@ -1158,11 +1215,13 @@ static int section_trace(ctx *c, char *err, size_t err_size)
                 snprintf(label, sizeof label, "%s %s", set_names[s], render_api_name(apis[a]));
                 print_row_label(label);
                 for (int l = 0; l < c->nlibs; l++) {
-                    const double v = rate[l][ti][s][a], r = rate[0][ti][s][a];
-                    print_cell(v, r, l == 0);
+                    const double v = rate[l][ti][s][a], m = med[l][ti][s][a];
+                    if (l == 0)
+                        printf(" %8.2f%22s", v, "");
+                    else
+                        printf(" %8.2f %5.3fx [%5.3f-%5.3f]", v, m, lo[l][ti][s][a], hi[l][ti][s][a]);
                     csv_row(&c->csv, "trace", c->libs[l].name, mode_names[o->trace_mode], set_names[s],
-                            render_api_name(apis[a]),
-                            o->threads[ti], v, "Mrays/s", l ? ratio(v, r) : 1.0);
+                            render_api_name(apis[a]), o->threads[ti], v, "Mrays/s", l ? m : 1.0);
                 }
                 printf("\n");
                 if (dat && ti == 0) {
@@ -1199,7 +1258,6 @@ static int section_trace(ctx *c, char *err, size_t err_size)
     }
     for (int s = 0; s < NSETS; s++)
         free(ref_hits[s]);
-    free(hits);
     return 0;
 }
 
