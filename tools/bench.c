@@ -203,7 +203,7 @@ static int rtk_collect(const rtk_filter_args *args)
 
 typedef struct lib {
     char name[40];   /* "embree isa=avx2", "embree default", "rtk avx2" */
-    char config[32]; /* what lib_open was given besides threads: "isa=avx2", "" */
+    char config[320]; /* what lib_open was given besides threads: "isa=avx2", "" */
     int embree;
     RTCDevice edev;
     rtk_device rdev;
@@ -237,7 +237,7 @@ static int lib_open(lib *l, const char *name, int embree, const char *config, in
     snprintf(l->name, sizeof l->name, "%s", name);
     snprintf(l->config, sizeof l->config, "%s", config);
     l->embree = embree;
-    char cfg[128];
+    char cfg[400];
     const double t0 = now();
     if (embree) {
         snprintf(cfg, sizeof cfg, "threads=%d%s%s", threads, config[0] ? "," : "", config);
@@ -965,6 +965,7 @@ typedef struct bench_opts {
     int render_w, render_h, render_spp;
     int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
     int quick;      /* --quick: the closed section's meshes coarser and fewer grazing rays */
+    const char *alt; /* --alt DIR: one more rtk library, the backends of DIR (backend_path=) */
 } bench_opts;
 
 static int parse_list(const char *s, char items[][16], int max)
@@ -1016,6 +1017,8 @@ static void bench_usage(FILE *f)
             "  --builds N        best of N builds per start time (default: 3)\n"
             "  --edge-rays N     rays aimed at edges per mesh (default: 200000)\n"
             "  --render WxHxS    path tracer image and samples per pixel (default: 512x384x1)\n"
+            "  --alt DIR         one more library, \"rtk ISA alt\": the last --isa (default avx2) loaded from\n"
+            "                    the backends in DIR (another build's lib/rtk), to compare two builds\n"
             "  --robust          trace and render with every library's scene in robust mode (watertight)\n"
             "  --quick           a smoke run: 256x192 rays, 1 pass, 1 build, 1 thread, 20000 edge rays,\n"
             "                    128x96x1 render, closed meshes of a quarter of the triangles\n"
@@ -1432,7 +1435,7 @@ static double rebuild_time(lib *bl, const ctx *c, float *v, int q, int frames, c
         bad = rtcGetDeviceError(bl->edev) != RTC_ERROR_NONE;
     }
     if (bad)
-        snprintf(err, err_size, "%s: a frame did not build its tree again", bl->name);
+        snprintf(err, err_size, "%.40s: a frame did not build its tree again", bl->name);
     scene_release(&sc);
     return bad ? -1 : best;
 }
@@ -2862,6 +2865,12 @@ int cmd_bench(int argc, char **argv)
                 fprintf(stderr, "rtktool bench: --threads wants a list of 1..16 (got '%s')\n", argv[i]);
                 return 2;
             }
+        } else if (!strcmp(a, "--alt") && more) {
+            o.alt = argv[++i];
+            if (!o.alt[0] || strlen(o.alt) > 256 || strchr(o.alt, ',')) {
+                fprintf(stderr, "rtktool bench: --alt wants a directory (no comma, at most 256 bytes)\n");
+                return 2;
+            }
         } else if (!strcmp(a, "--isa") && more) {
             o.nisa = parse_list(argv[++i], o.isa, 4);
             if (o.nisa < 1) {
@@ -3013,6 +3022,19 @@ int cmd_bench(int argc, char **argv)
             printf("%s: unavailable (%s)\n", name, err);
         else
             c.nlibs++;
+    }
+    if (o.alt) {
+        /* the last rtk backend asked for, from the other directory: for
+         * comparing two builds of rtk (a change and its parent) in one run */
+        const char *isa = o.nisa ? o.isa[o.nisa - 1] : "avx2";
+        char name[40], cfg[320];
+        snprintf(name, sizeof name, "rtk %s alt", isa);
+        snprintf(cfg, sizeof cfg, "isa=%s,backend_path=%s", isa, o.alt);
+        if (c.nlibs == MAXLIBS || lib_open(&c.libs[c.nlibs], name, 0, cfg, kept_threads, err, sizeof err)) {
+            fprintf(stderr, "rtktool bench: --alt: %s\n", c.nlibs == MAXLIBS ? "too many libraries" : err);
+            goto done;
+        }
+        c.nlibs++;
     }
     for (int k = 0; k < o.nisa; k++) {
         int known = 0;
