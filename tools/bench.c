@@ -1099,6 +1099,27 @@ enum { TRACE_CHUNKS = 8 };
 
 static int cmp_double(const void *x, const void *y);
 
+/* The order the libraries trace piece `piece` in: a shuffle seeded by the
+ * piece's number, so that every library follows every other about equally
+ * often (with a rotation each one always came right after the same one,
+ * and the caches the previous library leaves count for rays that mostly
+ * test the top of the tree, as San Miguel's do). */
+static void piece_order(int *order, int n, uint64_t piece)
+{
+    uint64_t x = piece * 0x9e3779b97f4a7c15ull + 0x2545f4914f6cdd1dull;
+    for (int i = 0; i < n; i++)
+        order[i] = i;
+    for (int i = n - 1; i > 0; i--) {
+        x ^= x >> 29;
+        x *= 0xbf58476d1ce4e5b9ull;
+        x ^= x >> 32;
+        const int j = (int)(x % (uint64_t)(i + 1));
+        const int t = order[i];
+        order[i] = order[j];
+        order[j] = t;
+    }
+}
+
 static int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
@@ -1135,7 +1156,7 @@ static int section_trace(ctx *c, char *err, size_t err_size)
         ref_api++;
     /* Every library's scene at once.  Each pass over a set is cut into
      * TRACE_CHUNKS pieces, and each piece is traced by every library in
-     * turn (the order rotated from piece to piece), so that what slows the
+     * turn (in an order shuffled from piece to piece), so that what slows the
      * machine for a while (other guests of a VM) falls on all of them
      * alike: the ratio of two libraries is the median of the pieces' time
      * ratios, with their quartiles; the rate is the best pass. */
@@ -1161,8 +1182,10 @@ static int section_trace(ctx *c, char *err, size_t err_size)
                             continue;
                         const rayset part = {sets[s].rays + b, e - b, NULL};
                         double secs[MAXLIBS];
+                        int order[MAXLIBS];
+                        piece_order(order, c->nlibs, (uint64_t)(r * TRACE_CHUNKS + k));
                         for (int j = 0; j < c->nlibs; j++) {
-                            const int l = (j + r * TRACE_CHUNKS + k) % c->nlibs;
+                            const int l = order[j];
                             const render_tracer t = scene_tracer(&sc[l], s == SET_PRIMARY && a > 0);
                             unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : lhits[l];
                             secs[l] = trace_pass(&t, &part, apis[a], occluded, o->threads[ti], h + b);
