@@ -1013,7 +1013,7 @@ static void bench_usage(FILE *f)
             "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
             "  --repeat N        passes per measurement (default: 3); trace: every pass cut into 8 pieces\n"
-            "                    traced by each library in turn, the ratios the median of the pieces'\n"
+            "                    traced by each library in turn, the ratio the median over the pieces\n"
             "  --builds N        best of N builds per start time (default: 3)\n"
             "  --edge-rays N     rays aimed at edges per mesh (default: 200000)\n"
             "  --render WxHxS    path tracer image and samples per pixel (default: 512x384x1)\n"
@@ -1141,10 +1141,20 @@ static int section_trace(ctx *c, char *err, size_t err_size)
     const int npairs = o->repeat * TRACE_CHUNKS;
     double *pairs = malloc(sizeof(double) * (size_t)(npairs * c->nlibs));
     size_t disagree[MAXLIBS] = {0};
+    int oom = !pairs;
     for (int l = 0; l < c->nlibs; l++)
-        lhits[l] = malloc(sets[0].n ? sets[0].n : 1);
+        oom |= !(lhits[l] = malloc(sets[0].n ? sets[0].n : 1));
     for (int s = 0; s < NSETS; s++)
-        ref_hits[s] = calloc(sets[s].n ? sets[s].n : 1, 1);
+        oom |= !(ref_hits[s] = calloc(sets[s].n ? sets[s].n : 1, 1));
+    if (oom) {
+        free(pairs);
+        for (int l = 0; l < c->nlibs; l++)
+            free(lhits[l]);
+        for (int s = 0; s < NSETS; s++)
+            free(ref_hits[s]);
+        snprintf(err, err_size, "trace: out of memory for the hit records");
+        return 1;
+    }
     char plot_data[512];
     snprintf(plot_data, sizeof plot_data, "%s/%s-trace.dat", o->outdir, c->stem);
     FILE *dat = fopen(plot_data, "w");
