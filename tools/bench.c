@@ -3056,6 +3056,15 @@ int cmd_bench(int argc, char **argv)
         else
             c.nlibs++;
     }
+    for (int k = 0; k < o.nisa; k++) {
+        int known = 0;
+        for (int b = 0; b < 4; b++)
+            known |= !strcmp(o.isa[k], all_isas[b]);
+        if (!known) {
+            fprintf(stderr, "rtktool bench: --isa: no backend '%s' (scalar, sse41, avx, avx2)\n", o.isa[k]);
+            goto done;
+        }
+    }
     if (o.alt) {
         /* the last rtk backend asked for, from the other directory: for
          * comparing two builds of rtk (a change and its parent) in one run */
@@ -3068,15 +3077,6 @@ int cmd_bench(int argc, char **argv)
             goto done;
         }
         c.nlibs++;
-    }
-    for (int k = 0; k < o.nisa; k++) {
-        int known = 0;
-        for (int b = 0; b < 4; b++)
-            known |= !strcmp(o.isa[k], all_isas[b]);
-        if (!known) {
-            fprintf(stderr, "rtktool bench: --isa: no backend '%s' (scalar, sse41, avx, avx2)\n", o.isa[k]);
-            goto done;
-        }
     }
     char feat[512];
     rtk_cpu_features_string(rtk_cpu_features(), feat, sizeof feat);
