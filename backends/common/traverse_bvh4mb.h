@@ -30,7 +30,8 @@ static inline const rtk_accel *segment_at(const rtk_accel *accel, float time, ra
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
 {
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel);
+    ray_mem pm;
+    ray_pre_init(&p, &pm, &rayhit->ray, accel);
     const rtk_accel *seg = segment_at(accel, rayhit->ray.time, &p);
     if (!seg)
         return;
@@ -45,7 +46,8 @@ void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query
 void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     ray_pre p;
-    ray_pre_init(&p, ray, accel);
+    ray_mem pm;
+    ray_pre_init(&p, &pm, ray, accel);
     const rtk_accel *seg = segment_at(accel, ray->time, &p);
     feat_ctx fc;
     if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar, feat_init(&fc, ray, accel, q)))

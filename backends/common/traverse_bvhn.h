@@ -54,6 +54,7 @@ typedef rtk_bvh4_node node_t;
 typedef vfloat4 vnode;
 #define vn_load vf4_load
 #define vn_set1 vf4_set1
+#define vn_set1_at vf4_set1_at
 #define vn_add vf4_add
 #define vn_sub vf4_sub
 #define vn_mul vf4_mul
@@ -83,6 +84,7 @@ typedef rtk_bvh8_node node_t;
 typedef vfloat8 vnode;
 #define vn_load vf8_load
 #define vn_set1 vf8_set1
+#define vn_set1_at vf8_set1_at
 #define vn_add vf8_add
 #define vn_sub vf8_sub
 #define vn_mul vf8_mul
@@ -184,8 +186,36 @@ typedef rtk_triangle4 block_t;
  * node). */
 #define RTK_ROBUST_REL 0x1p-20f
 
+/* The parts of the ray that the closest-hit loop of the fused (FMA) node
+ * test reads from memory at every use (vn_set1_at), not from registers:
+ * the node test's c_near and c_far, and the origin and direction for the
+ * triangle tests.  Kept out of ray_pre, whose other vectors the compiler
+ * keeps in registers (were they in it, it would write the whole of ray_pre
+ * to memory in every ray's set-up).  With them in registers the node loop
+ * had 12 vectors of the ray to keep, the triangle test needs most of the
+ * 16 registers itself, and GCC stored eight 256-bit vectors at each leaf
+ * and loaded them after it (about 35 instructions per leaf visit); now
+ * four.  callgrind on the dragon's diffuse rays (rtktool bench --size
+ * 256x192, 40,192 rays): 1088 -> 1050 instructions per ray in the kernel
+ * (Embree isa=avx2's: 1048); rtktool bench beside the parent (--alt, three
+ * runs): diffuse single rays 1-3% faster on the dragon and San Miguel.
+ * The any-hit loop keeps them in registers: from memory it took 4% fewer
+ * instructions per shadow ray but San Miguel's shadow rays, which mostly
+ * test the root and leave, were 1-3% slower. */
+typedef struct ray_mem {
+#if RTK_SIMD_HAS_FMA
+    /* c_near x, y, z, -, c_far x, y, z, -: org * inv moved down and up
+     * (see ray_pre_init) */
+    _Alignas(16) float c[8];
+    _Alignas(16) float o[4], d[4]; /* origin, direction (lanes 0..2) */
+#else
+    char unused;
+#endif
+} ray_mem;
+
 /* The ray, broadcast: everything the inner loops need, computed once. */
 typedef struct ray_pre {
+    const ray_mem *m; /* (see ray_mem) */
     _Alignas(16) float os[4], ds[4]; /* the origin and direction (lanes 0..2), for the triangle tests' leaf_ray */
     vnode norg[3], ninv[3], ninv_far[3]; /* for the node tests */
 #if RTK_ROBUST
@@ -292,9 +322,10 @@ static const size_t plane_offsets[8][2][3] = {PLANE_OFFSETS(0), PLANE_OFFSETS(1)
  * ray's instructions on dragon.ply: 176 of 1648, callgrind).  The values
  * are those of per-axis arithmetic bit for bit (the same IEEE operations
  * lane by lane). */
-static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *accel)
+static inline void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r, const rtk_accel *accel)
 {
     (void)accel;
+    p->m = pm;
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
     /* a component below 1e-18 in magnitude becomes +-1e-18, its sign kept */
     const vfloat4 tiny = vf4_set1(1e-18f);
@@ -348,9 +379,13 @@ static inline void ray_pre_init(ray_pre *p, const rtk_ray *r, const rtk_accel *a
     const vfloat4 ulp4 = vf4_set1(0x1p-22f), min_normal = vf4_set1(0x1p-126f);
     const vfloat4 e = vf4_add(vf4_mul(vf4_abs(c), ulp4), min_normal);
     const vfloat4 ef = vf4_add(vf4_mul(vf4_abs(cf), ulp4), min_normal);
+    vf4_store(pm->c, vf4_add(c, e)); /* c_near */
+    vf4_store(pm->c + 4, vf4_sub(cf, ef)); /* c_far */
     _Alignas(16) float cn[4], cfar[4];
     vf4_store(cn, vf4_add(c, e));
     vf4_store(cfar, vf4_sub(cf, ef));
+    vf4_store(pm->o, org);
+    vf4_store(pm->d, dir);
     p->fma = (vb4_mask(vf4_le(vf4_abs(cf), vf4_set1(0x1p126f))) & 7) == 7;
 #endif
     for (int k = 0; k < 3; k++) {
@@ -426,23 +461,31 @@ static inline vnode plane(const node_t *n, size_t off)
 #error "the fused node test orders by bits: an FMA backend needs the integer ops at this node width"
 #endif
 static inline __attribute__((always_inline)) unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear,
-                                                                     vnode tfar, vnode *dist, int fused)
+                                                                     vnode tfar, vnode *dist, int fused, int mem)
 {
     vnode t0x, t0y, t0z, t1x, t1y, t1z;
     (void)fused;
+    (void)mem;
 #if RTK_SIMD_HAS_FMA
     if (fused) {
-        t0x = vn_msub(PLANE(n, p->near_off[0]), p->ninv[0], p->c_near[0]);
-        t0y = vn_msub(PLANE(n, p->near_off[1]), p->ninv[1], p->c_near[1]);
-        t0z = vn_msub(PLANE(n, p->near_off[2]), p->ninv[2], p->c_near[2]);
+        /* with mem, c_near and c_far from memory at every node (see ray_mem) */
+        const vnode cn0 = mem ? vn_set1_at(&p->m->c[0]) : p->c_near[0];
+        const vnode cn1 = mem ? vn_set1_at(&p->m->c[1]) : p->c_near[1];
+        const vnode cn2 = mem ? vn_set1_at(&p->m->c[2]) : p->c_near[2];
+        const vnode cf0 = mem ? vn_set1_at(&p->m->c[4]) : p->c_far[0];
+        const vnode cf1 = mem ? vn_set1_at(&p->m->c[5]) : p->c_far[1];
+        const vnode cf2 = mem ? vn_set1_at(&p->m->c[6]) : p->c_far[2];
+        t0x = vn_msub(PLANE(n, p->near_off[0]), p->ninv[0], cn0);
+        t0y = vn_msub(PLANE(n, p->near_off[1]), p->ninv[1], cn1);
+        t0z = vn_msub(PLANE(n, p->near_off[2]), p->ninv[2], cn2);
 #if RTK_FUSED_FAR_ULPS
 #define FUSED_INV_FAR p->ninv
 #else
 #define FUSED_INV_FAR p->ninv_far
 #endif
-        t1x = vn_msub(PLANE(n, p->far_off[0]), FUSED_INV_FAR[0], p->c_far[0]);
-        t1y = vn_msub(PLANE(n, p->far_off[1]), FUSED_INV_FAR[1], p->c_far[1]);
-        t1z = vn_msub(PLANE(n, p->far_off[2]), FUSED_INV_FAR[2], p->c_far[2]);
+        t1x = vn_msub(PLANE(n, p->far_off[0]), FUSED_INV_FAR[0], cf0);
+        t1y = vn_msub(PLANE(n, p->far_off[1]), FUSED_INV_FAR[1], cf1);
+        t1z = vn_msub(PLANE(n, p->far_off[2]), FUSED_INV_FAR[2], cf2);
 #undef FUSED_INV_FAR
     } else
 #endif
@@ -640,10 +683,11 @@ typedef struct tri4_hit {
  * alone in double precision (rare: a ray exactly through an edge or vertex,
  * a triangle seen edge-on, or one so small that its products underflow).  U and V are the weights of v1 and v2 times |det|, T the
  * distance times |det|; a lane decided in double gets |det| = 1. */
-static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, vfloat4 tnear,
-                                           vfloat4 tfar, tri4_hit *h)
+static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, int mem,
+                                           vfloat4 tnear, vfloat4 tfar, tri4_hit *h)
 {
     (void)l; /* (the watertight test takes the ray from p) */
+    (void)mem;
     const float *f = (const float *)t;
     const int ox = p->axis_off[0], oy = p->axis_off[1], oz = p->axis_off[2];
     /* vertex k's coordinate along permuted axis j: f[12 * k + axis_off[j]] */
@@ -707,13 +751,25 @@ static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, c
     return mask;
 }
 #else
-static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, vfloat4 tnear,
-                                           vfloat4 tfar, tri4_hit *h)
+static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, int mem,
+                                           vfloat4 tnear, vfloat4 tfar, tri4_hit *h)
 {
     const vfloat4 e1x = vf4_load(t->e1x), e1y = vf4_load(t->e1y), e1z = vf4_load(t->e1z);
     const vfloat4 e2x = vf4_load(t->e2x), e2y = vf4_load(t->e2y), e2z = vf4_load(t->e2z);
     (void)p;
+    (void)mem;
+#if RTK_SIMD_HAS_FMA
+    /* with mem, the ray from memory at every block (see ray_mem) */
+    const vfloat4 dx = mem ? vf4_set1_at(&p->m->d[0]) : l->dir[0];
+    const vfloat4 dy = mem ? vf4_set1_at(&p->m->d[1]) : l->dir[1];
+    const vfloat4 dz = mem ? vf4_set1_at(&p->m->d[2]) : l->dir[2];
+    const vfloat4 ox = mem ? vf4_set1_at(&p->m->o[0]) : l->org[0];
+    const vfloat4 oy = mem ? vf4_set1_at(&p->m->o[1]) : l->org[1];
+    const vfloat4 oz = mem ? vf4_set1_at(&p->m->o[2]) : l->org[2];
+#else
     const vfloat4 dx = l->dir[0], dy = l->dir[1], dz = l->dir[2];
+    const vfloat4 ox = l->org[0], oy = l->org[1], oz = l->org[2];
+#endif
     /* p = cross(d, e2) */
     const vfloat4 px = vf4_sub(vf4_mul(dy, e2z), vf4_mul(dz, e2y));
     const vfloat4 py = vf4_sub(vf4_mul(dz, e2x), vf4_mul(dx, e2z));
@@ -721,9 +777,9 @@ static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, c
     const vfloat4 det = vf4_add(vf4_add(vf4_mul(e1x, px), vf4_mul(e1y, py)), vf4_mul(e1z, pz));
     const vfloat4 absdet = vf4_abs(det);
     /* s = o - v0 */
-    const vfloat4 sx = vf4_sub(l->org[0], vf4_load(t->v0x));
-    const vfloat4 sy = vf4_sub(l->org[1], vf4_load(t->v0y));
-    const vfloat4 sz = vf4_sub(l->org[2], vf4_load(t->v0z));
+    const vfloat4 sx = vf4_sub(ox, vf4_load(t->v0x));
+    const vfloat4 sy = vf4_sub(oy, vf4_load(t->v0y));
+    const vfloat4 sz = vf4_sub(oz, vf4_load(t->v0z));
     const vfloat4 U = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(sx, px), vf4_mul(sy, py)), vf4_mul(sz, pz)), det);
     /* q = cross(s, e1) */
     const vfloat4 qx = vf4_sub(vf4_mul(sy, e1z), vf4_mul(sz, e1y));
@@ -913,7 +969,7 @@ static inline __attribute__((always_inline)) int next_leaf(const rtk_accel *acce
         const uint32_t *child = n->child;
         __builtin_prefetch(child);
         vnode dists;
-        unsigned mask = node_intersect(n, p, tnear, tfar, &dists, fused);
+        unsigned mask = node_intersect(n, p, tnear, tfar, &dists, fused, !anyhit);
         if (mask && !(mask & (mask - 1))) { /* one child: no stack traffic */
             cur = child[__builtin_ctz(mask)];
             continue;
@@ -1002,7 +1058,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             block_t scratch;
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             tri4_hit h;
-            unsigned mask = triangle4_intersect(t, p, &lr, tnear, tfar, &h);
+            unsigned mask = triangle4_intersect(t, p, &lr, 1, tnear, tfar, &h);
             if (f && mask)
                 mask = masks_only ? mask_lanes(t, mask, f) : accept_closest(t, f, &h, mask, tnear_s, tfar_s);
             if (mask) {
@@ -1072,7 +1128,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
                 tri4_hit h;                                                                                          \
                 block_t scratch;                                                                                     \
                 const block_t *t = LEAF_BLOCK(accel, block, &scratch);                                               \
-                const unsigned mask = triangle4_intersect(t, p, &lr, tnear, tfar, &h);                               \
+                const unsigned mask = triangle4_intersect(t, p, &lr, 0, tnear, tfar, &h);                               \
                 if (mask && (ACCEPT))                                                                                \
                     return 1;                                                                                        \
             }                                                                                                        \
@@ -1230,7 +1286,8 @@ static __attribute__((noinline)) void intersect1_other(const rtk_accel *accel, r
                                                        const feat_ctx *f)
 {
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel);
+    ray_mem pm;
+    ray_pre_init(&p, &pm, &rayhit->ray, accel);
     closest_hit best = CLOSEST_HIT_NONE;
     float tfar = rayhit->ray.tfar;
     closest_from(accel, accel->root, &p, rayhit->ray.tnear, &tfar, &best, f);
@@ -1240,7 +1297,8 @@ static __attribute__((noinline)) void intersect1_other(const rtk_accel *accel, r
 static __attribute__((noinline)) void occluded1_other(const rtk_accel *accel, rtk_ray *ray, const feat_ctx *f)
 {
     ray_pre p;
-    ray_pre_init(&p, ray, accel);
+    ray_mem pm;
+    ray_pre_init(&p, &pm, ray, accel);
     if (any_from(accel, accel->root, &p, ray->tnear, ray->tfar, f))
         ray->tfar = -INFINITY;
 }
@@ -1254,7 +1312,8 @@ static inline __attribute__((always_inline)) void intersect1_feat_(const rtk_acc
                                                                    const feat_ctx *f, int masks_only)
 {
     ray_pre p;
-    ray_pre_init(&p, &rayhit->ray, accel);
+    ray_mem pm;
+    ray_pre_init(&p, &pm, &rayhit->ray, accel);
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(!p.fma, 0)) {
         intersect1_other(accel, rayhit, f);
@@ -1297,7 +1356,8 @@ static inline __attribute__((always_inline)) void occluded1_feat_(const rtk_acce
                                                                   const feat_ctx *f, int masks_only)
 {
     ray_pre p;
-    ray_pre_init(&p, ray, accel);
+    ray_mem pm;
+    ray_pre_init(&p, &pm, ray, accel);
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(!p.fma, 0)) {
         occluded1_other(accel, ray, f);
@@ -1356,7 +1416,8 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
         return;
     }
     ray_pre p;
-    ray_pre_init(&p, ray, accel);
+    ray_mem pm;
+    ray_pre_init(&p, &pm, ray, accel);
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(!p.fma, 0)) {
         occluded1_other(accel, ray, NULL);

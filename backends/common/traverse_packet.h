@@ -505,11 +505,11 @@ static inline void PK_(lane_ray_to)(const rayK *r, int i, rtk_ray *out)
 
 /* A lane as a single ray, for finishing a subtree alone: *one holds the
  * ray, and the features' context (if it needs them) is made in *fc. */
-static inline const feat_ctx *PK_(lane_ray_pre)(ray_pre *p, rtk_ray *one, feat_ctx *fc, const rayK *r, int i,
+static inline const feat_ctx *PK_(lane_ray_pre)(ray_pre *p, ray_mem *pm, rtk_ray *one, feat_ctx *fc, const rayK *r, int i,
                                                 const rtk_accel *accel, const rtk_query *q)
 {
     PK_(lane_ray_to)(r, i, one);
-    ray_pre_init(p, one, accel);
+    ray_pre_init(p, pm, one, accel);
     return feat_init(fc, one, accel, q);
 }
 
@@ -632,9 +632,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 const int i = __builtin_ctz(m);
                 const vkb lane = PK_(lanes_mask)(1u << i);
                 ray_pre rp;
+                ray_mem rpm;
                 rtk_ray one;
                 feat_ctx fc;
-                const feat_ctx *f = PK_(lane_ray_pre)(&rp, &one, &fc, ray, i, accel, q);
+                const feat_ctx *f = PK_(lane_ray_pre)(&rp, &rpm, &one, &fc, ray, i, accel, q);
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
                     float ti = tf[i];

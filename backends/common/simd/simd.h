@@ -47,6 +47,11 @@
  *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
  *                            which, for kernels whose error bounds depend on
  *                            it (vf8_msub exists only with FMA)
+ *   vf4_set1_at / vf8_set1_at *a in every lane, loaded from memory where it
+ *                            is written, every time: the compiler may not
+ *                            keep it in a register across a loop (AVX only:
+ *                            one vbroadcastss).  For a kernel whose loop
+ *                            needs the registers more than the value.
  */
 #ifndef RTK_SIMD_H
 #define RTK_SIMD_H

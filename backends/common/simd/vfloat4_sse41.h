@@ -19,6 +19,14 @@ RTK_INLINE vfloat4 vf4_loadu(const float *p) { return _mm_loadu_ps(p); }
 RTK_INLINE void vf4_store(float *p, vfloat4 a) { _mm_store_ps(p, a); }
 RTK_INLINE void vf4_storeu(float *p, vfloat4 a) { _mm_storeu_ps(p, a); }
 RTK_INLINE vfloat4 vf4_set1(float a) { return _mm_set1_ps(a); }
+#if defined(__AVX__)
+RTK_INLINE vfloat4 vf4_set1_at(const float *a)
+{
+    vfloat4 r;
+    __asm__ volatile("vbroadcastss %1, %0" : "=x"(r) : "m"(*a));
+    return r;
+}
+#endif
 RTK_INLINE vfloat4 vf4_set(float a, float b, float c, float d) { return _mm_setr_ps(a, b, c, d); }
 RTK_INLINE vfloat4 vf4_add(vfloat4 a, vfloat4 b) { return _mm_add_ps(a, b); }
 RTK_INLINE vfloat4 vf4_sub(vfloat4 a, vfloat4 b) { return _mm_sub_ps(a, b); }

@@ -13,6 +13,12 @@ typedef __m256 vbool8;
 RTK_INLINE vfloat8 vf8_load(const float *p) { return _mm256_load_ps(p); } /* 32-byte aligned */
 RTK_INLINE void vf8_store(float *p, vfloat8 a) { _mm256_store_ps(p, a); }
 RTK_INLINE vfloat8 vf8_set1(float a) { return _mm256_set1_ps(a); }
+RTK_INLINE vfloat8 vf8_set1_at(const float *a)
+{
+    vfloat8 r;
+    __asm__ volatile("vbroadcastss %1, %0" : "=x"(r) : "m"(*a));
+    return r;
+}
 RTK_INLINE vfloat8 vf8_add(vfloat8 a, vfloat8 b) { return _mm256_add_ps(a, b); }
 RTK_INLINE vfloat8 vf8_sub(vfloat8 a, vfloat8 b) { return _mm256_sub_ps(a, b); }
 RTK_INLINE vfloat8 vf8_mul(vfloat8 a, vfloat8 b) { return _mm256_mul_ps(a, b); }
