@@ -186,8 +186,8 @@ typedef rtk_triangle4 block_t;
  * node). */
 #define RTK_ROBUST_REL 0x1p-20f
 
-/* The parts of the ray that the closest-hit loop of the fused (FMA) node
- * test reads from memory at every use (vn_set1_at), not from registers:
+/* The parts of the ray that the single-ray loops of the fused (FMA) node
+ * test read from memory at every use (vn_set1_at), not from registers:
  * the node test's c_near and c_far, and the origin and direction for the
  * triangle tests.  Kept out of ray_pre, whose other vectors the compiler
  * keeps in registers (were they in it, it would write the whole of ray_pre
@@ -197,11 +197,13 @@ typedef rtk_triangle4 block_t;
  * and loaded them after it (about 35 instructions per leaf visit); now
  * four.  callgrind on the dragon's diffuse rays (rtktool bench --size
  * 256x192, 40,192 rays): 1088 -> 1050 instructions per ray in the kernel
- * (Embree isa=avx2's: 1048); rtktool bench beside the parent (--alt, three
- * runs): diffuse single rays 1-3% faster on the dragon and San Miguel.
- * The any-hit loop keeps them in registers: from memory it took 4% fewer
- * instructions per shadow ray but San Miguel's shadow rays, which mostly
- * test the root and leave, were 1-3% slower. */
+ * (Embree isa=avx2's: 1048), shadow rays 4% fewer; rtktool bench beside
+ * the parent (--alt, five runs): diffuse single rays 0.5% (dragon) and
+ * 1.5% (San Miguel) faster, the rest within the runs' spread.
+ * (A version that kept them in registers for the any-hit loop, in
+ * ray_pre as well, made GCC compile the out-of-line single-ray traversal
+ * the packet kernels call for their last rays with 300 more stack
+ * accesses: San Miguel's camera packets of 8 10% slower.) */
 typedef struct ray_mem {
 #if RTK_SIMD_HAS_FMA
     /* c_near x, y, z, -, c_far x, y, z, -: org * inv moved down and up
@@ -227,7 +229,6 @@ typedef struct ray_pre {
     int axis_off[3];
 #endif
 #if RTK_SIMD_HAS_FMA
-    vnode c_near[3], c_far[3]; /* org * inv, moved up and down (see ray_pre_init) */
     int fma;                   /* 0: org * inv is out of range, use the sub-mul test */
 #endif
     size_t near_off[3], far_off[3]; /* byte offsets of the near/far planes in a node */
@@ -381,9 +382,6 @@ static inline void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r, const
     const vfloat4 ef = vf4_add(vf4_mul(vf4_abs(cf), ulp4), min_normal);
     vf4_store(pm->c, vf4_add(c, e)); /* c_near */
     vf4_store(pm->c + 4, vf4_sub(cf, ef)); /* c_far */
-    _Alignas(16) float cn[4], cfar[4];
-    vf4_store(cn, vf4_add(c, e));
-    vf4_store(cfar, vf4_sub(cf, ef));
     vf4_store(pm->o, org);
     vf4_store(pm->d, dir);
     p->fma = (vb4_mask(vf4_le(vf4_abs(cf), vf4_set1(0x1p126f))) & 7) == 7;
@@ -392,8 +390,6 @@ static inline void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r, const
         p->ninv[k] = vn_set1(in[k]);
         p->ninv_far[k] = vn_set1(inf[k]);
 #if RTK_SIMD_HAS_FMA
-        p->c_near[k] = vn_set1(cn[k]);
-        p->c_far[k] = vn_set1(cfar[k]);
         if (!p->fma)
 #endif
         {
@@ -461,31 +457,24 @@ static inline vnode plane(const node_t *n, size_t off)
 #error "the fused node test orders by bits: an FMA backend needs the integer ops at this node width"
 #endif
 static inline __attribute__((always_inline)) unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear,
-                                                                     vnode tfar, vnode *dist, int fused, int mem)
+                                                                     vnode tfar, vnode *dist, int fused)
 {
     vnode t0x, t0y, t0z, t1x, t1y, t1z;
     (void)fused;
-    (void)mem;
 #if RTK_SIMD_HAS_FMA
     if (fused) {
-        /* with mem, c_near and c_far from memory at every node (see ray_mem) */
-        const vnode cn0 = mem ? vn_set1_at(&p->m->c[0]) : p->c_near[0];
-        const vnode cn1 = mem ? vn_set1_at(&p->m->c[1]) : p->c_near[1];
-        const vnode cn2 = mem ? vn_set1_at(&p->m->c[2]) : p->c_near[2];
-        const vnode cf0 = mem ? vn_set1_at(&p->m->c[4]) : p->c_far[0];
-        const vnode cf1 = mem ? vn_set1_at(&p->m->c[5]) : p->c_far[1];
-        const vnode cf2 = mem ? vn_set1_at(&p->m->c[6]) : p->c_far[2];
-        t0x = vn_msub(PLANE(n, p->near_off[0]), p->ninv[0], cn0);
-        t0y = vn_msub(PLANE(n, p->near_off[1]), p->ninv[1], cn1);
-        t0z = vn_msub(PLANE(n, p->near_off[2]), p->ninv[2], cn2);
+        /* c_near and c_far from memory at every node (see ray_mem) */
+        t0x = vn_msub(PLANE(n, p->near_off[0]), p->ninv[0], vn_set1_at(&p->m->c[0]));
+        t0y = vn_msub(PLANE(n, p->near_off[1]), p->ninv[1], vn_set1_at(&p->m->c[1]));
+        t0z = vn_msub(PLANE(n, p->near_off[2]), p->ninv[2], vn_set1_at(&p->m->c[2]));
 #if RTK_FUSED_FAR_ULPS
 #define FUSED_INV_FAR p->ninv
 #else
 #define FUSED_INV_FAR p->ninv_far
 #endif
-        t1x = vn_msub(PLANE(n, p->far_off[0]), FUSED_INV_FAR[0], cf0);
-        t1y = vn_msub(PLANE(n, p->far_off[1]), FUSED_INV_FAR[1], cf1);
-        t1z = vn_msub(PLANE(n, p->far_off[2]), FUSED_INV_FAR[2], cf2);
+        t1x = vn_msub(PLANE(n, p->far_off[0]), FUSED_INV_FAR[0], vn_set1_at(&p->m->c[4]));
+        t1y = vn_msub(PLANE(n, p->far_off[1]), FUSED_INV_FAR[1], vn_set1_at(&p->m->c[5]));
+        t1z = vn_msub(PLANE(n, p->far_off[2]), FUSED_INV_FAR[2], vn_set1_at(&p->m->c[6]));
 #undef FUSED_INV_FAR
     } else
 #endif
@@ -683,11 +672,10 @@ typedef struct tri4_hit {
  * alone in double precision (rare: a ray exactly through an edge or vertex,
  * a triangle seen edge-on, or one so small that its products underflow).  U and V are the weights of v1 and v2 times |det|, T the
  * distance times |det|; a lane decided in double gets |det| = 1. */
-static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, int mem,
-                                           vfloat4 tnear, vfloat4 tfar, tri4_hit *h)
+static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, vfloat4 tnear,
+                                           vfloat4 tfar, tri4_hit *h)
 {
     (void)l; /* (the watertight test takes the ray from p) */
-    (void)mem;
     const float *f = (const float *)t;
     const int ox = p->axis_off[0], oy = p->axis_off[1], oz = p->axis_off[2];
     /* vertex k's coordinate along permuted axis j: f[12 * k + axis_off[j]] */
@@ -751,21 +739,17 @@ static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, c
     return mask;
 }
 #else
-static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, int mem,
-                                           vfloat4 tnear, vfloat4 tfar, tri4_hit *h)
+static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, vfloat4 tnear,
+                                           vfloat4 tfar, tri4_hit *h)
 {
     const vfloat4 e1x = vf4_load(t->e1x), e1y = vf4_load(t->e1y), e1z = vf4_load(t->e1z);
     const vfloat4 e2x = vf4_load(t->e2x), e2y = vf4_load(t->e2y), e2z = vf4_load(t->e2z);
     (void)p;
-    (void)mem;
 #if RTK_SIMD_HAS_FMA
-    /* with mem, the ray from memory at every block (see ray_mem) */
-    const vfloat4 dx = mem ? vf4_set1_at(&p->m->d[0]) : l->dir[0];
-    const vfloat4 dy = mem ? vf4_set1_at(&p->m->d[1]) : l->dir[1];
-    const vfloat4 dz = mem ? vf4_set1_at(&p->m->d[2]) : l->dir[2];
-    const vfloat4 ox = mem ? vf4_set1_at(&p->m->o[0]) : l->org[0];
-    const vfloat4 oy = mem ? vf4_set1_at(&p->m->o[1]) : l->org[1];
-    const vfloat4 oz = mem ? vf4_set1_at(&p->m->o[2]) : l->org[2];
+    /* the ray from memory at every block (see ray_mem) */
+    (void)l;
+    const vfloat4 dx = vf4_set1_at(&p->m->d[0]), dy = vf4_set1_at(&p->m->d[1]), dz = vf4_set1_at(&p->m->d[2]);
+    const vfloat4 ox = vf4_set1_at(&p->m->o[0]), oy = vf4_set1_at(&p->m->o[1]), oz = vf4_set1_at(&p->m->o[2]);
 #else
     const vfloat4 dx = l->dir[0], dy = l->dir[1], dz = l->dir[2];
     const vfloat4 ox = l->org[0], oy = l->org[1], oz = l->org[2];
@@ -969,7 +953,7 @@ static inline __attribute__((always_inline)) int next_leaf(const rtk_accel *acce
         const uint32_t *child = n->child;
         __builtin_prefetch(child);
         vnode dists;
-        unsigned mask = node_intersect(n, p, tnear, tfar, &dists, fused, !anyhit);
+        unsigned mask = node_intersect(n, p, tnear, tfar, &dists, fused);
         if (mask && !(mask & (mask - 1))) { /* one child: no stack traffic */
             cur = child[__builtin_ctz(mask)];
             continue;
@@ -1058,7 +1042,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             block_t scratch;
             const block_t *t = LEAF_BLOCK(accel, block, &scratch);
             tri4_hit h;
-            unsigned mask = triangle4_intersect(t, p, &lr, 1, tnear, tfar, &h);
+            unsigned mask = triangle4_intersect(t, p, &lr, tnear, tfar, &h);
             if (f && mask)
                 mask = masks_only ? mask_lanes(t, mask, f) : accept_closest(t, f, &h, mask, tnear_s, tfar_s);
             if (mask) {
@@ -1128,7 +1112,7 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
                 tri4_hit h;                                                                                          \
                 block_t scratch;                                                                                     \
                 const block_t *t = LEAF_BLOCK(accel, block, &scratch);                                               \
-                const unsigned mask = triangle4_intersect(t, p, &lr, 0, tnear, tfar, &h);                               \
+                const unsigned mask = triangle4_intersect(t, p, &lr, tnear, tfar, &h);                               \
                 if (mask && (ACCEPT))                                                                                \
                     return 1;                                                                                        \
             }                                                                                                        \
