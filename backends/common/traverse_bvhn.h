@@ -196,7 +196,7 @@ typedef rtk_triangle4 block_t;
  * 16 registers itself, and GCC stored eight 256-bit vectors at each leaf
  * and loaded them after it (about 35 instructions per leaf visit); now
  * four.  callgrind on the dragon's diffuse rays (rtktool bench --size
- * 256x192, 40,192 rays): 1088 -> 1050 instructions per ray in the kernel
+ * 256x192, 40,192 rays): 1088 -> 1045 instructions per ray in the kernel
  * (Embree isa=avx2's: 1048), shadow rays 4% fewer; rtktool bench beside
  * the parent (--alt, five runs): diffuse single rays 0.5% (dragon) and
  * 1.5% (San Miguel) faster, the rest within the runs' spread.
