@@ -199,7 +199,9 @@ typedef rtk_triangle4 block_t;
  * 256x192, 40,192 rays): 1088 -> 1045 instructions per ray in the kernel
  * (Embree isa=avx2's: 1048), shadow rays 4% fewer; rtktool bench beside
  * the parent (--alt, five runs): diffuse single rays 0.5% (dragon) and
- * 1.5% (San Miguel) faster, the rest within the runs' spread.
+ * 1.5% (San Miguel) faster, San Miguel's shadow rays about 1% slower
+ * (they mostly test the root and leave: the set-up's stores), packets
+ * within the runs' spread.
  * (A version that kept them in registers for the any-hit loop, in
  * ray_pre as well, made GCC compile the out-of-line single-ray traversal
  * the packet kernels call for their last rays with 300 more stack
