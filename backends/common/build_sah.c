@@ -80,7 +80,8 @@ typedef struct binpool {
 #define EXT 0x80000000u
 
 typedef struct leafrange {
-    uint32_t begin, end; /* references; stage 3 overwrites begin with the final leaf reference */
+    uint32_t begin, end; /* references */
+    uint32_t placed;     /* stage 3: the final leaf reference */
 } leafrange;
 
 /* The references' huge pages, and per page the subtrees over it that stage
@@ -90,6 +91,21 @@ typedef struct refpages {
     size_t bytes; /* of the reservation */
 } refpages;
 
+/* A thread's node arrays of stage 2 (see build_subtree): the subtrees it
+ * builds write their nodes one after another into chunks, reservations on
+ * huge pages; `base` is the last chunk, `bytes` long, `used` of them taken.
+ * A chunk starts with the previous chunk's address and its own size. */
+typedef struct arena {
+    char *base;
+    size_t bytes, used;
+} arena;
+typedef struct arena_chunk {
+    char *prev;
+    size_t bytes;
+} arena_chunk;
+#define RTK_ARENA_CHUNK ((size_t)32 << 20)
+#define RTK_ARENA_HEAD ((size_t)64) /* (a cache line, for the chunk's arena_chunk) */
+
 /* A part of the tree in arrays of its own: the top nodes, or one subtree. */
 typedef struct part {
     const build *bd;
@@ -98,6 +114,7 @@ typedef struct part {
     char *nodes;     /* node_count nodes of bd->node_size bytes */
     uint32_t node_count, node_cap;
     size_t nodes_mapped; /* nodes is a reservation of this many bytes (a subtree's), else 0: malloc'd */
+    int in_arena;        /* a subtree's nodes lie in its thread's arena (see build_subtree) */
     leafrange *leaves;
     uint32_t leaf_count, leaf_cap;
     uint64_t blocks;
@@ -1335,13 +1352,15 @@ static void split_parallel(const build *bd, binpool *pool, bins *scratch, sbins 
 /* A new node of part p; UINT32_MAX (and p->oom) when out of memory. */
 static uint32_t part_node(part *p)
 {
-    if (p->nodes_mapped && p->node_count == p->node_cap) { /* (not expected: see build_subtree) */
+    if ((p->nodes_mapped || p->in_arena) && p->node_count == p->node_cap) { /* (not expected: see build_subtree) */
         char *n = malloc((size_t)p->node_cap * p->bd->node_size);
         if (n)
             memcpy(n, p->nodes, (size_t)p->node_cap * p->bd->node_size);
-        build_unreserve(p->nodes, p->nodes_mapped);
+        if (p->nodes_mapped)
+            build_unreserve(p->nodes, p->nodes_mapped);
         p->nodes = n;
         p->nodes_mapped = 0;
+        p->in_arena = 0;
         p->oom |= !n;
     }
     if (p->oom || !build_grow((void **)&p->nodes, &p->node_cap, p->node_count + 1, p->bd->node_size)) {
@@ -1357,20 +1376,24 @@ static uint32_t part_leaf(part *p, uint32_t begin, uint32_t end)
         p->oom = 1;
         return EXT;
     }
-    p->leaves[p->leaf_count] = (leafrange){begin, end};
+    p->leaves[p->leaf_count] = (leafrange){begin, end, 0};
     p->blocks += (end - begin + 3) / 4;
     p->refs += end - begin;
     return EXT | p->leaf_count++;
 }
 
+/* (an arena's nodes go with the arena: arenas_free) */
 static void part_free_nodes(part *p)
 {
-    if (p->nodes_mapped)
+    if (p->in_arena)
+        ;
+    else if (p->nodes_mapped)
         build_unreserve(p->nodes, p->nodes_mapped);
     else
         free(p->nodes);
     p->nodes = NULL;
     p->nodes_mapped = 0;
+    p->in_arena = 0;
 }
 
 static void part_free(part *p)
@@ -1537,24 +1560,49 @@ static uint32_t build_node(part *p, const range *r, uint32_t depth)
     return leaf_range(p, r, depth, &first) ? depth_leaf(p, r, depth) : build_inner(p, r, depth, &first);
 }
 
-static void build_subtree(void *data, uint32_t i)
+/* Subtree p, built by the thread whose arena is a.  Its nodes go where
+ * there is room for as many as it can have (fewer than its references, the
+ * room for spatial splits included: every inner node has two children or
+ * more, every leaf a reference), of which only the pages written are ever
+ * memory.  That room is in the thread's arena, right behind the nodes of
+ * the subtrees it built before (a new chunk when the last has too little
+ * left), so the nodes of stage 2 are written on huge pages, a few subtrees
+ * to a page, and stage 3 copies them all to their places before the leaves
+ * (place_subtree_nodes), then gives the arenas back.  In a reservation of
+ * 4 KiB pages per subtree, as before, a medium build of the 10M-triangle
+ * mesh took 36,000 page faults for them, of the 49,000 it took in all
+ * (perf record -e page-faults): now 12,400 in all; medium builds 3-8%
+ * faster on the dragon and San Miguel, about 3% on that mesh, with the
+ * same peak memory (docs/BENCHMARKS.md, the notes of session 44).  Without
+ * an arena or its memory the subtree reserves its own. */
+static void build_subtree(part *p, arena *a)
 {
-    part *p = (part *)data + i;
     const uint32_t n = p->r.end - p->r.begin;
-    /* The nodes in a reservation for as many as the subtree can have
-     * (fewer than its references, the room for spatial splits included:
-     * every inner node has two children or more, every leaf a reference),
-     * of which only the pages written are ever memory, returned to the
-     * system as soon as stage 3 has copied them (place_and_release).
-     * About one leaf per 3 references. */
     const uint32_t bound = range_room_end(&p->r) - p->r.begin + 1;
-    p->nodes = build_reserve((size_t)bound * p->bd->node_size);
-    if (p->nodes) {
-        p->nodes_mapped = (size_t)bound * p->bd->node_size;
+    const size_t room = (size_t)bound * p->bd->node_size;
+    if (a && (!a->base || a->bytes - a->used < room)) { /* a new chunk */
+        const size_t bytes = room + RTK_ARENA_HEAD > RTK_ARENA_CHUNK ? room + RTK_ARENA_HEAD : RTK_ARENA_CHUNK;
+        char *chunk = build_reserve_huge(bytes);
+        if (chunk) {
+            *(arena_chunk *)chunk = (arena_chunk){a->base, a->bytes};
+            *a = (arena){chunk, bytes, RTK_ARENA_HEAD};
+        }
+    }
+    if (a && a->base && a->bytes - a->used >= room) {
+        p->nodes = a->base + a->used;
         p->node_cap = bound;
+        p->in_arena = 1;
+    } else {
+        p->nodes = build_reserve(room);
+        if (p->nodes) {
+            p->nodes_mapped = room;
+            p->node_cap = bound;
+        }
     }
     build_grow((void **)&p->leaves, &p->leaf_cap, n / 3 + 1, sizeof *p->leaves);
     p->root = build_node(p, &p->r, p->depth0);
+    if (p->in_arena) /* the next subtree's nodes on the next cache line */
+        a->used += ((size_t)p->node_count * p->bd->node_size + 63) & ~(size_t)63;
     pool_release(&p->pool); /* (its root's bins are the top's, which frees them) */
 }
 
@@ -1588,6 +1636,7 @@ typedef struct top {
     build_queue queue;
     int queue_ready;
     scratch *scratch; /* one per thread, and the main thread's (all threads) last */
+    arena *arenas;    /* one per thread */
 } top;
 
 /* Bit 0 of a queued task's key: a top node (else a subtree). */
@@ -1658,7 +1707,7 @@ static void top_task(build_queue *q, uint64_t key, void *item, uint32_t worker)
     if (key & 1)
         top_split(t, &t->serial, &t->scratch[worker], item);
     else
-        build_subtree(item, 0);
+        build_subtree(item, t->arenas ? &t->arenas[worker] : NULL);
 }
 
 /* Subtree p (built) as the next of t's subtrees; frees p. */
@@ -1760,10 +1809,10 @@ static void place_nodes(const part *p, const uint32_t *ext, size_t stride)
     }
 }
 
-/* A subtree's final root reference (after place_subtree). */
+/* A subtree's final root reference (after place_subtree_nodes). */
 static uint32_t subtree_root(const part *p)
 {
-    return p->root & EXT ? p->leaves[p->root & ~EXT].begin : (uint32_t)(p->node_base + p->root);
+    return p->root & EXT ? p->leaves[p->root & ~EXT].placed : (uint32_t)(p->node_base + p->root);
 }
 
 /* Prefetches the triangles of a leaf for write_block, which otherwise
@@ -1803,12 +1852,30 @@ static void prefetch_refs(const build *bd, const leafrange *l)
         __builtin_prefetch(at);
 }
 
-static void place_subtree(void *data, uint32_t i)
+/* Stage 3, first half, subtree i: its leaves' final references, and its
+ * nodes copied to their place with those; its own node array then goes
+ * (an arena's, with the arena after this pass). */
+static void place_subtree_nodes(void *data, uint32_t i)
 {
     part *p = (part *)data + i;
     uint64_t block = p->block_base;
     for (uint32_t k = 0; k < p->leaf_count; k++) {
         leafrange *l = &p->leaves[k];
+        const uint32_t blocks = (l->end - l->begin + 3) / 4;
+        l->placed = rtk_leaf_ref((uint32_t)block, blocks);
+        block += blocks;
+    }
+    place_nodes(p, p->leaves ? &p->leaves[0].placed : NULL, sizeof *p->leaves / sizeof(uint32_t));
+    part_free_nodes(p);
+}
+
+/* Stage 3, second half, subtree i: its leaf blocks. */
+static void place_subtree_leaves(void *data, uint32_t i)
+{
+    part *p = (part *)data + i;
+    uint64_t block = p->block_base;
+    for (uint32_t k = 0; k < p->leaf_count; k++) {
+        const leafrange *l = &p->leaves[k];
         if (k + 16 < p->leaf_count)
             prefetch_refs(p->bd, &p->leaves[k + 16]);
         if (k + 8 < p->leaf_count)
@@ -1818,10 +1885,14 @@ static void place_subtree(void *data, uint32_t i)
         const uint32_t blocks = (l->end - l->begin + 3) / 4;
         for (uint32_t b = 0; b < blocks; b++)
             write_block(p->bd, l->begin + 4 * b, l->end, block + b);
-        l->begin = rtk_leaf_ref((uint32_t)block, blocks);
         block += blocks;
     }
-    place_nodes(p, p->leaves ? &p->leaves[0].begin : NULL, sizeof *p->leaves / sizeof(uint32_t));
+}
+
+static void place_subtree(void *data, uint32_t i)
+{
+    place_subtree_nodes(data, i);
+    place_subtree_leaves(data, i);
 }
 
 typedef struct refspan {
@@ -1882,9 +1953,25 @@ static void count_page_users(top *t, refpages *pages, size_t bytes)
     }
 }
 
-/* Stage 3 of a build, one subtree: placed, then what only it used given
- * back to the system: its nodes (subtree_root needs only its leaves) and
- * its references' pages.  The final arrays grow as these shrink, so the
+/* Gives back the arenas' memory (once stage 3 has copied their nodes). */
+static void arenas_free(top *t)
+{
+    for (uint32_t w = 0; t->arenas && w < build_threads(t->nodes.bd); w++) {
+        arena *a = &t->arenas[w];
+        while (a->base) {
+            const arena_chunk c = *(const arena_chunk *)a->base;
+            build_unreserve(a->base, a->bytes);
+            a->base = c.prev;
+            a->bytes = c.bytes;
+        }
+        a->used = 0;
+    }
+}
+
+/* Stage 3 of a build, one subtree's leaves (its nodes were placed first,
+ * all subtrees' in one pass, and the arenas given back): its leaf blocks
+ * written, then its references' pages given back.  The final arrays grow
+ * as these shrink, so the
  * peak of a build stays near the references and the tree (dragon, medium:
  * 108 bytes per triangle when both were held to the end, against Embree's
  * 104).  The subtrees are placed in the order of their references (not
@@ -1893,10 +1980,8 @@ static void count_page_users(top *t, refpages *pages, size_t bytes)
  * bytes per triangle, Embree's 99.5 (rtktool bench --only build). */
 static void place_and_release(void *data, uint32_t i)
 {
-    part *p = (part *)data + i;
-    place_subtree(data, i);
-    part_free_nodes(p);
-    release_refs(p);
+    place_subtree_leaves(data, i);
+    release_refs((part *)data + i);
 }
 
 /* ---- the references ---- */
@@ -1962,6 +2047,8 @@ static void free_parts(top *t)
             free(t->scratch[i].sbins);
         }
     free(t->scratch);
+    arenas_free(t);
+    free(t->arenas);
     if (t->queue_ready)
         build_queue_free(&t->queue);
 }
@@ -2020,6 +2107,10 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     root.ext = n + (uint32_t)(room * n / (total ? total : 1));
     bd.spatial_overlap = RTK_SPATIAL_ALPHA * box_half_area(&root.geom);
 
+    /* The arenas (see build_subtree; without them every subtree reserves
+     * its own node array). */
+    t.arenas = calloc(build_threads(&bd), sizeof *t.arenas);
+
     /* Stages 1 and 2. */
     uint32_t root_local = RTK_BVH4_EMPTY;
     t.serial = bd;
@@ -2053,6 +2144,8 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
         goto done;
     }
     count_page_users(&t, &pages, ref_bytes);
+    run_parallel(&bd, t.subtree_count, place_subtree_nodes, t.subtrees);
+    arenas_free(&t);
     run_parallel(&bd, t.subtree_count, place_and_release, t.subtrees);
     uint32_t *roots = malloc((t.subtree_count ? t.subtree_count : 1) * sizeof *roots);
     if (!roots) {
@@ -2183,7 +2276,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
             set_child(&p, i, c, refs[c]);
     }
     for (uint32_t j = 0; j < p.leaf_count; j++)
-        p.leaves[j] = (leafrange){(uint32_t)t->leaf_first[j], (uint32_t)t->leaf_first[j + 1]};
+        p.leaves[j] = (leafrange){(uint32_t)t->leaf_first[j], (uint32_t)t->leaf_first[j + 1], 0};
     place_subtree(&p, 0);
 
     /* The scene's box: the union of the root's slots, or of a root leaf's
@@ -2207,7 +2300,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
         }
     }
     const uint32_t root = t->root == RTK_BVH_EMPTY        ? RTK_BVH4_EMPTY
-                          : t->root & RTK_BVH_LEAF_BIT ? p.leaves[t->root & ~RTK_BVH_LEAF_BIT].begin
+                          : t->root & RTK_BVH_LEAF_BIT ? p.leaves[t->root & ~RTK_BVH_LEAF_BIT].placed
                                                        : t->root;
     const uint32_t depth = t->root == RTK_BVH_EMPTY ? 0 : tree_depth(t, t->root, 1);
     part_free(&p);
