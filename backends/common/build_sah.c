@@ -1385,11 +1385,9 @@ static uint32_t part_leaf(part *p, uint32_t begin, uint32_t end)
 /* (an arena's nodes go with the arena: arenas_free) */
 static void part_free_nodes(part *p)
 {
-    if (p->in_arena)
-        ;
-    else if (p->nodes_mapped)
+    if (p->nodes_mapped)
         build_unreserve(p->nodes, p->nodes_mapped);
-    else
+    else if (!p->in_arena)
         free(p->nodes);
     p->nodes = NULL;
     p->nodes_mapped = 0;
