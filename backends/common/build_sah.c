@@ -2141,6 +2141,7 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
         build_set_message(out, "out of memory for the BVH");
         goto done;
     }
+    accel->leaves_first = 1; /* (build_inner) */
     count_page_users(&t, &pages, ref_bytes);
     run_parallel(&bd, t.subtree_count, place_subtree_nodes, t.subtrees);
     arenas_free(&t);

@@ -234,6 +234,11 @@ struct rtk_accel {
     uint32_t mask_pass_all;
     /* some geometry is quads (RTK_GEOMETRY_ATTR_QUAD): hits are translated */
     uint32_t quads;
+    /* 1: every node's leaf children lie ahead of its inner children's
+     * subtrees (the SAH builders, build_sah.c, build_inner); 0: each child's
+     * subtree whole, in slot order (the Morton builder, imported trees).
+     * The order refit walks the tree in (refit.c, walk_order). */
+    uint32_t leaves_first;
 };
 
 /* What a node's prefetch[] slot should hold for child reference ref (see
