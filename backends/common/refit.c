@@ -29,6 +29,8 @@
  * the threads to share unequal subtrees evenly. */
 #define REFIT_CUT_DEPTH(width) ((width) == 8 ? 3 : 4)
 #define REFIT_MAX_CUTS 512
+/* Tasks per thread the cuts are grouped into (group_cuts). */
+#define REFIT_TASKS_PER_THREAD 8
 /* Leaf blocks whose vertex indices are prefetched ahead of the one written:
  * 2 measured best of 0, 2, 4 and 8 (rtktool bench --only refit). */
 #define REFIT_AHEAD 2
@@ -53,6 +55,9 @@ typedef struct refit {
     box4 cut_box[REFIT_MAX_CUTS];
     refit_counts cut_counts[REFIT_MAX_CUTS];
     uint32_t cut_count;
+    /* the tasks: task t refits cuts[group[t]] to cuts[group[t + 1] - 1] */
+    uint32_t group[REFIT_MAX_CUTS + 1];
+    uint32_t group_count;
 } refit;
 
 /* Exact check, one chunk of triangles: which go in the tree now
@@ -203,13 +208,60 @@ static void collect_cuts(refit *r, uint32_t ref, int depth, int cut)
             collect_cuts(r, v.child[__builtin_ctz(m)], depth + 1, cut);
 }
 
-static void refit_cut(void *data, uint32_t i)
+static void refit_cut(void *data, uint32_t t)
 {
     refit *r = data;
-    uint32_t unused = 0;
-    refit_counts counts = {0, 0}; /* on the stack: the tasks' entries share cache lines */
-    r->cut_box[i] = refit_subtree(r, r->cuts[i], 0, -1, &unused, &counts);
-    r->cut_counts[i] = counts;
+    for (uint32_t i = r->group[t]; i < r->group[t + 1]; i++) {
+        uint32_t unused = 0;
+        refit_counts counts = {0, 0}; /* on the stack: the tasks' entries share cache lines */
+        r->cut_box[i] = refit_subtree(r, r->cuts[i], 0, -1, &unused, &counts);
+        r->cut_counts[i] = counts;
+    }
+}
+
+/* The first leaf block of subtree ref in walk order. */
+static uint32_t first_block(const refit *r, uint32_t ref)
+{
+    while (!(ref & RTK_BVH4_LEAF_BIT)) {
+        const node_view v = view_node(r->bd, r->bd->nodes, ref);
+        unsigned order[2];
+        walk_order(&v, r->bd->width, (int)r->accel->leaves_first, order);
+        const unsigned m = order[0] ? order[0] : order[1];
+        if (!m)
+            return UINT32_MAX;
+        ref = v.child[__builtin_ctz(m)];
+    }
+    return rtk_leaf_first(ref);
+}
+
+/* The cuts as tasks of consecutive cuts, about REFIT_TASKS_PER_THREAD per
+ * thread, of about equal numbers of leaf blocks: the cuts' subtrees lie one
+ * after the other in the leaf array, in walk order, so where each starts
+ * gives its size.  The dragon's tree has 512 subtrees at the cut, most of
+ * a few hundred blocks; as a task each, two threads spent 35-39 ms of work
+ * on them where one thread took 30 (timers in a scratch build), and its
+ * 2-thread refit took 17.8-19.9 ms; grouped, 15.5-16.4 ms with 4 or 8
+ * tasks per thread, 16.2-16.5 with 32 (rtktool bench --only refit --threads
+ * 2, two runs).  A shallower cut made fewer tasks too, but San Miguel's
+ * subtrees there are unequal (one of 8.7 ms of its 29), and its refit
+ * slowed from 14.1 to 16.2 ms.  Where the subtrees do not lie in walk
+ * order (an imported tree), each is its own task. */
+static void group_cuts(refit *r)
+{
+    const uint64_t target = r->accel->leaf_count / ((uint64_t)build_threads(r->bd) * REFIT_TASKS_PER_THREAD) + 1;
+    uint32_t start[REFIT_MAX_CUTS + 1];
+    int ordered = 1;
+    for (uint32_t i = 0; i < r->cut_count; i++) {
+        start[i] = first_block(r, r->cuts[i]);
+        ordered &= start[i] != UINT32_MAX && (i == 0 || start[i] >= start[i - 1]);
+    }
+    start[r->cut_count] = (uint32_t)r->accel->leaf_count;
+    ordered &= r->cut_count == 0 || start[r->cut_count] >= start[r->cut_count - 1];
+    r->group_count = 0;
+    r->group[0] = 0;
+    for (uint32_t i = 0; i < r->cut_count; i++)
+        if (!ordered || start[i + 1] - start[r->group[r->group_count]] >= target || i + 1 == r->cut_count)
+            r->group[++r->group_count] = i + 1;
 }
 
 /* The root's box, the whole tree refitted: the subtrees below the cut as
@@ -225,7 +277,8 @@ static box4 refit_tree(refit *r, refit_counts *counts)
         return refit_subtree(r, root, 0, -1, &next, counts);
     const int cut = REFIT_CUT_DEPTH(r->bd->width);
     collect_cuts(r, root, 0, cut);
-    run_parallel(r->bd, r->cut_count, refit_cut, r);
+    group_cuts(r);
+    run_parallel(r->bd, r->group_count, refit_cut, r);
     for (uint32_t i = 0; i < r->cut_count; i++) {
         counts->bad += r->cut_counts[i].bad;
         counts->never_hit += r->cut_counts[i].never_hit;
