@@ -12,10 +12,12 @@
  *     alone.
  *  3. The hierarchy is read off the sorted codes: a range splits where its
  *     highest differing code bit changes (a binary search), or in the middle
- *     when all its codes are equal.  An N-wide node starts with one child
- *     over its range and splits the child with the most triangles until it
- *     has N children or none has more than four (one leaf block).  Boxes
- *     are computed bottom-up from the triangles as the leaves are written.
+ *     when all its codes are equal; in a range of RTK_MORTON_FILL or fewer
+ *     moved, where needed, to keep the blocks full (fill_split).  An N-wide
+ *     node starts with one child over its range and splits the child with
+ *     the most triangles until it has N children or none has more than four
+ *     (one leaf block).  Boxes are computed bottom-up from the triangles as
+ *     the leaves are written.
  *
  * The hierarchy is a function of the sorted codes alone, so it is walked
  * twice: once to count each subtree's nodes and blocks, then, with every
@@ -48,6 +50,11 @@
 /* Prefetch distances of the leaf writer, in items (prefetch_items). */
 #define PREFETCH_FAR 48u
 #define PREFETCH_NEAR 24u
+/* Ranges of at most this many triangles split so that their blocks stay
+ * full (fill_split). */
+#ifndef RTK_MORTON_FILL
+#define RTK_MORTON_FILL 16u
+#endif
 /* Ranges of at least this many triangles are top nodes. */
 #define RTK_MORTON_TOP 8192u
 
@@ -289,6 +296,42 @@ static uint32_t split_at(const uint64_t *items, uint32_t b, uint32_t e)
     return base + 1;
 }
 
+/* The blocks of four that `count` triangles take as one leaf, or as leaves below it. */
+static inline uint32_t blocks_of(uint32_t count)
+{
+    return (count + 3) / 4;
+}
+
+/* A split of a small range [b, e) moved, where it has to, so that its two
+ * sides take no more blocks between them than the range needs.  Split only
+ * where their codes part, 6 triangles can become 5 and 1, and leaves of 3, 2
+ * and 1 below: three blocks where two would do, and every block written and
+ * every leaf entered costs the same however few triangles it holds.  The
+ * split moves to the nearest count that is a multiple of four on one side
+ * (at most two items along the curve, which in a range this small stay near
+ * each other).  On the dragon 277,936 blocks become 220,804 (81.7 -> 65.8
+ * bytes per triangle), the SAH cost 19.58 -> 19.96, and its diffuse rays
+ * trace as fast (rtktool trace --quality low, four rounds in turns); ranges
+ * of up to 64 gave 199,223 blocks, SAH 21.05 and 2% slower rays. */
+static uint32_t fill_split(uint32_t b, uint32_t e, uint32_t at)
+{
+    const uint32_t n = e - b, left = at - b;
+    if (n > RTK_MORTON_FILL || blocks_of(left) + blocks_of(n - left) == blocks_of(n))
+        return at;
+    uint32_t best = 0, dist = UINT32_MAX;
+    for (uint32_t l = 4; l < n; l += 4) {
+        const uint32_t cands[2] = {l, n - l};
+        for (int k = 0; k < 2; k++) {
+            const uint32_t d = cands[k] > left ? cands[k] - left : left - cands[k];
+            if (d < dist) {
+                dist = d;
+                best = cands[k];
+            }
+        }
+    }
+    return b + best;
+}
+
 /* The children of a node over [b, e): begin[i], begin[i + 1] bound child i. */
 static int split_children(const morton *m, uint32_t b, uint32_t e, uint32_t begin[9])
 {
@@ -306,7 +349,7 @@ static int split_children(const morton *m, uint32_t b, uint32_t e, uint32_t begi
             }
         if (pick < 0)
             break;
-        const uint32_t at = split_at(m->items, begin[pick], begin[pick + 1]);
+        const uint32_t at = fill_split(begin[pick], begin[pick + 1], split_at(m->items, begin[pick], begin[pick + 1]));
         for (int i = nc; i > pick; i--)
             begin[i + 1] = begin[i];
         begin[pick + 1] = at;
