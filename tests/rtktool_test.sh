@@ -133,7 +133,8 @@ if "$tool" bench --help >/dev/null 2>&1; then
     for want in "trace,rtk avx2,default,primary,packet8,1," "trace,rtk scalar,default,shadow,single,1," \
                 "render,rtk avx2,default,diffuse path tracer,packet8,1," \
                 "build,embree default,high:sah-spatial,start,,1," "build,rtk avx2,low:morton,start,,1," \
-                "build,rtk avx2,low:morton,diffuse,single,1," "accuracy,embree isa=avx2,robust,edge,single,1," \
+                "build,rtk avx2,low:morton,diffuse,single,1," "build,rtk avx2,medium:sah-binned,sah cost,,1," \
+                "accuracy,embree isa=avx2,robust,edge,single,1," \
                 "accuracy,rtk scalar,compact,diffuse,single,1," "accuracy,rtk avx2,robust,edge,single,1," \
                 "memory,rtk avx2,bvh8.triangle4,"; do
         grep -qF "bunny.ply,$want" "$csv" || fail "bench.csv lacks a row '$want'"

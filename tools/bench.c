@@ -218,6 +218,7 @@ typedef struct scene {
     embree_target target[2]; /* incoherent, coherent */
     double seconds;          /* start time: first scene call to committed scene */
     double bytes_per_tri;
+    double sah; /* rtk: rtk_scene_info.sah_cost; Embree: -1 (its API reports none) */
     char layout[48];
     char builder[32]; /* rtk: rtk_scene_info.builder; Embree: its builder for the quality */
 } scene;
@@ -317,6 +318,7 @@ static int embree_mesh_commit(scene *sc, RTCScene s, RTCGeometry g, const rtk_me
     if (embree_commit(sc, s, t0, what, err, err_size))
         return 1;
     sc->bytes_per_tri = (double)(embree_bytes - bytes0) / (double)m->triangle_count;
+    sc->sah = -1.0;
     return 0;
 }
 
@@ -335,6 +337,7 @@ static int rtk_mesh_commit(scene *sc, rtk_scene s, rtk_geometry g, const rtk_mes
     rtk_scene_info info = {.struct_size = sizeof info};
     rtk_scene_get_info(s, &info);
     sc->bytes_per_tri = (double)info.bytes / (double)m->triangle_count;
+    sc->sah = info.sah_cost;
     snprintf(sc->layout, sizeof sc->layout, "%s", info.layout);
     snprintf(sc->builder, sizeof sc->builder, "%s", info.builder);
     return 0;
@@ -1490,6 +1493,7 @@ static double rebuild_time(lib *bl, const ctx *c, float *v, int q, int frames, c
 typedef struct build_result {
     double best, bytes, peak, trace_rate, rebuild; /* seconds; bytes and peak per triangle */
     double sys; /* seconds of system time (every thread) during the best start build */
+    double sah; /* the tree's SAH cost (scene.sah) */
     char builder[32];
 } build_result;
 
@@ -1512,7 +1516,7 @@ static int build_turns(ctx *c, int q, int ti, float *moving, unsigned char *hits
             break;
         }
     for (int l = 0; l < c->nlibs; l++)
-        res[l] = (build_result){.best = 1e30, .peak = -1.0};
+        res[l] = (build_result){.best = 1e30, .peak = -1.0, .sah = -1.0};
     for (int b = 0; !rc && b < o->builds; b++)
         for (int l = 0; !rc && l < c->nlibs; l++) {
             scene sc;
@@ -1530,6 +1534,7 @@ static int build_turns(ctx *c, int q, int ti, float *moving, unsigned char *hits
                 res[l].sys = sys;
             }
             res[l].bytes = sc.bytes_per_tri;
+            res[l].sah = sc.sah;
             memcpy(res[l].builder, sc.builder, sizeof res[l].builder);
             if (b == o->builds - 1 && ti == 0) {
                 const render_tracer t = scene_tracer(&sc, 0);
@@ -1564,12 +1569,14 @@ static int section_build(ctx *c, char *err, size_t err_size)
            "the frames, from the update calls to the committed scene; sys: the system time of the best start build (all "
            "threads; mostly the kernel giving the build fresh pages); scaling: the library's own speed-up over its "
            "%d-thread times, start / rebuild; bytes per triangle of the tree and at the peak of the first build "
-           "(the growth of resident memory during it, a fresh device each time); then the diffuse rays of the "
-           "trace section through that tree, single rays, 1 thread\n",
+           "(the growth of resident memory during it, a fresh device each time); SAH: the tree's SAH cost in rtk's "
+           "model (rtk_scene_info.sah_cost: a traversal step 1, a block of four triangles 1, relative to the root; "
+           "Embree's API reports none); then the diffuse rays of the trace section through that tree, single rays, "
+           "1 thread\n",
            o->builds, frames, o->threads[0]);
-    printf("  %-20s %-8s %-14s %7s %9s %8s %7s %10s %8s %13s %9s %7s %7s  %s\n", "library", "quality", "builder",
-           "threads", "start ms", "ratio", "sys ms", "rebuild ms", "ratio", "scaling", "Mtris/s", "B/tri", "peak",
-           "diffuse Mrays/s");
+    printf("  %-20s %-8s %-14s %7s %9s %8s %7s %10s %8s %13s %9s %7s %7s %7s  %s\n", "library", "quality",
+           "builder", "threads", "start ms", "ratio", "sys ms", "rebuild ms", "ratio", "scaling", "Mtris/s", "B/tri",
+           "peak", "SAH", "diffuse Mrays/s");
     const rayset diff = c->sets[SET_DIFFUSE];
     unsigned char *hits = malloc(diff.n + 1);
     float *moving = calloc(c->m->vertex_count * 3 + 4, sizeof *moving);
@@ -1612,6 +1619,10 @@ static int section_build(ctx *c, char *err, size_t err_size)
                        qn[q], r->builder, o->threads[ti], best * 1e3, ratio(ref->best, best), r->sys * 1e3,
                        rebuild * 1e3, ratio(ref->rebuild, rebuild), scaling,
                        (double)c->m->triangle_count / best * 1e-6, r->bytes, r->peak);
+                if (r->sah >= 0)
+                    printf(" %7.3f", r->sah);
+                else
+                    printf(" %7s", "-");
                 if (ti == 0)
                     printf("  %.2f", trace_rate);
                 printf("\n");
@@ -1632,6 +1643,9 @@ static int section_build(ctx *c, char *err, size_t err_size)
                 if (r->peak >= 0)
                     csv_row(&c->csv, "build", c->libs[l].name, variant, "peak memory", "", o->threads[ti], r->peak,
                             "bytes per triangle", 0);
+                if (r->sah >= 0)
+                    csv_row(&c->csv, "build", c->libs[l].name, variant, "sah cost", "", o->threads[ti], r->sah,
+                            "relative to the root", 0);
                 if (ti == 0) {
                     csv_row(&c->csv, "build", c->libs[l].name, variant, "diffuse", "single", 1, trace_rate, "Mrays/s",
                             0);
