@@ -330,22 +330,34 @@ typedef struct obj_ray {
 /* 1 + 2 * gamma(3): the far distances no smaller than the exact ones. */
 #define OBJ_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
 
+/* x, y and z at once in lanes 0..2 (lane 3 holds tnear or time and is not
+ * used): one division for the three reciprocals, as the triangle kernels'
+ * ray_pre_init does (three scalar divisions and the loop around them were
+ * 88 instructions per ray of the two-level path tracer, callgrind). */
 static void obj_ray_init(obj_ray *p, const rtk_ray *r)
 {
     static const size_t lower[3] = {offsetof(rtk_bvh4_node, lower_x), offsetof(rtk_bvh4_node, lower_y),
                                     offsetof(rtk_bvh4_node, lower_z)};
     static const size_t upper[3] = {offsetof(rtk_bvh4_node, upper_x), offsetof(rtk_bvh4_node, upper_y),
                                     offsetof(rtk_bvh4_node, upper_z)};
-    const float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
+    const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);
+    /* as the triangle kernels do: no 0 * inf NaN in a slab test (a
+     * component below 1e-18 in magnitude becomes +-1e-18, its sign kept,
+     * so the reciprocal has the direction's sign, -0.0 included) */
+    const vfloat4 tiny = vf4_set1(1e-18f);
+    const vfloat4 d = vf4_select(vf4_lt(vf4_abs(dir), tiny), vf4_xor_sign(tiny, dir), dir);
+    const vfloat4 inv = vf4_div(vf4_set1(1.0f), d);
+    _Alignas(16) float o[4], in[4], inf[4];
+    vf4_store(o, org);
+    vf4_store(in, inv);
+    vf4_store(inf, vf4_mul(inv, vf4_set1(OBJ_FAR_SCALE)));
+    const unsigned neg = (unsigned)vf4_signs(dir);
     for (int k = 0; k < 3; k++) {
-        /* as the triangle kernels do: no 0 * inf NaN in a slab test */
-        const float dk = fabsf(d[k]) < 1e-18f ? copysignf(1e-18f, d[k]) : d[k];
-        const float inv = 1.0f / dk;
         p->org[k] = vf4_set1(o[k]);
-        p->inv[k] = vf4_set1(inv);
-        p->inv_far[k] = vf4_set1(inv * OBJ_FAR_SCALE);
-        p->near_off[k] = inv < 0.0f ? upper[k] : lower[k];
-        p->far_off[k] = inv < 0.0f ? lower[k] : upper[k];
+        p->inv[k] = vf4_set1(in[k]);
+        p->inv_far[k] = vf4_set1(inf[k]);
+        p->near_off[k] = neg >> k & 1 ? upper[k] : lower[k];
+        p->far_off[k] = neg >> k & 1 ? lower[k] : upper[k];
     }
 }
 
@@ -414,6 +426,19 @@ static int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local
 
 #define OBJ_STACK (3 * RTK_BVH4_MAX_DEPTH + 4)
 
+/* Whether single rays go through object o as they are, on the caller's
+ * ray and hit, instead of a copy: a tree of this backend in world space (a
+ * dynamic scene's geometry), not an instance (whose hit gets its instID)
+ * and not a user primitive (whose callback may write to what it is
+ * handed).  The triangle kernels write the ray's tfar and the hit only for
+ * a hit within tfar, the answer the copy's was taken for.  The copy was 34
+ * instructions per object entered (to_object; callgrind, the two-level
+ * path tracer of rtktool bench, about three objects per ray). */
+static inline int in_place(const rtk_build_object *o)
+{
+    return (o->flags & RTK_BUILD_OBJECT_IDENTITY) && o->inst_id == RTK_INVALID_GEOMETRY_ID && !o->intersect_packet;
+}
+
 /* The query an object's tree gets: the outermost instance's id. */
 static inline rtk_query object_query(const rtk_build_object *o, const rtk_query *q)
 {
@@ -444,8 +469,14 @@ void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh, con
             const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
             for (uint32_t i = first; i < end; i++) {
                 const rtk_build_object *o = &accel->objects[i];
+                if (!(o->mask & rh->ray.mask))
+                    continue;
+                if (in_place(o)) {
+                    o->intersect1(o->accel, rh, q);
+                    continue;
+                }
                 rtk_rayhit local;
-                if (!(o->mask & rh->ray.mask) || !to_object(o, &rh->ray, &local.ray))
+                if (!to_object(o, &rh->ray, &local.ray))
                     continue;
                 local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
                 const rtk_query cq = object_query(o, q);
@@ -485,8 +516,16 @@ void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const 
             const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
             for (uint32_t i = first; i < end; i++) {
                 const rtk_build_object *o = &accel->objects[i];
+                if (!(o->mask & ray->mask))
+                    continue;
+                if (in_place(o)) {
+                    o->occluded1(o->accel, ray, q);
+                    if (ray->tfar == -INFINITY)
+                        return;
+                    continue;
+                }
                 rtk_ray local;
-                if (!(o->mask & ray->mask) || !to_object(o, ray, &local))
+                if (!to_object(o, ray, &local))
                     continue;
                 const rtk_query cq = object_query(o, q);
                 o->occluded1(o->accel, &local, &cq);
