@@ -331,9 +331,8 @@ typedef struct obj_ray {
 #define OBJ_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
 
 /* x, y and z at once in lanes 0..2 (lane 3 holds tnear or time and is not
- * used): one division for the three reciprocals, as the triangle kernels'
- * ray_pre_init does (three scalar divisions and the loop around them were
- * 88 instructions per ray of the two-level path tracer, callgrind). */
+ * used): one division for the three reciprocals instead of three, as the
+ * triangle kernels' ray_pre_init does. */
 static void obj_ray_init(obj_ray *p, const rtk_ray *r)
 {
     static const size_t lower[3] = {offsetof(rtk_bvh4_node, lower_x), offsetof(rtk_bvh4_node, lower_y),
@@ -431,9 +430,9 @@ static int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local
  * dynamic scene's geometry), not an instance (whose hit gets its instID)
  * and not a user primitive (whose callback may write to what it is
  * handed).  The triangle kernels write the ray's tfar and the hit only for
- * a hit within tfar, the answer the copy's was taken for.  The copy was 34
- * instructions per object entered (to_object; callgrind, the two-level
- * path tracer of rtktool bench, about three objects per ray). */
+ * a hit within tfar, the answer the copy's was taken for.  With this and
+ * the vector set-up above, the two-level path tracer of rtktool bench
+ * traced a dynamic scene 3-6% faster (docs/BENCHMARKS.md, "Two levels"). */
 static inline int in_place(const rtk_build_object *o)
 {
     return (o->flags & RTK_BUILD_OBJECT_IDENTITY) && o->inst_id == RTK_INVALID_GEOMETRY_ID && !o->intersect_packet;
