@@ -340,12 +340,9 @@ static void obj_ray_init(obj_ray *p, const rtk_ray *r)
     static const size_t upper[3] = {offsetof(rtk_bvh4_node, upper_x), offsetof(rtk_bvh4_node, upper_y),
                                     offsetof(rtk_bvh4_node, upper_z)};
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);
-    /* as the triangle kernels do: no 0 * inf NaN in a slab test (a
-     * component below 1e-18 in magnitude becomes +-1e-18, its sign kept,
-     * so the reciprocal has the direction's sign, -0.0 included) */
-    const vfloat4 tiny = vf4_set1(1e-18f);
-    const vfloat4 d = vf4_select(vf4_lt(vf4_abs(dir), tiny), vf4_xor_sign(tiny, dir), dir);
-    const vfloat4 inv = vf4_div(vf4_set1(1.0f), d);
+    /* as the triangle kernels do: no 0 * inf NaN in a slab test, and the
+     * reciprocals with the direction's signs (-0.0 included) */
+    const vfloat4 inv = vf4_rcp_clamped(dir, 1e-18f);
     _Alignas(16) float o[4], in[4], inf[4];
     vf4_store(o, org);
     vf4_store(in, inv);

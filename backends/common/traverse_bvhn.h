@@ -331,9 +331,7 @@ static inline void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r, const
     p->m = pm;
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
     /* a component below 1e-18 in magnitude becomes +-1e-18, its sign kept */
-    const vfloat4 tiny = vf4_set1(1e-18f);
-    const vfloat4 d = vf4_select(vf4_lt(vf4_abs(dir), tiny), vf4_xor_sign(tiny, dir), dir);
-    const vfloat4 inv_exact = vf4_div(vf4_set1(1.0f), d);
+    const vfloat4 inv_exact = vf4_rcp_clamped(dir, 1e-18f);
 #if RTK_ROBUST
     /* (see RTK_ROBUST_REL) the reciprocals for the near planes scaled
      * down, for the far ones up, and the origin moved toward the near

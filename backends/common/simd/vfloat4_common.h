@@ -16,4 +16,13 @@ RTK_INLINE vfloat4 vf4_reduce4_max(vfloat4 a, vfloat4 b, vfloat4 c, vfloat4 d)
     return vf4_max(vf4_max(a, b), vf4_max(c, d));
 }
 
+/* 1 / a lane by lane, a lane below `tiny` in magnitude taken as +-tiny with
+ * its sign (-0.0 as -tiny): finite reciprocals with a's signs, for the slab
+ * tests of ray directions, where a zero component would give 0 * inf = NaN. */
+RTK_INLINE vfloat4 vf4_rcp_clamped(vfloat4 a, float tiny)
+{
+    const vfloat4 t = vf4_set1(tiny);
+    return vf4_div(vf4_set1(1.0f), vf4_select(vf4_lt(vf4_abs(a), t), vf4_xor_sign(t, a), a));
+}
+
 #endif
