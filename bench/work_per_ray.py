@@ -60,7 +60,7 @@ def ray_counts(log):
 
 def parse(path):
     """{object: {address: [event counts]}} of self cost, and the event names."""
-    names = {"ob": {}, "fn": {}}
+    names = {"ob": {}}  # (object names only: costs are kept per object and address)
     costs = collections.defaultdict(lambda: collections.defaultdict(lambda: None))
     events, positions = [], ["line"]
     obj = None
@@ -86,8 +86,6 @@ def parse(path):
             obj = name("ob", line[3:])
         elif line.startswith("cob="):
             name("ob", line[4:])
-        elif line.startswith(("fn=", "cfn=")):
-            name("fn", line.split("=", 1)[1])
         elif line.startswith("calls="):
             skip = True  # the next cost line is the call's inclusive cost
         elif line and (line[0].isdigit() or line[0] in "+-*"):
