@@ -152,6 +152,30 @@ static void test_malformed(void **state)
     expect_error(write_text("word.ply", "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nwhat\n"
                                         "end_header\n0\n"),
                  "unknown line 'what'");
+    /* OpenMesh reads the words of an obj_info line as header words: with
+     * "element face" there it logged without end until memory ran out
+     * (fuzz_mesh); "element vertex 4" gave 8 vertices, "property" and
+     * "end_header" no faces.  Words it passes over still load. */
+    const char *oi_head = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                          "property float z\n";
+    const char *oi_tail = "element face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                          "0 0 0\n1 0 0\n2 1 0\n0 0 1\n3 0 1 2\n";
+    const char *oi_bad[] = {"obj_info element vertex 4", "obj_info property", "obj_info end_header",
+                            "obj_info x element", "obj_info element face"}; /* (the one that hung last) */
+    char oi[512];
+    for (size_t i = 0; i < sizeof oi_bad / sizeof *oi_bad; i++) {
+        snprintf(oi, sizeof oi, "%s%s\n%s", oi_head, oi_bad[i], oi_tail);
+        expect_error(write_text("objinfo.ply", oi), "malformed PLY header: an obj_info line holding");
+    }
+    snprintf(oi, sizeof oi, "%sobj_info num_cols 640\nobj_info vertex 3 elements\n%s", oi_head, oi_tail);
+    {
+        rtk_mesh m;
+        char err[512];
+        assert_int_equal(rtk_mesh_load(write_text("objinfo_ok.ply", oi), &m, err, sizeof err), 0);
+        assert_int_equal(m.vertex_count, 4);
+        assert_int_equal(m.triangle_count, 1);
+        rtk_mesh_free(&m);
+    }
     /* A face line after leading blanks: OpenMesh trims it, then asserted on
      * a word with no vertex (fuzz_mesh). */
     expect_error(write_text("lead.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\n  f /1 2 3\n"),

@@ -550,7 +550,20 @@ bool ply_header_ok(const char *path, std::string &why)
             return bad("a NUL byte in the header");
         if (key == "end_header") {
             break;
-        } else if (key == "comment" || key == "obj_info" || key.empty()) {
+        } else if (key == "comment" || key.empty()) {
+            continue;
+        } else if (key == "obj_info") {
+            // OpenMesh skips a comment line but not an obj_info line: it
+            // reads on word by word, so an element, property or end_header
+            // there declares one, or ends the header (fuzz_mesh: "obj_info
+            // element face" made it log without end until memory ran out;
+            // "obj_info element vertex 4" read 8 vertices, "obj_info
+            // property" no faces).  Other words it passes over.
+            std::string word;
+            while (w >> word)
+                if (word == "element" || word == "property" || word == "end_header")
+                    return bad("an obj_info line holding '" + word +
+                               "', which the PLY reader would take for a header line: '" + line + "'");
             continue;
         } else if (key == "format") {
             std::string kind, version;
