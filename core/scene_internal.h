@@ -1,0 +1,186 @@
+/* What the core's scene files share: geometries, scenes, the trees they
+ * hold, and the functions one of them defines for the others.  Nothing here
+ * is exported. */
+#ifndef RTK_CORE_SCENE_INTERNAL_H
+#define RTK_CORE_SCENE_INTERNAL_H
+
+#include "internal.h"
+
+/* Memory rtk allocates for a buffer, reference-counted: a compact scene's
+ * BVH reads vertices from it, so the scene holds a reference until its next
+ * commit and the memory outlives a buffer replaced or a geometry released
+ * in the meantime. */
+typedef struct blob {
+    atomic_int refs;
+    _Alignas(16) unsigned char data[];
+} blob;
+
+/* A built tree and what it needs to stay valid: a scene holds one, and so
+ * does every scene that instances it (committed since), so a tree lives
+ * until the last of them lets it go.  Never changed once made, except by a
+ * refit (in place, like Embree's: commit the instancing scenes again). */
+typedef struct accel_ref {
+    atomic_int refs;
+    const rtk_layout_entry *layout;
+    rtk_accel *accel;
+    rtk_intersect1_fn intersect1;
+    rtk_occluded1_fn occluded1;
+    /* A compact layout reads the vertex buffers: the rtk-allocated ones it
+     * uses are held here. */
+    blob **pinned;
+    uint32_t pinned_count;
+    /* A top level (bvh4.object): the trees of its objects. */
+    struct accel_ref **children;
+    uint32_t child_count;
+    uint32_t depth; /* levels of instances below: 0 for a tree of triangles */
+    float lower[3], upper[3];
+    /* A top level: the user primitives its objects point to. */
+    struct user_prim *user_prims;
+} accel_ref;
+
+typedef struct buffer {
+    const char *data; /* first element */
+    size_t stride, count;
+    blob *owned;      /* non-NULL when rtk allocated it */
+} buffer;
+
+struct rtk_geometry_s {
+    atomic_int refs;
+    rtk_device device;
+    rtk_geometry_type type;
+    buffer vertex, index;
+    /* Motion blur: time_steps vertex buffers, slot 0 in vertex and slots
+     * 1 .. time_steps - 1 in steps[0 ..]. */
+    unsigned time_steps;
+    buffer *steps;
+    /* Changed whenever a buffer is set or updated: unique over all
+     * geometries, so a scene can tell what changed since its last commit. */
+    uint64_t vertex_version, index_version;
+    rtk_build_quality quality;
+    int enabled;
+    int committed;
+    void *user;
+    /* Read at the scene's commit into its tree (rtk_geometry_attrs). */
+    uint32_t mask;
+    rtk_filter_fn intersect_filter, occluded_filter;
+    /* RTK_GEOMETRY_TYPE_USER */
+    uint32_t user_count;
+    rtk_bounds_fn bounds;
+    rtk_user_query_fn user_intersect, user_occluded;
+    /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained), the
+     * transform from its space (row-major 3x4) and, once committed, the
+     * inverse. */
+    rtk_scene instanced;
+    float xfm[12], inv[12];
+    /* The scenes the geometry is attached to (not retained; one entry per
+     * attachment), so that setting an instance's scene can refuse a cycle
+     * of references, which would never be freed. */
+    rtk_scene *owners;
+    uint32_t owner_count, owner_cap;
+};
+
+static const float identity_3x4[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+
+/* Triangles and quads: a mesh of vertex and index buffers (a quad is two
+ * triangles to the builders, rtk.h). */
+static inline int is_mesh(const struct rtk_geometry_s *g)
+{
+    return g->type == RTK_GEOMETRY_TYPE_TRIANGLE || g->type == RTK_GEOMETRY_TYPE_QUAD;
+}
+
+/* What a scene's tree was built over, per geometry slot, to tell at the
+ * next commit whether a refit serves. */
+typedef struct built_geom {
+    rtk_geometry g; /* NULL: a free slot or a disabled geometry (never dereferenced) */
+    uint64_t vertex_version, index_version;
+    size_t prim_count, vertex_count;
+    rtk_build_quality quality;
+} built_geom;
+
+/* One geometry's own tree in a dynamic scene. */
+typedef struct dyn_tree {
+    struct accel_ref *ref; /* NULL: none */
+    built_geom b;
+    rtk_build_output out;
+} dyn_tree;
+
+struct rtk_scene_s {
+    atomic_int refs;
+    rtk_device device;
+    void *user; /* rtk_scene_set_user_data */
+    unsigned flags;
+    rtk_build_quality quality;
+    rtk_geometry *geoms; /* by geomID; NULL for free slots */
+    uint32_t geom_count;
+
+    /* After a successful commit: the tree (ref), and ref->accel and
+     * ref->layout at hand. */
+    accel_ref *ref;
+    rtk_accel *accel;
+    const rtk_layout_entry *layout;
+    const char *builder; /* the builder's name, or "tree" */
+    rtk_intersect1_fn intersect1;
+    rtk_occluded1_fn occluded1;
+    /* For packets of 4, 8, 16 rays: the widest packet kernel that divides
+     * the packet (width 1: none, ray by ray), per query. */
+    struct packet_kernel {
+        uint32_t width;
+        rtk_intersectN_fn fn; /* rtk_occludedN_fn has the same type */
+    } packet[2][3];
+    rtk_build_output stats;
+    double build_seconds;
+    /* With instances: how many, and the build of the scene's own triangles
+     * (zero when it has none); stats is then the top level's. */
+    uint64_t instances;
+    rtk_build_output own_stats;
+    int two_level;     /* the tree is a top level (bvh4.object) */
+    uint64_t motion_prims; /* triangles with motion blur in the scene's own trees */
+    uint64_t quads;        /* of quad geometries, at the last commit (rtk_scene_info.quads) */
+    uint64_t user_prims, user_skipped; /* user primitives in the top level, and left out */
+    unsigned honoured; /* the flags the scene's trees honour */
+    /* RTK_SCENE_FLAG_DYNAMIC: a tree per triangle geometry, by slot, kept
+     * from commit to commit while its geometry is unchanged, refitted when
+     * only a REFIT geometry's vertices moved; what the last commit did. */
+    struct dyn_tree *dyn;
+    uint32_t dyn_count;
+    uint32_t trees_built, trees_refitted;
+    /* What the tree holds (see built_geom), and the refits since its build. */
+    built_geom *built;
+    uint32_t built_count;
+    unsigned built_flags;
+    rtk_build_quality built_quality;
+    uint32_t refits;
+};
+
+#define CHECK_HANDLE(h, fn)                                                                \
+    do {                                                                                   \
+        if (!(h))                                                                          \
+            return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, fn ": " #h " is NULL");      \
+    } while (0)
+
+
+/* One user primitive in a top level: the accel its object points to. */
+typedef struct user_prim {
+    rtk_user_query_fn intersect, occluded;
+    void *user;
+    uint32_t geom_id, prim_id;
+} user_prim;
+
+/* scene.c */
+RTK_INTERNAL void blob_release(blob *m);
+RTK_INTERNAL void unpin_buffers(blob **pinned, uint32_t count);
+RTK_INTERNAL void accel_ref_release(accel_ref *r);
+/* The scene's tree and what goes with it let go: as never committed. */
+RTK_INTERNAL void scene_drop_accel(rtk_scene s);
+RTK_INTERNAL int scene_reaches(rtk_scene from, rtk_scene target);
+
+/* geometry.c: a user primitive (the accel of its top-level object) traced
+ * through the geometry's callbacks */
+RTK_INTERNAL void user_intersect1(const rtk_accel *a, rtk_rayhit *rh, const rtk_query *q);
+RTK_INTERNAL void user_occluded1(const rtk_accel *a, rtk_ray *ray, const rtk_query *q);
+RTK_INTERNAL void user_intersect_packet(const rtk_accel *a, const int32_t *active, void *packet, uint32_t width,
+                                       const rtk_query *q);
+RTK_INTERNAL void user_occluded_packet(const rtk_accel *a, const int32_t *active, void *packet, uint32_t width,
+                                      const rtk_query *q);
+
+#endif
