@@ -1,0 +1,209 @@
+/* The trace section: every ray set through every library and API. */
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "bench_internal.h"
+#include "progress.h"
+
+/* The pieces each pass over a ray set is cut into (section_trace). */
+enum { TRACE_CHUNKS = 8 };
+
+/* The order the libraries trace piece `piece` in: a shuffle seeded by the
+ * piece's number, so that every library follows every other about equally
+ * often (with a rotation each one always came right after the same one,
+ * and the caches the previous library leaves count for rays that mostly
+ * test the top of the tree, as San Miguel's do). */
+static void piece_order(int *order, int n, uint64_t piece)
+{
+    uint64_t x = piece * 0x9e3779b97f4a7c15ull + 0x2545f4914f6cdd1dull;
+    for (int i = 0; i < n; i++)
+        order[i] = i;
+    for (int i = n - 1; i > 0; i--) {
+        x ^= x >> 29;
+        x *= 0xbf58476d1ce4e5b9ull;
+        x ^= x >> 32;
+        const int j = (int)(x % (uint64_t)(i + 1));
+        const int t = order[i];
+        order[i] = order[j];
+        order[j] = t;
+    }
+}
+
+int section_trace(ctx *c, char *err, size_t err_size)
+{
+    const bench_opts *o = c->o;
+    const rayset *sets = c->sets;
+    printf("\ntrace%s: %zu primary rays (%.1f%% hit), %zu diffuse, %zu shadow, %zu incoherent, %zu sun; %d "
+           "passes, each cut into %d pieces that every library traces in turn; Mrays/s (best pass), then the\n"
+           "  ratio to %s: the median of the %d pieces' time ratios [and their quartiles]\n",
+           o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", sets[0].n,
+           100.0 * (double)sets[1].n / (double)sets[0].n, sets[1].n, sets[2].n, sets[3].n, sets[4].n, o->repeat,
+           TRACE_CHUNKS, c->libs[0].name, o->repeat * TRACE_CHUNKS);
+    printf("  packets of primary rays are 2x2, 4x2, 4x4 pixel blocks, given Embree's coherent flag; packets of\n"
+           "  diffuse and shadow rays are those of neighbouring pixels, traced without it; incoherent rays bounce\n"
+           "  from random points of the whole mesh, one after the other; sun rays are shadow rays to a\n"
+           "  directional light from random points of the whole mesh\n");
+    unsigned char *lhits[MAXLIBS], *ref_hits[NSETS];
+    double rate[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* lib, threads index, set, api: the best pass */
+    double med[MAXLIBS][4][NSETS][4] = {{{{0}}}}, lo[MAXLIBS][4][NSETS][4] = {{{{0}}}},
+           hi[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* the paired ratios' median and quartiles */
+    const int npairs = o->repeat * TRACE_CHUNKS;
+    double *pairs = malloc(sizeof(double) * (size_t)(npairs * c->nlibs));
+    size_t disagree[MAXLIBS] = {0};
+    int oom = !pairs;
+    for (int l = 0; l < c->nlibs; l++)
+        oom |= !(lhits[l] = malloc(sets[0].n ? sets[0].n : 1));
+    for (int s = 0; s < NSETS; s++)
+        oom |= !(ref_hits[s] = calloc(sets[s].n ? sets[s].n : 1, 1));
+    if (oom) {
+        free(pairs);
+        for (int l = 0; l < c->nlibs; l++)
+            free(lhits[l]);
+        for (int s = 0; s < NSETS; s++)
+            free(ref_hits[s]);
+        snprintf(err, err_size, "trace: out of memory for the hit records");
+        return 1;
+    }
+    char plot_data[512];
+    snprintf(plot_data, sizeof plot_data, "%s/%s-trace.dat", o->outdir, c->stem);
+    FILE *dat = fopen(plot_data, "w");
+    progress bar;
+    progress_begin(&bar, "rtktool bench: trace");
+    const int work = c->nlibs * o->nthreads * NSETS * 4;
+    int done = 0, ref_api = 0; /* the reference hits: the first library's first API asked for */
+    while (ref_api < 3 && !o->api_on[ref_api])
+        ref_api++;
+    /* Every library's scene at once.  Each pass over a set is cut into
+     * TRACE_CHUNKS pieces, and each piece is traced by every library in
+     * turn (in an order shuffled from piece to piece), so that what slows the
+     * machine for a while (other guests of a VM) falls on all of them
+     * alike: the ratio of two libraries is the median of the pieces' time
+     * ratios, with their quartiles; the rate is the best pass. */
+    scene sc[MAXLIBS];
+    int built = 0;
+    for (; built < c->nlibs; built++)
+        if (scene_build(&sc[built], &c->libs[built], c->m, c->padded, o->trace_mode, 1, err, err_size))
+            break;
+    for (int ti = 0; built == c->nlibs && ti < o->nthreads; ti++)
+        for (int s = 0; s < NSETS; s++)
+            for (int a = 0; a < 4; a++, done += c->nlibs) {
+                if (!o->api_on[a] || !o->set_on[s] || !sets[s].n)
+                    continue;
+                const int occluded = s == SET_SHADOW || s == SET_SUN;
+                const size_t blocks = sets[s].n / 16;
+                int np = 0;
+                for (int r = 0; r < o->repeat; r++) {
+                    double pass[MAXLIBS] = {0};
+                    for (int k = 0; k < TRACE_CHUNKS; k++) {
+                        const size_t b = blocks * (size_t)k / TRACE_CHUNKS * 16,
+                                     e = blocks * (size_t)(k + 1) / TRACE_CHUNKS * 16;
+                        if (e == b)
+                            continue;
+                        const rayset part = {sets[s].rays + b, e - b, NULL};
+                        double secs[MAXLIBS];
+                        int order[MAXLIBS];
+                        piece_order(order, c->nlibs, (uint64_t)(r * TRACE_CHUNKS + k));
+                        for (int j = 0; j < c->nlibs; j++) {
+                            const int l = order[j];
+                            const render_tracer t = scene_tracer(&sc[l], s == SET_PRIMARY && a > 0);
+                            unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : lhits[l];
+                            secs[l] = trace_pass(&t, &part, apis[a], occluded, o->threads[ti], h + b);
+                            pass[l] += secs[l];
+                        }
+                        for (int l = 0; l < c->nlibs; l++) {
+                            pairs[l * npairs + np] = secs[l] > 0 ? secs[0] / secs[l] : 0.0;
+                            if (r == o->repeat - 1 && !(l == 0 && ti == 0 && a == ref_api))
+                                for (size_t i = b; i < e; i++)
+                                    disagree[l] += lhits[l][i] != ref_hits[s][i];
+                        }
+                        np++;
+                    }
+                    for (int l = 0; l < c->nlibs; l++) {
+                        const double v = pass[l] > 0 ? (double)sets[s].n / pass[l] * 1e-6 : 0.0;
+                        if (v > rate[l][ti][s][a])
+                            rate[l][ti][s][a] = v;
+                    }
+                }
+                for (int l = 0; l < c->nlibs; l++) {
+                    double *pl = pairs + l * npairs;
+                    qsort(pl, (size_t)np, sizeof *pl, cmp_double);
+                    med[l][ti][s][a] = np ? 0.5 * (pl[(np - 1) / 2] + pl[np / 2]) : 0.0;
+                    lo[l][ti][s][a] = np ? pl[(np - 1) / 4] : 0.0;
+                    hi[l][ti][s][a] = np ? pl[np - 1 - (np - 1) / 4] : 0.0;
+                }
+                progress_update(&bar, (double)(done + c->nlibs) / work);
+            }
+    progress_end(&bar);
+    free(pairs);
+    for (int l = 0; l < c->nlibs; l++)
+        free(lhits[l]);
+    for (int l = 0; l < built; l++)
+        scene_release(&sc[l]);
+    if (built < c->nlibs) {
+        for (int s = 0; s < NSETS; s++)
+            free(ref_hits[s]);
+        if (dat)
+            fclose(dat);
+        return 1;
+    }
+    for (int ti = 0; ti < o->nthreads; ti++) {
+        printf("  %d thread%s\n", o->threads[ti], o->threads[ti] > 1 ? "s" : "");
+        print_row_label("");
+        for (int l = 0; l < c->nlibs; l++)
+            printf(" %-30s", c->libs[l].name);
+        printf("\n");
+        for (int s = 0; s < NSETS; s++)
+            for (int a = 0; a < 4; a++) {
+                if (!o->api_on[a] || !o->set_on[s])
+                    continue;
+                char label[48];
+                snprintf(label, sizeof label, "%s %s", set_names[s], render_api_name(apis[a]));
+                print_row_label(label);
+                for (int l = 0; l < c->nlibs; l++) {
+                    const double v = rate[l][ti][s][a], m = med[l][ti][s][a];
+                    if (l == 0)
+                        printf(" %8.2f%22s", v, "");
+                    else
+                        printf(" %8.2f %5.3fx [%5.3f-%5.3f]", v, m, lo[l][ti][s][a], hi[l][ti][s][a]);
+                    csv_row(&c->csv, "trace", c->libs[l].name, mode_names[o->trace_mode], set_names[s],
+                            render_api_name(apis[a]), o->threads[ti], v, "Mrays/s", l ? m : 1.0);
+                }
+                printf("\n");
+                if (dat && ti == 0) {
+                    fprintf(dat, "\"%s\"", label);
+                    for (int l = 0; l < c->nlibs; l++)
+                        fprintf(dat, " %.4f", rate[l][ti][s][a]);
+                    fprintf(dat, "\n");
+                }
+            }
+    }
+    printf("  hit/miss differs from %s on:", c->libs[0].name);
+    for (int l = 1; l < c->nlibs; l++)
+        printf(" %s %zu%s", c->libs[l].name, disagree[l], l + 1 < c->nlibs ? "," : "");
+    printf(" rays (over every pass compared)\n");
+    if (dat) {
+        fclose(dat);
+        char path[600];
+        snprintf(path, sizeof path, "%s/%s-trace.gp", o->outdir, c->stem);
+        FILE *gp = fopen(path, "w");
+        if (gp) {
+            fprintf(gp,
+                    "set terminal pngcairo noenhanced size 1200,520 font 'sans,10'\nset output '%s-trace.png'\n"
+                    "set title '%s: trace rate, %d thread%s (higher is better)'\nset ylabel 'Mrays/s'\n"
+                    "set style data histogram\nset style histogram clustered gap 1\nset style fill solid 0.85 border -1\n"
+                    "set boxwidth 0.9\nset xtics rotate by -30 scale 0\nset key outside top center horizontal\nset grid ytics\n"
+                    "set yrange [0:*]\nplot ",
+                    c->stem, base_name(c->csv.mesh), o->threads[0], o->threads[0] > 1 ? "s" : "");
+            for (int l = 0; l < c->nlibs; l++)
+                fprintf(gp, "%s'%s-trace.dat' using %d:xtic(1) title '%s'", l ? ", " : "", c->stem, l + 2,
+                        c->libs[l].name);
+            fprintf(gp, "\n");
+            fclose(gp);
+        }
+    }
+    for (int s = 0; s < NSETS; s++)
+        free(ref_hits[s]);
+    return 0;
+}
