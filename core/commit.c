@@ -87,6 +87,15 @@ static struct packet_kernel find_packet_kernel(const rtk_backend_desc *d, uint32
     return best;
 }
 
+/* The layout's stream kernel for the query, or NULL. */
+static const rtk_kernel_entry *find_stream_kernel(const rtk_backend_desc *d, uint32_t layout, uint32_t query)
+{
+    for (const rtk_kernel_entry *k = d->kernels; k->layout; k++)
+        if (k->layout == layout && k->query == query && k->width == RTK_KERNEL_WIDTH_STREAM)
+            return k;
+    return NULL;
+}
+
 static const rtk_layout_io_entry *find_layout_io(const rtk_backend_desc *d, uint32_t layout)
 {
     if (!RTK_DESC_HAS(d, layout_io))
@@ -304,6 +313,11 @@ static void install(rtk_scene s, accel_ref *ref, const rtk_build_output *out, co
         s->packet[0][w] = find_packet_kernel(bk, ref->layout->id, RTK_QUERY_INTERSECT, packet_widths[w]);
         s->packet[1][w] = find_packet_kernel(bk, ref->layout->id, RTK_QUERY_OCCLUDED, packet_widths[w]);
     }
+    const rtk_kernel_entry *si = find_stream_kernel(bk, ref->layout->id, RTK_QUERY_INTERSECT);
+    const rtk_kernel_entry *so = find_stream_kernel(bk, ref->layout->id, RTK_QUERY_OCCLUDED);
+    s->intersect_stream = si ? si->fn.intersect_stream : NULL;
+    s->occluded_stream = so ? so->fn.occluded_stream : NULL;
+    s->stream_in_flight = si && so ? (si->in_flight ? si->in_flight : 1) : 0;
     remember_built(s);
 }
 

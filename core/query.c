@@ -6,27 +6,6 @@
 
 /* ---- queries ---- */
 
-/* org and tnear, dir and time: the two runs of four floats rtk_ray starts with */
-typedef float ray_floats4 __attribute__((vector_size(16)));
-typedef int32_t ray_ints4 __attribute__((vector_size(16)));
-
-static inline int ray_valid(const rtk_ray *r)
-{
-    /* 0 * x is 0 for finite x and NaN for NaN or infinity: four lanes at
-     * once (org and tnear, dir with time's lane cleared), on every call */
-    ray_floats4 o, d;
-    memcpy(&o, &r->org_x, sizeof o);
-    memcpy(&d, &r->dir_x, sizeof d);
-    d = (ray_floats4)((ray_ints4)d & (ray_ints4){-1, -1, -1, 0});
-    const ray_ints4 finite = (0.0f * o + 0.0f * d) == 0.0f;
-#if defined(__SSE__)
-    const int all = __builtin_ia32_movmskps((ray_floats4)finite) == 15;
-#else
-    const int all = (finite[0] & finite[1] & finite[2] & finite[3]) != 0;
-#endif
-    return all && r->tnear >= 0.0f && r->tnear <= r->tfar && r->mask != 0;
-}
-
 /* The query of a call without a context: one constant, so the entry
  * points without _ctx pass its address and build nothing on the stack (a
  * query built per call was five of rtk_occluded1's 38 instructions). */

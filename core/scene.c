@@ -78,6 +78,9 @@ void scene_drop_accel(rtk_scene s)
     s->accel = NULL;
     s->intersect1 = NULL;
     s->occluded1 = NULL;
+    s->intersect_stream = NULL;
+    s->occluded_stream = NULL;
+    s->stream_in_flight = 0;
 }
 
 /* Whether `target` is `from` or is placed, through instances attached to
@@ -300,5 +303,7 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
     }
     if (keep >= offsetof(rtk_scene_info, quads) + sizeof info->quads)
         info->quads = s->quads;
+    if (keep >= offsetof(rtk_scene_info, stream_in_flight) + sizeof info->stream_in_flight)
+        info->stream_in_flight = s->stream_in_flight;
     return RTK_OK;
 }

@@ -4,6 +4,8 @@
 #ifndef RTK_CORE_SCENE_INTERNAL_H
 #define RTK_CORE_SCENE_INTERNAL_H
 
+#include <string.h>
+
 #include "internal.h"
 
 /* Memory rtk allocates for a buffer, reference-counted: a compact scene's
@@ -127,6 +129,11 @@ struct rtk_scene_s {
         uint32_t width;
         rtk_intersectN_fn fn; /* rtk_occludedN_fn has the same type */
     } packet[2][3];
+    /* For streams (stream.c): the layout's stream kernels, NULL when it has
+     * none (the core then traces a stream ray by ray). */
+    rtk_intersect_stream_fn intersect_stream;
+    rtk_occluded_stream_fn occluded_stream;
+    uint32_t stream_in_flight; /* rtk_scene_info.stream_in_flight */
     rtk_build_output stats;
     double build_seconds;
     /* With instances: how many, and the build of the scene's own triangles
@@ -165,6 +172,29 @@ typedef struct user_prim {
     void *user;
     uint32_t geom_id, prim_id;
 } user_prim;
+
+/* A ray's validity (rtk.h): what every query checks before a kernel sees
+ * the ray. */
+/* org and tnear, dir and time: the two runs of four floats rtk_ray starts with */
+typedef float ray_floats4 __attribute__((vector_size(16)));
+typedef int32_t ray_ints4 __attribute__((vector_size(16)));
+
+static inline int ray_valid(const rtk_ray *r)
+{
+    /* 0 * x is 0 for finite x and NaN for NaN or infinity: four lanes at
+     * once (org and tnear, dir with time's lane cleared), on every call */
+    ray_floats4 o, d;
+    memcpy(&o, &r->org_x, sizeof o);
+    memcpy(&d, &r->dir_x, sizeof d);
+    d = (ray_floats4)((ray_ints4)d & (ray_ints4){-1, -1, -1, 0});
+    const ray_ints4 finite = (0.0f * o + 0.0f * d) == 0.0f;
+#if defined(__SSE__)
+    const int all = __builtin_ia32_movmskps((ray_floats4)finite) == 15;
+#else
+    const int all = (finite[0] & finite[1] & finite[2] & finite[3]) != 0;
+#endif
+    return all && r->tnear >= 0.0f && r->tnear <= r->tfar && r->mask != 0;
+}
 
 /* scene.c */
 RTK_INTERNAL void blob_release(blob *m);

@@ -10,7 +10,9 @@
  * rays each scene is traced again with masks, culling and a filter
  * (check_features), and on a 64th with balls as user geometry beside the
  * triangles (check_user).  The scalar backend's intersect1 / occluded1 answers are
- * the baseline.
+ * the baseline.  Every one of these scenes (and the robust layouts) also
+ * goes through the stream and batch calls, whose answers must be the same
+ * backend's single-ray answers to the bit (check_streams).
  *
  * Rules, per ray:
  *   - hit or miss must equal the baseline's, for every backend and width;
@@ -687,6 +689,77 @@ static rtk_scene conformance_scene(rtk_device dev, const scene_data *s, unsigned
     return scene;
 }
 
+/* Streams (rtk_intersect1M, rtk_occluded1M) and batches (rtk_intersect_batch,
+ * rtk_occluded_batch) against the same backend's single-ray calls on the
+ * same scene: every ray's record identical to the bit (tfar, Ng, u, v and
+ * the ids; occluded: the whole ray).  The records lie STRIDE_PAD bytes
+ * apart beyond their size, the gap filled with a pattern that must come
+ * back untouched, and every 11th ray is made invalid (a NaN origin, a
+ * negative tnear, tnear beyond tfar, in turn), which must come back
+ * untouched as from the single call.  Returns the failures. */
+#define STRIDE_PAD 12
+static int check_streams(rtk_scene scene, const scene_data *s, const rtk_ray *rays, size_t n, const char *backend,
+                         const char *label, int batch)
+{
+    int failures = 0;
+    for (int occluded = 0; occluded < 2; occluded++) {
+        const size_t size = occluded ? sizeof(rtk_ray) : sizeof(rtk_rayhit), stride = size + STRIDE_PAD;
+        unsigned char *one = malloc(n * size), *many = malloc(n * stride), *all = batch ? malloc(n * stride) : NULL;
+        assert_true(one && many && (all || !batch));
+        for (size_t i = 0; i < n; i++) {
+            rtk_rayhit rh = {.ray = rays[i]};
+            rh.hit.geomID = rh.hit.primID = rh.hit.instID = RTK_INVALID_GEOMETRY_ID;
+            switch (i % 33) {
+            case 0: rh.ray.org_y = NAN; break;
+            case 11: rh.ray.tnear = -1.0f; break;
+            case 22: rh.ray.tfar = 1.0f, rh.ray.tnear = 2.0f; break;
+            default: break;
+            }
+            memcpy(one + i * size, &rh, size);
+            memset(many + i * stride, 0xa5, stride);
+            memcpy(many + i * stride, &rh, size);
+        }
+        if (batch)
+            memcpy(all, many, n * stride);
+        for (size_t i = 0; i < n; i++)
+            assert_int_equal(occluded ? rtk_occluded1(scene, (rtk_ray *)(void *)(one + i * size))
+                                      : rtk_intersect1(scene, (rtk_rayhit *)(void *)(one + i * size)),
+                             RTK_OK);
+        assert_int_equal(occluded ? rtk_occluded1M(scene, (rtk_ray *)(void *)many, (uint32_t)n, stride)
+                                  : rtk_intersect1M(scene, (rtk_rayhit *)(void *)many, (uint32_t)n, stride),
+                         RTK_OK);
+        if (batch)
+            assert_int_equal(occluded ? rtk_occluded_batch(scene, (rtk_ray *)(void *)all, n, stride, NULL)
+                                      : rtk_intersect_batch(scene, (rtk_rayhit *)(void *)all, n, stride, NULL),
+                             RTK_OK);
+        for (int pass = 0; pass < 1 + batch; pass++) {
+            const unsigned char *got = pass ? all : many;
+            for (size_t i = 0; i < n; i++) {
+                const unsigned char *g = got + i * stride;
+                int bad = memcmp(g, one + i * size, size) != 0;
+                for (size_t k = size; k < stride; k++)
+                    bad |= g[k] != 0xa5;
+                if (bad && failures++ < MAX_REPORTS) {
+                    char what[96];
+                    snprintf(what, sizeof what, "[%s%s] %s%s", backend, label, occluded ? "occluded" : "intersect",
+                             pass ? "_batch" : "1M");
+                    print_ray(what, s, i, &rays[i]);
+                    const rtk_rayhit *a = (const void *)(one + i * size), *b = (const void *)g;
+                    print_message("    differs from the single call: tfar %a / %a, geom %u / %u, prim %u / %u, "
+                                  "u %a / %a, v %a / %a\n",
+                                  a->ray.tfar, b->ray.tfar, occluded ? 0 : a->hit.geomID, occluded ? 0 : b->hit.geomID,
+                                  occluded ? 0 : a->hit.primID, occluded ? 0 : b->hit.primID, occluded ? 0 : a->hit.u,
+                                  occluded ? 0 : b->hit.u, occluded ? 0 : a->hit.v, occluded ? 0 : b->hit.v);
+                }
+            }
+        }
+        free(one);
+        free(many);
+        free(all);
+    }
+    return failures;
+}
+
 /* Rays [0, n) through the calls of widths[first .. end) (1, 4, 8, 16),
  * intersect and occluded, compared with base; label names the backend and
  * layout in messages.  Returns the failures. */
@@ -706,6 +779,10 @@ static int check_calls(rtk_scene scene, const scene_data *s, const rtk_ray *rays
                 failures += trace_packets(scene, rays, n, widths[wi], occluded, got, s, backend);
             failures += compare(s, rays, n, occluded, base[occluded], got, what, ties);
         }
+    /* streams on every scene, batches (the same kernels on the device's
+     * threads) on a quarter of the rays */
+    failures += check_streams(scene, s, rays, n, backend, label, 0);
+    failures += check_streams(scene, s, rays, n / 4, backend, label, 1);
     return failures;
 }
 
@@ -963,8 +1040,20 @@ static int check_scene(scene_data *s, char names[][32], size_t nb)
         rtk_scene_release(scene);
         rtk_device_release(dev);
     }
-    print_message("%s: %zu triangles, %zu rays x %zu backends x (2 layouts x 8 calls + Morton x 6 calls on a quarter): "
-                  "%zu hits, "
+    /* the robust layouts' streams against their single rays (their hits
+     * differ from the default's baseline where it leaks), on a quarter */
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_geometry g;
+        rtk_scene scene = conformance_scene(dev, s, RTK_SCENE_FLAG_ROBUST, &g, NULL);
+        if (rtk_scene_commit(scene) != RTK_OK)
+            fail_msg("commit: %s", rtk_device_get_error_message(dev));
+        failures += check_streams(scene, s, rays, n / 4, names[b], " robust", 1);
+        rtk_scene_release(scene);
+        rtk_device_release(dev);
+    }
+    print_message("%s: %zu triangles, %zu rays x %zu backends x (2 layouts x 8 calls + Morton x 6 calls on a quarter; "
+                  "each also as streams, and on a quarter as batches and robust streams): %zu hits, "
                   "%zu occluded, %zu ties adjudicated, %d failures\n",
                   s->name, s->nt, n, nb, hits, occl, ties, failures);
     failures += check_features(s, rays, n, names, nb);

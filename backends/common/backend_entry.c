@@ -186,8 +186,23 @@ static const rtk_kernel_entry kernels[] = {
     KERNELN(RTK_LAYOUT_BVH4_TRIANGLE4V, 4v, 8),
     KERNELN(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, 4ir, 8),
 #endif
+    /* streams: many single rays in flight (traverse_stream.h) */
+#define KERNELM(id, tag)                                                                                               \
+    {.layout = id, .query = RTK_QUERY_INTERSECT, .width = RTK_KERNEL_WIDTH_STREAM, .in_flight = RTK_STREAM_K,        \
+     .fn.intersect_stream = RTK_SYM(rtk_bvh##tag##_intersect_stream)},                                                 \
+        {.layout = id, .query = RTK_QUERY_OCCLUDED, .width = RTK_KERNEL_WIDTH_STREAM, .in_flight = RTK_STREAM_K,      \
+         .fn.occluded_stream = RTK_SYM(rtk_bvh##tag##_occluded_stream)}
+#ifdef RTK_SIMD_HAS_8
+    KERNELM(RTK_LAYOUT_BVH8_TRIANGLE4, 8),
+    KERNELM(RTK_LAYOUT_BVH8_TRIANGLE4V, 8v),
+#endif
+    KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4, 4),
+    KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4I, 4i),
+    KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4V, 4v),
+    KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, 4ir),
 #undef KERNEL1
 #undef KERNELN
+#undef KERNELM
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_INTERSECT, .width = 1,
      .fn.intersect1 = RTK_SYM(rtk_objects_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = 1,

@@ -62,6 +62,23 @@ RTK_PACKET_DECL_(8v, 8)
 RTK_PACKET_DECL_(4ir, 4)
 RTK_PACKET_DECL_(4ir, 8)
 #undef RTK_PACKET_DECL_
+/* streams (traverse_stream.h), RTK_STREAM_K rays in flight per thread
+ * (backend_config.h may set it) */
+#ifndef RTK_STREAM_K
+#define RTK_STREAM_K 8
+#endif
+#define RTK_STREAM_DECL_(tag)                                                                                          \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_intersect_stream)(const rtk_accel *accel, rtk_rayhit *const *rays,          \
+                                                              uint32_t count, const rtk_query *q);                     \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_occluded_stream)(const rtk_accel *accel, rtk_ray *const *rays,              \
+                                                             uint32_t count, const rtk_query *q);
+RTK_STREAM_DECL_(4)
+RTK_STREAM_DECL_(8)
+RTK_STREAM_DECL_(4i)
+RTK_STREAM_DECL_(4v)
+RTK_STREAM_DECL_(8v)
+RTK_STREAM_DECL_(4ir)
+#undef RTK_STREAM_DECL_
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 #endif

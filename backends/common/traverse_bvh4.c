@@ -3,6 +3,7 @@
  * 8-wide vectors: sse41, avx, avx2). */
 #define RTK_BVHN 4
 #include "traverse_bvhn.h"
+#include "traverse_stream.h"
 #define RTK_PACKET 4
 #include "traverse_packet.h"
 #ifdef RTK_SIMD_HAS_8

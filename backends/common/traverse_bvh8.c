@@ -5,6 +5,7 @@
 #ifdef RTK_SIMD_HAS_8
 #define RTK_BVHN 8
 #include "traverse_bvhn.h"
+#include "traverse_stream.h"
 #define RTK_PACKET 4
 #include "traverse_packet.h"
 #define RTK_PACKET 8

@@ -392,6 +392,10 @@ typedef struct rtk_scene_info {
     /* Added in rtk 0.2.0: the quads of quad geometries (each two of
      * triangles, those of zero area in triangles_degenerate). */
     uint64_t quads;
+    /* Added after rtk 0.2.0: the rays the stream calls (rtk_intersect1M ...)
+     * keep in flight per thread, 0 when the scene's layout has no stream
+     * kernel and they trace ray by ray. */
+    uint32_t stream_in_flight;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 
@@ -767,6 +771,51 @@ RTK_API rtk_error rtk_occluded1(rtk_scene scene, rtk_ray *ray);
 /* The same with a context for the filters (NULL: as without). */
 RTK_API rtk_error rtk_intersect1_ctx(rtk_scene scene, rtk_rayhit *rayhit, const rtk_query_context *context);
 RTK_API rtk_error rtk_occluded1_ctx(rtk_scene scene, rtk_ray *ray, const rtk_query_context *context);
+
+/* ---- streams (added after rtk 0.2.0) ---------------------------------------
+ * `count` single rays in one call: rtk_rayhit (intersect) or rtk_ray
+ * (occluded) structs `byte_stride` bytes apart from `rays` (the size of the
+ * struct for a plain array; more to step over an application's own fields
+ * between them), as Embree 3's rtcIntersect1M / rtcOccluded1M.  Each ray
+ * gets exactly what rtk_intersect1 / rtk_occluded1 gives it (t, u, v, Ng
+ * and the ids, bit for bit, ties included; filters see the same
+ * candidates in the same order), and an invalid ray is left untouched, as
+ * there; the rays may be traced in any order, and a filter or user
+ * geometry callback is called on the calling thread.
+ *
+ * What a stream buys: a single ray waits for one cache miss after another
+ * (each node of its path depends on the last), while rays of a stream do
+ * not depend on each other, so the stream kernels keep several of them in
+ * flight on the one thread and switch between them while their memory
+ * arrives (docs/BENCHMARKS.md measures it on incoherent rays).  Scenes
+ * whose layout has no stream kernel (two levels, motion blur) are traced
+ * ray by ray, with the same answers.
+ *
+ * RTK_ERROR_INVALID_ARGUMENT, with nothing written, for a NULL scene, NULL
+ * rays with a count above 0, rays not aligned to 4 bytes, a byte_stride
+ * below the struct's size or not a multiple of 4, or an array that would
+ * run past the end of the address space; RTK_ERROR_INVALID_OPERATION for a
+ * scene never committed.  A count of 0 does nothing and succeeds.  The
+ * calls run on the calling thread: a renderer with threads of its own
+ * calls them from each. */
+RTK_API rtk_error rtk_intersect1M(rtk_scene scene, rtk_rayhit *rays, uint32_t count, size_t byte_stride);
+RTK_API rtk_error rtk_occluded1M(rtk_scene scene, rtk_ray *rays, uint32_t count, size_t byte_stride);
+RTK_API rtk_error rtk_intersect1M_ctx(rtk_scene scene, rtk_rayhit *rays, uint32_t count, size_t byte_stride,
+                                      const rtk_query_context *context);
+RTK_API rtk_error rtk_occluded1M_ctx(rtk_scene scene, rtk_ray *rays, uint32_t count, size_t byte_stride,
+                                     const rtk_query_context *context);
+
+/* The same over the device's threads (rtk_device_get_thread_count: its
+ * pool, or the application's task system), for an application that hands
+ * over a whole batch at once (millions of rays): the array is cut into
+ * pieces of consecutive rays, each piece traced as a stream on one thread,
+ * and the call returns when all are done.  Filters and user geometry
+ * callbacks then run on those threads, several at once.  The same errors
+ * as the stream calls. */
+RTK_API rtk_error rtk_intersect_batch(rtk_scene scene, rtk_rayhit *rays, size_t count, size_t byte_stride,
+                                      const rtk_query_context *context);
+RTK_API rtk_error rtk_occluded_batch(rtk_scene scene, rtk_ray *rays, size_t count, size_t byte_stride,
+                                     const rtk_query_context *context);
 
 /* ---- ray packets -----------------------------------------------------------
  * Packets of 4, 8 or 16 rays as structures of arrays: the fields of rtk_ray

@@ -250,6 +250,19 @@ RTK_BACKEND_FN(void, rtk_intersectN, (const rtk_accel *accel, const int32_t *act
 RTK_BACKEND_FN(void, rtk_occludedN, (const rtk_accel *accel, const int32_t *active, void *packet,
                                       const rtk_query *query));
 
+/* Streams (added after rtk 0.2.0; interface version 2 still: a core that
+ * knows them looks for kernel entries of width RTK_KERNEL_WIDTH_STREAM, an
+ * older one passes over them, and a layout without them gets its streams
+ * traced ray by ray through the width-1 kernel).  `count` single rays, each
+ * an rtk_rayhit (intersect) or rtk_ray (occluded) the core has checked
+ * valid (as for rtk_intersect1_fn); each must get exactly the answer the
+ * layout's width-1 kernel gives it, whatever order they are traced in. */
+RTK_BACKEND_FN(void, rtk_intersect_stream, (const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count,
+                                             const rtk_query *query));
+RTK_BACKEND_FN(void, rtk_occluded_stream, (const rtk_accel *accel, rtk_ray *const *rays, uint32_t count,
+                                            const rtk_query *query));
+#define RTK_KERNEL_WIDTH_STREAM 0xffffffffu
+
 enum rtk_query_kind {
     RTK_QUERY_NONE = 0, /* ends a table */
     RTK_QUERY_INTERSECT = 1,
@@ -291,13 +304,16 @@ typedef struct rtk_layout_entry {
 typedef struct rtk_kernel_entry {
     uint32_t layout;        /* 0 ends the table */
     uint32_t query;         /* enum rtk_query_kind */
-    uint32_t width;         /* rays per call: 1 (required), or 4, 8, 16 (optional packet kernels) */
-    uint32_t reserved;
+    uint32_t width;         /* rays per call: 1 (required), or 4, 8, 16 (optional packet kernels), or
+                             * RTK_KERNEL_WIDTH_STREAM (optional stream kernels) */
+    uint32_t in_flight;     /* a stream kernel's rays in flight per thread (0 elsewhere; was reserved) */
     union {
         rtk_intersect1_fn intersect1; /* width 1 */
         rtk_occluded1_fn occluded1;
         rtk_intersectN_fn intersectN; /* width 4, 8, 16 */
         rtk_occludedN_fn occludedN;
+        rtk_intersect_stream_fn intersect_stream; /* width RTK_KERNEL_WIDTH_STREAM */
+        rtk_occluded_stream_fn occluded_stream;
         void (*any)(void);
     } fn;
 } rtk_kernel_entry;

@@ -85,6 +85,24 @@
 #ifndef RTK_SIMD_INT_ORDER_4
 #define RTK_SIMD_INT_ORDER_4 0
 #endif
+
+/* A clock for kernels that choose between two ways of doing the same
+ * work by timing them on the work at hand (the answers never depend on
+ * it): the time-stamp counter, where x86 has one, else nanoseconds. */
+#if defined(__x86_64__) || defined(__i386__)
+static inline uint64_t rtk_cycles(void)
+{
+    return __builtin_ia32_rdtsc();
+}
+#else
+#include <time.h>
+static inline uint64_t rtk_cycles(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (uint64_t)t.tv_sec * 1000000000u + (uint64_t)t.tv_nsec;
+}
+#endif
 #ifndef RTK_SIMD_INT_ORDER_8
 #define RTK_SIMD_INT_ORDER_8 0
 #endif

@@ -1,0 +1,466 @@
+/*
+ * Stream traversal of the bvhN.triangle4 layouts, bvh4.triangle4i and the
+ * robust ones: many single rays in flight on one thread, interleaved.
+ *
+ * A single ray's traversal is one chain of dependent loads: each node test
+ * waits for its node, which is a cache miss on incoherent rays (on
+ * dragon.ply's bounces from random points some 190 ns each on the AMD EPYC
+ * development VM, where ../shared/tools/memory_parallelism.c measures
+ * 191 ns per dependent miss alone and 11.6 ns per miss with 16 chains in
+ * flight).  A stream of rays has no such chain between its rays, so this
+ * kernel keeps RTK_STREAM_K of them going at once (the technique known from
+ * databases as asynchronous memory access chaining): each slot holds one
+ * ray's state (its precomputed ray, stack, current node and closest hit);
+ * a step advances one slot by one node test or one leaf, asks for the
+ * memory its next step will read (prefetch_child), and the loop moves on to
+ * the next slot, so that by the time it comes back the memory has arrived.
+ * A slot whose ray is done takes the next ray of the stream.
+ *
+ * Every step is the single-ray traversal's (traverse_bvhn.h: next_leaf's
+ * node step, closest_from_'s and the any-hit loop's leaf step, the same
+ * node and triangle tests, the same stack discipline), only interleaved
+ * with other rays' steps, so each ray visits the same nodes and leaves in
+ * the same order and gets rtk_intersect1's answer bit for bit, ties
+ * included.  Rays that need masks, culling or filters (feat_init), and with
+ * FMA rays the fused node test cannot take (ray_pre.fma), go through the
+ * single-ray entry points, whose traversals for them are their own.
+ *
+ * A template included after traverse_bvhn.h (not for motion blur, whose
+ * entry points are traverse_bvh4mb.h's); it defines
+ * rtk_bvh<tag>_intersect_stream and rtk_bvh<tag>_occluded_stream
+ * (rtk_backend.h: rtk_intersect_stream_fn), and the inline helpers the
+ * packet kernels call for packets whose rays scatter.
+ */
+#if !defined(RTK_BVHN)
+#error "include traverse_bvhn.h first"
+#endif
+#if RTK_MOTION
+#error "motion blur has no stream traversal"
+#endif
+
+#define BVHN_INTERSECT_STREAM RTK_SYM(BVHN_NAME(BVHN_TAG, intersect_stream))
+#define BVHN_OCCLUDED_STREAM RTK_SYM(BVHN_NAME(BVHN_TAG, occluded_stream))
+
+/* One ray in flight: what its steps read most first. */
+typedef struct stream_slot {
+    vnode ntnear, ntfar; /* tnear and tfar broadcast for the node tests (-0.0 made +0.0) */
+    ray_pre p;
+    ray_mem m;
+#if !RTK_SIMD_HAS_FMA
+    leaf_ray lr; /* (the fused triangle test reads the ray from m) */
+#endif
+    void *ray; /* the rtk_rayhit or rtk_ray */
+    closest_hit best;
+    float tnear_s, tfar_s;
+    uint32_t cur;
+    int sp;
+    stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
+} stream_slot;
+
+/* The memory of a reference popped from the stack, asked for again (it was
+ * when it was pushed, but other rays' steps may have pushed it out since). */
+static inline __attribute__((always_inline)) void stream_prefetch_ref(const rtk_accel *accel, uint32_t ref)
+{
+    const char *a;
+    if (ref & RTK_BVH4_LEAF_BIT) {
+#if RTK_LEAF_INDEXED
+        a = (const char *)&accel->trisi[rtk_leaf_first(ref)];
+#else
+        a = (const char *)&accel->tris[rtk_leaf_first(ref)];
+#endif
+    } else {
+        a = (const char *)&BVHN_NODES(accel)[ref];
+    }
+    __builtin_prefetch(a);
+    __builtin_prefetch(a + 64);
+    __builtin_prefetch(a + 128);
+    __builtin_prefetch(a + 192);
+}
+
+/* Sets up slot s for ray r (its rtk_ray first); 0 when the ray is not for
+ * the interleaved traversal (features, or no fused test: the caller sends
+ * it through the single-ray entry point). */
+static inline __attribute__((always_inline)) int stream_start(const rtk_accel *accel, stream_slot *s, rtk_ray *r)
+{
+    if (__builtin_expect(ray_feat(accel, r) != 0, 0))
+        return 0;
+    ray_pre_init(&s->p, &s->m, r, accel);
+#if RTK_SIMD_HAS_FMA
+    if (__builtin_expect(!s->p.fma, 0))
+        return 0;
+#else
+    leaf_ray_init(&s->lr, &s->p);
+#endif
+    s->ray = r;
+    s->best = CLOSEST_HIT_NONE;
+    s->tnear_s = r->tnear;
+    s->tfar_s = r->tfar;
+    s->ntnear = vn_set1(r->tnear + 0.0f);
+    s->ntfar = vn_set1(r->tfar + 0.0f);
+    s->cur = accel->root;
+    s->sp = 0;
+    return 1;
+}
+
+static inline const leaf_ray *stream_leaf_ray(const stream_slot *s)
+{
+#if RTK_SIMD_HAS_FMA
+    (void)s;
+    return NULL;
+#else
+    return &s->lr;
+#endif
+}
+
+/* One node step of next_leaf (anyhit as there) for slot s at inner node
+ * s->cur; 0 when the ray is done (nothing hit and the stack ran out). */
+static inline __attribute__((always_inline)) int stream_node_step(const rtk_accel *accel, stream_slot *s, int anyhit)
+{
+    const node_t *n = &BVHN_NODES(accel)[s->cur];
+    const uint32_t *child = n->child;
+    vnode dists;
+    unsigned mask = node_intersect(n, &s->p, s->ntnear, s->ntfar, &dists, BVHN_FUSED);
+    if (mask && !(mask & (mask - 1))) { /* one child */
+        const int i = __builtin_ctz(mask);
+        s->cur = child[i];
+        prefetch_child(accel, n, i);
+        return 1;
+    }
+    if (mask && anyhit) { /* as next_leaf: the last child first, the others pushed */
+        const int last = 31 - __builtin_clz(mask);
+        s->cur = child[last];
+        prefetch_child(accel, n, last);
+        int sp = s->sp;
+        for (mask ^= 1u << last; mask; mask &= mask - 1) {
+            const int i = __builtin_ctz(mask);
+            s->stack[sp++] = (stack_entry){child[i], 0.0f};
+            prefetch_child(accel, n, i);
+        }
+        s->sp = sp;
+        return 1;
+    }
+    if (mask) {
+        _Alignas(32) float dist[RTK_BVHN];
+        vn_store(dist, dists);
+        const int i0 = __builtin_ctz(mask);
+        mask &= mask - 1;
+        const int i1 = __builtin_ctz(mask);
+        mask &= mask - 1;
+        if (!mask) { /* two children: the far one pushed, the near one next */
+            const int near = dist[i1] < dist[i0] ? i1 : i0, far = i0 + i1 - near;
+            prefetch_child(accel, n, far);
+            prefetch_child(accel, n, near);
+            s->stack[s->sp++] = (stack_entry){child[far], dist[far]};
+            s->cur = child[near];
+            return 1;
+        }
+        s->sp = push_children(accel, n, (1u << i0) | (1u << i1) | mask, dists, s->stack, s->sp);
+    }
+    if (!pop_in_range(s->stack, &s->sp, s->tfar_s, &s->cur))
+        return 0;
+    stream_prefetch_ref(accel, s->cur);
+    return 1;
+}
+
+/* The closest-hit query's leaf step (closest_from_'s leaf loop) for slot s
+ * at leaf s->cur, then the pop; 0 when the ray is done. */
+static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_accel *accel, stream_slot *s)
+{
+    const vfloat4 tnear = vf4_set1(s->tnear_s + 0.0f);
+    float tfar_s = s->tfar_s;
+    vfloat4 tfar = vf4_set1(tfar_s + 0.0f);
+    const uint32_t first = rtk_leaf_first(s->cur), end = first + rtk_leaf_blocks(s->cur);
+    for (uint32_t block = first; block < end; block++) {
+        block_t scratch;
+        const block_t *t = LEAF_BLOCK(accel, block, &scratch);
+        tri4_hit h;
+        unsigned mask = triangle4_intersect(t, &s->p, stream_leaf_ray(s), tnear, tfar, &h);
+        if (!mask)
+            continue;
+        _Alignas(16) float T[4], rcp[4], U[4], V[4];
+        vf4_store(T, h.T);
+        vf4_store(rcp, vf4_div(vf4_set1(1.0f), h.absdet));
+        int lane = -1;
+        float t_lane = 0.0f;
+        for (; mask; mask &= mask - 1) {
+            const int i = __builtin_ctz(mask);
+            const float ti = T[i] * rcp[i];
+            if (lane < 0 || ti < t_lane) {
+                lane = i;
+                t_lane = ti;
+            }
+        }
+        t_lane = t_lane <= s->tnear_s ? s->tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
+        vf4_store(U, h.U);
+        vf4_store(V, h.V);
+        s->best.u = U[lane] * rcp[lane];
+        s->best.v = V[lane] * rcp[lane];
+        s->best.leaf = block;
+        s->best.lane = lane;
+        tfar_s = t_lane;
+        tfar = vf4_set1(tfar_s + 0.0f);
+    }
+    if (tfar_s != s->tfar_s) {
+        s->tfar_s = tfar_s;
+        s->ntfar = vn_set1(tfar_s + 0.0f);
+    }
+    if (!pop_in_range(s->stack, &s->sp, tfar_s, &s->cur))
+        return 0;
+    stream_prefetch_ref(accel, s->cur);
+    return 1;
+}
+
+/* The any-hit query's leaf step: -1 on a hit, 0 when the ray is done
+ * without one, 1 to go on. */
+static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel *accel, stream_slot *s)
+{
+    const vfloat4 tnear = vf4_set1(s->tnear_s + 0.0f), tfar = vf4_set1(s->tfar_s + 0.0f);
+    const uint32_t first = rtk_leaf_first(s->cur), end = first + rtk_leaf_blocks(s->cur);
+    for (uint32_t block = first; block < end; block++) {
+        tri4_hit h;
+        block_t scratch;
+        const block_t *t = LEAF_BLOCK(accel, block, &scratch);
+        if (triangle4_intersect(t, &s->p, stream_leaf_ray(s), tnear, tfar, &h))
+            return -1;
+    }
+    if (!pop_in_range(s->stack, &s->sp, s->tfar_s, &s->cur))
+        return 0;
+    stream_prefetch_ref(accel, s->cur);
+    return 1;
+}
+
+/* Where the interleaved traversal takes its rays from: the stream, in
+ * groups of RTK_STREAM_GROUP consecutive rays.  A group whose rays are
+ * coherent (stream_coherent) is traced on the spot, the way such rays go
+ * fastest: any hit as a packet (RTK_STREAM_PACKET: the packet kernel of
+ * that width, whose any-hit answers are the single-ray kernel's), closest
+ * hit ray by ray through the single-ray entry point (a packet could report
+ * the other of two triangles hit at the same distance); so are the rays
+ * the interleaved traversal does not take (stream_start).  The others go
+ * into its slots one at a time. */
+#define RTK_STREAM_GROUP 8
+/* Whether the rays that are not coherent go faster interleaved or one
+ * after the other depends on how often their memory is in the caches
+ * (long incoherent rays through a large tree: interleaved, measured 1.9x
+ * on dragon.ply; rays that mostly test the top of the tree and leave, as
+ * San Miguel's bounces do: one after the other, interleaved 0.74x), which
+ * the kernel cannot tell from the rays.  So it measures: the stream is
+ * taken in windows of RTK_STREAM_WINDOW rays, one window each way (after
+ * one that fills the slots), and the faster way takes the next
+ * RTK_STREAM_EXPLOIT windows, then both are measured again; each time the
+ * same way wins again it keeps the stream twice as long (up to
+ * RTK_STREAM_EXPLOIT_MAX windows), since measuring the slower way costs.
+ * Either way every ray gets the same answer. */
+#define RTK_STREAM_WINDOW 128
+#define RTK_STREAM_EXPLOIT 16
+#define RTK_STREAM_EXPLOIT_MAX 256
+typedef struct stream_src {
+    void *const *rays;
+    uint32_t count, next, group_end;
+    uint32_t window_start, window_end; /* the window in progress */
+    int interleave;      /* the window's way: 1 interleaved, 0 one after the other */
+    int step; /* -1: not begun, 0: filling, 1: measuring one by one, 2: measuring interleaved, 3: exploiting */
+    uint32_t left;       /* windows left to exploit */
+    uint32_t span;       /* windows the last choice was given */
+    uint64_t t0;         /* rtk_cycles() at the window's start */
+    uint64_t cost_single; /* cycles of the measured one-by-one window, per ray */
+    int interleave_won;   /* the last choice */
+} stream_src;
+
+/* At a window's end: what the window cost, and the way of the next one. */
+static inline void stream_window(stream_src *src, uint32_t rays)
+{
+    const uint64_t t = rtk_cycles();
+    const uint64_t per_ray = (t - src->t0) / (rays ? rays : 1);
+    src->t0 = t;
+    switch (src->step) {
+    case -1: /* the first window fills the slots */
+        src->step = 0;
+        src->interleave = 1;
+        break;
+    case 0: /* filled: measure one by one */
+        src->step = 1;
+        src->interleave = 0;
+        break;
+    case 1:
+        src->cost_single = per_ray;
+        src->step = 2;
+        src->interleave = 1;
+        break;
+    case 2: {
+        const int interleave = per_ray <= src->cost_single;
+        src->span = src->span && interleave == src->interleave_won ? 2 * src->span : RTK_STREAM_EXPLOIT;
+        src->span = src->span < RTK_STREAM_EXPLOIT_MAX ? src->span : RTK_STREAM_EXPLOIT_MAX;
+        src->interleave_won = interleave;
+        src->interleave = interleave;
+        src->left = src->span;
+        src->step = 3;
+        break;
+    }
+    default:
+        if (--src->left == 0) {
+            src->step = 1;
+            src->interleave = 0;
+        }
+        break;
+    }
+}
+
+/* Whether rays[0 .. n) are coherent: none needs the features, their
+ * direction signs agree on every axis, and their origins lie within a
+ * sixteenth of the tree's largest side of each other (as PK_(scattered)
+ * measures them): camera rays, and shadow rays to one light from
+ * neighbouring hits.  Such rays share most of their nodes, which are then
+ * in the caches, and there interleaving only costs. */
+static inline int stream_coherent(const rtk_accel *accel, void *const *rays, uint32_t n)
+{
+    const rtk_ray *r0 = rays[0];
+    const unsigned s0 = (r0->dir_x < 0.0f) | (r0->dir_y < 0.0f) << 1 | (r0->dir_z < 0.0f) << 2;
+    float lo[3] = {r0->org_x, r0->org_y, r0->org_z}, hi[3] = {r0->org_x, r0->org_y, r0->org_z};
+    unsigned feat = ray_feat(accel, r0);
+    for (uint32_t i = 1; i < n; i++) {
+        const rtk_ray *r = rays[i];
+        const unsigned si = (r->dir_x < 0.0f) | (r->dir_y < 0.0f) << 1 | (r->dir_z < 0.0f) << 2;
+        if (si != s0)
+            return 0;
+        feat |= ray_feat(accel, r);
+        const float o[3] = {r->org_x, r->org_y, r->org_z};
+        for (int k = 0; k < 3; k++) {
+            lo[k] = o[k] < lo[k] ? o[k] : lo[k];
+            hi[k] = o[k] > hi[k] ? o[k] : hi[k];
+        }
+    }
+    const float limit = accel->extent * (1.0f / 16.0f);
+    return !feat && hi[0] - lo[0] <= limit && hi[1] - lo[1] <= limit && hi[2] - lo[2] <= limit;
+}
+
+/* The packet kernels the coherent groups' any hits go through: 8 wide
+ * where the SIMD layer has 8-wide vectors, 4 with SSE4.1, none in the
+ * scalar backend (which has no packet kernels: its groups go ray by ray). */
+#if defined(RTK_SIMD_HAS_8)
+#define RTK_STREAM_PACKET 8
+#elif defined(__SSE4_1__)
+#define RTK_STREAM_PACKET 4
+#endif
+#ifdef RTK_STREAM_PACKET
+#define STREAM_PK_NAME_(n, k) rtk_bvh##n##_occluded##k
+#define STREAM_PK_NAME(n, k) STREAM_PK_NAME_(n, k)
+#define STREAM_OCCLUDED_PACKET RTK_SYM(STREAM_PK_NAME(BVHN_TAG, RTK_STREAM_PACKET))
+/* A coherent group's any hits as one packet. */
+static void stream_occluded_group(const rtk_accel *accel, void *const *rays, uint32_t n, const rtk_query *q)
+{
+    _Alignas(64) rtk_ray8 pk; /* (rtk_ray4's fields are a prefix of each row: see below) */
+    _Alignas(64) int32_t active[8] = {0};
+    float *f = (float *)&pk;
+    for (uint32_t i = 0; i < RTK_STREAM_PACKET; i++) {
+        const float *r = rays[i < n ? i : 0];
+        for (int k = 0; k < 12; k++)
+            f[k * RTK_STREAM_PACKET + i] = r[k];
+        active[i] = i < n ? -1 : 0;
+    }
+    STREAM_OCCLUDED_PACKET(accel, active, &pk, q);
+    for (uint32_t i = 0; i < n; i++)
+        if (f[8 * RTK_STREAM_PACKET + i] == -INFINITY)
+            ((rtk_ray *)rays[i])->tfar = -INFINITY;
+}
+#endif
+
+/* The next ray for the interleaved traversal, set up in slot s; 0 when the
+ * stream has run out.  Coherent groups and the rays the slots do not take
+ * are traced here on the way. */
+static inline __attribute__((always_inline)) int stream_next(const rtk_accel *accel, stream_src *src, stream_slot *s,
+                                                             const rtk_query *q, int closest)
+{
+    while (src->next < src->count) {
+        if (src->next >= src->window_end) {
+            stream_window(src, src->next - src->window_start);
+            src->window_start = src->next;
+            src->window_end = src->count - src->next < RTK_STREAM_WINDOW ? src->count : src->next + RTK_STREAM_WINDOW;
+        }
+        if (src->next == src->group_end) {
+            const uint32_t n = src->count - src->next < RTK_STREAM_GROUP ? src->count - src->next : RTK_STREAM_GROUP;
+            void *const *g = src->rays + src->next;
+            src->group_end = src->next + n;
+            if (n == RTK_STREAM_GROUP && stream_coherent(accel, g, n)) {
+#ifdef RTK_STREAM_PACKET
+                if (!closest)
+                    stream_occluded_group(accel, g, n, q);
+                else
+#endif
+                    for (uint32_t i = 0; i < n; i++) {
+                        if (closest)
+                            BVHN_INTERSECT1(accel, g[i], q);
+                        else
+                            BVHN_OCCLUDED1(accel, g[i], q);
+                    }
+                src->next = src->group_end;
+                continue;
+            }
+        }
+        void *r = src->rays[src->next++];
+        if (src->interleave && stream_start(accel, s, r))
+            return 1;
+        if (closest)
+            BVHN_INTERSECT1(accel, r, q);
+        else
+            BVHN_OCCLUDED1(accel, r, q);
+    }
+    return 0;
+}
+
+/* The stream driver both queries share (closest a constant in each):
+ * slots fill from the stream, each active slot steps in turn, a finished
+ * ray's answer is written and its slot takes the next ray. */
+static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *accel, void *const *rays,
+                                                               uint32_t count, const rtk_query *q, int closest,
+                                                               stream_slot *slots, int nslots)
+{
+    stream_slot *active[RTK_STREAM_K];
+    int n_active = 0;
+    stream_src src = {.rays = rays, .count = count, .step = -1, .interleave = 1, .t0 = rtk_cycles()};
+    for (int k = 0; k < nslots && stream_next(accel, &src, &slots[k], q, closest); k++)
+        active[n_active++] = &slots[k];
+    while (n_active > 0) {
+        for (int j = 0; j < n_active;) {
+            stream_slot *s = active[j];
+            int go;
+            if (!(s->cur & RTK_BVH4_LEAF_BIT)) {
+                go = stream_node_step(accel, s, !closest);
+            } else if (closest) {
+                go = stream_leaf_closest(accel, s);
+            } else {
+                go = stream_leaf_any(accel, s);
+                if (go < 0) {
+                    ((rtk_ray *)s->ray)->tfar = -INFINITY;
+                    go = 0;
+                }
+            }
+            if (go) {
+                j++;
+                continue;
+            }
+            if (closest)
+                closest_hit_write(accel, accel, &s->best, &s->p, s->tfar_s, s->ray);
+            if (stream_next(accel, &src, s, q, closest))
+                j++;
+            else
+                active[j] = active[--n_active];
+        }
+    }
+}
+
+void BVHN_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count, const rtk_query *q)
+{
+    if (accel->root == RTK_BVH4_EMPTY || !count)
+        return;
+    stream_slot slots[RTK_STREAM_K];
+    stream_trace(accel, (void *const *)rays, count, q, 1, slots, RTK_STREAM_K);
+}
+
+void BVHN_OCCLUDED_STREAM(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count, const rtk_query *q)
+{
+    if (accel->root == RTK_BVH4_EMPTY || !count)
+        return;
+    stream_slot slots[RTK_STREAM_K];
+    stream_trace(accel, (void *const *)rays, count, q, 0, slots, RTK_STREAM_K);
+}

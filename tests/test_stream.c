@@ -1,0 +1,370 @@
+/*
+ * Streams and batches (rtk_intersect1M, rtk_occluded1M, their _ctx forms,
+ * rtk_intersect_batch, rtk_occluded_batch): bad arguments refused with
+ * nothing written, invalid rays in the middle of a stream left as the
+ * single call leaves them, filters that reject every hit, empty scenes,
+ * instances, the application's task system, and several application
+ * threads streaming through one scene at once (run under ThreadSanitizer
+ * by scripts/test).  The conformance suite compares every backend's and
+ * layout's streams with its single rays on the shared meshes.
+ */
+#include <math.h>
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "testlib.h"
+
+/* A ball of 2 * 24^2 triangles and rays from around it: half towards its
+ * middle (most hit), half in random directions from random points in its
+ * box (scattered: the interleaved traversal's). */
+static test_mesh ball;
+
+static int setup(void **state)
+{
+    (void)state;
+    ball = test_ball(24);
+    return 0;
+}
+
+static int teardown(void **state)
+{
+    (void)state;
+    free(ball.v);
+    free(ball.idx);
+    return 0;
+}
+
+static void make_rays(rtk_rayhit *rh, size_t n, uint64_t seed)
+{
+    rng r = {seed};
+    for (size_t i = 0; i < n; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            o[k] = 4.0f * rng_float(&r) - 2.0f;
+            d[k] = i % 2 ? 2.0f * rng_float(&r) - 1.0f : 0.3f * rng_float(&r) - 0.15f - o[k];
+        }
+        rh[i] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY)};
+        rh[i].hit.geomID = rh[i].hit.primID = rh[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
+    }
+}
+
+/* rh[0 .. n) through the single calls into one, as streams into many: the
+ * same records, to the bit (many: n records `stride` bytes apart). */
+static void expect_same(rtk_scene s, const rtk_rayhit *rh, size_t n, int occluded, const rtk_query_context *ctx)
+{
+    const size_t size = occluded ? sizeof(rtk_ray) : sizeof(rtk_rayhit), stride = size + 8;
+    rtk_rayhit *one = malloc(n * sizeof *one);
+    unsigned char *many = malloc(n * stride);
+    assert_true(one && many);
+    memset(many, 0x5a, n * stride);
+    for (size_t i = 0; i < n; i++) {
+        one[i] = rh[i];
+        memcpy(many + i * stride, &rh[i], size);
+        assert_int_equal(occluded ? rtk_occluded1_ctx(s, &one[i].ray, ctx) : rtk_intersect1_ctx(s, &one[i], ctx),
+                         RTK_OK);
+    }
+    assert_int_equal(occluded ? rtk_occluded1M_ctx(s, (rtk_ray *)(void *)many, (uint32_t)n, stride, ctx)
+                              : rtk_intersect1M_ctx(s, (rtk_rayhit *)(void *)many, (uint32_t)n, stride, ctx),
+                     RTK_OK);
+    for (size_t i = 0; i < n; i++) {
+        assert_memory_equal(many + i * stride, &one[i], size);
+        for (size_t k = size; k < stride; k++)
+            assert_int_equal(many[i * stride + k], 0x5a);
+    }
+    free(one);
+    free(many);
+}
+
+static rtk_scene ball_scene(rtk_device dev)
+{
+    return test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
+}
+
+/* Bad arguments: an error naming the problem, nothing written. */
+static void test_bad_arguments(void **state)
+{
+    (void)state;
+    rtk_device dev = test_device_threads("scalar", 1);
+    rtk_scene s = ball_scene(dev);
+    rtk_rayhit rh[4];
+    make_rays(rh, 4, 1);
+    rtk_rayhit before[4];
+    memcpy(before, rh, sizeof rh);
+
+    /* a count of 0 does nothing, whatever the array */
+    assert_int_equal(rtk_intersect1M(s, NULL, 0, sizeof(rtk_rayhit)), RTK_OK);
+    assert_int_equal(rtk_occluded1M(s, NULL, 0, 0), RTK_OK);
+    assert_int_equal(rtk_intersect_batch(s, NULL, 0, 0, NULL), RTK_OK);
+
+    assert_int_equal(rtk_intersect1M(NULL, rh, 4, sizeof(rtk_rayhit)), RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_intersect1M(s, NULL, 4, sizeof(rtk_rayhit)), RTK_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "rays is NULL"));
+    assert_int_equal(rtk_intersect1M(s, rh, 4, sizeof(rtk_rayhit) - 4), RTK_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "byte_stride"));
+    assert_int_equal(rtk_occluded1M(s, &rh[0].ray, 4, sizeof(rtk_ray) - 4), RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_intersect1M(s, rh, 4, sizeof(rtk_rayhit) + 2), RTK_ERROR_INVALID_ARGUMENT);
+    assert_int_equal(rtk_intersect1M(s, (rtk_rayhit *)(void *)((char *)rh + 2), 2, sizeof(rtk_rayhit)),
+                     RTK_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "aligned"));
+    assert_int_equal(rtk_occluded_batch(s, &rh[0].ray, 4, 3, NULL), RTK_ERROR_INVALID_ARGUMENT);
+    /* an array that would run past the end of the address space */
+    assert_int_equal(rtk_intersect1M(s, (rtk_rayhit *)(uintptr_t)(UINTPTR_MAX - 1023), 100, sizeof(rtk_rayhit)),
+                     RTK_ERROR_INVALID_ARGUMENT);
+    assert_non_null(strstr(rtk_device_get_error_message(dev), "address space"));
+    assert_int_equal(rtk_intersect_batch(s, rh, SIZE_MAX / 2, SIZE_MAX / 4, NULL), RTK_ERROR_INVALID_ARGUMENT);
+    assert_memory_equal(rh, before, sizeof rh);
+
+    /* a scene never committed */
+    rtk_scene fresh;
+    assert_int_equal(rtk_scene_new(dev, &fresh), RTK_OK);
+    assert_int_equal(rtk_intersect1M(fresh, rh, 4, sizeof(rtk_rayhit)), RTK_ERROR_INVALID_OPERATION);
+    assert_int_equal(rtk_occluded_batch(fresh, &rh[0].ray, 4, sizeof(rtk_rayhit), NULL), RTK_ERROR_INVALID_OPERATION);
+    assert_memory_equal(rh, before, sizeof rh);
+    rtk_scene_release(fresh);
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+}
+
+/* Invalid rays in the middle of a stream: each left untouched, as the
+ * single call leaves it; the others get their single-ray answers.  On
+ * every backend, long streams (past the kernels' measuring windows). */
+static void test_invalid_rays_in_the_middle(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const size_t n = test_sanitized() ? 1000 : 5000;
+    rtk_rayhit *rh = malloc(n * sizeof *rh);
+    assert_non_null(rh);
+    make_rays(rh, n, 2);
+    for (size_t i = 0; i < n; i += 7) {
+        rtk_ray *r = &rh[i].ray;
+        switch (i / 7 % 8) {
+        case 0: r->org_x = NAN; break;
+        case 1: r->dir_z = INFINITY; break;
+        case 2: r->tnear = 2.0f, r->tfar = 1.0f; break;
+        case 3: r->tnear = -1.0f; break;
+        case 4: r->tfar = NAN; break;
+        case 5: r->mask = 0; break;
+        case 6: r->dir_x = r->dir_y = r->dir_z = 0.0f; break;
+        default: r->dir_y = -0.0f; break; /* valid */
+        }
+    }
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s = ball_scene(dev);
+        expect_same(s, rh, n, 0, NULL);
+        expect_same(s, rh, n, 1, NULL);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+    free(rh);
+}
+
+static int reject_all(const rtk_filter_args *a)
+{
+    (void)a;
+    return 0;
+}
+
+static int reject_odd_prims(const rtk_filter_args *a)
+{
+    int *calls = a->context ? a->context->user : NULL;
+    if (calls)
+        __atomic_add_fetch(calls, 1, __ATOMIC_RELAXED);
+    return a->hit->primID % 2 == 0;
+}
+
+/* Filters: one that rejects every hit (every ray misses), and one that
+ * rejects every odd triangle and counts its calls through the query's
+ * context: the same answers, and as many calls, as the single calls. */
+static void test_filters(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const size_t n = 2000;
+    rtk_rayhit *rh = malloc(n * sizeof *rh), *copy = malloc(n * sizeof *rh);
+    assert_true(rh && copy);
+    make_rays(rh, n, 3);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        for (int f = 0; f < 2; f++) {
+            rtk_scene s = test_scene_uncommitted(dev, ball.v, ball.nv, ball.idx, ball.nt, 0);
+            rtk_geometry g = rtk_scene_get_geometry(s, 0);
+            assert_int_equal(rtk_geometry_set_intersect_filter(g, f ? reject_odd_prims : reject_all), RTK_OK);
+            assert_int_equal(rtk_geometry_set_occluded_filter(g, f ? reject_odd_prims : reject_all), RTK_OK);
+            assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            int calls_one = 0, calls_many = 0;
+            rtk_query_context c1 = {&calls_one}, cm = {&calls_many};
+            for (int occluded = 0; occluded < 2; occluded++) {
+                expect_same(s, rh, n, occluded, NULL);
+                /* the calls, counted apart */
+                memcpy(copy, rh, n * sizeof *rh);
+                for (size_t i = 0; i < n; i++)
+                    occluded ? rtk_occluded1_ctx(s, &copy[i].ray, &c1) : rtk_intersect1_ctx(s, &copy[i], &c1);
+                memcpy(copy, rh, n * sizeof *rh);
+                assert_int_equal(occluded ? rtk_occluded1M_ctx(s, &copy[0].ray, (uint32_t)n, sizeof *copy, &cm)
+                                          : rtk_intersect1M_ctx(s, copy, (uint32_t)n, sizeof *copy, &cm),
+                                 RTK_OK);
+                assert_int_equal(calls_one, calls_many);
+                if (!f)
+                    for (size_t i = 0; i < n; i++)
+                        assert_true(occluded ? copy[i].ray.tfar != -INFINITY
+                                             : copy[i].hit.geomID == RTK_INVALID_GEOMETRY_ID);
+            }
+            if (f)
+                assert_true(calls_one > 0);
+            rtk_scene_release(s);
+        }
+        rtk_device_release(dev);
+    }
+    free(rh);
+    free(copy);
+}
+
+/* An empty scene, instances of the ball (two levels: traced ray by ray),
+ * and the stream kernels' report in rtk_scene_info. */
+static void test_scenes(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const size_t n = 1500;
+    rtk_rayhit *rh = malloc(n * sizeof *rh);
+    assert_non_null(rh);
+    make_rays(rh, n, 4);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene empty;
+        assert_int_equal(rtk_scene_new(dev, &empty), RTK_OK);
+        assert_int_equal(rtk_scene_commit(empty), RTK_OK);
+        expect_same(empty, rh, n, 0, NULL);
+        expect_same(empty, rh, n, 1, NULL);
+        rtk_scene inner = ball_scene(dev), outer = test_instancing_scene(dev, inner);
+        assert_int_equal(rtk_scene_commit(outer), RTK_OK);
+        expect_same(outer, rh, n, 0, NULL);
+        expect_same(outer, rh, n, 1, NULL);
+        rtk_scene_info info = {.struct_size = sizeof info};
+        assert_int_equal(rtk_scene_get_info(inner, &info), RTK_OK);
+        assert_true(info.stream_in_flight >= 4); /* every backend's triangle layouts have stream kernels */
+        assert_int_equal(rtk_scene_get_info(outer, &info), RTK_OK);
+        assert_int_equal(info.stream_in_flight, 0); /* the top level: ray by ray */
+        rtk_scene_release(outer);
+        rtk_scene_release(inner);
+        rtk_scene_release(empty);
+        rtk_device_release(dev);
+    }
+    free(rh);
+}
+
+/* An application's task system: a batch runs its pieces through it. */
+static unsigned task_calls;
+static void serial_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
+{
+    (void)user;
+    __atomic_add_fetch(&task_calls, 1, __ATOMIC_RELAXED);
+    for (uint32_t i = count; i-- > 0;) /* backwards: the pieces' order must not matter */
+        fn(data, i);
+}
+
+static void test_batches(void **state)
+{
+    (void)state;
+    const size_t n = test_sanitized() ? 20000 : 100000;
+    rtk_rayhit *rh = malloc(n * sizeof *rh), *one = malloc(n * sizeof *rh), *all = malloc(n * sizeof *rh);
+    assert_true(rh && one && all);
+    make_rays(rh, n, 5);
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (int mode = 0; mode < 3; mode++) { /* 1 thread, the pool of 3, the application's tasks */
+        rtk_device dev = test_device_threads(names[nb - 1], mode == 1 ? 3 : 1);
+        if (mode == 2) {
+            const rtk_task_system ts = {.struct_size = sizeof ts, .threads = 4, .parallel_for = serial_for};
+            assert_int_equal(rtk_device_set_task_system(dev, &ts), RTK_OK);
+        }
+        rtk_scene s = ball_scene(dev);
+        task_calls = 0;
+        for (int occluded = 0; occluded < 2; occluded++) {
+            memcpy(one, rh, n * sizeof *rh);
+            memcpy(all, rh, n * sizeof *rh);
+            for (size_t i = 0; i < n; i++)
+                occluded ? rtk_occluded1(s, &one[i].ray) : rtk_intersect1(s, &one[i]);
+            assert_int_equal(occluded ? rtk_occluded_batch(s, &all[0].ray, n, sizeof *all, NULL)
+                                      : rtk_intersect_batch(s, all, n, sizeof *all, NULL),
+                             RTK_OK);
+            assert_memory_equal(one, all, n * sizeof *rh);
+        }
+        assert_int_equal(task_calls, mode == 2 ? 2 : 0);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+    free(rh);
+    free(one);
+    free(all);
+}
+
+/* Several application threads streaming through one committed scene at
+ * once, each its own rays, each checked against the single calls. */
+typedef struct stream_job {
+    rtk_scene scene;
+    uint64_t seed;
+    int failures;
+} stream_job;
+
+static void *stream_thread(void *arg)
+{
+    stream_job *j = arg;
+    enum { N = 700 };
+    rtk_rayhit rh[N], one[N];
+    make_rays(rh, N, j->seed);
+    for (int round = 0; round < 4; round++) {
+        const int occluded = round % 2;
+        memcpy(one, rh, sizeof rh);
+        for (int i = 0; i < N; i++)
+            occluded ? rtk_occluded1(j->scene, &one[i].ray) : rtk_intersect1(j->scene, &one[i]);
+        rtk_rayhit many[N];
+        memcpy(many, rh, sizeof rh);
+        const rtk_error e = occluded ? rtk_occluded1M(j->scene, &many[0].ray, N, sizeof many[0])
+                                     : rtk_intersect1M(j->scene, many, N, sizeof many[0]);
+        j->failures += e != RTK_OK || memcmp(one, many, sizeof one) != 0;
+    }
+    return NULL;
+}
+
+static void test_threads(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    rtk_device dev = test_device(names[nb - 1]);
+    rtk_scene s = ball_scene(dev);
+    enum { T = 4 };
+    stream_job jobs[T];
+    pthread_t tid[T];
+    for (int t = 0; t < T; t++) {
+        jobs[t] = (stream_job){s, 100 + (uint64_t)t, 0};
+        assert_int_equal(pthread_create(&tid[t], NULL, stream_thread, &jobs[t]), 0);
+    }
+    for (int t = 0; t < T; t++) {
+        pthread_join(tid[t], NULL);
+        assert_int_equal(jobs[t].failures, 0);
+    }
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+}
+
+int main(int argc, char **argv)
+{
+    /* "quick": the thread test alone (scripts/test runs it under ThreadSanitizer) */
+    const int quick = argc > 1 && !strcmp(argv[1], "quick");
+    const struct CMUnitTest all[] = {
+        cmocka_unit_test(test_bad_arguments),       cmocka_unit_test(test_invalid_rays_in_the_middle),
+        cmocka_unit_test(test_filters),             cmocka_unit_test(test_scenes),
+        cmocka_unit_test(test_batches),             cmocka_unit_test(test_threads),
+    };
+    const struct CMUnitTest threads[] = {cmocka_unit_test(test_threads), cmocka_unit_test(test_batches)};
+    return quick ? cmocka_run_group_tests(threads, setup, teardown) : cmocka_run_group_tests(all, setup, teardown);
+}
