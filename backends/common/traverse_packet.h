@@ -748,18 +748,24 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
 }
 
 /* Whether the packet's rays are better traced one by one from the root,
- * each through the single-ray entry point: their direction signs disagree
- * on some axis (no frustum) and their origins lie further apart than a
- * sixteenth of the tree's largest side, as a path tracer's later bounces
- * do.  Such rays share hardly a node below the root, and the packet
- * traversal paid for its set-up and for each ray's own set-up when it
- * split, with the ray kept in memory where the entry point keeps it in
- * registers.  rtktool bench's incoherent set (1 thread, avx2, against
- * Embree isa=avx2, two rounds): packets of 8 0.75x-0.79x -> 0.92x-0.97x on
- * San Miguel, 0.78x-0.79x -> 0.90x-0.94x on the dragon, of 4 and 16 alike;
- * the diffuse set, whose packets are neighbouring pixels' bounces (close
- * origins), and the coherent sets keep the packet traversal.  (By the
- * signs alone, San Miguel's diffuse packets lost 5%.) */
+ * each with the single-ray kernel's steps, interleaved as a stream
+ * (traverse_stream.h): their direction signs disagree on some axis (no
+ * frustum) and their origins lie further apart than a sixteenth of the
+ * tree's largest side, as a path tracer's later bounces do.  Such rays
+ * share hardly a node below the root, and the packet traversal paid for
+ * its set-up and for each ray's own set-up when it split, with the ray
+ * kept in memory where the entry point keeps it in registers.  rtktool
+ * bench's incoherent set (1 thread, avx2, against Embree isa=avx2, two
+ * rounds): packets of 8 0.75x-0.79x -> 0.92x-0.97x on San Miguel,
+ * 0.78x-0.79x -> 0.90x-0.94x on the dragon, of 4 and 16 alike, through the
+ * single-ray entry point one ray after the other; interleaved, the dragon's
+ * 1.64x (packets of 8; 4: 1.43x, 16: 1.68x).  The diffuse set, whose
+ * packets are neighbouring pixels' bounces (close origins), and the
+ * coherent sets keep the packet traversal.  (By the signs alone, San
+ * Miguel's diffuse packets lost 5%.  By the spread alone, so that sun rays
+ * from scattered points went interleaved too: dragon.ply's sun packets of
+ * 8 1.64x Embree's, San Miguel's 0.63x, whose rays mostly test the top of
+ * the tree and leave.) */
 static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_accel *accel)
 {
     const vkb active = VKB(load)(valid);
@@ -781,6 +787,12 @@ static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_
     return spread > accel->extent * (1.0f / 16.0f);
 }
 
+#if !RTK_MOTION
+/* The slots a scattered packet's rays are interleaved in (traverse_stream.h):
+ * one per ray, at most the stream kernels' number. */
+#define PK_SLOTS (RTK_PACKET < RTK_STREAM_K ? RTK_PACKET : RTK_STREAM_K)
+#endif
+
 void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
@@ -788,23 +800,33 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
     rayhitK *rh = packet;
 #if !RTK_MOTION
     if (PK_(scattered)(&rh->ray, valid, accel)) {
+        /* rays that share hardly a node: interleaved as a stream, each
+         * with the single-ray kernel's steps (so its answer is
+         * rtk_intersect1's), their cache misses overlapped */
+        _Alignas(16) rtk_rayhit one[RTK_PACKET];
+        void *list[RTK_PACKET];
+        uint32_t n = 0;
         for (int i = 0; i < RTK_PACKET; i++) {
             if (!valid[i])
                 continue;
-            _Alignas(16) rtk_rayhit one = {.hit = {.geomID = RTK_INVALID_GEOMETRY_ID}};
-            PK_(lane_ray_to)(&rh->ray, i, &one.ray);
-            BVHN_INTERSECT1(accel, &one, q);
-            if (one.hit.geomID == RTK_INVALID_GEOMETRY_ID)
+            one[i].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+            PK_(lane_ray_to)(&rh->ray, i, &one[i].ray);
+            list[n++] = &one[i];
+        }
+        stream_slot slots[PK_SLOTS];
+        stream_trace(accel, list, n, q, 1, slots, PK_SLOTS);
+        for (int i = 0; i < RTK_PACKET; i++) {
+            if (!valid[i] || one[i].hit.geomID == RTK_INVALID_GEOMETRY_ID)
                 continue;
-            rh->ray.tfar[i] = one.ray.tfar;
-            rh->hit.Ng_x[i] = one.hit.Ng_x;
-            rh->hit.Ng_y[i] = one.hit.Ng_y;
-            rh->hit.Ng_z[i] = one.hit.Ng_z;
-            rh->hit.u[i] = one.hit.u;
-            rh->hit.v[i] = one.hit.v;
-            rh->hit.primID[i] = one.hit.primID;
-            rh->hit.geomID[i] = one.hit.geomID;
-            rh->hit.instID[i] = one.hit.instID;
+            rh->ray.tfar[i] = one[i].ray.tfar;
+            rh->hit.Ng_x[i] = one[i].hit.Ng_x;
+            rh->hit.Ng_y[i] = one[i].hit.Ng_y;
+            rh->hit.Ng_z[i] = one[i].hit.Ng_z;
+            rh->hit.u[i] = one[i].hit.u;
+            rh->hit.v[i] = one[i].hit.v;
+            rh->hit.primID[i] = one[i].hit.primID;
+            rh->hit.geomID[i] = one[i].hit.geomID;
+            rh->hit.instID[i] = one[i].hit.instID;
         }
         return;
     }
@@ -844,16 +866,21 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
         return;
     rayK *r = packet;
 #if !RTK_MOTION
-    if (PK_(scattered)(r, valid, accel)) {
+    if (PK_(scattered)(r, valid, accel)) { /* (see PK_INTERSECT) */
+        _Alignas(16) rtk_ray one[RTK_PACKET];
+        void *list[RTK_PACKET];
+        uint32_t n = 0;
         for (int i = 0; i < RTK_PACKET; i++) {
             if (!valid[i])
                 continue;
-            _Alignas(16) rtk_ray one;
-            PK_(lane_ray_to)(r, i, &one);
-            BVHN_OCCLUDED1(accel, &one, q);
-            if (one.tfar == -INFINITY)
-                r->tfar[i] = -INFINITY;
+            PK_(lane_ray_to)(r, i, &one[i]);
+            list[n++] = &one[i];
         }
+        stream_slot slots[PK_SLOTS];
+        stream_trace(accel, list, n, q, 0, slots, PK_SLOTS);
+        for (int i = 0; i < RTK_PACKET; i++)
+            if (valid[i] && one[i].tfar == -INFINITY)
+                r->tfar[i] = -INFINITY;
         return;
     }
 #endif
@@ -871,6 +898,7 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
 #undef VKB
 #undef PK_SWITCH
 #undef PK_SWITCH_FRUSTUM
+#undef PK_SLOTS
 #undef PK_NEAR_SCALE
 #undef PK_FAR_SCALE
 #undef PK_NAME_
