@@ -83,11 +83,17 @@ for mode in eyelight normals ao diffuse; do
         "$tool" trace "$data/bunny.ply" --mode $mode --size 48x32 --spp 2 --frames 1 -o "$work/$mode.png"
     "$tool" trace "$data/bunny.ply" --mode $mode --size 48x32 --spp 2 --frames 1 --isa scalar \
         -o "$work/$mode-single.png" >/dev/null || fail "trace $mode"
-    for api in packet4 packet8 packet16; do
+    for api in packet4 packet8 packet16 stream; do
         expect 0 "$api API" -- "$tool" trace "$data/bunny.ply" --mode $mode --api $api --size 48x32 --spp 2 \
             --frames 1 --isa scalar -o "$work/$mode-$api.png"
         cmp -s "$work/$mode-single.png" "$work/$mode-$api.png" || fail "$mode: $api image differs from single rays"
     done
+    # streams give every ray its single call's answer on every backend: the same image
+    "$tool" trace "$data/bunny.ply" --mode $mode --size 48x32 --spp 2 --frames 1 -o "$work/$mode-best.png" \
+        >/dev/null || fail "trace $mode"
+    expect 0 "rays in flight" -- "$tool" trace "$data/bunny.ply" --mode $mode --api stream --size 48x32 --spp 2 \
+        --frames 1 -o "$work/$mode-best-stream.png"
+    cmp -s "$work/$mode-best.png" "$work/$mode-best-stream.png" || fail "$mode: the stream image differs"
 done
 expect 0 "shadow" -- "$tool" trace "$data/bunny.ply" --mode diffuse --bounces 0 --size 32x32 --frames 1 \
     -o "$work/d.png"
@@ -128,10 +134,14 @@ fi
 # bench: only in an rtktool built with Embree; otherwise it says so
 if "$tool" bench --help >/dev/null 2>&1; then
     expect 0 "csv: $work/bench/bench.csv" -- "$tool" bench "$data/bunny.ply" --quick --isa scalar,avx2 \
-        --api single,packet8 -o "$work/bench"
+        --api single,packet8,stream -o "$work/bench"
     csv="$work/bench/bench.csv"
     for want in "trace,rtk avx2,default,primary,packet8,1," "trace,rtk scalar,default,shadow,single,1," \
+                "trace,rtk avx2,default,incoherent,stream,1," "trace,embree isa=avx2,default,sun,stream,1," \
+                "trace best api,rtk avx2,default against embree's best " \
                 "render,rtk avx2,default,diffuse path tracer,packet8,1," \
+                "render,embree default,default,diffuse path tracer,stream,1," \
+                "render best api,rtk avx2,default against embree's best " \
                 "build,embree default,high:sah-spatial,start,,1," "build,rtk avx2,low:morton,start,,1," \
                 "build,rtk avx2,low:morton,diffuse,single,1," "build,rtk avx2,medium:sah-binned,sah cost,,1," \
                 "accuracy,embree isa=avx2,robust,edge,single,1," \

@@ -86,7 +86,14 @@ static void bunny_settings(rtk_scene scene, render_settings *s, int w, int h, re
     s->spp = mode == RENDER_AO || mode == RENDER_DIFFUSE ? 2 : 1;
 }
 
-/* Threads never change the image; on scalar (packets traced ray by ray) the
+/* Every API in turn: single, packets of 4, 8, 16, streams; then 0. */
+static int next_api(int api)
+{
+    return api == 1 ? 4 : api == 16 ? RENDER_API_STREAM : api == RENDER_API_STREAM ? 0 : api * 2;
+}
+
+/* Threads never change the image, nor do streams (each ray gets its single
+ * call's answer, to the bit); on scalar (packets traced ray by ray) the
  * API never does either; on the SIMD backends only where a ray hits two
  * triangles at exactly the same distance (an edge between them) and the
  * packet kernel reports the other one, which is rare. */
@@ -113,6 +120,13 @@ static void test_threads_and_api_agree(void **state)
             assert_true(memcmp(&st, &st1, offsetof(render_stats, seconds)) == 0);
             free(img);
             s.threads = 2;
+            s.api = RENDER_API_STREAM;
+            img = render_new(scene, &s, &st);
+            if (differing(&s, ref, img))
+                fail_msg("%s %s stream: %zu of %zu pixels differ from single rays", backend_names[b],
+                         render_mode_name((render_mode)mode), differing(&s, ref, img), pixels(&s));
+            assert_true(memcmp(&st, &st1, offsetof(render_stats, seconds)) == 0);
+            free(img);
             for (int api = 4; api <= 16; api *= 2) {
                 s.api = api;
                 img = render_new(scene, &s, &st);
@@ -155,7 +169,7 @@ static void test_white_furnace(void **state)
         s.sun[k] = 0.0f;
         s.albedo[k] = 0.6f;
     }
-    for (int api = 1; api <= 16; api = api == 1 ? 4 : api * 2) {
+    for (int api = 1; api; api = next_api(api)) {
         s.api = api;
         s.max_bounces = 4;
         render_stats st;
@@ -273,7 +287,7 @@ static void test_sun_and_shadow(void **state)
     }
     memcpy(s.sun_dir, (const float[3]){1, 1, 0}, sizeof s.sun_dir);
     const float lit = 0.5f / 3.14159265f * sqrtf(0.5f);
-    for (int api = 1; api <= 16; api = api == 1 ? 4 : api * 2) {
+    for (int api = 1; api; api = next_api(api)) {
         s.api = api;
         render_stats st;
         float *img = render_new(scene, &s, &st);
@@ -356,7 +370,7 @@ static void test_ao(void **state)
         s.mode = RENDER_AO;
         s.ao_distance = 1.0f;
         s.ao_samples = 64;
-        for (int api = 1; api <= 16; api = api == 1 ? 4 : api * 2) {
+        for (int api = 1; api; api = next_api(api)) {
             s.api = api;
             render_stats st;
             float *img = render_new(scene, &s, &st);

@@ -27,12 +27,12 @@ int render_mode_parse(const char *name, render_mode *mode)
     return 1;
 }
 
-static const char *const api_names[] = {"single", "packet4", "packet8", "packet16"};
-static const int api_widths[] = {1, 4, 8, 16};
+static const char *const api_names[] = {"single", "packet4", "packet8", "packet16", "stream"};
+static const int api_widths[] = {1, 4, 8, 16, RENDER_API_STREAM};
 
 const char *render_api_name(int api)
 {
-    for (int i = 0; i < 4; i++)
+    for (int i = 0; i < 5; i++)
         if (api == api_widths[i])
             return api_names[i];
     return NULL;
@@ -40,7 +40,7 @@ const char *render_api_name(int api)
 
 int render_api_parse(const char *name)
 {
-    for (int i = 0; i < 4; i++)
+    for (int i = 0; i < 5; i++)
         if (!strcmp(name, api_names[i]))
             return api_widths[i];
     return 0;
@@ -202,10 +202,18 @@ static void rtk_o1(void *s, rtk_ray *r)
 RTK_PACKET_WRAPPERS_(4)
 RTK_PACKET_WRAPPERS_(8)
 RTK_PACKET_WRAPPERS_(16)
+static void rtk_i1M(void *s, rtk_rayhit *rh, unsigned n, size_t stride)
+{
+    rtk_intersect1M(s, rh, n, stride);
+}
+static void rtk_o1M(void *s, rtk_ray *r, unsigned n, size_t stride)
+{
+    rtk_occluded1M(s, r, n, stride);
+}
 
 render_tracer render_tracer_rtk(rtk_scene scene)
 {
-    return (render_tracer){scene, rtk_i1, rtk_o1, rtk_i4, rtk_o4, rtk_i8, rtk_o8, rtk_i16, rtk_o16};
+    return (render_tracer){scene, rtk_i1, rtk_o1, rtk_i4, rtk_o4, rtk_i8, rtk_o8, rtk_i16, rtk_o16, rtk_i1M, rtk_o1M};
 }
 
 /* ---- settings ---- */
@@ -615,9 +623,79 @@ static void render_packet(const ctx *c, path *q, int n, counts *cnt)
         path_finish(c, &q[k]);
 }
 
+/* ---- streams: the same paths, a wavefront of a tile at a time ---- */
+
+/* n paths (a tile's, for one sample) traced together: every alive path's
+ * next ray in one stream, then every pending shadow ray in another, until
+ * none is alive; then each ao sample's rays as one stream.  rh holds n
+ * rays; idx the path of each ray in the stream. */
+static void render_stream(const ctx *c, path *q, int n, rtk_rayhit *rh, int *idx, counts *cnt)
+{
+    const render_tracer *t = c->tracer;
+    for (;;) {
+        int m = 0;
+        for (int k = 0; k < n; k++)
+            if (q[k].alive) {
+                rh[m] = (rtk_rayhit){.ray = q[k].ray,
+                                     .hit = {.geomID = RTK_INVALID_GEOMETRY_ID, .instID = RTK_INVALID_GEOMETRY_ID}};
+                idx[m++] = k;
+            }
+        if (!m)
+            break;
+        t->intersect1M(t->scene, rh, (unsigned)m, sizeof *rh);
+        int side = 0;
+        for (int j = 0; j < m; j++) {
+            path *p = &q[idx[j]];
+            const hit_info h = hit_of(&rh[j]);
+            if (p->depth == 0) {
+                cnt->primary++;
+                cnt->primary_hits += (uint64_t)h.hit;
+            } else
+                cnt->bounce++;
+            path_shade(c, p, &h);
+            if (p->side_pending) {
+                rh[side].ray = p->side;
+                idx[side++] = idx[j];
+            }
+        }
+        if (!side)
+            continue;
+        t->occluded1M(t->scene, &rh[0].ray, (unsigned)side, sizeof *rh);
+        cnt->shadow += (uint64_t)side;
+        for (int j = 0; j < side; j++)
+            path_side_done(&q[idx[j]], rh[j].ray.tfar == -INFINITY);
+    }
+    for (int i = 0; i < c->s->ao_samples; i++) {
+        int m = 0;
+        for (int k = 0; k < n; k++)
+            if (q[k].ao_hit) {
+                ao_ray(c, &q[k]);
+                rh[m].ray = q[k].side;
+                idx[m++] = k;
+            }
+        if (!m)
+            break;
+        t->occluded1M(t->scene, &rh[0].ray, (unsigned)m, sizeof *rh);
+        cnt->ao += (uint64_t)m;
+        for (int j = 0; j < m; j++)
+            q[idx[j]].ao_open += rh[j].ray.tfar != -INFINITY;
+    }
+    for (int k = 0; k < n; k++)
+        path_finish(c, &q[k]);
+}
+
 /* ---- tiles over threads ---- */
 
 enum { TILE = 16 };
+/* The stream API's tiles: 32 x 32 paths a stream, so that few of a
+ * stream's rays are the last ones in flight; a worker's room for them. */
+enum { STREAM_TILE = 32 };
+typedef struct stream_buf {
+    path q[STREAM_TILE * STREAM_TILE];
+    _Alignas(16) rtk_rayhit rh[STREAM_TILE * STREAM_TILE];
+    int idx[STREAM_TILE * STREAM_TILE];
+    float acc[STREAM_TILE * STREAM_TILE][3];
+} stream_buf;
 
 typedef struct shared {
     ctx c;
@@ -628,6 +706,7 @@ typedef struct shared {
 
 typedef struct worker {
     shared *sh;
+    stream_buf *sb; /* the stream API's */
     counts n;
     int report; /* the calling thread: calls progress */
     struct timespec last;
@@ -638,6 +717,33 @@ static double seconds_since(const struct timespec *t0)
     struct timespec t;
     clock_gettime(CLOCK_MONOTONIC, &t);
     return (double)(t.tv_sec - t0->tv_sec) + 1e-9 * (double)(t.tv_nsec - t0->tv_nsec);
+}
+
+/* A tile of the stream API: each sample's paths of the whole tile as
+ * one wavefront. */
+static void render_tile_stream(shared *sh, int tile, stream_buf *sb, counts *cnt)
+{
+    const render_settings *s = sh->c.s;
+    const int x0 = tile % sh->tiles_x * STREAM_TILE, y0 = tile / sh->tiles_x * STREAM_TILE;
+    const int w = s->width - x0 < STREAM_TILE ? s->width - x0 : STREAM_TILE;
+    const int h = s->height - y0 < STREAM_TILE ? s->height - y0 : STREAM_TILE;
+    const float inv_spp = 1.0f / (float)s->spp;
+    path *q = sb->q;
+    float(*acc)[3] = sb->acc;
+    const int n = w * h;
+    memset(acc, 0, sizeof sb->acc);
+    for (int sample = 0; sample < s->spp; sample++) {
+        for (int k = 0; k < n; k++)
+            path_start(&sh->c, &q[k], x0 + k % w, y0 + k / w, sample);
+        render_stream(&sh->c, q, n, sb->rh, sb->idx, cnt);
+        for (int k = 0; k < n; k++)
+            for (int j = 0; j < 3; j++)
+                acc[k][j] += q[k].L[j];
+    }
+    for (int k = 0; k < n; k++)
+        for (int j = 0; j < 3; j++)
+            sh->rgb[((size_t)(y0 + k / w) * (size_t)s->width + (size_t)(x0 + k % w)) * 3 + (size_t)j] =
+                acc[k][j] * inv_spp;
 }
 
 static void render_tile(shared *sh, int tile, counts *cnt)
@@ -683,7 +789,10 @@ static void *work(void *arg)
         const int tile = __atomic_fetch_add(&sh->next, 1, __ATOMIC_RELAXED);
         if (tile >= sh->tiles)
             break;
-        render_tile(sh, tile, &w->n);
+        if (w->sb)
+            render_tile_stream(sh, tile, w->sb, &w->n);
+        else
+            render_tile(sh, tile, &w->n);
         const int done = __atomic_add_fetch(&sh->done, 1, __ATOMIC_RELAXED);
         if (w->report && sh->c.s->progress && seconds_since(&w->last) > 0.1) {
             sh->c.s->progress(sh->c.s->progress_user, (double)done / sh->tiles);
@@ -706,9 +815,10 @@ int render_image(const render_tracer *t, const render_settings *s, float *rgb, r
                      : s->api == 4  ? t->intersect4 && t->occluded4
                      : s->api == 8  ? t->intersect8 && t->occluded8
                      : s->api == 16 ? t->intersect16 && t->occluded16
+                     : s->api == RENDER_API_STREAM ? t->intersect1M && t->occluded1M
                                     : -1;
     if (need != 1) {
-        snprintf(err, err_size, need < 0 ? "the API must be single, packet4, packet8 or packet16"
+        snprintf(err, err_size, need < 0 ? "the API must be single, packet4, packet8, packet16 or stream"
                                          : "the ray tracer has no functions for this API");
         return 1;
     }
@@ -721,12 +831,18 @@ int render_image(const render_tracer *t, const render_settings *s, float *rgb, r
         sh.c.inv_pi_albedo[k] = s->albedo[k] / 3.14159265f;
         sh.c.sun_on |= s->sun[k] > 0.0f;
     }
-    sh.tiles_x = (s->width + TILE - 1) / TILE;
-    sh.tiles = sh.tiles_x * ((s->height + TILE - 1) / TILE);
+    const int tile = s->api == RENDER_API_STREAM ? STREAM_TILE : TILE;
+    sh.tiles_x = (s->width + tile - 1) / tile;
+    sh.tiles = sh.tiles_x * ((s->height + tile - 1) / tile);
 
     worker *w = calloc((size_t)s->threads, sizeof *w);
     pthread_t *tid = calloc((size_t)s->threads, sizeof *tid);
-    if (!w || !tid) {
+    int oom = !w || !tid;
+    for (int i = 0; !oom && s->api == RENDER_API_STREAM && i < s->threads; i++)
+        oom = !(w[i].sb = malloc(sizeof *w[i].sb));
+    if (oom) {
+        for (int i = 0; w && i < s->threads; i++)
+            free(w[i].sb);
         free(w);
         free(tid);
         snprintf(err, err_size, "out of memory");
@@ -756,6 +872,8 @@ int render_image(const render_tracer *t, const render_settings *s, float *rgb, r
         st->shadow += w[i].n.shadow;
         st->ao += w[i].n.ao;
     }
+    for (int i = 0; i < s->threads; i++)
+        free(w[i].sb);
     free(w);
     free(tid);
     return 0;

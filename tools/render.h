@@ -31,9 +31,11 @@ typedef enum render_mode {
 const char *render_mode_name(render_mode mode);
 int render_mode_parse(const char *name, render_mode *mode);
 
-/* The ray-tracing calls a render uses: 1 (intersect1/occluded1) or the
- * packet width 4, 8, 16.  "single", "packet4", "packet8", "packet16";
- * render_api_parse gives 0 for anything else. */
+/* The ray-tracing calls a render uses: 1 (intersect1/occluded1), the
+ * packet width 4, 8, 16, or RENDER_API_STREAM (intersect1M/occluded1M).
+ * "single", "packet4", "packet8", "packet16", "stream"; render_api_parse
+ * gives 0 for anything else. */
+#define RENDER_API_STREAM 1024
 const char *render_api_name(int api);
 int render_api_parse(const char *name);
 
@@ -75,6 +77,9 @@ typedef struct render_tracer {
     void (*occluded8)(void *scene, const int *valid, rtk_ray8 *ray);
     void (*intersect16)(void *scene, const int *valid, rtk_rayhit16 *rayhit);
     void (*occluded16)(void *scene, const int *valid, rtk_ray16 *ray);
+    /* streams: n rays `stride` bytes apart */
+    void (*intersect1M)(void *scene, rtk_rayhit *rayhits, unsigned n, size_t stride);
+    void (*occluded1M)(void *scene, rtk_ray *rays, unsigned n, size_t stride);
 } render_tracer;
 
 /* n = 1, 4, 8 or 16 rays through the tracer's call of that width, for the
@@ -82,7 +87,8 @@ typedef struct render_tracer {
  * rtk_intersect1 writes them) or, when occluded, any hits (rh[k].ray.tfar
  * becomes -inf).  valid must be aligned to 4 * n bytes, as Embree requires
  * of its masks.  Packets are loaded from and stored to rh here, as an
- * application would, so this costs both ray tracers the same. */
+ * application would, so this costs both ray tracers the same.  (Streams:
+ * the tracer's intersect1M / occluded1M on rh directly.) */
 void render_trace(const render_tracer *t, int n, const int *valid, rtk_rayhit *rh, int occluded);
 
 /* The table for an rtk scene. */
@@ -92,7 +98,8 @@ typedef struct render_settings {
     int width, height;
     int spp;           /* samples per pixel (jittered when more than 1) */
     render_mode mode;
-    int api;           /* 1: intersect1/occluded1; 4, 8, 16: packets of 2x2, 4x2, 4x4 pixels */
+    int api;           /* 1: intersect1/occluded1; 4, 8, 16: packets of 2x2, 4x2, 4x4 pixels;
+                        * RENDER_API_STREAM: wavefront, each bounce's rays of a tile one stream */
     int threads;
     int max_bounces;   /* diffuse: surface hits per path at most */
     int rr_depth;      /* diffuse: Russian roulette from this bounce on */

@@ -237,8 +237,10 @@ static void trace_usage(FILE *f)
             "  --camera E/T[/U[/F]] eye EX,EY,EZ, target TX,TY,TZ, up UX,UY,UZ (default 0,1,0) and vertical\n"
             "                       field of view F in degrees (default 40); trace prints the framing\n"
             "                       camera in this form\n"
-            "  --api API            single (intersect1/occluded1, default), packet4, packet8, packet16\n"
-            "                       (2x2, 4x2, 4x4 pixels per packet; the paths of a packet stay together)\n"
+            "  --api API            single (intersect1/occluded1, default), packet4, packet8, packet16, stream\n"
+            "                       (2x2, 4x2, 4x4 pixels per packet; the paths of a packet stay together;\n"
+            "                       stream: the path tracer in wavefront form, each bounce's rays of a\n"
+            "                       32x32 tile handed over as one stream)\n"
             "  --isa NAME           backend (scalar, sse41, avx, avx2; default: the best)\n"
             "  --threads N          render threads (default: all cores)\n"
             "  --quality Q          build quality low, medium (default) or high\n"
@@ -319,7 +321,7 @@ static int cmd_trace(int argc, char **argv)
             const char *v = argv[++i];
             api = render_api_parse(v);
             if (!api) {
-                fprintf(stderr, "rtktool trace: --api wants single, packet4, packet8 or packet16 (got '%s')\n", v);
+                fprintf(stderr, "rtktool trace: --api wants single, packet4, packet8, packet16 or stream (got '%s')\n", v);
                 return 2;
             }
         } else if (!strcmp(a, "--spp") && more)
@@ -452,9 +454,14 @@ static int cmd_trace(int argc, char **argv)
     const uint64_t rays = render_stats_rays(&best);
     const double mrays = best.seconds > 0 ? (double)rays / best.seconds * 1e-6 : 0.0;
     const double hit = best.primary ? 100.0 * (double)best.primary_hits / (double)best.primary : 0.0;
-    const unsigned pw = api == 1 ? 1 : info.packet_width[api == 4 ? 0 : api == 8 ? 1 : 2];
-    char packets[96] = "";
-    if (api > 1)
+    const unsigned pw = api == 1 || api == RENDER_API_STREAM ? 1 : info.packet_width[api == 4 ? 0 : api == 8 ? 1 : 2];
+    char packets[128] = "";
+    if (api == RENDER_API_STREAM && info.stream_in_flight)
+        snprintf(packets, sizeof packets, " (each bounce's rays of a 32x32 tile one stream, %u rays in flight)",
+                 info.stream_in_flight);
+    else if (api == RENDER_API_STREAM)
+        snprintf(packets, sizeof packets, " (each bounce's rays of a 32x32 tile one stream, traced ray by ray)");
+    else if (api > 1)
         snprintf(packets, sizeof packets, " (the backend traces %s)",
                  pw == (unsigned)api ? "them whole" : pw > 1 ? "them split in narrower packets" : "them ray by ray");
     char cam_spec[256];

@@ -79,7 +79,7 @@ static void bench_usage(FILE *f)
             "                    gnuplot scripts (default: bench-out)\n"
             "  --threads LIST    thread counts (default: 1,2)\n"
             "  --isa LIST        rtk backends (default: every usable one)\n"
-            "  --api LIST        single,packet4,packet8,packet16 (default: all)\n"
+            "  --api LIST        single,packet4,packet8,packet16,stream (default: all)\n"
             "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow,incoherent (bounces from\n"
             "                    random points of the whole mesh),sun (shadow rays along one direction from\n"
             "                    random points of the whole mesh) (default: all)\n"
@@ -106,7 +106,7 @@ static void bench_usage(FILE *f)
 int cmd_bench(int argc, char **argv)
 {
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
-                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1}, .set_on = {1, 1, 1, 1, 1},
+                    .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1, 1}, .set_on = {1, 1, 1, 1, 1},
                     .do_trace = 1, .do_render = 1, .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1,
                     .do_accuracy = 1, .do_features = 1, .do_closed = 1, .render_w = 512, .render_h = 384,
                     .render_spp = 1};
@@ -151,14 +151,14 @@ int cmd_bench(int argc, char **argv)
             memset(o.api_on, 0, sizeof o.api_on);
             for (int k = 0; k < n; k++) {
                 int found = 0;
-                for (int j = 0; j < 4; j++)
+                for (int j = 0; j < NAPIS; j++)
                     if (render_api_parse(items[k]) == apis[j])
                         o.api_on[j] = found = 1;
                 if (!found)
                     n = -1;
             }
             if (n < 1) {
-                fprintf(stderr, "rtktool bench: --api wants a list of single, packet4, packet8, packet16 (got '%s')\n",
+                fprintf(stderr, "rtktool bench: --api wants a list of single, packet4, packet8, packet16, stream (got '%s')\n",
                         argv[i]);
                 return 2;
             }

@@ -79,7 +79,9 @@ extern long long embree_bytes; /* Embree's memory monitor: allocations minus fre
 enum { SET_PRIMARY, SET_DIFFUSE, SET_SHADOW, SET_INCOHERENT, SET_SUN, NSETS };
 
 extern const char *const set_names[NSETS];
-extern const int apis[4];
+/* the APIs a set is traced through: single rays, packets, streams */
+enum { NAPIS = 5 };
+extern const int apis[NAPIS];
 
 typedef struct rayset {
     rtk_ray *rays;
@@ -98,7 +100,7 @@ typedef struct bench_opts {
     int threads[4], nthreads;
     char isa[4][16];
     int nisa;
-    int api_on[4];
+    int api_on[NAPIS];
     int set_on[NSETS]; /* --rays: the trace section's ray sets */
     int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed;
     int render_w, render_h, render_spp;

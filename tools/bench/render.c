@@ -36,7 +36,7 @@ int section_render(ctx *c, char *err, size_t err_size)
            "bounces, shading and sampling included; Mrays/s of all rays traced, best of %d (ratio to %s)\n",
            o->trace_mode == MODE_ROBUST ? " (every library in robust mode)" : "", o->render_w, o->render_h, rs.spp,
            rs.max_bounces, o->repeat, c->libs[0].name);
-    double best[MAXLIBS][4][4] = {{{0}}}; /* lib, threads index, api */
+    double best[MAXLIBS][4][NAPIS] = {{{0}}}; /* lib, threads index, api */
     render_stats first = {0};
     for (int l = 0; l < c->nlibs; l++) {
         scene sc;
@@ -46,7 +46,7 @@ int section_render(ctx *c, char *err, size_t err_size)
         }
         const render_tracer t = scene_tracer(&sc, 0);
         for (int ti = 0; ti < o->nthreads; ti++)
-            for (int a = 0; a < 4; a++) {
+            for (int a = 0; a < NAPIS; a++) {
                 if (!o->api_on[a])
                     continue;
                 rs.api = apis[a];
@@ -68,7 +68,7 @@ int section_render(ctx *c, char *err, size_t err_size)
     }
     print_header(c);
     for (int ti = 0; ti < o->nthreads; ti++)
-        for (int a = 0; a < 4; a++) {
+        for (int a = 0; a < NAPIS; a++) {
             if (!o->api_on[a])
                 continue;
             char label[48];
@@ -83,6 +83,32 @@ int section_render(ctx *c, char *err, size_t err_size)
             }
             printf("\n");
         }
+    /* each library's fastest API against the first library's fastest */
+    for (int ti = 0; ti < o->nthreads; ti++) {
+        int eb = -1;
+        for (int a = 0; a < NAPIS; a++)
+            if (o->api_on[a] && (eb < 0 || best[0][ti][a] > best[0][ti][eb]))
+                eb = a;
+        if (eb < 0)
+            continue;
+        printf("  fastest API, %d thread%s: %s %s %.2f", o->threads[ti], o->threads[ti] > 1 ? "s" : "",
+               c->libs[0].name, render_api_name(apis[eb]), best[0][ti][eb]);
+        for (int l = 1; l < c->nlibs; l++) {
+            int b = -1;
+            for (int a = 0; a < NAPIS; a++)
+                if (o->api_on[a] && (b < 0 || best[l][ti][a] > best[l][ti][b]))
+                    b = a;
+            printf(", %s %s %.2f (%.2fx)", c->libs[l].name, render_api_name(apis[b]), best[l][ti][b],
+                   ratio(best[l][ti][b], best[0][ti][eb]));
+            char variant[80];
+            snprintf(variant, sizeof variant, "%s against embree's best (%s)", mode_names[o->trace_mode],
+                     render_api_name(apis[eb]));
+            csv_row(&c->csv, "render best api", c->libs[l].name, variant, "diffuse path tracer",
+                    render_api_name(apis[b]), o->threads[ti], best[l][ti][b], "Mrays/s",
+                    ratio(best[l][ti][b], best[0][ti][eb]));
+        }
+        printf("\n");
+    }
     printf("  rays per image: %llu primary (%.1f%% hit), %llu bounce, %llu shadow\n",
            (unsigned long long)first.primary, first.primary ? 100.0 * (double)first.primary_hits / first.primary : 0.0,
            (unsigned long long)first.bounce, (unsigned long long)first.shadow);

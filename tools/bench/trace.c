@@ -31,6 +31,72 @@ static void piece_order(int *order, int n, uint64_t piece)
     }
 }
 
+/* Piece p of lib l's pass over set s through api a on threads[ti]: its
+ * time at PIECE_SECS(l, ti, s, a)[p] (npairs per combination). */
+#define PIECE_SECS(l, ti, s, a)                                                                                       \
+    (piece_secs + ((((size_t)(l) * 4 + (size_t)(ti)) * NSETS + (size_t)(s)) * NAPIS + (size_t)(a)) * (size_t)npairs)
+
+/* Per set and thread count, the API Embree isa=avx2 (the first library)
+ * traces the set fastest with (its best pass), and each other library's
+ * best API against that one: the median, with quartiles, of the pieces'
+ * time ratios (the same rays, traced at different moments of the run,
+ * since every API has its own pass). */
+static void print_best_api(const ctx *c, double rate[MAXLIBS][4][NSETS][NAPIS], const double *piece_secs, int npairs)
+{
+    const bench_opts *o = c->o;
+    printf("  Embree's fastest API per ray set (of %s), and each library's best API against it:\n",
+           c->libs[0].name);
+    double *r = malloc(sizeof(double) * (size_t)npairs);
+    if (!r)
+        return;
+    for (int ti = 0; ti < o->nthreads; ti++)
+        for (int s = 0; s < NSETS; s++) {
+            int eb = -1;
+            for (int a = 0; a < NAPIS; a++)
+                if (o->api_on[a] && o->set_on[s] && (eb < 0 || rate[0][ti][s][a] > rate[0][ti][s][eb]))
+                    eb = a;
+            if (eb < 0 || !(rate[0][ti][s][eb] > 0))
+                continue;
+            printf("  %-10s %d thread%s  %s %-8s %7.2f", set_names[s], o->threads[ti], o->threads[ti] > 1 ? "s" : " ",
+                   c->libs[0].name, render_api_name(apis[eb]), rate[0][ti][s][eb]);
+            const double *ref = PIECE_SECS(0, ti, s, eb);
+            for (int l = 1; l < c->nlibs; l++) {
+                int best_a = -1;
+                double best_m = 0, best_lo = 0, best_hi = 0;
+                for (int a = 0; a < NAPIS; a++) {
+                    if (!o->api_on[a])
+                        continue;
+                    const double *t = PIECE_SECS(l, ti, s, a);
+                    int n = 0;
+                    for (int p = 0; p < npairs; p++)
+                        if (t[p] > 0 && ref[p] > 0)
+                            r[n++] = ref[p] / t[p];
+                    if (!n)
+                        continue;
+                    qsort(r, (size_t)n, sizeof *r, cmp_double);
+                    const double m = 0.5 * (r[(n - 1) / 2] + r[n / 2]);
+                    if (best_a < 0 || m > best_m) {
+                        best_a = a;
+                        best_m = m;
+                        best_lo = r[(n - 1) / 4];
+                        best_hi = r[n - 1 - (n - 1) / 4];
+                    }
+                }
+                if (best_a < 0)
+                    continue;
+                printf(" | %s %s %5.3fx [%5.3f-%5.3f]", c->libs[l].name, render_api_name(apis[best_a]), best_m,
+                       best_lo, best_hi);
+                char variant[80];
+                snprintf(variant, sizeof variant, "%s against embree's best (%s)", mode_names[o->trace_mode],
+                         render_api_name(apis[eb]));
+                csv_row(&c->csv, "trace best api", c->libs[l].name, variant, set_names[s],
+                        render_api_name(apis[best_a]), o->threads[ti], best_m, "ratio", best_m);
+            }
+            printf("\n");
+        }
+    free(r);
+}
+
 int section_trace(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
@@ -46,19 +112,22 @@ int section_trace(ctx *c, char *err, size_t err_size)
            "  from random points of the whole mesh, one after the other; sun rays are shadow rays to a\n"
            "  directional light from random points of the whole mesh\n");
     unsigned char *lhits[MAXLIBS], *ref_hits[NSETS];
-    double rate[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* lib, threads index, set, api: the best pass */
-    double med[MAXLIBS][4][NSETS][4] = {{{{0}}}}, lo[MAXLIBS][4][NSETS][4] = {{{{0}}}},
-           hi[MAXLIBS][4][NSETS][4] = {{{{0}}}}; /* the paired ratios' median and quartiles */
+    double rate[MAXLIBS][4][NSETS][NAPIS] = {{{{0}}}}; /* lib, threads index, set, api: the best pass */
+    double med[MAXLIBS][4][NSETS][NAPIS] = {{{{0}}}}, lo[MAXLIBS][4][NSETS][NAPIS] = {{{{0}}}},
+           hi[MAXLIBS][4][NSETS][NAPIS] = {{{{0}}}}; /* the paired ratios' median and quartiles */
     const int npairs = o->repeat * TRACE_CHUNKS;
     double *pairs = malloc(sizeof(double) * (size_t)(npairs * c->nlibs));
+    /* every piece's time, by lib, threads, set, api: for the ratios across APIs */
+    double *piece_secs = calloc((size_t)c->nlibs * 4 * NSETS * NAPIS * (size_t)npairs, sizeof(double));
     size_t disagree[MAXLIBS] = {0};
-    int oom = !pairs;
+    int oom = !pairs || !piece_secs;
     for (int l = 0; l < c->nlibs; l++)
         oom |= !(lhits[l] = malloc(sets[0].n ? sets[0].n : 1));
     for (int s = 0; s < NSETS; s++)
         oom |= !(ref_hits[s] = calloc(sets[s].n ? sets[s].n : 1, 1));
     if (oom) {
         free(pairs);
+        free(piece_secs);
         for (int l = 0; l < c->nlibs; l++)
             free(lhits[l]);
         for (int s = 0; s < NSETS; s++)
@@ -71,9 +140,9 @@ int section_trace(ctx *c, char *err, size_t err_size)
     FILE *dat = fopen(plot_data, "w");
     progress bar;
     progress_begin(&bar, "rtktool bench: trace");
-    const int work = c->nlibs * o->nthreads * NSETS * 4;
+    const int work = c->nlibs * o->nthreads * NSETS * NAPIS;
     int done = 0, ref_api = 0; /* the reference hits: the first library's first API asked for */
-    while (ref_api < 3 && !o->api_on[ref_api])
+    while (ref_api < NAPIS - 1 && !o->api_on[ref_api])
         ref_api++;
     /* Every library's scene at once.  Each pass over a set is cut into
      * TRACE_CHUNKS pieces, and each piece is traced by every library in
@@ -82,13 +151,13 @@ int section_trace(ctx *c, char *err, size_t err_size)
      * alike: the ratio of two libraries is the median of the pieces' time
      * ratios, with their quartiles; the rate is the best pass. */
     scene sc[MAXLIBS];
-    int built = 0;
+    int built = 0, failed = 0;
     for (; built < c->nlibs; built++)
         if (scene_build(&sc[built], &c->libs[built], c->m, c->padded, o->trace_mode, 1, err, err_size))
             break;
     for (int ti = 0; built == c->nlibs && ti < o->nthreads; ti++)
         for (int s = 0; s < NSETS; s++)
-            for (int a = 0; a < 4; a++, done += c->nlibs) {
+            for (int a = 0; a < NAPIS && !failed; a++, done += c->nlibs) {
                 if (!o->api_on[a] || !o->set_on[s] || !sets[s].n)
                     continue;
                 const int occluded = s == SET_SHADOW || s == SET_SUN;
@@ -107,11 +176,21 @@ int section_trace(ctx *c, char *err, size_t err_size)
                         piece_order(order, c->nlibs, (uint64_t)(r * TRACE_CHUNKS + k));
                         for (int j = 0; j < c->nlibs; j++) {
                             const int l = order[j];
-                            const render_tracer t = scene_tracer(&sc[l], s == SET_PRIMARY && a > 0);
+                            /* Embree's coherent flag for packets of camera rays, not for streams */
+                            const int coherent = s == SET_PRIMARY && apis[a] > 1 && apis[a] <= 16;
+                            const render_tracer t = scene_tracer(&sc[l], coherent);
                             unsigned char *h = l == 0 && ti == 0 && a == ref_api ? ref_hits[s] : lhits[l];
                             secs[l] = trace_pass(&t, &part, apis[a], occluded, o->threads[ti], h + b);
+                            if (secs[l] < 0) {
+                                snprintf(err, err_size, "trace: out of memory for a stream");
+                                failed = 1;
+                                break;
+                            }
                             pass[l] += secs[l];
+                            PIECE_SECS(l, ti, s, a)[np] = secs[l];
                         }
+                        if (failed)
+                            break;
                         for (int l = 0; l < c->nlibs; l++) {
                             pairs[l * npairs + np] = secs[l] > 0 ? secs[0] / secs[l] : 0.0;
                             if (r == o->repeat - 1 && !(l == 0 && ti == 0 && a == ref_api))
@@ -141,7 +220,8 @@ int section_trace(ctx *c, char *err, size_t err_size)
         free(lhits[l]);
     for (int l = 0; l < built; l++)
         scene_release(&sc[l]);
-    if (built < c->nlibs) {
+    if (built < c->nlibs || failed) {
+        free(piece_secs);
         for (int s = 0; s < NSETS; s++)
             free(ref_hits[s]);
         if (dat)
@@ -155,7 +235,7 @@ int section_trace(ctx *c, char *err, size_t err_size)
             printf(" %-30s", c->libs[l].name);
         printf("\n");
         for (int s = 0; s < NSETS; s++)
-            for (int a = 0; a < 4; a++) {
+            for (int a = 0; a < NAPIS; a++) {
                 if (!o->api_on[a] || !o->set_on[s])
                     continue;
                 char label[48];
@@ -179,6 +259,8 @@ int section_trace(ctx *c, char *err, size_t err_size)
                 }
             }
     }
+    print_best_api(c, rate, piece_secs, npairs);
+    free(piece_secs);
     printf("  hit/miss differs from %s on:", c->libs[0].name);
     for (int l = 1; l < c->nlibs; l++)
         printf(" %s %zu%s", c->libs[l].name, disagree[l], l + 1 < c->nlibs ? "," : "");
