@@ -7,7 +7,8 @@
  * backend_path= replaces the whole order.  Within a directory files are taken
  * in name order; a backend name already found earlier is shadowed.
  *
- * For each file: dlopen(RTLD_NOW | RTLD_LOCAL); read the data symbol
+ * For each file: check that it is a whole ELF shared object (elf_whole: a
+ * cut file would be SIGBUS inside dlopen); dlopen(RTLD_NOW | RTLD_LOCAL); read the data symbol
  * rtk_backend_<name>_header (no backend code runs); check magic, size, name
  * and the CPU requirements against this CPU; only then call
  * rtk_backend_<name>_negotiate and check the answer and the descriptor tables.
@@ -15,10 +16,16 @@
  */
 #include <dirent.h>
 #include <dlfcn.h>
+#include <elf.h>
+#include <errno.h>
+#include <fcntl.h>
 #include <limits.h>
+#include <link.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 #include "internal.h"
 
@@ -225,6 +232,67 @@ static int check_tables(rtk_backend_entry *e, const rtk_backend_desc *d)
     return 1;
 }
 
+/* Whether the file is whole, checked before dlopen maps it: an ELF shared
+ * object of this machine's class whose program headers, every segment's
+ * bytes and its section headers lie within the file.  The dynamic loader
+ * maps segments without checking them against the file's size, and the
+ * first touch of a page past the end of a cut file (an install or upgrade
+ * interrupted) is SIGBUS, which would take the application down at
+ * device creation.  0 with the reason in why.  (A file cut while this
+ * runs is not caught: that race is the installer's.) */
+static int elf_whole(const char *path, char *why, size_t why_size)
+{
+    const int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0) {
+        snprintf(why, why_size, "cannot open: %s", strerror(errno));
+        return 0;
+    }
+    int ok = 0;
+    struct stat st;
+    ElfW(Ehdr) eh;
+    if (fstat(fd, &st) != 0) {
+        snprintf(why, why_size, "cannot stat: %s", strerror(errno));
+    } else if (!S_ISREG(st.st_mode)) {
+        snprintf(why, why_size, "not a regular file");
+    } else if (st.st_size < (off_t)sizeof eh || pread(fd, &eh, sizeof eh, 0) != (ssize_t)sizeof eh) {
+        snprintf(why, why_size, "truncated or damaged: %lld bytes, too short for an ELF header",
+                 (long long)st.st_size);
+    } else if (memcmp(eh.e_ident, ELFMAG, SELFMAG) != 0) {
+        snprintf(why, why_size, "not an ELF file");
+    } else if (eh.e_ident[EI_CLASS] != (sizeof(void *) == 8 ? ELFCLASS64 : ELFCLASS32) ||
+               eh.e_type != ET_DYN || eh.e_phentsize != sizeof(ElfW(Phdr))) {
+        snprintf(why, why_size, "not a shared object of this machine's ELF class");
+    } else {
+        const uint64_t size = (uint64_t)st.st_size;
+        const uint64_t ph_end = (uint64_t)eh.e_phoff + (uint64_t)eh.e_phnum * sizeof(ElfW(Phdr));
+        const uint64_t sh_end = (uint64_t)eh.e_shoff + (uint64_t)eh.e_shnum * (uint64_t)eh.e_shentsize;
+        if (ph_end > size) {
+            snprintf(why, why_size, "truncated or damaged: its program headers end at byte %llu, the file has %llu",
+                     (unsigned long long)ph_end, (unsigned long long)size);
+        } else if (eh.e_shnum && sh_end > size) {
+            snprintf(why, why_size, "truncated or damaged: its section headers end at byte %llu, the file has %llu",
+                     (unsigned long long)sh_end, (unsigned long long)size);
+        } else {
+            ok = 1;
+            for (unsigned i = 0; ok && i < eh.e_phnum; i++) {
+                ElfW(Phdr) ph;
+                if (pread(fd, &ph, sizeof ph, (off_t)(eh.e_phoff + i * sizeof ph)) != (ssize_t)sizeof ph) {
+                    snprintf(why, why_size, "cannot read program header %u", i);
+                    ok = 0;
+                } else if (ph.p_type != PT_NULL && (ph.p_offset > size || ph.p_filesz > size - ph.p_offset)) {
+                    snprintf(why, why_size,
+                             "truncated or damaged: segment %u (type %u) ends at byte %llu, the file has %llu", i,
+                             (unsigned)ph.p_type, (unsigned long long)ph.p_offset + (unsigned long long)ph.p_filesz,
+                             (unsigned long long)size);
+                    ok = 0;
+                }
+            }
+        }
+    }
+    close(fd);
+    return ok;
+}
+
 static void load_one(rtk_backend_entry *e, uint64_t cpu)
 {
     const char *base = strrchr(e->path, '/');
@@ -237,6 +305,11 @@ static void load_one(rtk_backend_entry *e, uint64_t cpu)
     memcpy(e->name, base + strlen(FILE_PREFIX), n);
     e->name[n] = '\0';
 
+    char why[sizeof e->reason - 16];
+    if (!elf_whole(e->path, why, sizeof why)) {
+        reject(e, "%s", why);
+        return;
+    }
     dlerror();
     e->handle = dlopen(e->path, RTLD_NOW | RTLD_LOCAL);
     if (!e->handle) {

@@ -1,8 +1,10 @@
 /* The backend loader: broken backends are rejected with a reason, good ones
  * still load, and selection only ever narrows what is there. */
+#include <elf.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "rtk/rtk_backend.h"
 #include "testlib.h"
@@ -141,6 +143,79 @@ static void test_env_path_searched_first(void **state)
     setenv("RTK_BACKEND_PATH", "", 1);
 }
 
+/* Damaged backend files, as an interrupted install or upgrade leaves
+ * them: copies of a real backend cut at several lengths (dlopen took the
+ * process down with SIGBUS on these before the loader checked the file),
+ * and a whole one whose program header claims a segment past the end of
+ * the file.  Each costs its backend only, with the reason; the real
+ * backends after them load, through backend_path= and RTK_BACKEND_PATH. */
+static void write_file(const char *path, const void *data, size_t n)
+{
+    FILE *f = fopen(path, "wb");
+    assert_non_null(f);
+    assert_int_equal(fwrite(data, 1, n, f), n);
+    assert_int_equal(fclose(f), 0);
+}
+
+static void test_damaged_backend_files(void **state)
+{
+    (void)state;
+    FILE *f = fopen(RTK_TEST_BACKENDS "/librtk_backend_scalar.so", "rb");
+    assert_non_null(f);
+    assert_int_equal(fseek(f, 0, SEEK_END), 0);
+    const long size = ftell(f);
+    assert_true(size > 4096);
+    unsigned char *so = malloc((size_t)size);
+    assert_non_null(so);
+    rewind(f);
+    assert_int_equal(fread(so, 1, (size_t)size, f), (size_t)size);
+    fclose(f);
+    char dir[] = "/tmp/rtk_test_loader.XXXXXX";
+    assert_non_null(mkdtemp(dir));
+    const long cuts[] = {1, 63, 64, 1000, 4096, 100000, size / 2, size - 1};
+    char path[600], names[16][32];
+    int n = 0;
+    for (size_t i = 0; i < sizeof cuts / sizeof *cuts; i++) {
+        if (cuts[i] >= size)
+            continue;
+        snprintf(names[n], sizeof names[n], "cut%ld", cuts[i]);
+        snprintf(path, sizeof path, "%s/librtk_backend_%s.so", dir, names[n++]);
+        write_file(path, so, (size_t)cuts[i]);
+    }
+    /* the whole file, its last program header's segment made to run past the end */
+    const Elf64_Ehdr *eh = (const Elf64_Ehdr *)(const void *)so;
+    assert_true(eh->e_phnum > 0);
+    Elf64_Phdr *ph = (Elf64_Phdr *)(void *)(so + eh->e_phoff + (eh->e_phnum - 1) * sizeof(Elf64_Phdr));
+    ph->p_type = PT_LOAD;
+    ph->p_offset = (Elf64_Off)size - 16;
+    ph->p_filesz = 4096;
+    snprintf(names[n], sizeof names[n], "past");
+    snprintf(path, sizeof path, "%s/librtk_backend_%s.so", dir, names[n++]);
+    write_file(path, so, (size_t)size);
+
+    for (int env = 0; env < 2; env++) {
+        char config[400];
+        snprintf(config, sizeof config, "backend_path=%s:%s", dir, RTK_TEST_BACKENDS);
+        if (env)
+            setenv("RTK_BACKEND_PATH", dir, 1);
+        rtk_device dev = NULL;
+        if (rtk_device_new(env ? NULL : config, &dev) != RTK_OK)
+            fail_msg("%s", rtk_device_get_error_message(NULL));
+        for (int i = 0; i < n; i++)
+            expect_rejected(dev, names[i], i + 1 < n ? "truncated or damaged" : "segment");
+        rtk_backend_info bi;
+        assert_true(find(dev, "scalar", &bi)->status != RTK_BACKEND_STATUS_REJECTED);
+        rtk_device_release(dev);
+    }
+    setenv("RTK_BACKEND_PATH", "", 1);
+    for (int i = 0; i < n; i++) {
+        snprintf(path, sizeof path, "%s/librtk_backend_%s.so", dir, names[i]);
+        unlink(path);
+    }
+    rmdir(dir);
+    free(so);
+}
+
 static void test_devices_on_different_backends(void **state)
 {
     (void)state;
@@ -164,6 +239,7 @@ int main(void)
         cmocka_unit_test(test_missing_isa_lists_what_is_there),
         cmocka_unit_test(test_empty_directory),
         cmocka_unit_test(test_env_path_searched_first),
+        cmocka_unit_test(test_damaged_backend_files),
         cmocka_unit_test(test_devices_on_different_backends),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
