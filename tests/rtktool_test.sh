@@ -32,6 +32,26 @@ head -c 100 "$work/bunny.rtkm" >"$work/cut.rtkm"
 expect 1 "truncated or malformed header" -- "$tool" trace "$work/cut.rtkm" --size 8x8 --frames 1
 expect 2 "usage: rtktool convert" -- "$tool" convert
 expect 0 "usage: rtktool convert" -- "$tool" convert --help
+# a write that fails (here a file size limit of 100 KiB) leaves the file it
+# was to replace byte for byte, and no temporary file beside it
+cp "$work/bunny.rtkm" "$work/keep.rtkm"
+"$tool" build "$data/bunny.ply" --dump "$work/keep.rtkb" >/dev/null || fail "build --dump"
+cp "$work/keep.rtkb" "$work/keep-old.rtkb"
+cp "$work/bunny.png" "$work/keep.png"
+big=(trace "$data/bunny.ply" --size 512x512 --frames 1 --threads 1 -o "$work/keep.png")
+for cmd in "convert $data/bunny.ply $work/keep.rtkm" "build $data/bunny.ply --dump $work/keep.rtkb"; do
+    # shellcheck disable=SC2086
+    out=$( (ulimit -f 100; "$tool" $cmd) 2>&1 ); rc=$?
+    [ "$rc" = 1 ] || fail "'$cmd' under a file size limit exited $rc: $out"
+    grep -qF "write failed: File too large (the previous file, if any, is unchanged)" <<<"$out" ||
+        fail "'$cmd' under a file size limit: $out"
+done
+out=$( (ulimit -f 20; "$tool" "${big[@]}") 2>&1 ); rc=$?
+[ "$rc" = 1 ] && grep -qF "the previous file, if any, is unchanged" <<<"$out" || fail "trace -o under a limit: $rc $out"
+cmp -s "$work/bunny.rtkm" "$work/keep.rtkm" || fail "a failed convert changed the file it was replacing"
+cmp -s "$work/keep-old.rtkb" "$work/keep.rtkb" || fail "a failed build --dump changed the file it was replacing"
+cmp -s "$work/bunny.png" "$work/keep.png" || fail "a failed trace -o changed the image it was replacing"
+! ls "$work"/.keep* >/dev/null 2>&1 || fail "a failed write left its temporary file: $(ls -a "$work")"
 
 # build: statistics, JSON, dump, picture; the dump read alone and with its mesh
 expect 0 "SAH cost:" -- "$tool" build "$work/bunny.rtkm" --dump "$work/bunny.rtkb" --png "$work/boxes.png"

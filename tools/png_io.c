@@ -1,5 +1,7 @@
 #include "png_io.h"
 
+#include "file_io.h"
+
 #include <errno.h>
 #include <png.h>
 #include <setjmp.h>
@@ -7,19 +9,20 @@
 #include <stdlib.h>
 #include <string.h>
 
+/* (through file_replace: a failed write leaves the old image as it was) */
 int rtk_png_write_rgb(const char *path, const unsigned char *rgb, int w, int h, char *err, size_t err_size)
 {
-    FILE *f = fopen(path, "wb");
-    if (!f) {
-        snprintf(err, err_size, "%s: %s", path, strerror(errno));
+    file_replace r;
+    if (file_replace_open(&r, path, err, err_size))
         return 1;
-    }
+    FILE *f = r.f;
     png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, NULL, NULL, NULL);
     png_infop info = png ? png_create_info_struct(png) : NULL;
     if (!png || !info || setjmp(png_jmpbuf(png))) {
         png_destroy_write_struct(&png, &info);
-        fclose(f);
-        snprintf(err, err_size, "%s: libpng could not write the image", path);
+        file_replace_abort(&r);
+        snprintf(err, err_size, "%s: libpng could not write the image (the previous file, if any, is unchanged)",
+                 path);
         return 1;
     }
     png_init_io(png, f);
@@ -30,11 +33,7 @@ int rtk_png_write_rgb(const char *path, const unsigned char *rgb, int w, int h, 
         png_write_row(png, (png_const_bytep)(rgb + (size_t)y * (size_t)w * 3));
     png_write_end(png, NULL);
     png_destroy_write_struct(&png, &info);
-    if (fclose(f) != 0) {
-        snprintf(err, err_size, "%s: %s", path, strerror(errno));
-        return 1;
-    }
-    return 0;
+    return file_replace_commit(&r, ferror(f) ? EIO : 0, err, err_size);
 }
 
 /* libpng's own messages go to stderr; ours name the file instead. */

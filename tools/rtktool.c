@@ -7,6 +7,7 @@
 #include <errno.h>
 #include <math.h>
 #include <pthread.h>
+#include <signal.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -1010,6 +1011,10 @@ static void usage(FILE *f)
 
 int main(int argc, char **argv)
 {
+    /* A write past a file size limit (ulimit -f) fails with EFBIG rather
+     * than killing rtktool, so it can say so and remove its temporary
+     * file (file_replace: the file it replaces is left as it was). */
+    signal(SIGXFSZ, SIG_IGN);
     if (argc < 2) {
         usage(stderr);
         return 2;
