@@ -123,6 +123,120 @@ static void test_ply_off_stl(void **state)
     rtk_mesh_free(&m);
 }
 
+/* OBJ numbers: a vertex line OpenMesh cannot read all three coordinates
+ * of was dropped, so every later index named the next vertex (the file
+ * below converted to the triangle (0,0,0), (0,1,0), (9,9,9)); now such a
+ * file is refused, naming the line and the word.  Vertex references are
+ * checked against the vertices (an index beyond int range was read as
+ * -2), and bytes of a binary file are shown escaped in messages. */
+static void test_obj_numbers(void **state)
+{
+    (void)state;
+    const char *bad[] = {"1e39", "-1e39", "nan", "NaN", "inf", "-inf", "1x", "0x1p3", "1e", "--1", ".", "1..2", "1,5"};
+    char text[256];
+    for (size_t i = 0; i < sizeof bad / sizeof *bad; i++) {
+        snprintf(text, sizeof text, "v 0 0 0\nv %s 0 0\nv 1 0 0\nv 0 1 0\nv 9 9 9\nf 1 3 4\n", bad[i]);
+        char needle[96];
+        snprintf(needle, sizeof needle, "malformed OBJ: line 2: vertex coordinate '%s' is not a decimal number", bad[i]);
+        expect_error(write_text("num.obj", text), needle);
+    }
+    expect_error(write_text("two.obj", "v 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"), "line 1: a vertex needs three coordinates");
+    expect_error(write_text("big.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999\n"),
+                 "line 4: the face refers to vertex 99999999999, but the file has 3 vertices");
+    expect_error(write_text("neg.obj", "v 0 0 0\nv 1 0 0\nf 1 2 -3\nv 0 1 0\n"),
+                 "line 3: the face refers to vertex -3, but only 2 vertices come before it");
+    expect_error(write_text("bin.obj", "v 0 0 \x01\xfe\n"), "vertex coordinate '\\x01\\xfe'");
+    /* what the reader takes: signs, exponents, leading or trailing points,
+     * values below the smallest float (read as 0, as OpenMesh reads them),
+     * a fourth coordinate, faces before their vertices, negative references */
+    rtk_mesh m;
+    char err[512];
+    const char *good = "v +1.5e+2 -0 .5\nv 5. 1E-3 -2e-50\nv 0 1 0 1\nf 1 2 3\nf -3 -2 -1\nf 1 2 4\nv 1 1 1\n";
+    assert_int_equal(rtk_mesh_load(write_text("good.obj", good), &m, err, sizeof err), 0);
+    assert_int_equal(m.vertex_count, 4);
+    assert_int_equal(m.triangle_count, 3);
+    assert_true(m.vertices[0] == 150.0f && m.vertices[2] == 0.5f && m.vertices[3] == 5.0f && m.vertices[5] == 0.0f);
+    assert_int_equal(m.indices[6], 0);
+    assert_int_equal(m.indices[8], 3);
+    rtk_mesh_free(&m);
+}
+
+/* STL: OpenMesh takes a .stl for binary when its size is 84 + 50 n bytes
+ * (n at byte 80), else for ASCII, and checked nothing more: half a binary
+ * file and a header claiming 2^32 - 1 triangles loaded as 0 triangles, an
+ * ASCII file without endsolid loaded what it had.  Each is refused now,
+ * with the reason, and so are non-finite or unreadable coordinates and
+ * every mutation of the ASCII structure below. */
+static size_t stl_binary(unsigned char *out, uint32_t claimed, uint32_t tris, float bad)
+{
+    memset(out, 'x', 80);
+    memcpy(out + 80, &claimed, 4);
+    size_t n = 84;
+    for (uint32_t t = 0; t < tris; t++) {
+        const float f[12] = {0, 0, 1, 0, 0, 0, t ? bad : 1.0f, 0, 0, 0, 1, (float)t};
+        memcpy(out + n, f, sizeof f);
+        memset(out + n + 48, 0, 2);
+        n += 50;
+    }
+    return n;
+}
+
+static void test_stl_checked(void **state)
+{
+    (void)state;
+    rtk_mesh m;
+    char err[512];
+    unsigned char bin[84 + 50 * 8];
+    size_t n = stl_binary(bin, 4, 4, 1.0f);
+    assert_int_equal(rtk_mesh_load(write_file("b.stl", bin, n), &m, err, sizeof err), 0);
+    assert_int_equal(m.triangle_count, 4);
+    rtk_mesh_free(&m);
+    assert_int_equal(rtk_mesh_load(write_file("b.stlb", bin, n), &m, err, sizeof err), 0);
+    rtk_mesh_free(&m);
+    expect_error(write_file("half.stl", bin, n / 2), "neither binary (the header's 4 triangles need 284 bytes, the file has 142)");
+    expect_error(write_file("half.stlb", bin, n / 2), "the header says 4 triangles, which take 284 bytes; the file has 142");
+    expect_error(write_file("short.stlb", bin, 40), "a binary STL needs an 84-byte header");
+    n = stl_binary(bin, 0xffffffffu, 0, 0.0f);
+    memset(bin + n, 'y', 16);
+    expect_error(write_file("huge.stl", bin, n + 16), "the header's 4294967295 triangles need 214748364834 bytes");
+    n = stl_binary(bin, 2, 2, NAN);
+    expect_error(write_file("nan.stl", bin, n), "triangle 1 has a vertex coordinate that is not finite");
+    n = stl_binary(bin, 2, 2, INFINITY);
+    expect_error(write_file("inf.stl", bin, n), "triangle 1 has a vertex coordinate that is not finite");
+
+    const char *facet = "facet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\nvertex 0 1 0\nendloop\nendfacet\n";
+    char text[1024];
+    snprintf(text, sizeof text, "solid a\n%s%sendsolid a\nsolid b\n%sendsolid b\n", facet, facet, facet);
+    assert_int_equal(rtk_mesh_load(write_text("multi.stl", text), &m, err, sizeof err), 0);
+    assert_int_equal(m.triangle_count, 3);
+    rtk_mesh_free(&m);
+    snprintf(text, sizeof text, "SOLID a\n%sENDSOLID\n", facet);
+    assert_int_equal(rtk_mesh_load(write_text("upper.stla", text), &m, err, sizeof err), 0);
+    rtk_mesh_free(&m);
+    snprintf(text, sizeof text, "solid a\n%s", facet);
+    expect_error(write_text("noend.stl", text), "the file ends inside a solid, before 'endsolid'");
+    /* every line of a facet in turn dropped, doubled or garbled */
+    const char *lines[] = {"facet normal 0 0 1", "outer loop", "vertex 0 0 0", "vertex 1 0 0", "vertex 0 1 0",
+                           "endloop", "endfacet"};
+    for (int drop = 0; drop < 7; drop++)
+        for (int how = 0; how < 3; how++) {
+            size_t at = (size_t)snprintf(text, sizeof text, "solid m\n");
+            for (int l = 0; l < 7; l++) {
+                if (l == drop && how == 0)
+                    continue;
+                at += (size_t)snprintf(text + at, sizeof text - at, "%s\n", l == drop && how == 2 ? "vertex 1x 0 0" : lines[l]);
+                if (l == drop && how == 1)
+                    at += (size_t)snprintf(text + at, sizeof text - at, "%s\n", lines[l]);
+            }
+            snprintf(text + at, sizeof text - at, "endsolid m\n");
+            expect_error(write_text("mut.stl", text), "malformed STL: line");
+        }
+    snprintf(text, sizeof text, "solid a\n%sendsolid a\ntrailing words\n", facet);
+    expect_error(write_text("trail.stl", text), "expected another 'solid' or the end after 'endsolid'");
+    expect_error(write_text("notsolid.stl", "this is not an stl file at all, and it is long enough to hold the eighty bytes of a binary header\n"),
+                 "nor ASCII (it does not begin with 'solid')");
+}
+
 static void test_malformed(void **state)
 {
     (void)state;
@@ -135,11 +249,12 @@ static void test_malformed(void **state)
     expect_error(write_text("slash.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf /1 3 2\n"), "malformed OBJ: line 4");
     expect_error(write_text("two.obj", "v 0 0 0\nv 1 0 0\nf 1 2\n"), "three or more vertex references");
     /* Index out of range. */
-    expect_error(write_text("bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"), "refers to vertex 8 of 3");
+    expect_error(write_text("bad.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n"),
+                 "line 4: the face refers to vertex 9, but the file has 3 vertices");
     const char *ply_bad_index = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
                                 "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
                                 "0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n";
-    expect_error(write_text("bad.ply", ply_bad_index), "face 0: a face refers to vertex 7 of 3");
+    expect_error(write_text("bad.ply", ply_bad_index), "face 0: a face refers to vertex index 7, out of range (3 vertices)");
     /* Garbage where a header should be. */
     expect_error(write_text("garbage.ply", "this is not a ply file\n\x01\x02\x03\nend_header\n"),
                  "malformed PLY header: the file does not start with ply");
@@ -580,6 +695,8 @@ int main(void)
         cmocka_unit_test(test_obj_polygons_and_nonmanifold),
         cmocka_unit_test(test_ply_off_stl),
         cmocka_unit_test(test_malformed),
+        cmocka_unit_test(test_obj_numbers),
+        cmocka_unit_test(test_stl_checked),
         cmocka_unit_test(test_om),
         cmocka_unit_test(test_rtkm_round_trip),
         cmocka_unit_test(test_rtkm_damage),

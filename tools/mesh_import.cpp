@@ -61,7 +61,8 @@ public:
         }
         for (const VertexHandle &v : idx)
             if (v.idx() < 0 || size_t(v.idx()) >= nv) {
-                note_bad(face, "a face refers to vertex " + std::to_string(v.idx()) + " of " + std::to_string(nv));
+                note_bad(face, "a face refers to vertex index " + std::to_string(v.idx()) + ", out of range (" +
+                                   std::to_string(nv) + " vertices)");
                 return;
             }
         if (idx.size() > 3)
@@ -619,11 +620,72 @@ bool ply_header_ok(const char *path, std::string &why)
     return ply_body_ok(data, header.size(), elements, ascii, big_endian, why);
 }
 
+// A line of a file as a message shows it: at most 60 bytes, and any byte
+// that is not printable ASCII as \xNN (a binary file's bytes went into
+// messages as they were).
+std::string shown(const std::string &line)
+{
+    std::string out;
+    for (size_t i = 0; i < line.size() && i < 60; i++) {
+        const unsigned char c = (unsigned char)line[i];
+        if (c >= 32 && c < 127) {
+            out += char(c);
+        } else {
+            char hex[8];
+            std::snprintf(hex, sizeof hex, "\\x%02x", c);
+            out += hex;
+        }
+    }
+    return line.size() > 60 ? out + "..." : out;
+}
+
+// A coordinate as OpenMesh's readers take it (a stream's >> float): a
+// decimal number ([+-] digits [. digits] [e [+-] digits]) within float
+// range.  They fail on nan, inf and values beyond float range, and read a
+// prefix of "1x" or "0x1p3"; the OBJ reader then drops the whole vertex
+// line, so every later index points at the wrong vertex.  (Values below
+// the smallest float read as 0 or a subnormal, as OpenMesh reads them.)
+bool decimal_float(const std::string &t)
+{
+    size_t i = 0, digits = 0;
+    if (i < t.size() && (t[i] == '+' || t[i] == '-'))
+        i++;
+    while (i < t.size() && std::isdigit((unsigned char)t[i]))
+        i++, digits++;
+    if (i < t.size() && t[i] == '.')
+        for (i++; i < t.size() && std::isdigit((unsigned char)t[i]);)
+            i++, digits++;
+    if (!digits)
+        return false;
+    if (i < t.size() && (t[i] == 'e' || t[i] == 'E')) {
+        i++;
+        if (i < t.size() && (t[i] == '+' || t[i] == '-'))
+            i++;
+        const size_t e = i;
+        while (i < t.size() && std::isdigit((unsigned char)t[i]))
+            i++;
+        if (i == e)
+            return false;
+    }
+    if (i != t.size())
+        return false;
+    errno = 0;
+    const float v = std::strtof(t.c_str(), nullptr);
+    return std::isfinite(v) && !(errno == ERANGE && std::fabs(v) > 1.0f);
+}
+
+// The lines of an OBJ file as OpenMesh's reader splits them: trimmed,
+// blank lines and comments skipped, the keyword the first word.
 // OpenMesh's OBJ reader asserts (aborting the process, as Debian builds
 // it) on a face line none of whose words reads as a vertex (found by
-// fuzz/fuzz_mesh), so face lines are checked here first: "f" then at least
-// three words v, v/t, v//n or v/t/n of non-zero integers.
-bool obj_faces_ok(const char *path, std::string &why)
+// fuzz/fuzz_mesh), drops a vertex line whose coordinates do not all read
+// (shifting every later index), and reads an index beyond int range or
+// beyond the vertices as whatever it comes to.  So the file is checked
+// here first: every v line starts with three coordinates (decimal_float);
+// every f line is "f" and at least three words v, v/t, v//n or v/t/n of
+// non-zero integers, and each vertex reference lies among the file's
+// vertices (a negative one among those before the line).
+bool obj_ok(const char *path, std::string &why)
 {
     FILE *f = std::fopen(path, "rb");
     if (!f) {
@@ -631,13 +693,19 @@ bool obj_faces_ok(const char *path, std::string &why)
         return false;
     }
     std::string line;
-    long number = 0;
+    long number = 0, vertices = 0, max_ref = 0, max_ref_line = 0;
     bool ok = true;
-    auto word_ok = [](const std::string &w) {
-        // up to three '/'-separated integers, the first one present and non-zero
+    const auto fail = [&](const std::string &text) {
+        why = "malformed OBJ: line " + std::to_string(number) + ": " + text;
+        ok = false;
+    };
+    // up to three '/'-separated integers, the first one present and
+    // non-zero; *first the first
+    auto word_ok = [](const std::string &w, long long *first) {
         size_t i = 0, part = 0;
         while (true) {
             const size_t start = i;
+            const bool neg = i < w.size() && w[i] == '-';
             if (i < w.size() && (w[i] == '-' || w[i] == '+'))
                 i++;
             const size_t digits = i;
@@ -646,8 +714,11 @@ bool obj_faces_ok(const char *path, std::string &why)
                 v = 10 * v + (w[i++] - '0');
             if (i == digits && !(part > 0 && i == start)) // a number, or an empty t or n
                 return false;
-            if (part == 0 && v == 0)
-                return false;
+            if (part == 0) {
+                if (v == 0)
+                    return false;
+                *first = neg ? -v : v; /* (then checked against the vertices) */
+            }
             if (i == w.size())
                 return true;
             if (w[i] != '/' || ++part > 2)
@@ -665,23 +736,156 @@ bool obj_faces_ok(const char *path, std::string &why)
         while (lead < line.size() && std::isspace((unsigned char)line[lead]))
             lead++;
         line.erase(0, lead);
-        if (line.size() < 2 || line[0] != 'f' || !std::isspace((unsigned char)line[1]))
+        std::istringstream w(line);
+        std::string key;
+        if (!(w >> key) || key[0] == '#')
             continue;
-        std::istringstream w(line.substr(1));
-        std::string word;
-        int words = 0;
-        while (ok && w >> word) {
-            ok = word_ok(word);
-            words++;
-        }
-        if (!ok || words < 3) {
-            why = "malformed OBJ: line " + std::to_string(number) + ": expected f and three or more vertex references, got '" +
-                  line.substr(0, 60) + "'";
-            ok = false;
+        if (key == "v") {
+            std::string coord;
+            for (int k = 0; ok && k < 3; k++) {
+                if (!(w >> coord))
+                    fail("a vertex needs three coordinates, got '" + shown(line) + "'");
+                else if (!decimal_float(coord))
+                    fail("vertex coordinate '" + shown(coord) +
+                         "' is not a decimal number within float range (OpenMesh would drop the vertex and "
+                         "shift every later index)");
+            }
+            vertices++;
+        } else if (key == "f") {
+            std::string word;
+            int words = 0;
+            while (ok && w >> word) {
+                long long ref = 0;
+                if (!word_ok(word, &ref)) {
+                    fail("expected f and three or more vertex references, got '" + shown(line) + "'");
+                } else if (ref < 0 && -ref > vertices) {
+                    fail("the face refers to vertex " + std::to_string(ref) + ", but only " +
+                         std::to_string(vertices) + " vertices come before it");
+                } else if (ref > max_ref) {
+                    max_ref = (long)ref;
+                    max_ref_line = number;
+                }
+                words++;
+            }
+            if (ok && words < 3)
+                fail("expected f and three or more vertex references, got '" + shown(line) + "'");
         }
     }
     std::fclose(f);
+    if (ok && max_ref > vertices) {
+        number = max_ref_line;
+        fail("the face refers to vertex " + std::to_string(max_ref) + ", but the file has " +
+             std::to_string(vertices) + " vertices");
+    }
     return ok;
+}
+
+// OpenMesh's STL reader takes a .stl file for binary when its size is
+// exactly 84 bytes plus 50 per triangle of the count at byte 80, and for
+// ASCII otherwise, and then checks nothing: half a binary file, or a
+// count the body does not hold, read as ASCII and gave no triangles; an
+// ASCII file cut short loaded what it had.  So the file is checked here
+// first as it will be read (.stla is always ASCII, .stlb always binary):
+//  - binary: exactly 84 + 50 n bytes, and every vertex coordinate finite;
+//  - ASCII: "solid [name]", then facets, each "facet normal x y z",
+//    "outer loop", three "vertex x y z" lines (decimal_float), "endloop",
+//    "endfacet", and "endsolid [name]" at the end (keywords in any case,
+//    one per line, as OpenMesh finds them); several solids may follow one
+//    another, and nothing else.
+bool stl_ok(const char *path, const std::string &ext, std::string &why)
+{
+    std::string data;
+    if (!read_whole(path, data, why))
+        return false;
+    const auto fail = [&why](const std::string &text) {
+        why = "malformed STL: " + text;
+        return false;
+    };
+    uint64_t count = 0;
+    if (data.size() >= 84)
+        for (int k = 3; k >= 0; k--)
+            count = count << 8 | (unsigned char)data[80 + (size_t)k];
+    const bool size_says_binary = data.size() >= 84 && data.size() == 84 + 50 * count;
+    if (ext == "stlb" || (ext == "stl" && size_says_binary)) {
+        if (data.size() < 84)
+            return fail("a binary STL needs an 84-byte header, the file has " + std::to_string(data.size()) +
+                        " bytes");
+        if (data.size() != 84 + 50 * count)
+            return fail("the header says " + std::to_string(count) + " triangles, which take " +
+                        std::to_string(84 + 50 * count) + " bytes; the file has " + std::to_string(data.size()));
+        for (uint64_t t = 0; t < count; t++)
+            for (int k = 3; k < 12; k++) { // (the normal, k < 3, is not read as geometry)
+                float v;
+                std::memcpy(&v, data.data() + 84 + 50 * t + 4 * (size_t)k, 4);
+                if (!std::isfinite(v))
+                    return fail("triangle " + std::to_string(t) + " has a vertex coordinate that is not finite");
+            }
+        return true;
+    }
+    // ASCII: the words of each non-blank line
+    size_t pos = 0, line_no = 0;
+    std::vector<std::string> words;
+    std::string text;
+    const auto next_line = [&]() {
+        while (pos < data.size()) {
+            size_t end = data.find('\n', pos);
+            if (end == std::string::npos)
+                end = data.size();
+            text.assign(data, pos, end - pos);
+            pos = end + 1;
+            line_no++;
+            std::istringstream in(text);
+            words.clear();
+            for (std::string w; in >> w;)
+                words.push_back(w);
+            if (!words.empty())
+                return true;
+        }
+        return false;
+    };
+    const auto is = [&words](size_t i, const char *kw) {
+        if (words.size() <= i || words[i].size() != std::strlen(kw))
+            return false;
+        for (size_t k = 0; k < words[i].size(); k++)
+            if (std::tolower((unsigned char)words[i][k]) != kw[k])
+                return false;
+        return true;
+    };
+    const auto where = [&]() { return "line " + std::to_string(line_no) + ": "; };
+    if (!next_line() || !is(0, "solid"))
+        return fail(ext == "stl" && data.size() >= 84
+                        ? "neither binary (the header's " + std::to_string(count) + " triangles need " +
+                              std::to_string(84 + 50 * count) + " bytes, the file has " +
+                              std::to_string(data.size()) + ") nor ASCII (it does not begin with 'solid')"
+                        : "an ASCII STL begins with 'solid'");
+    while (true) { // in a solid
+        if (!next_line())
+            return fail("the file ends inside a solid, before 'endsolid' (cut short?)");
+        if (is(0, "endsolid")) {
+            if (!next_line())
+                return true;
+            if (!is(0, "solid"))
+                return fail(where() + "expected another 'solid' or the end after 'endsolid', got '" + shown(text) +
+                            "'");
+            continue;
+        }
+        if (!is(0, "facet") || !is(1, "normal") || words.size() != 5)
+            return fail(where() + "expected 'facet normal x y z' or 'endsolid', got '" + shown(text) + "'");
+        if (!next_line() || !is(0, "outer") || !is(1, "loop") || words.size() != 2)
+            return fail(where() + "expected 'outer loop', got '" + shown(text) + "'");
+        for (int v = 0; v < 3; v++) {
+            if (!next_line() || !is(0, "vertex") || words.size() != 4)
+                return fail(where() + "expected 'vertex x y z', got '" + shown(text) + "'");
+            for (int k = 1; k <= 3; k++)
+                if (!decimal_float(words[(size_t)k]))
+                    return fail(where() + "vertex coordinate '" + shown(words[(size_t)k]) +
+                                "' is not a decimal number within float range");
+        }
+        if (!next_line() || !is(0, "endloop") || words.size() != 1)
+            return fail(where() + "expected 'endloop', got '" + shown(text) + "'");
+        if (!next_line() || !is(0, "endfacet") || words.size() != 1)
+            return fail(where() + "expected 'endfacet', got '" + shown(text) + "'");
+    }
 }
 
 void set_err(char *err, size_t size, const std::string &text)
@@ -762,7 +966,9 @@ extern "C" int rtk_mesh_load(const char *path, rtk_mesh *mesh, char *err, size_t
             // failure says why
         } else if (ext == "ply" && !ply_header_ok(path, failure)) {
             // failure says why
-        } else if (ext == "obj" && !obj_faces_ok(path, failure)) {
+        } else if (ext == "obj" && !obj_ok(path, failure)) {
+            // failure says why
+        } else if ((ext == "stl" || ext == "stla" || ext == "stlb") && !stl_ok(path, ext, failure)) {
             // failure says why
         } else {
             ok = ext == "om" ? read_om(path, soup) : IO::IOManager().read(path, soup, opt);
