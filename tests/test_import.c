@@ -505,6 +505,25 @@ static void test_rtkm_damage(void **state)
     memcpy(bad, good, n);
     memcpy(bad + n, "\0\0\0\0", 4);
     expect_error(write_file("long.rtkm", bad, n + 4), "file is 220 bytes, the header says 216");
+    /* Every byte outside the checksums (header bytes 88..127, the padding
+     * after the 48 bytes of vertices at 128) is checked to be zero: every
+     * single flipped byte of the file is refused. */
+    for (size_t k = 0; k < n; k++) {
+        memcpy(bad, good, n);
+        bad[k] ^= 0x10;
+        rtk_mesh m2;
+        char e2[256];
+        if (rtk_mesh_load(write_file("flip.rtkm", bad, n), &m2, e2, sizeof e2) == 0)
+            fail_msg("byte %zu flipped: the file still loads", k);
+    }
+    memcpy(bad, good, n);
+    bad[100] = 1;
+    expect_error(write_file("zero.rtkm", bad, n), "header byte 100 is 1 where the format has zero");
+    memcpy(bad, good, n);
+    bad[180] = 1;
+    expect_error(write_file("pad.rtkm", bad, n), "non-zero bytes in the padding");
+    /* a directory where a file should be */
+    expect_error(dir, "not a regular file");
 }
 
 static void test_merge_and_drop(void **state)
@@ -667,6 +686,9 @@ static void test_rtkb_damage(void **state)
     rtkb_file f;
     assert_int_equal(rtkb_load(write_file("ok.rtkb", good, n), &f, err, sizeof err), 0);
     rtkb_free(&f);
+    /* a directory is not a dump ('bad magic' before) */
+    assert_int_not_equal(rtkb_load(dir, &f, err, sizeof err), 0);
+    assert_non_null(strstr(err, "not a regular file"));
     for (size_t at = 0; at < n; at++) {
         memcpy(bad, good, n);
         bad[at] ^= (unsigned char)(1u << (at % 8));

@@ -104,6 +104,10 @@ int rtkb_load(const char *path, rtkb_file *file, char *err, size_t err_size)
         snprintf(why, sizeof why, "%s", strerror(errno));
         goto done;
     }
+    if (!S_ISREG(st.st_mode)) {
+        snprintf(why, sizeof why, "not a regular file");
+        goto done;
+    }
     const uint64_t fsize = (uint64_t)st.st_size;
     unsigned char h[RTKB_HEADER_SIZE];
     if (fsize < 16 || fread(h, 1, 16, f) != 16 || memcmp(h, magic, sizeof magic) != 0) {

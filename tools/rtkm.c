@@ -88,6 +88,10 @@ int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
         why = strerror(errno);
         goto done;
     }
+    if (!S_ISREG(st.st_mode)) {
+        why = "not a regular file";
+        goto done;
+    }
     const uint64_t size = (uint64_t)st.st_size;
     if (size < 16 || fread(h, 1, 16, f) != 16 || memcmp(h, magic, sizeof magic) != 0) {
         why = "not an .rtkm file (bad magic)";
@@ -107,6 +111,12 @@ int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
         why = "header checksum mismatch (damaged file)";
         goto done;
     }
+    for (unsigned k = 88; k < RTKM_HEADER_SIZE; k++)
+        if (h[k]) {
+            snprintf(whybuf, sizeof whybuf, "header byte %u is %u where the format has zero (damaged file)", k, h[k]);
+            why = whybuf;
+            goto done;
+        }
     const uint64_t nv = le_get64(h + 16), nt = le_get64(h + 24), voff = le_get64(h + 32), ioff = le_get64(h + 40);
     if (nv > UINT32_MAX || nt > UINT32_MAX || voff % 64 || ioff % 64 || voff < RTKM_HEADER_SIZE ||
         ioff < voff + nv * 12) {
@@ -125,8 +135,25 @@ int rtkm_load(const char *path, rtk_mesh *mesh, char *err, size_t err_size)
         why = "out of memory";
         goto done;
     }
-    if (fseeko(f, (off_t)voff, SEEK_SET) != 0 || fread(mesh->vertices, 12, nv, f) != nv ||
-        fseeko(f, (off_t)ioff, SEEK_SET) != 0 || fread(mesh->indices, 12, nt, f) != nt) {
+    /* the whole file is read in order: the zero padding after the header
+     * and between the arrays is checked too (the checksums cover only the
+     * header's first 80 bytes and the arrays) */
+    int pad_ok = 1;
+    for (uint64_t at = RTKM_HEADER_SIZE; pad_ok && at < ioff; at++) {
+        if (at == voff) {
+            if (fread(mesh->vertices, 12, nv, f) != nv)
+                break;
+            at += nv * 12 - 1;
+            continue;
+        }
+        const int c = fgetc(f);
+        pad_ok = c == 0;
+    }
+    if (!pad_ok) {
+        why = "non-zero bytes in the padding between the header and the arrays (damaged file)";
+        goto done;
+    }
+    if (fseeko(f, (off_t)ioff, SEEK_SET) != 0 || fread(mesh->indices, 12, nt, f) != nt) {
         why = "read failed";
         goto done;
     }
