@@ -87,6 +87,88 @@ static struct packet_kernel find_packet_kernel(const rtk_backend_desc *d, uint32
     return best;
 }
 
+/* A backend's non-zero return as the error it names (else unknown). */
+static rtk_error as_error(int rc)
+{
+    return rc > 0 && rc <= RTK_ERROR_MEMORY_REFUSED ? (rtk_error)rc : RTK_ERROR_UNKNOWN;
+}
+
+/* ---- progress (rtk_scene_set_progress_monitor) ----
+ * A commit reports its share done by triangles: each build in it covers
+ * the slice [base, base + span) of the whole, its builder's own share
+ * (rtk_build_input.progress) mapped into that slice.  Calls come from the
+ * builders' threads, several at once; once the application's callback
+ * returns 0 the commit is cancelled: the builder stops, and the commit
+ * fails with RTK_ERROR_CANCELLED, the scene's previous tree kept (a scene
+ * with a progress callback builds in fresh memory, never its old tree's,
+ * for that). */
+typedef struct commit_progress {
+    rtk_scene s;
+    atomic_int cancelled;
+    double base, span;    /* the build in progress's slice */
+    uint64_t done, total; /* triangles of the commit's builds */
+} commit_progress;
+
+/* The builders' callback (rtk_build_input.progress). */
+static int commit_progress_report(void *user, double done)
+{
+    commit_progress *cp = user;
+    if (atomic_load(&cp->cancelled))
+        return 0;
+    if (!cp->s->progress(cp->s->progress_user, cp->base + cp->span * done)) {
+        atomic_store(&cp->cancelled, 1);
+        return 0;
+    }
+    return 1;
+}
+
+/* Reports the start of the next build (prims triangles) of the commit, and
+ * points it at its slice; an error when the commit is cancelled (then or
+ * before).  RTK_OK without a callback. */
+static rtk_error progress_next(rtk_scene s, uint64_t prims, const char *fn)
+{
+    commit_progress *cp = s->commit_progress;
+    if (!cp)
+        return RTK_OK;
+    const double total = cp->total ? (double)cp->total : 1.0;
+    cp->base = (double)cp->done / total;
+    cp->span = (double)prims / total;
+    cp->done += prims;
+    if (!commit_progress_report(cp, 0.0))
+        return rtk_fail(s->device, RTK_ERROR_CANCELLED, "%s: cancelled by the progress callback", fn);
+    return RTK_OK;
+}
+
+/* The builders' progress for the build about to start (in), when the
+ * scene has a callback: then it builds in fresh memory (no recycle). */
+static void progress_input(rtk_scene s, rtk_build_input *in)
+{
+    if (!s->commit_progress)
+        return;
+    in->progress = commit_progress_report;
+    in->progress_user = s->commit_progress;
+    in->recycle = NULL;
+}
+
+static uint64_t prims_of(const rtk_build_geometry *geoms, size_t n)
+{
+    uint64_t p = 0;
+    for (size_t k = 0; k < n; k++)
+        p += geoms[k].prim_count;
+    return p;
+}
+
+/* Where a commit's builds run their parallel work: the threads that joined
+ * it (rtk_scene_join_commit), else the device's (rtk_device_tasks). */
+static const rtk_task_system *commit_tasks(rtk_scene s, rtk_task_system *copy)
+{
+    if (s->join_pool) {
+        *copy = s->join_tasks;
+        return copy;
+    }
+    return rtk_device_tasks(s->device, copy);
+}
+
 /* The layout's stream kernel for the query, or NULL. */
 static const rtk_kernel_entry *find_stream_kernel(const rtk_backend_desc *d, uint32_t layout, uint32_t query)
 {
@@ -224,8 +306,12 @@ static int refit_tree(rtk_scene s, accel_ref *ref, int own_refs, const rtk_build
         *err = rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
         return REFIT_DONE;
     }
+    if ((*err = progress_next(s, prims_of(geoms, n), fn))) {
+        unpin_buffers(pinned, pinned_count);
+        return REFIT_DONE;
+    }
     rtk_task_system task_copy;
-    const rtk_build_input in = build_input(s->quality, geoms, n, ref->layout->id, rtk_device_tasks(dev, &task_copy));
+    const rtk_build_input in = build_input(s->quality, geoms, n, ref->layout->id, commit_tasks(s, &task_copy));
     rtk_build_output out = *stats;
     out.struct_size = sizeof out;
     out.message[0] = '\0';
@@ -238,7 +324,7 @@ static int refit_tree(rtk_scene s, accel_ref *ref, int own_refs, const rtk_build
             rtk_log(dev, 1, "scene: no refit (%s): building afresh", out.message);
             return REFIT_DROP;
         }
-        *err = rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+        *err = rtk_fail(dev, as_error(rc),
                         "%s: refit failed: %s", fn, out.message[0] ? out.message : "no reason given");
         return REFIT_DONE;
     }
@@ -406,9 +492,13 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
                 flag_names(not_honoured, names, sizeof names));
     }
 
+    rtk_error perr = progress_next(s, prims_of(in_geoms, n), fn);
+    if (perr)
+        return perr;
     rtk_task_system task_copy;
-    rtk_build_input in = build_input(quality, in_geoms, n, layout->id, tree ? NULL : rtk_device_tasks(dev, &task_copy));
+    rtk_build_input in = build_input(quality, in_geoms, n, layout->id, tree ? NULL : commit_tasks(s, &task_copy));
     in.recycle = tree ? NULL : recycle;
+    progress_input(s, &in);
     /* masks, filters and quads: passed only when some geometry has one, so
      * a scene without any builds a tree whose kernels test nothing more */
     rtk_geometry_attrs *attrs = NULL;
@@ -483,7 +573,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     if (rc != 0 && out.recycled)
         rtk_log(dev, 1, "scene: the failed build took the memory of the scene's previous tree; the scene has none now");
     if (rc != 0)
-        return rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+        return rtk_fail(dev, as_error(rc),
                         "%s: %s failed: %s", fn, tree ? "import" : "build",
                         out.message[0] ? out.message : "no reason given");
 
@@ -667,7 +757,8 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     in.objects = objs;
     rtk_build_output out = {.struct_size = sizeof out};
     const double t0 = now_seconds();
-    const int rc = oe->build(&in, &out);
+    const rtk_error cancelled = progress_next(s, 0, fn); /* (the top level's one step) */
+    const int rc = cancelled ? (int)cancelled : oe->build(&in, &out);
     const double t1 = now_seconds();
     free(objs);
     accel_ref *top = rc ? NULL : make_ref(bk, layout, out.accel, &out);
@@ -677,7 +768,9 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         release_refs(children, nchildren);
         free(children);
         free(prims);
-        return rc ? rtk_fail(dev, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+        if (cancelled)
+            return cancelled;
+        return rc ? rtk_fail(dev, as_error(rc),
                              "%s: the top level's build failed: %s", fn, out.message[0] ? out.message : "no reason given")
                   : rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
@@ -761,6 +854,8 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
         if (same_tris && old->b.vertex_version == now.vertex_version && old->b.vertex_count == now.vertex_count) {
             atomic_fetch_add(&old->ref->refs, 1);
             nd[i] = (dyn_tree){old->ref, now, old->out};
+            if (s->commit_progress) /* (kept: its triangles are done) */
+                s->commit_progress->done += geoms[k].prim_count;
         } else if (same_tris && g->quality == RTK_BUILD_QUALITY_REFIT && g->vertex.count >= old->b.vertex_count) {
             rtk_build_output out = old->out;
             double t = 0.0;
@@ -940,6 +1035,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         free(in_geoms);
         return err;
     }
+    /* (try_refit reported through s->commit_progress, set by the caller) */
     if ((s->flags & RTK_SCENE_FLAG_DYNAMIC) && !tree) {
         err = commit_dynamic(s, in_geoms, n, ni, fn);
         free(in_geoms);
@@ -1001,10 +1097,58 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
     return err;
 }
 
+/* ---- one commit at a time ----
+ * rtk.h forbids committing a scene from two threads at once, or while
+ * another thread uses it, but an application that does must get an error,
+ * not a heap corrupted by two builds writing one scene (rtk_scene_commit
+ * from two threads crashed in the builder's node placement).  A commit
+ * takes the scene's committing flag (compare and swap); a second commit
+ * meanwhile, and an attach, a detach, a flag or quality change or a
+ * query, fails with RTK_ERROR_INVALID_OPERATION and leaves the running
+ * commit alone.  (A query already running when another thread starts a
+ * commit is not seen: that would take an atomic operation on the scene
+ * by every query.) */
+rtk_error scene_not_committing(rtk_scene s, const char *fn)
+{
+    if (__builtin_expect(atomic_load_explicit(&s->committing, memory_order_relaxed) == COMMIT_IDLE, 1))
+        return RTK_OK;
+    return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION,
+                    "%s: the scene is being committed by another thread (a scene must not be used while it is "
+                    "committed; to commit it from several threads, use rtk_scene_join_commit)", fn);
+}
+
+/* commit() with the scene's progress callback, if any, wired in. */
+static rtk_error commit_reporting(rtk_scene s, const rtk_bvh *tree, const char *fn)
+{
+    if (!s->progress)
+        return commit(s, tree, fn);
+    commit_progress cp = {.s = s};
+    atomic_init(&cp.cancelled, 0);
+    for (uint32_t i = 0; i < s->geom_count; i++) {
+        const rtk_geometry g = s->geoms[i];
+        if (g && g->enabled && is_mesh(g))
+            cp.total += g->index.count * (g->type == RTK_GEOMETRY_TYPE_QUAD ? 2u : 1u);
+    }
+    s->commit_progress = &cp;
+    const rtk_error err = commit(s, tree, fn);
+    s->commit_progress = NULL;
+    return err;
+}
+
+static rtk_error commit_alone(rtk_scene s, const rtk_bvh *tree, const char *fn)
+{
+    int idle = COMMIT_IDLE;
+    if (!atomic_compare_exchange_strong(&s->committing, &idle, COMMIT_RUNNING))
+        return scene_not_committing(s, fn);
+    const rtk_error err = commit_reporting(s, tree, fn);
+    atomic_store(&s->committing, COMMIT_IDLE);
+    return err;
+}
+
 rtk_error rtk_scene_commit(rtk_scene s)
 {
     CHECK_HANDLE(s, "rtk_scene_commit");
-    return commit(s, NULL, "rtk_scene_commit");
+    return commit_alone(s, NULL, "rtk_scene_commit");
 }
 
 rtk_error rtk_scene_commit_bvh(rtk_scene s, const rtk_bvh *bvh)
@@ -1012,12 +1156,87 @@ rtk_error rtk_scene_commit_bvh(rtk_scene s, const rtk_bvh *bvh)
     CHECK_HANDLE(s, "rtk_scene_commit_bvh");
     if (!bvh)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_commit_bvh: bvh is NULL");
-    return commit(s, bvh, "rtk_scene_commit_bvh");
+    return commit_alone(s, bvh, "rtk_scene_commit_bvh");
+}
+
+/* The first thread to call it (no commit running) commits the scene, its
+ * builds' parallel work going to a pool of its own that the threads
+ * calling it meanwhile join: they run the build's tasks until the commit
+ * ends, and return its result.  A thread that arrives while the commit is
+ * ending waits for it to end and then starts a new one. */
+rtk_error rtk_scene_join_commit(rtk_scene s)
+{
+    static const char fn[] = "rtk_scene_join_commit";
+    CHECK_HANDLE(s, "rtk_scene_join_commit");
+    pthread_mutex_lock(&s->join_lock);
+    for (;;) {
+        const int state = atomic_load(&s->committing);
+        if (state == COMMIT_JOINED && !atomic_load(&s->join_end)) { /* join it */
+            rtk_pool *pool = s->join_pool;
+            const uint64_t gen = s->join_generation;
+            s->joiners++;
+            pthread_mutex_unlock(&s->join_lock);
+            rtk_pool_serve(pool, &s->join_end);
+            pthread_mutex_lock(&s->join_lock);
+            while (s->join_generation == gen)
+                pthread_cond_wait(&s->join_cond, &s->join_lock);
+            const rtk_error err = s->join_result;
+            if (--s->joiners == 0)
+                pthread_cond_broadcast(&s->join_cond);
+            pthread_mutex_unlock(&s->join_lock);
+            return err;
+        }
+        if (state == COMMIT_JOINED) { /* ending: wait, then start anew */
+            pthread_cond_wait(&s->join_cond, &s->join_lock);
+            continue;
+        }
+        int idle = COMMIT_IDLE;
+        if (!atomic_compare_exchange_strong(&s->committing, &idle, COMMIT_JOINED)) {
+            pthread_mutex_unlock(&s->join_lock);
+            return scene_not_committing(s, fn); /* an rtk_scene_commit is running */
+        }
+        break;
+    }
+    char msg[256] = "";
+    rtk_pool *pool = rtk_pool_new_joinable(msg, sizeof msg);
+    if (!pool) {
+        atomic_store(&s->committing, COMMIT_IDLE);
+        pthread_cond_broadcast(&s->join_cond);
+        pthread_mutex_unlock(&s->join_lock);
+        return rtk_fail(s->device, RTK_ERROR_OUT_OF_MEMORY, "%s: %s", fn, msg);
+    }
+    s->join_tasks = rtk_pool_tasks(pool);
+    /* the builders size their work by the threads that may run it: as
+     * many as the device would use (the result is the same on any number) */
+    const uint32_t threads = rtk_device_get_thread_count(s->device);
+    s->join_tasks.threads = threads > 1 ? threads : 2;
+    atomic_store(&s->join_end, 0);
+    s->join_pool = pool;
+    pthread_mutex_unlock(&s->join_lock);
+
+    const rtk_error err = commit_reporting(s, NULL, fn);
+
+    pthread_mutex_lock(&s->join_lock);
+    atomic_store(&s->join_end, 1);
+    s->join_result = err;
+    s->join_generation++;
+    rtk_pool_wake(pool);
+    pthread_cond_broadcast(&s->join_cond);
+    while (s->joiners > 0) /* (they hold the pool until they leave it) */
+        pthread_cond_wait(&s->join_cond, &s->join_lock);
+    s->join_pool = NULL;
+    atomic_store(&s->committing, COMMIT_IDLE);
+    pthread_cond_broadcast(&s->join_cond);
+    pthread_mutex_unlock(&s->join_lock);
+    rtk_pool_free(pool);
+    return err;
 }
 
 rtk_error rtk_scene_get_bvh(rtk_scene s, rtk_bvh *bvh)
 {
     CHECK_HANDLE(s, "rtk_scene_get_bvh");
+    if (scene_not_committing(s, "rtk_scene_get_bvh"))
+        return RTK_ERROR_INVALID_OPERATION;
     if (!bvh || bvh->struct_size < sizeof *bvh)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_scene_get_bvh: bvh is NULL or its struct_size is not set");
@@ -1036,7 +1255,7 @@ rtk_error rtk_scene_get_bvh(rtk_scene s, rtk_bvh *bvh)
     int rc = io->export_tree(s->accel, &t);
     if (rc) {
         rtk_bvh_free(&t);
-        return rtk_fail(s->device, rc > 0 && rc <= RTK_ERROR_INVALID_GEOMETRY ? (rtk_error)rc : RTK_ERROR_UNKNOWN,
+        return rtk_fail(s->device, as_error(rc),
                         "rtk_scene_get_bvh: the export failed");
     }
     *bvh = t;

@@ -80,6 +80,12 @@ RTK_INTERNAL rtk_pool *rtk_pool_new(unsigned threads, char *msg, size_t msg_size
 /* Joins the workers; no parallel_for may be running. */
 RTK_INTERNAL void rtk_pool_free(rtk_pool *pool);
 RTK_INTERNAL rtk_task_system rtk_pool_tasks(rtk_pool *pool);
+/* A pool with no workers of its own, whose jobs application threads run
+ * by joining it: rtk_pool_serve runs them on the calling thread until the
+ * pool is freed or *until is set (and rtk_pool_wake called). */
+RTK_INTERNAL rtk_pool *rtk_pool_new_joinable(char *msg, size_t msg_size);
+RTK_INTERNAL void rtk_pool_serve(rtk_pool *pool, atomic_int *until);
+RTK_INTERNAL void rtk_pool_wake(rtk_pool *pool);
 
 /* ---- device ---- */
 struct rtk_device_s {

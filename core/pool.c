@@ -9,7 +9,9 @@
  * at once (scenes committed from several threads, or a task that runs a
  * parallel_for of its own): idle workers serve the oldest job first, and
  * each caller runs its own job's indices too, so a job always finishes even
- * when every worker is busy elsewhere.
+ * when every worker is busy elsewhere.  A joinable pool has no workers of
+ * its own: application threads join it (rtk_scene_join_commit) and serve
+ * its jobs until told to stop.
  */
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE /* sched_getaffinity, CPU_COUNT */
@@ -39,6 +41,9 @@ struct rtk_pool {
     int stop;
     unsigned thread_count; /* workers */
     pthread_t *threads;
+    /* A pool that application threads join (rtk_pool_serve): its jobs are
+     * published even with no worker, for threads that may join. */
+    int joinable;
 };
 
 unsigned rtk_cpu_count(void)
@@ -68,11 +73,12 @@ static void unlink_exhausted(rtk_pool *p)
     }
 }
 
-static void *worker(void *arg)
+/* Runs the pool's jobs' indices on the calling thread until the pool stops
+ * or *until is set (then rtk_pool_wake). */
+static void serve(rtk_pool *p, atomic_int *until)
 {
-    rtk_pool *p = arg;
     pthread_mutex_lock(&p->lock);
-    while (!p->stop) {
+    while (!p->stop && !(until && atomic_load(until))) {
         unlink_exhausted(p);
         pool_job *job = p->jobs;
         if (!job) {
@@ -87,7 +93,32 @@ static void *worker(void *arg)
             pthread_cond_broadcast(&p->finished);
     }
     pthread_mutex_unlock(&p->lock);
+}
+
+static void *worker(void *arg)
+{
+    serve(arg, NULL);
     return NULL;
+}
+
+void rtk_pool_serve(rtk_pool *p, atomic_int *until)
+{
+    serve(p, until);
+}
+
+void rtk_pool_wake(rtk_pool *p)
+{
+    pthread_mutex_lock(&p->lock);
+    pthread_cond_broadcast(&p->work);
+    pthread_mutex_unlock(&p->lock);
+}
+
+rtk_pool *rtk_pool_new_joinable(char *msg, size_t msg_size)
+{
+    rtk_pool *p = rtk_pool_new(1, msg, msg_size);
+    if (p)
+        p->joinable = 1;
+    return p;
 }
 
 /* Every index has been handed out by the time the caller waits; it then
@@ -96,7 +127,7 @@ static void *worker(void *arg)
 static void pool_parallel_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
 {
     rtk_pool *p = user;
-    if (count == 1 || p->thread_count == 0) {
+    if (count == 1 || (p->thread_count == 0 && !p->joinable)) {
         for (uint32_t i = 0; i < count; i++)
             fn(data, i);
         return;

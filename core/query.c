@@ -1,5 +1,6 @@
 /* The ray queries: single rays and packets. */
 #include <stddef.h>
+#include <stdio.h>
 #include <string.h>
 
 #include "scene_internal.h"
@@ -17,6 +18,8 @@ static inline rtk_error intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query_
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
     if (!rh)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: rayhit is NULL", fn);
+    if (__builtin_expect(atomic_load_explicit(&s->committing, memory_order_relaxed) != COMMIT_IDLE, 0))
+        return scene_not_committing(s, fn);
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
     const rtk_query q = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
@@ -31,6 +34,8 @@ static inline rtk_error occluded1(rtk_scene s, rtk_ray *ray, const rtk_query_con
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
     if (!ray)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: ray is NULL", fn);
+    if (__builtin_expect(atomic_load_explicit(&s->committing, memory_order_relaxed) != COMMIT_IDLE, 0))
+        return scene_not_committing(s, fn);
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
     const rtk_query q = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
@@ -153,6 +158,11 @@ static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s,
     if ((uintptr_t)packet % (4 * n))
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_%s%u: the packet at %p is not aligned to %u bytes",
                         q, n, packet, 4 * n);
+    if (__builtin_expect(atomic_load_explicit(&s->committing, memory_order_relaxed) != COMMIT_IDLE, 0)) {
+        char fn[32];
+        snprintf(fn, sizeof fn, "rtk_%s%u", q, n);
+        return scene_not_committing(s, fn);
+    }
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_%s%u: the scene was never committed", q, n);
 

@@ -44,6 +44,10 @@ rtk_error rtk_scene_new(rtk_device device, rtk_scene *out)
     if (!s)
         return rtk_fail(device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_new: out of memory");
     atomic_init(&s->refs, 1);
+    atomic_init(&s->committing, COMMIT_IDLE);
+    atomic_init(&s->join_end, 0);
+    pthread_mutex_init(&s->join_lock, NULL);
+    pthread_cond_init(&s->join_cond, NULL);
     s->device = device;
     s->quality = RTK_BUILD_QUALITY_MEDIUM;
     rtk_device_retain(device);
@@ -143,6 +147,8 @@ void rtk_scene_release(rtk_scene s)
         rtk_geometry_release(s->geoms[i]);
     }
     free(s->geoms);
+    pthread_cond_destroy(&s->join_cond);
+    pthread_mutex_destroy(&s->join_lock);
     rtk_device dev = s->device;
     free(s);
     rtk_device_release(dev);
@@ -151,6 +157,8 @@ void rtk_scene_release(rtk_scene s)
 rtk_error rtk_scene_set_flags(rtk_scene s, unsigned flags)
 {
     CHECK_HANDLE(s, "rtk_scene_set_flags");
+    if (scene_not_committing(s, "rtk_scene_set_flags"))
+        return RTK_ERROR_INVALID_OPERATION;
     if (flags & ~(unsigned)RTK_SCENE_FLAGS_ALL)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_set_flags: unknown flag bits 0x%x",
                         flags & ~(unsigned)RTK_SCENE_FLAGS_ALL);
@@ -161,12 +169,24 @@ rtk_error rtk_scene_set_flags(rtk_scene s, unsigned flags)
 rtk_error rtk_scene_set_build_quality(rtk_scene s, rtk_build_quality q)
 {
     CHECK_HANDLE(s, "rtk_scene_set_build_quality");
+    if (scene_not_committing(s, "rtk_scene_set_build_quality"))
+        return RTK_ERROR_INVALID_OPERATION;
     if (q == RTK_BUILD_QUALITY_REFIT)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
                         "rtk_scene_set_build_quality: REFIT is a geometry's quality (rtk_geometry_set_build_quality)");
     if (q != RTK_BUILD_QUALITY_LOW && q != RTK_BUILD_QUALITY_MEDIUM && q != RTK_BUILD_QUALITY_HIGH)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_set_build_quality: unknown quality %d", (int)q);
     s->quality = q;
+    return RTK_OK;
+}
+
+rtk_error rtk_scene_set_progress_monitor(rtk_scene s, rtk_progress_fn progress, void *user)
+{
+    CHECK_HANDLE(s, "rtk_scene_set_progress_monitor");
+    if (scene_not_committing(s, "rtk_scene_set_progress_monitor"))
+        return RTK_ERROR_INVALID_OPERATION;
+    s->progress = progress;
+    s->progress_user = progress ? user : NULL;
     return RTK_OK;
 }
 
@@ -189,6 +209,8 @@ void *rtk_scene_get_user_data(rtk_scene s)
 rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_id)
 {
     CHECK_HANDLE(s, "rtk_scene_attach_geometry");
+    if (scene_not_committing(s, "rtk_scene_attach_geometry"))
+        return RTK_ERROR_INVALID_OPERATION;
     if (!g)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_attach_geometry: geometry is NULL");
     if (g->device != s->device)
@@ -229,6 +251,8 @@ rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_
 rtk_error rtk_scene_detach_geometry(rtk_scene s, uint32_t id)
 {
     CHECK_HANDLE(s, "rtk_scene_detach_geometry");
+    if (scene_not_committing(s, "rtk_scene_detach_geometry"))
+        return RTK_ERROR_INVALID_OPERATION;
     if (id >= s->geom_count || !s->geoms[id])
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_scene_detach_geometry: no geometry %u", id);
     owner_remove(s->geoms[id], s);
@@ -253,6 +277,8 @@ rtk_geometry rtk_scene_get_geometry(rtk_scene s, uint32_t id)
 rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
 {
     CHECK_HANDLE(s, "rtk_scene_get_info");
+    if (scene_not_committing(s, "rtk_scene_get_info"))
+        return RTK_ERROR_INVALID_OPERATION;
     /* Callers built against the 0.1.0 struct (without packet_width) are served too. */
     if (!info || info->struct_size < offsetof(rtk_scene_info, packet_width))
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,

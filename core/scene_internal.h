@@ -106,8 +106,15 @@ typedef struct dyn_tree {
     rtk_build_output out;
 } dyn_tree;
 
+/* rtk_scene_s.committing */
+enum { COMMIT_IDLE = 0, COMMIT_RUNNING = 1, COMMIT_JOINED = 2 };
+
 struct rtk_scene_s {
     atomic_int refs;
+    /* A commit in progress (COMMIT_*): a second commit, an attach or a
+     * query from another thread meanwhile gets an error, not a corrupted
+     * scene (commit.c). */
+    atomic_int committing;
     rtk_device device;
     void *user; /* rtk_scene_set_user_data */
     unsigned flags;
@@ -157,6 +164,22 @@ struct rtk_scene_s {
     unsigned built_flags;
     rtk_build_quality built_quality;
     uint32_t refits;
+    /* rtk_scene_join_commit: the threads that join a commit serve the
+     * join pool's tasks (the build's) until it ends (join_end), then read
+     * its result; join_lock guards the rest. */
+    pthread_mutex_t join_lock;
+    pthread_cond_t join_cond;
+    rtk_pool *join_pool;
+    atomic_int join_end;
+    unsigned joiners;
+    uint64_t join_generation;
+    rtk_error join_result;
+    rtk_task_system join_tasks;
+    /* rtk_scene_set_progress_monitor's, and the commit in progress's
+     * (commit.c: commit_progress), NULL when none */
+    rtk_progress_fn progress;
+    void *progress_user;
+    struct commit_progress *commit_progress;
 };
 
 #define CHECK_HANDLE(h, fn)                                                                \
@@ -195,6 +218,10 @@ static inline int ray_valid(const rtk_ray *r)
 #endif
     return all && r->tnear >= 0.0f && r->tnear <= r->tfar && r->mask != 0;
 }
+
+/* An error for a call that must not overlap a commit of the scene (fn
+ * names it), when one is running; RTK_OK otherwise. */
+RTK_INTERNAL rtk_error scene_not_committing(rtk_scene s, const char *fn);
 
 /* scene.c */
 RTK_INTERNAL void blob_release(blob *m);

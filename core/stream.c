@@ -39,6 +39,8 @@ static rtk_error stream_check(rtk_scene s, const void *rays, size_t count, size_
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
                         "%s: %zu rays %zu bytes apart from %p run past the end of the address space", fn, count,
                         stride, rays);
+    if (scene_not_committing(s, fn))
+        return RTK_ERROR_INVALID_OPERATION;
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
     return RTK_OK;

@@ -168,6 +168,19 @@ int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *o
     return RTK_OK;
 }
 
+void build_progress_init(build *bd, build_progress *p, uint64_t work_total)
+{
+    const rtk_build_input *in = bd->in;
+    if (in->struct_size < offsetof(rtk_build_input, progress_user) + sizeof in->progress_user || !in->progress)
+        return;
+    p->fn = in->progress;
+    p->user = in->progress_user;
+    atomic_init(&p->stopped, 0);
+    atomic_init(&p->work_done, 0);
+    p->work_total = work_total;
+    bd->progress = p;
+}
+
 int build_begin(build *bd, const rtk_build_input *in, rtk_build_output *out, uint64_t *total)
 {
     *total = 0;

@@ -11,6 +11,7 @@
 #include <float.h>
 #include <math.h>
 #include <string.h>
+#include <stdatomic.h>
 #include <stddef.h>
 #include <pthread.h>
 #include <stdint.h>
@@ -35,8 +36,19 @@ typedef struct primref {
 } primref;
 
 /* What every task of one build shares (read-only once the tasks run). */
+/* A build's progress (rtk_build_input.progress), shared by its threads:
+ * the builder's own, on its stack (build_progress_init). */
+typedef struct build_progress {
+    int (*fn)(void *user, double done);
+    void *user;
+    atomic_int stopped;       /* the callback said to stop */
+    atomic_ullong work_done;  /* of work_total units (a builder's choice) */
+    uint64_t work_total;
+} build_progress;
+
 typedef struct build {
     const rtk_build_input *in;
+    build_progress *progress; /* NULL: no callback */
     const rtk_task_system *tasks; /* NULL: everything on this thread */
     primref *refs;
     int width;        /* 4 or 8 children per node */
@@ -65,6 +77,45 @@ typedef struct build {
     size_t spare_mapped;
     rtk_build_output *out;
 } build;
+
+/* The build's progress through p (on the caller's stack, living as long
+ * as the build), when in has a callback; work_total units of work. */
+void build_progress_init(build *bd, build_progress *p, uint64_t work_total);
+
+/* Reports that the build is `done` through (0 to 1) at a point where it
+ * can stop; 1 when it must: the callback said so, now or before.  Any
+ * thread.  Without a callback, 0. */
+static inline int build_report(const build *bd, double done)
+{
+    build_progress *p = bd->progress;
+    if (!p)
+        return 0;
+    if (atomic_load_explicit(&p->stopped, memory_order_relaxed))
+        return 1;
+    if (!p->fn(p->user, done < 0.0 ? 0.0 : done > 1.0 ? 1.0 : done)) {
+        atomic_store(&p->stopped, 1);
+        return 1;
+    }
+    return 0;
+}
+
+/* build_report of the share between from and to that units more of the
+ * work_total units make. */
+static inline int build_report_work(const build *bd, uint64_t units, double from, double to)
+{
+    build_progress *p = bd->progress;
+    if (!p)
+        return 0;
+    const uint64_t done = atomic_fetch_add_explicit(&p->work_done, units, memory_order_relaxed) + units;
+    const double share = p->work_total ? (double)done / (double)p->work_total : 1.0;
+    return build_report(bd, from + (to - from) * (share < 1.0 ? share : 1.0));
+}
+
+/* Whether the build has been told to stop (no call). */
+static inline int build_stopped(const build *bd)
+{
+    return bd->progress && atomic_load_explicit(&bd->progress->stopped, memory_order_relaxed);
+}
 
 /* Runs fn(data, i) for i in [0, count) on the build's threads. */
 static inline void run_parallel(const build *bd, uint32_t count, rtk_task_fn fn, void *data)

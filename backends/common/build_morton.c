@@ -564,6 +564,8 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     if (rc)
         return rc;
     m.total = total;
+    build_progress progress;
+    build_progress_init(&m.bd, &progress, total);
     m.chunks = (uint32_t)((total + RTK_MORTON_CHUNK - 1) / RTK_MORTON_CHUNK);
     const size_t nc = m.chunks ? m.chunks : 1;
     const size_t item_bytes = (total ? total : 1) * sizeof *m.items, rec_bytes = (total ? total : 1) * 4 * sizeof(float);
@@ -627,7 +629,11 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
         for (uint32_t x = 0; x < 1u << RTK_MORTON_BITS; x++)
             m.spread[x] = spread3(x);
     }
+    if (build_report(&m.bd, 0.1))
+        goto cancelled;
     run_parallel(&m.bd, m.chunks, code_chunk, &m);
+    if (build_report(&m.bd, 0.3))
+        goto cancelled;
     /* the records are read: their memory (already mapped in) is the sort's other array */
     m.other = (uint64_t *)m.rec;
 
@@ -635,6 +641,8 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     m.sort_chunks = (uint32_t)(n / RTK_MORTON_CHUNK);
     m.sort_chunks = m.sort_chunks < 1 ? 1 : m.sort_chunks > RTK_SORT_CHUNKS_MAX ? RTK_SORT_CHUNKS_MAX : m.sort_chunks;
     radix_sort(&m);
+    if (build_report(&m.bd, 0.5))
+        goto cancelled;
 
     /* 3. The top nodes, then each subtree's size. */
     uint32_t root_local = RTK_BVH4_EMPTY;
@@ -652,6 +660,8 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
         order[i] = t.subtrees[i].end - t.subtrees[i].begin;
     build_largest_first(order, t.subtree_count);
     build_run_ordered(&m.bd, order, t.subtree_count, count_subtree, &t);
+    if (build_report(&m.bd, 0.7))
+        goto cancelled;
 
     /* Places: the top nodes, then the subtrees in the order they were found. */
     uint64_t nodes = t.node_count, blocks = 0;
@@ -686,6 +696,11 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     out->prims_skipped = skipped;
     out->prims_degenerate = degenerate;
     rc = RTK_OK;
+    if (0) {
+    cancelled:
+        rc = RTK_ERROR_CANCELLED;
+        build_set_message(out, "cancelled by the progress callback");
+    }
 done:
     free(order);
     free(t.nodes);

@@ -165,6 +165,19 @@ static lbox convert_subtree(mb *m, uint32_t ref)
     return all;
 }
 
+/* A segment's build reporting into the motion build's progress: segment
+ * s of n covers [s / n, (s + 1) / n). */
+typedef struct mb_progress {
+    const rtk_build_input *in;
+    uint32_t segment, segments;
+} mb_progress;
+
+static int mb_report(void *user, double done)
+{
+    const mb_progress *p = user;
+    return p->in->progress(p->in->progress_user, ((double)p->segment + done) / (double)p->segments);
+}
+
 /* Cache-line aligned memory (aligned_alloc wants a multiple of the
  * alignment: 208-byte nodes and 80-byte blocks are not). */
 static void *alloc64(size_t size)
@@ -280,6 +293,15 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     topo_in.struct_size = sizeof topo_in;
     topo_in.geometries = geoms;
     topo_in.layout = RTK_LAYOUT_BVH4_TRIANGLE4;
+    topo_in.recycle = NULL;
+    /* each segment's build reports its share of the whole */
+    mb_progress prog = {.in = in, .segments = segments};
+    if (in->struct_size >= offsetof(rtk_build_input, progress_user) + sizeof in->progress_user && in->progress) {
+        topo_in.progress = mb_report;
+        topo_in.progress_user = &prog;
+    } else {
+        topo_in.progress = NULL;
+    }
     topo_in.time_steps = 0;
     topo_in.time_vertices = NULL;
     m.bd = (build){.in = in, .tasks = in->tasks && in->threads > 1 && in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks ? in->tasks : NULL};
@@ -289,6 +311,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     uint32_t depth = 0, threads = 1;
     double sah = 0.0;
     for (uint32_t s = 0; s < segments && !rc; s++) {
+        prog.segment = s;
         middle_vertices(&m, s, mid, (const uint8_t *const *)bad);
         rtk_build_output topo_out = {.struct_size = sizeof topo_out};
         rc = in->quality == RTK_BUILD_QUALITY_LOW ? RTK_SYM(rtk_build_morton)(&topo_in, &topo_out)

@@ -1702,10 +1702,17 @@ static void top_split(top *t, const build *bd, scratch *s, tnode *n)
 static void top_task(build_queue *q, uint64_t key, void *item, uint32_t worker)
 {
     top *t = q->data;
-    if (key & 1)
+    /* once the build is told to stop, the tasks left do nothing: a top
+     * node stays unsplit, a subtree unbuilt, and the build frees them */
+    if (build_stopped(&t->serial))
+        return;
+    if (key & 1) {
         top_split(t, &t->serial, &t->scratch[worker], item);
-    else
-        build_subtree(item, t->arenas ? &t->arenas[worker] : NULL);
+    } else {
+        part *p = item;
+        build_subtree(p, t->arenas ? &t->arenas[worker] : NULL);
+        build_report_work(&t->serial, p->r.end - p->r.begin, 0.1, 0.9); /* (a subtree's refs: its share) */
+    }
 }
 
 /* Subtree p (built) as the next of t's subtrees; frees p. */
@@ -2058,6 +2065,8 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     int rc = build_begin(&bd, in, out, &total);
     if (rc)
         return rc;
+    build_progress progress;
+    build_progress_init(&bd, &progress, total);
     /* Room for the references spatial splits add, while every leaf block
      * (at least one reference each) stays addressable. */
     uint64_t room = spatial ? total / RTK_SPATIAL_ROOM_DIV : 0;
@@ -2101,6 +2110,11 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
         range_merge(&root, &g.bounds[k]);
     }
     root.end = n;
+    if (build_report(&bd, 0.1)) {
+        rc = RTK_ERROR_CANCELLED;
+        build_set_message(out, "cancelled by the progress callback");
+        goto done;
+    }
     /* the room, from the triangles kept */
     root.ext = n + (uint32_t)(room * n / (total ? total : 1));
     bd.spatial_overlap = RTK_SPATIAL_ALPHA * box_half_area(&root.geom);
@@ -2115,6 +2129,11 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     t.serial.tasks = NULL;
     if (n)
         root_local = top_build(&t, &bd, &root);
+    if (build_stopped(&bd)) {
+        rc = RTK_ERROR_CANCELLED;
+        build_set_message(out, "cancelled by the progress callback");
+        goto done;
+    }
     if (t.nodes.oom) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the BVH");
@@ -2135,8 +2154,18 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
         depth = p->depth > depth ? p->depth : depth;
         oom |= p->oom;
     }
-    struct rtk_accel *accel = oom ? NULL : build_accel_alloc(&bd, nodes, blocks);
+    /* (the last point where the build may stop, or fail for memory, with
+     * nothing written into a recycled tree: roots is allocated first) */
+    uint32_t *roots = oom ? NULL : malloc((t.subtree_count ? t.subtree_count : 1) * sizeof *roots);
+    if (roots && build_report(&bd, 0.95)) {
+        free(roots);
+        rc = RTK_ERROR_CANCELLED;
+        build_set_message(out, "cancelled by the progress callback");
+        goto done;
+    }
+    struct rtk_accel *accel = roots ? build_accel_alloc(&bd, nodes, blocks) : NULL;
     if (!accel) {
+        free(roots);
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the BVH");
         goto done;
@@ -2146,13 +2175,6 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     run_parallel(&bd, t.subtree_count, place_subtree_nodes, t.subtrees);
     arenas_free(&t);
     run_parallel(&bd, t.subtree_count, place_and_release, t.subtrees);
-    uint32_t *roots = malloc((t.subtree_count ? t.subtree_count : 1) * sizeof *roots);
-    if (!roots) {
-        RTK_SYM(rtk_bvh4_release)(accel);
-        rc = RTK_ERROR_OUT_OF_MEMORY;
-        build_set_message(out, "out of memory for the BVH");
-        goto done;
-    }
     for (uint32_t i = 0; i < t.subtree_count; i++)
         roots[i] = subtree_root(&t.subtrees[i]);
     place_nodes(&t.nodes, roots, 1);

@@ -68,7 +68,9 @@ RTK_API const char *rtk_version_string(void);
     X(RTK_ERROR_INVALID_CONFIG, 5, "invalid configuration string")                  \
     X(RTK_ERROR_NO_BACKEND, 6, "no usable backend")                                 \
     X(RTK_ERROR_UNSUPPORTED_CPU, 7, "the CPU lacks a required instruction set")     \
-    X(RTK_ERROR_INVALID_GEOMETRY, 8, "invalid geometry")
+    X(RTK_ERROR_INVALID_GEOMETRY, 8, "invalid geometry")                            \
+    X(RTK_ERROR_CANCELLED, 9, "cancelled by the progress callback")                 \
+    X(RTK_ERROR_MEMORY_REFUSED, 10, "memory refused by the memory monitor")
 
 typedef enum rtk_error {
 #define RTK_X_(name, value, text) name = value,
@@ -164,7 +166,18 @@ RTK_API rtk_error rtk_device_set_error_callback(rtk_device device, rtk_error_cal
  * - A scene must not be committed, have geometry attached or detached, or
  *   have its flags, quality or user data set while any other call uses it
  *   (queries included); different scenes may be committed from different
- *   threads at once (their builds share the device's threads).
+ *   threads at once (their builds share the device's threads).  Where an
+ *   application does it anyway, rtk tells rather than corrupting the
+ *   scene: while a commit runs, a second rtk_scene_commit of the scene
+ *   from another thread, an attach, a detach, a flag or quality change,
+ *   rtk_scene_get_info and every query of the scene fail with
+ *   RTK_ERROR_INVALID_OPERATION ("the scene is being committed by
+ *   another thread") and leave the running commit unharmed.  A query
+ *   that was already running when another thread began the commit is not
+ *   seen (rtk would have to count the queries in flight, an atomic
+ *   operation on the scene per query): that stays the application's bug.
+ *   Threads that want to share one scene's build call
+ *   rtk_scene_join_commit instead (below).
  * - A geometry must not be changed (buffers, masks, filters, callbacks,
  *   user data, commit) while a scene that holds it is being committed.
  * - Retain and release may be called from any thread; the last release
@@ -331,6 +344,32 @@ RTK_API rtk_geometry rtk_scene_get_geometry(rtk_scene scene, uint32_t geom_id);
  * committed; a failed check of the geometry (an index out of range)
  * leaves the previous tree in place. */
 RTK_API rtk_error rtk_scene_commit(rtk_scene scene);
+
+/* Commits the scene with the help of every thread that calls this for it
+ * meanwhile (Embree's rtcJoinCommitScene): the first caller starts the
+ * commit, whose builds run their parallel work on the threads that have
+ * joined (not on the device's pool or task system), and every caller
+ * returns when the commit is done, with its result.  A thread arriving
+ * after the commit has ended starts a new one.  RTK_ERROR_INVALID_OPERATION
+ * while an rtk_scene_commit of the scene runs.  (Added after rtk 0.2.0.) */
+RTK_API rtk_error rtk_scene_join_commit(rtk_scene scene);
+
+/* ---- build progress (added after rtk 0.2.0) ----
+ * A progress callback sees a scene's commits as they go, and may cancel
+ * one (Embree's rtcSetSceneProgressMonitorFunction): progress(user, done)
+ * is called with the share of the commit done, from 0 (before anything
+ * is built) towards 1, from the threads the build runs on, several at
+ * once, at points where the build can still stop; returning 0 cancels
+ * the commit, which stops there, frees what it made and fails with
+ * RTK_ERROR_CANCELLED, leaving the scene's previous tree as it was (a
+ * scene with a progress callback builds its new tree in fresh memory,
+ * never in its old tree's, for that).  The one exception: a dynamic
+ * scene whose commit had already refitted a geometry's tree (refits work
+ * in place) is left without a tree, as after a failed build.  A refit
+ * reports once, before it starts.  NULL removes the callback.  The
+ * callback must not call rtk on the scene. */
+typedef int (*rtk_progress_fn)(void *user, double done);
+RTK_API rtk_error rtk_scene_set_progress_monitor(rtk_scene scene, rtk_progress_fn progress, void *user);
 
 typedef struct rtk_scene_info {
     size_t struct_size;          /* set by the caller to sizeof(rtk_scene_info) */

@@ -185,6 +185,15 @@ typedef struct rtk_build_input {
      * quality rebuild of dragon.ply on 2 threads).  It reports that it did
      * in rtk_build_output.recycled. */
     rtk_accel *recycle;
+    /* Added after rtk 0.2.0 (interface version 2, read only when struct_size
+     * covers it): NULL, or the commit's progress.  The builder calls
+     * progress(progress_user, done) with the share of its work done (0 to
+     * 1), from any of its threads and several at once, at points where it
+     * can still stop without having written into `recycle`; when a call
+     * returns 0 the builder stops, frees what it made and returns
+     * RTK_ERROR_CANCELLED. */
+    int (*progress)(void *user, double done);
+    void *progress_user;
 } rtk_build_input;
 
 /* What a triangle geometry asks of the kernels beyond its triangles
