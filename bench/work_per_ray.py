@@ -24,7 +24,7 @@ counts are averaged in.  Not a speed benchmark (rtktool bench measures speed bes
 this shows whether the two libraries do the same work per ray.
 
 usage: bench/work_per_ray.py [--rtktool build/bin/rtktool] [--size 256x192]
-                             [--sets primary,diffuse,shadow] MESH
+                             [--sets primary,diffuse,shadow,incoherent,sun] MESH
 """
 import argparse
 import collections
@@ -52,10 +52,10 @@ def run_callgrind(rtktool, mesh, ray_set, size, out, log):
 def ray_counts(log):
     """The bench's ray count per set, from its output."""
     text = open(log).read()
-    m = re.search(r"trace: (\d+) primary rays .*?, (\d+) diffuse, (\d+) shadow", text)
+    m = re.search(r"trace: (\d+) primary rays .*?, (\d+) diffuse, (\d+) shadow, (\d+) incoherent, (\d+) sun", text)
     if not m:
         sys.exit("no ray counts in " + log)
-    return {"primary": int(m.group(1)), "diffuse": int(m.group(2)), "shadow": int(m.group(3))}
+    return dict(zip(("primary", "diffuse", "shadow", "incoherent", "sun"), (int(g) for g in m.groups())))
 
 
 def parse(path):
