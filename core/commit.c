@@ -139,15 +139,34 @@ static rtk_error progress_next(rtk_scene s, uint64_t prims, const char *fn)
     return RTK_OK;
 }
 
-/* The builders' progress for the build about to start (in), when the
- * scene has a callback: then it builds in fresh memory (no recycle). */
-static void progress_input(rtk_scene s, rtk_build_input *in)
+/* What the build about to start (in) is handed beside its geometry: the
+ * device's memory accounting (with a memory monitor) and the commit's
+ * progress (with a progress callback); with either it builds in fresh
+ * memory (no recycle), so that a refusal or a cancel keeps the old tree. */
+static void commit_input(rtk_scene s, rtk_build_input *in)
 {
+    in->memory = rtk_device_memory(s->device);
+    if (in->memory)
+        in->recycle = NULL;
     if (!s->commit_progress)
         return;
     in->progress = commit_progress_report;
     in->progress_user = s->commit_progress;
     in->recycle = NULL;
+}
+
+static const char *refused_note(rtk_error e)
+{
+    return e == RTK_ERROR_MEMORY_REFUSED ? " (memory refused by the device's memory monitor)" : "";
+}
+
+/* A backend's failure (rc) as the error to report: out of memory after the
+ * device's memory monitor refused some (since `refusals`) is the refusal. */
+static rtk_error build_error(rtk_scene s, int rc, unsigned refusals)
+{
+    if (rc == RTK_ERROR_OUT_OF_MEMORY && atomic_load(&s->device->refusals) != refusals)
+        return RTK_ERROR_MEMORY_REFUSED;
+    return as_error(rc);
 }
 
 static uint64_t prims_of(const rtk_build_geometry *geoms, size_t n)
@@ -311,7 +330,10 @@ static int refit_tree(rtk_scene s, accel_ref *ref, int own_refs, const rtk_build
         return REFIT_DONE;
     }
     rtk_task_system task_copy;
-    const rtk_build_input in = build_input(s->quality, geoms, n, ref->layout->id, commit_tasks(s, &task_copy));
+    rtk_build_input in = build_input(s->quality, geoms, n, ref->layout->id, commit_tasks(s, &task_copy));
+    commit_input(s, &in);
+    in.progress = NULL; /* (a refit reports once, before it starts: it works in place) */
+    const unsigned refusals = atomic_load(&dev->refusals);
     rtk_build_output out = *stats;
     out.struct_size = sizeof out;
     out.message[0] = '\0';
@@ -324,8 +346,9 @@ static int refit_tree(rtk_scene s, accel_ref *ref, int own_refs, const rtk_build
             rtk_log(dev, 1, "scene: no refit (%s): building afresh", out.message);
             return REFIT_DROP;
         }
-        *err = rtk_fail(dev, as_error(rc),
-                        "%s: refit failed: %s", fn, out.message[0] ? out.message : "no reason given");
+        const rtk_error e = build_error(s, rc, refusals);
+        *err = rtk_fail(dev, e, "%s: refit failed: %s%s", fn, out.message[0] ? out.message : "no reason given",
+                        refused_note(e));
         return REFIT_DONE;
     }
     unpin_buffers(ref->pinned, ref->pinned_count);
@@ -498,7 +521,8 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     rtk_task_system task_copy;
     rtk_build_input in = build_input(quality, in_geoms, n, layout->id, tree ? NULL : commit_tasks(s, &task_copy));
     in.recycle = tree ? NULL : recycle;
-    progress_input(s, &in);
+    commit_input(s, &in);
+    const unsigned refusals = atomic_load(&dev->refusals);
     /* masks, filters and quads: passed only when some geometry has one, so
      * a scene without any builds a tree whose kernels test nothing more */
     rtk_geometry_attrs *attrs = NULL;
@@ -572,10 +596,11 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     *wrote_old = out.recycled != 0;
     if (rc != 0 && out.recycled)
         rtk_log(dev, 1, "scene: the failed build took the memory of the scene's previous tree; the scene has none now");
-    if (rc != 0)
-        return rtk_fail(dev, as_error(rc),
-                        "%s: %s failed: %s", fn, tree ? "import" : "build",
-                        out.message[0] ? out.message : "no reason given");
+    if (rc != 0) {
+        const rtk_error e = build_error(s, rc, refusals);
+        return rtk_fail(dev, e, "%s: %s failed: %s%s", fn, tree ? "import" : "build",
+                        out.message[0] ? out.message : "no reason given", refused_note(e));
+    }
 
     /* (the application keeps its shared buffers alive itself) */
     blob **pinned;
@@ -755,6 +780,9 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     rtk_build_input in = build_input(s->quality, NULL, 0, layout->id, NULL);
     in.object_count = k;
     in.objects = objs;
+    commit_input(s, &in);
+    in.progress = NULL; /* (the top level is one step, reported here) */
+    const unsigned refusals = atomic_load(&dev->refusals);
     rtk_build_output out = {.struct_size = sizeof out};
     const double t0 = now_seconds();
     const rtk_error cancelled = progress_next(s, 0, fn); /* (the top level's one step) */
@@ -770,8 +798,9 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         free(prims);
         if (cancelled)
             return cancelled;
-        return rc ? rtk_fail(dev, as_error(rc),
-                             "%s: the top level's build failed: %s", fn, out.message[0] ? out.message : "no reason given")
+        return rc ? rtk_fail(dev, build_error(s, rc, refusals), "%s: the top level's build failed: %s%s", fn,
+                             out.message[0] ? out.message : "no reason given",
+                             refused_note(build_error(s, rc, refusals)))
                   : rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
     }
     top->children = children;

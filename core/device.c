@@ -218,6 +218,39 @@ const rtk_task_system *rtk_device_tasks(rtk_device d, rtk_task_system *copy)
     return ts;
 }
 
+/* The backends' and buffers' accounting (rtk_memory) of a device: its
+ * monitor sees the bytes; a refusal is counted. */
+static int device_account(void *user, int64_t bytes)
+{
+    rtk_device d = user;
+    const rtk_memory_monitor_fn fn = d->monitor;
+    if (!fn)
+        return 1;
+    if (bytes < 0) {
+        fn(d->monitor_user, bytes, 1);
+        return 1;
+    }
+    if (fn(d->monitor_user, bytes, 0))
+        return 1;
+    atomic_fetch_add(&d->refusals, 1);
+    return 0;
+}
+
+const rtk_memory *rtk_device_memory(rtk_device d)
+{
+    return d->monitor ? &d->memory : NULL;
+}
+
+rtk_error rtk_device_set_memory_monitor(rtk_device device, rtk_memory_monitor_fn monitor, void *user)
+{
+    if (!device)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "rtk_device_set_memory_monitor: device is NULL");
+    device->memory = (rtk_memory){.account = device_account, .user = device};
+    device->monitor_user = monitor ? user : NULL;
+    device->monitor = monitor;
+    return RTK_OK;
+}
+
 rtk_error rtk_device_set_task_system(rtk_device device, const rtk_task_system *tasks)
 {
     if (!device)

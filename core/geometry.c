@@ -153,11 +153,22 @@ static rtk_error set_new_buffer(rtk_geometry g, rtk_buffer_type type, unsigned s
     if (err)
         return err;
     const size_t bytes = (count ? count : 1) * byte_stride; /* no overflow: checked above */
-    blob *mem = bytes > SIZE_MAX - sizeof(blob) ? NULL : calloc(1, sizeof(blob) + bytes);
-    if (!mem)
+    const rtk_memory *monitor = rtk_device_memory(g->device);
+    if (bytes > SIZE_MAX - sizeof(blob))
+        return rtk_fail(g->device, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory for %zu bytes", fn, bytes);
+    if (monitor && !monitor->account(monitor->user, (int64_t)(sizeof(blob) + bytes)))
+        return rtk_fail(g->device, RTK_ERROR_MEMORY_REFUSED, "%s: the memory monitor refused %zu bytes", fn,
+                        sizeof(blob) + bytes);
+    blob *mem = calloc(1, sizeof(blob) + bytes);
+    if (!mem) {
+        if (monitor)
+            monitor->account(monitor->user, -(int64_t)(sizeof(blob) + bytes));
         return rtk_fail(g->device, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory for %zu bytes", fn,
                         count * byte_stride);
+    }
     atomic_init(&mem->refs, 1);
+    mem->mem = monitor;
+    mem->bytes = monitor ? sizeof(blob) + bytes : 0;
     buffer *b = slot_buffer(g, type, slot);
     buffer_changed(g, type);
     buffer_free(b);

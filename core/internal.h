@@ -106,12 +106,25 @@ struct rtk_device_s {
     rtk_pool *pool;            /* created by the first build that uses more than one thread */
     rtk_task_system tasks;     /* the application's (user_tasks), else the pool's once it exists */
     int user_tasks;
+
+    /* rtk_device_set_memory_monitor's, NULL when none; memory is what the
+     * backends and the geometry buffers report through (user: the device),
+     * refusals counts the monitor's refusals (so a failed build can tell a
+     * refusal from the system's out of memory) */
+    rtk_memory_monitor_fn monitor;
+    void *monitor_user;
+    rtk_memory memory;
+    atomic_uint refusals;
 };
 
 /* The task system a build on this device runs on: the application's, or
  * the device's pool (started now if it is not yet), or NULL for the
  * calling thread only (threads=1, or the pool could not start: logged). */
 RTK_INTERNAL const rtk_task_system *rtk_device_tasks(rtk_device device, rtk_task_system *copy);
+
+/* The device's memory accounting for builds and buffers (rtk_memory), or
+ * NULL when it has no memory monitor. */
+RTK_INTERNAL const rtk_memory *rtk_device_memory(rtk_device device);
 
 /* Records an error on the device (NULL: on this thread), calls the callback,
  * and returns code, so callers can write `return rtk_fail(dev, code, ...)`. */

@@ -8,8 +8,13 @@
 
 void blob_release(blob *m)
 {
-    if (m && atomic_fetch_sub(&m->refs, 1) == 1)
-        free(m);
+    if (!m || atomic_fetch_sub(&m->refs, 1) != 1)
+        return;
+    const rtk_memory *mem = m->mem;
+    const size_t bytes = m->bytes;
+    free(m);
+    if (mem)
+        mem->account(mem->user, -(int64_t)bytes);
 }
 
 void unpin_buffers(blob **pinned, uint32_t count)

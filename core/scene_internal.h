@@ -14,6 +14,8 @@
  * in the meantime. */
 typedef struct blob {
     atomic_int refs;
+    const rtk_memory *mem; /* the device's memory monitor's accounting, or NULL */
+    size_t bytes;          /* reported to it */
     _Alignas(16) unsigned char data[];
 } blob;
 

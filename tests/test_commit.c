@@ -13,17 +13,23 @@
 
 #include "testlib.h"
 
-static test_mesh ball;
-static float *moved; /* the ball's vertices moved: the next commit's geometry */
+static test_mesh ball, big;
+static float *moved, *big_moved; /* the balls' vertices moved: the next commit's geometry */
 
 static int setup(void **state)
 {
     (void)state;
     ball = test_ball(test_sanitized() ? 60 : 120);
+    big = test_ball(190); /* 72,200 triangles: the SAH builder's stages 1 and 2, node arenas */
     moved = malloc(ball.nv * 3 * sizeof *moved);
+    big_moved = malloc(big.nv * 3 * sizeof *big_moved);
+    if (!moved || !big_moved)
+        return -1;
     for (size_t i = 0; i < ball.nv * 3; i++)
         moved[i] = ball.v[i] * 1.25f + (i % 3 == 0 ? 0.1f : 0.0f);
-    return moved ? 0 : -1;
+    for (size_t i = 0; i < big.nv * 3; i++)
+        big_moved[i] = big.v[i] * 1.25f + (i % 3 == 0 ? 0.1f : 0.0f);
+    return 0;
 }
 
 static int teardown(void **state)
@@ -32,6 +38,9 @@ static int teardown(void **state)
     free(ball.v);
     free(ball.idx);
     free(moved);
+    free(big.v);
+    free(big.idx);
+    free(big_moved);
     return 0;
 }
 
@@ -59,11 +68,13 @@ static void answers(rtk_scene s, rtk_rayhit *out)
         assert_int_equal(rtk_intersect1(s, &out[i]), RTK_OK);
 }
 
-/* The scene's geometry 0 on vertices v, committed (with the scene). */
+/* The scene's geometry 0 on vertices v (of `ball` or `big`, by which
+ * array), committed (with the scene). */
 static rtk_error recommit(rtk_scene s, const float *v)
 {
     rtk_geometry g = rtk_scene_get_geometry(s, 0);
-    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, ball.nv), RTK_OK);
+    const size_t nv = v == big.v || v == big_moved ? big.nv : ball.nv;
+    assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, nv), RTK_OK);
     assert_int_equal(rtk_geometry_commit(g), RTK_OK);
     return rtk_scene_commit(s);
 }
@@ -91,21 +102,38 @@ typedef struct variation {
     const char *name;
     rtk_build_quality quality;
     unsigned flags;
-    int motion, refit, threads;
+    int motion, refit, threads, big;
 } variation;
 
 static const variation variations[] = {
-    {"low", RTK_BUILD_QUALITY_LOW, 0, 0, 0, 2},       {"medium", RTK_BUILD_QUALITY_MEDIUM, 0, 0, 0, 2},
-    {"medium, 1 thread", RTK_BUILD_QUALITY_MEDIUM, 0, 0, 0, 1},
-    {"high", RTK_BUILD_QUALITY_HIGH, 0, 0, 0, 2},     {"compact", RTK_BUILD_QUALITY_MEDIUM, RTK_SCENE_FLAG_COMPACT, 0, 0, 2},
-    {"robust", RTK_BUILD_QUALITY_MEDIUM, RTK_SCENE_FLAG_ROBUST, 0, 0, 2},
-    {"dynamic", RTK_BUILD_QUALITY_MEDIUM, RTK_SCENE_FLAG_DYNAMIC, 0, 0, 2},
-    {"motion", RTK_BUILD_QUALITY_MEDIUM, 0, 1, 0, 2}, {"refit", RTK_BUILD_QUALITY_MEDIUM, 0, 0, 1, 2},
+    {.name = "low", .quality = RTK_BUILD_QUALITY_LOW, .threads = 2},
+    {.name = "medium", .quality = RTK_BUILD_QUALITY_MEDIUM, .threads = 2},
+    {.name = "medium, 1 thread", .quality = RTK_BUILD_QUALITY_MEDIUM, .threads = 1},
+    {.name = "high", .quality = RTK_BUILD_QUALITY_HIGH, .threads = 2},
+    {.name = "compact", .quality = RTK_BUILD_QUALITY_MEDIUM, .flags = RTK_SCENE_FLAG_COMPACT, .threads = 2},
+    {.name = "robust", .quality = RTK_BUILD_QUALITY_MEDIUM, .flags = RTK_SCENE_FLAG_ROBUST, .threads = 2},
+    {.name = "dynamic", .quality = RTK_BUILD_QUALITY_MEDIUM, .flags = RTK_SCENE_FLAG_DYNAMIC, .threads = 2},
+    {.name = "motion", .quality = RTK_BUILD_QUALITY_MEDIUM, .motion = 1, .threads = 2},
+    {.name = "refit", .quality = RTK_BUILD_QUALITY_MEDIUM, .refit = 1, .threads = 2},
+    {.name = "medium, 72K triangles", .quality = RTK_BUILD_QUALITY_MEDIUM, .threads = 2, .big = 1},
+    {.name = "high, 72K triangles", .quality = RTK_BUILD_QUALITY_HIGH, .threads = 2, .big = 1},
+    {.name = "low, 72K triangles", .quality = RTK_BUILD_QUALITY_LOW, .threads = 2, .big = 1},
 };
+
+/* The variation's mesh and its moved vertices. */
+static const test_mesh *v_mesh(const variation *v)
+{
+    return v->big ? &big : &ball;
+}
+static const float *v_moved(const variation *v)
+{
+    return v->big ? big_moved : moved;
+}
 
 static rtk_scene variation_scene(rtk_device dev, const variation *v)
 {
-    rtk_scene s = test_scene_uncommitted(dev, ball.v, ball.nv, ball.idx, ball.nt, v->flags);
+    const test_mesh *mesh = v_mesh(v);
+    rtk_scene s = test_scene_uncommitted(dev, mesh->v, mesh->nv, mesh->idx, mesh->nt, v->flags);
     assert_int_equal(rtk_scene_set_build_quality(s, v->quality), RTK_OK);
     rtk_geometry g = rtk_scene_get_geometry(s, 0);
     if (v->motion) {
@@ -136,18 +164,18 @@ static void test_progress_and_cancel_at_every_step(void **state)
         /* a full commit of the moved ball: its steps counted, its answers */
         counter full = {.cancel_at = -1};
         assert_int_equal(rtk_scene_set_progress_monitor(s, count_progress, &full), RTK_OK);
-        assert_int_equal(recommit(s, moved), RTK_OK);
+        assert_int_equal(recommit(s, v_moved(v)), RTK_OK);
         answers(s, after);
         assert_int_equal(full.bad_share, 0);
         if (full.calls < 1)
             fail_msg("%s: no progress reported", v->name);
         /* back to the ball, then each step cancelled in turn */
         assert_int_equal(rtk_scene_set_progress_monitor(s, NULL, NULL), RTK_OK);
-        assert_int_equal(recommit(s, ball.v), RTK_OK);
+        assert_int_equal(recommit(s, v_mesh(v)->v), RTK_OK);
         for (int k = 0; k < full.calls; k++) {
             counter c = {.cancel_at = k};
             assert_int_equal(rtk_scene_set_progress_monitor(s, count_progress, &c), RTK_OK);
-            const rtk_error e = recommit(s, moved);
+            const rtk_error e = recommit(s, v_moved(v));
             if (e != RTK_ERROR_CANCELLED)
                 fail_msg("%s: cancelled at step %d of %d: the commit returned %s", v->name, k, full.calls,
                          rtk_error_name(e));
@@ -158,20 +186,150 @@ static void test_progress_and_cancel_at_every_step(void **state)
                          full.calls);
             /* (the geometry is the moved ball now: put the ball back for the next round) */
             rtk_geometry g = rtk_scene_get_geometry(s, 0);
-            assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, ball.v, 0, 12, ball.nv),
+            assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v_mesh(v)->v, 0, 12,
+                                                            v_mesh(v)->nv),
                              RTK_OK);
             assert_int_equal(rtk_geometry_commit(g), RTK_OK);
         }
         /* and uncancelled, the moved ball's answers as the first time */
         counter go = {.cancel_at = -1};
         assert_int_equal(rtk_scene_set_progress_monitor(s, count_progress, &go), RTK_OK);
-        assert_int_equal(recommit(s, moved), RTK_OK);
+        assert_int_equal(recommit(s, v_moved(v)), RTK_OK);
         answers(s, now);
         assert_memory_equal(now, after, NRAYS * sizeof *now);
         print_message("%s: %d progress steps, each cancelled in turn\n", v->name, full.calls);
         rtk_scene_release(s);
         rtk_device_release(dev);
     }
+    free(before);
+    free(after);
+    free(now);
+}
+
+/* ---- the memory monitor ----
+ * It counts the bytes held (taken minus given back) and the allocations
+ * it sees, and refuses allocation number `refuse_at` (none when negative). */
+typedef struct monitor {
+    int64_t held;
+    int calls, refuse_at, bad;
+} monitor;
+
+static int count_memory(void *user, int64_t bytes, int post)
+{
+    monitor *m = user;
+    if (!bytes || (bytes > 0) == (post != 0))
+        __atomic_store_n(&m->bad, 1, __ATOMIC_RELAXED); /* before taking, after giving back */
+    if (bytes > 0 && __atomic_fetch_add(&m->calls, 1, __ATOMIC_RELAXED) == m->refuse_at)
+        return 0;
+    __atomic_add_fetch(&m->held, bytes, __ATOMIC_RELAXED);
+    return 1;
+}
+
+static void test_memory_monitor_refuses_each_allocation(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    rtk_rayhit *before = malloc(NRAYS * sizeof *before), *after = malloc(NRAYS * sizeof *after),
+               *now = malloc(NRAYS * sizeof *now);
+    assert_true(before && after && now);
+    for (size_t vi = 0; vi < sizeof variations / sizeof *variations; vi++) {
+        const variation *v = &variations[vi];
+        rtk_device dev = test_device_threads(names[nb - 1], v->threads);
+        monitor m = {.refuse_at = -1};
+        assert_int_equal(rtk_device_set_memory_monitor(dev, count_memory, &m), RTK_OK);
+        rtk_scene s = variation_scene(dev, v);
+        assert_true(m.held > 0);
+        answers(s, before);
+        const int64_t held_before = m.held;
+        /* a whole commit of the moved ball: its allocations counted */
+        m.calls = 0;
+        assert_int_equal(recommit(s, v_moved(v)), RTK_OK);
+        const int total = m.calls;
+        answers(s, after);
+        assert_int_equal(recommit(s, v_mesh(v)->v), RTK_OK);
+        int refused = 0;
+        for (int n = 0; n < total; n++) {
+            m.calls = 0;
+            m.refuse_at = n;
+            const rtk_error e = recommit(s, v_moved(v));
+            m.refuse_at = -1;
+            answers(s, now);
+            if (e == RTK_ERROR_MEMORY_REFUSED) {
+                /* the previous tree kept, to the bit */
+                refused++;
+                assert_non_null(strstr(rtk_device_get_error_message(dev), "refused"));
+                if (memcmp(now, before, NRAYS * sizeof *now))
+                    fail_msg("%s: allocation %d of %d refused: the previous tree is not what it was", v->name, n,
+                             total);
+            } else if (e == RTK_OK) {
+                /* a builder that tried again smaller, or went without */
+                assert_memory_equal(now, after, NRAYS * sizeof *now);
+            } else {
+                fail_msg("%s: allocation %d of %d refused: the commit returned %s", v->name, n, total,
+                         rtk_error_name(e));
+            }
+            /* back to the ball (whatever happened) */
+            assert_int_equal(recommit(s, v_mesh(v)->v), RTK_OK);
+            answers(s, now);
+            assert_memory_equal(now, before, NRAYS * sizeof *now);
+            if (m.held != held_before)
+                fail_msg("%s: after allocation %d of %d refused and the ball committed again, the monitor sees %lld "
+                         "bytes held, %lld before",
+                         v->name, n, total, (long long)m.held, (long long)held_before);
+        }
+        assert_true(refused > 0);
+        assert_int_equal(m.bad, 0);
+        print_message("%s: %d allocations seen by the monitor, each refused in turn (%d refusals failed the commit)\n",
+                      v->name, total, refused);
+        rtk_scene_release(s);
+        assert_true(m.held == 0 || v->flags & RTK_SCENE_FLAG_COMPACT); /* (test_scene's shared buffers: none held) */
+        rtk_device_release(dev);
+    }
+    /* a top level over instances: each of its allocations refused in turn
+     * (the commit fails, or goes on without what was refused), and all the
+     * memory given back with the scenes */
+    {
+        rtk_device dev = test_device_threads(names[nb - 1], 2);
+        monitor m = {.refuse_at = -1};
+        assert_int_equal(rtk_device_set_memory_monitor(dev, count_memory, &m), RTK_OK);
+        rtk_scene inner = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
+        const int64_t inner_held = m.held;
+        rtk_scene outer = test_instancing_scene(dev, inner);
+        m.calls = 0;
+        assert_int_equal(rtk_scene_commit(outer), RTK_OK);
+        const int total = m.calls;
+        assert_true(total >= 1);
+        for (int n = 0; n < total; n++) {
+            rtk_scene again = test_instancing_scene(dev, inner);
+            m.calls = 0;
+            m.refuse_at = n;
+            const rtk_error e = rtk_scene_commit(again);
+            m.refuse_at = -1;
+            assert_true(e == RTK_ERROR_MEMORY_REFUSED || e == RTK_OK);
+            rtk_scene_release(again);
+        }
+        rtk_scene_release(outer);
+        assert_int_equal(m.held, inner_held);
+        rtk_scene_release(inner);
+        assert_int_equal(m.held, 0);
+        assert_int_equal(m.bad, 0);
+        rtk_device_release(dev);
+    }
+    /* a geometry buffer rtk would allocate, refused */
+    rtk_device dev = test_device_threads("scalar", 1);
+    monitor m = {.refuse_at = 0};
+    assert_int_equal(rtk_device_set_memory_monitor(dev, count_memory, &m), RTK_OK);
+    rtk_geometry g;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+    void *buf = (void *)1;
+    assert_int_equal(rtk_geometry_set_new_buffer(g, RTK_BUFFER_TYPE_VERTEX, 12, 1000, &buf), RTK_ERROR_MEMORY_REFUSED);
+    assert_null(buf);
+    assert_int_equal(rtk_geometry_set_new_buffer(g, RTK_BUFFER_TYPE_VERTEX, 12, 1000, &buf), RTK_OK);
+    assert_true(m.held >= 12000);
+    rtk_geometry_release(g);
+    assert_int_equal(m.held, 0);
+    rtk_device_release(dev);
     free(before);
     free(after);
     free(now);
@@ -348,6 +506,7 @@ int main(int argc, char **argv)
     const int quick = argc > 1 && !strcmp(argv[1], "quick"); /* the threads' tests, for ThreadSanitizer */
     const struct CMUnitTest all[] = {
         cmocka_unit_test(test_progress_and_cancel_at_every_step),
+        cmocka_unit_test(test_memory_monitor_refuses_each_allocation),
         cmocka_unit_test(test_meddling_while_committed),
         cmocka_unit_test(test_join_commit),
     };

@@ -82,10 +82,20 @@ static size_t page_round(size_t size)
     return (size + 4095) & ~(size_t)4095;
 }
 
-void *build_reserve(size_t size)
+static void *reserve(size_t size)
 {
     void *p = mmap(NULL, page_round(size), PROT_READ | PROT_WRITE, MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
     return p == MAP_FAILED ? NULL : p;
+}
+
+void *build_reserve(const rtk_memory *m, size_t size)
+{
+    if (!mem_take(m, page_round(size)))
+        return NULL;
+    void *p = reserve(size);
+    if (!p)
+        mem_give(m, page_round(size));
+    return p;
 }
 
 /* A reservation for what traversal reads (nodes, leaves) and for a
@@ -97,14 +107,18 @@ void *build_reserve(size_t size)
  * builder's references of San Miguel, 32 MB: 16 -> 7 ms on one thread).
  * The advice is only a hint (the kernel may not have huge pages); the memory
  * is the same either way. */
-void *build_reserve_huge(size_t size)
+void *build_reserve_huge(const rtk_memory *m, size_t size)
 {
     size = page_round(size);
     if (size < RTK_HUGE_PAGE)
-        return build_reserve(size);
-    char *p = build_reserve(size + RTK_HUGE_PAGE);
-    if (!p)
+        return build_reserve(m, size);
+    if (!mem_take(m, size))
         return NULL;
+    char *p = reserve(size + RTK_HUGE_PAGE);
+    if (!p) {
+        mem_give(m, size);
+        return NULL;
+    }
     const size_t head = (RTK_HUGE_PAGE - (uintptr_t)p % RTK_HUGE_PAGE) % RTK_HUGE_PAGE;
     if (head)
         munmap(p, head);
@@ -115,10 +129,12 @@ void *build_reserve_huge(size_t size)
     return p + head;
 }
 
-void build_unreserve(void *p, size_t size)
+void build_unreserve(const rtk_memory *m, void *p, size_t size)
 {
-    if (p)
-        munmap(p, page_round(size));
+    if (!p)
+        return;
+    munmap(p, page_round(size));
+    mem_give(m, page_round(size));
 }
 
 void build_release_pages(void *p, size_t size)
@@ -161,6 +177,7 @@ int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *o
     if (in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks && in->tasks &&
         in->tasks->threads > 1)
         bd->tasks = in->tasks;
+    bd->mem = build_input_memory(in);
     bd->out = out;
     rtk_accel *r = in->struct_size >= offsetof(rtk_build_input, recycle) + sizeof in->recycle ? in->recycle : NULL;
     if (r && r->layout == in->layout && !r->segments && !r->objects)
@@ -380,10 +397,10 @@ void *build_recycle_take(build *bd, int leaves, size_t size, size_t *mapped)
 
 /* Gives back the mapping of a tree's array p (tree_array's, `offset` bytes
  * into its mapping of `mapped` bytes; NULL: nothing). */
-static void tree_array_unreserve(void *p, size_t mapped, size_t offset)
+static void tree_array_unreserve(const rtk_memory *m, void *p, size_t mapped, size_t offset)
 {
     if (p)
-        build_unreserve((char *)p - offset, mapped);
+        build_unreserve(m, (char *)p - offset, mapped);
 }
 
 /* An array of `size` bytes for the new tree, `offset` bytes into its
@@ -393,15 +410,15 @@ static void tree_array_unreserve(void *p, size_t mapped, size_t offset)
  * mapping stays for the next rebuild, unless it is more than twice the
  * array (a tree that shrank a lot, or a builder's reservation for the
  * most leaves it could need), which is cut where the array ends. */
-static void *tree_array(void *p, size_t *mapped, size_t size, size_t offset)
+static void *tree_array(const rtk_memory *m, void *p, size_t *mapped, size_t size, size_t offset)
 {
     size += offset;
     if (p && *mapped < size) {
-        tree_array_unreserve(p, *mapped, offset);
+        tree_array_unreserve(m, p, *mapped, offset);
         p = NULL;
     }
     if (!p) {
-        char *fresh = build_reserve_huge(size);
+        char *fresh = build_reserve_huge(m, size);
         *mapped = size;
         return fresh ? fresh + offset : NULL;
     }
@@ -409,7 +426,7 @@ static void *tree_array(void *p, size_t *mapped, size_t size, size_t offset)
         /* to the array's last page, as a fresh one would end: the mapping
          * then ends inside the last huge page, which stays in small ones */
         const size_t cut = page_round(size);
-        build_unreserve((char *)p - offset + cut, *mapped - cut);
+        build_unreserve(m, (char *)p - offset + cut, *mapped - cut);
         *mapped = cut;
         return p;
     }
@@ -439,30 +456,32 @@ struct rtk_accel *build_accel_alloc(build *bd, uint64_t nodes, uint64_t blocks)
     const rtk_build_input *in = bd->in;
     struct rtk_accel *accel = calloc(1, sizeof *accel);
     if (!accel) {
-        build_unreserve(bd->spare_leaves, bd->spare_mapped);
+        build_unreserve(bd->mem, bd->spare_leaves, bd->spare_mapped);
         bd->spare_leaves = NULL;
         return NULL;
     }
     accel->layout = in->layout;
+    if (bd->mem)
+        accel->memory = *bd->mem;
     /* the previous tree's arrays (build_recycle_take), else fresh ones */
     const size_t nodes_size = page_round((nodes ? nodes : 1) * bd->node_size);
     const size_t tris_size = page_round((blocks ? blocks : 1) * bd->leaf_size);
     void *old_nodes = build_recycle_take(bd, 0, nodes_size, &accel->nodes_mapped);
     accel->nodes_offset = node_offset(bd);
-    bd->nodes = tree_array(old_nodes, &accel->nodes_mapped, nodes_size, accel->nodes_offset);
+    bd->nodes = tree_array(bd->mem, old_nodes, &accel->nodes_mapped, nodes_size, accel->nodes_offset);
     void *old_leaves = bd->spare_leaves;
     accel->tris_mapped = bd->spare_mapped;
     bd->spare_leaves = NULL;
     if (!old_leaves)
         old_leaves = build_recycle_take(bd, 1, tris_size, &accel->tris_mapped);
-    bd->leaves = tree_array(old_leaves, &accel->tris_mapped, tris_size, 0);
+    bd->leaves = tree_array(bd->mem, old_leaves, &accel->tris_mapped, tris_size, 0);
     if (bd->indexed)
-        accel->geoms = malloc((in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms);
+        accel->geoms = mem_alloc(&accel->memory, (in->geometry_count ? in->geometry_count : 1) * sizeof *accel->geoms, 0);
     if (!bd->nodes || !bd->leaves || (bd->indexed && !accel->geoms) || !rtk_accel_copy_attrs(accel, in)) {
-        tree_array_unreserve(bd->nodes, accel->nodes_mapped, accel->nodes_offset);
-        tree_array_unreserve(bd->leaves, accel->tris_mapped, 0);
-        free(accel->geoms);
-        free(accel->attrs);
+        tree_array_unreserve(bd->mem, bd->nodes, accel->nodes_mapped, accel->nodes_offset);
+        tree_array_unreserve(bd->mem, bd->leaves, accel->tris_mapped, 0);
+        mem_free(&accel->memory, accel->geoms);
+        mem_free(&accel->memory, accel->attrs);
         free(accel);
         return NULL;
     }
@@ -632,9 +651,10 @@ void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
 {
     if (!accel)
         return;
-    tree_array_unreserve(accel->nodes, accel->nodes_mapped, accel->nodes_offset);
-    tree_array_unreserve(accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped, 0);
-    free(accel->geoms);
-    free(accel->attrs);
+    tree_array_unreserve(&accel->memory, accel->nodes, accel->nodes_mapped, accel->nodes_offset);
+    tree_array_unreserve(&accel->memory, accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped,
+                         0);
+    mem_free(&accel->memory, accel->geoms);
+    mem_free(&accel->memory, accel->attrs);
     free(accel);
 }

@@ -49,6 +49,7 @@ typedef struct build_progress {
 typedef struct build {
     const rtk_build_input *in;
     build_progress *progress; /* NULL: no callback */
+    const rtk_memory *mem;    /* the monitor's accounting (memory.h), or NULL */
     const rtk_task_system *tasks; /* NULL: everything on this thread */
     primref *refs;
     int width;        /* 4 or 8 children per node */
@@ -77,6 +78,12 @@ typedef struct build {
     size_t spare_mapped;
     rtk_build_output *out;
 } build;
+
+/* The input's memory accounting (rtk_build_input.memory), or NULL. */
+static inline const rtk_memory *build_input_memory(const rtk_build_input *in)
+{
+    return in->struct_size >= offsetof(rtk_build_input, memory) + sizeof in->memory ? in->memory : NULL;
+}
 
 /* The build's progress through p (on the caller's stack, living as long
  * as the build), when in has a callback; work_total units of work. */
@@ -412,14 +419,15 @@ static inline void build_child_slots(const build *bd, const box4 *box, const uin
         slot[order[k]] = k;
 }
 
-/* Scratch memory: an anonymous mapping, returned to the system when freed. */
-RTK_HIDDEN void *build_reserve(size_t size);
+/* Scratch memory: an anonymous mapping, returned to the system when freed,
+ * its size reported through m (memory.h; NULL: none). */
+RTK_HIDDEN void *build_reserve(const rtk_memory *m, size_t size);
 /* The same, on transparent huge pages where the kernel has them (large
  * arrays: one fault per 2 MiB, and fewer TLB misses).  A reservation of
  * RTK_HUGE_PAGE bytes or more starts on a multiple of RTK_HUGE_PAGE. */
 #define RTK_HUGE_PAGE ((size_t)2 << 20)
-RTK_HIDDEN void *build_reserve_huge(size_t size);
-RTK_HIDDEN void build_unreserve(void *p, size_t size);
+RTK_HIDDEN void *build_reserve_huge(const rtk_memory *m, size_t size);
+RTK_HIDDEN void build_unreserve(const rtk_memory *m, void *p, size_t size);
 /* Gives the pages wholly inside [p, p + size) of a reservation back to the
  * system (their contents are lost; the range stays reserved). */
 RTK_HIDDEN void build_release_pages(void *p, size_t size);

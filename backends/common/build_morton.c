@@ -578,13 +578,13 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     if (!m.rec) {
         const size_t most = (total ? total : 1) * m.bd.leaf_size;
         rec_mapped = most > rec_bytes ? most : rec_bytes;
-        m.rec = build_reserve_huge(rec_mapped);
+        m.rec = build_reserve_huge(m.bd.mem, rec_mapped);
         if (!m.rec) {
             rec_mapped = rec_bytes;
-            m.rec = build_reserve_huge(rec_bytes);
+            m.rec = build_reserve_huge(m.bd.mem, rec_bytes);
         }
     }
-    m.items = build_reserve_huge(item_bytes);
+    m.items = build_reserve_huge(m.bd.mem, item_bytes);
     uint64_t *geom_first = build_geom_first(in);
     m.geom_first = geom_first;
     m.kept = malloc(nc * sizeof *m.kept);
@@ -714,7 +714,7 @@ done:
     free(m.first);
     free(m.cent);
     free(m.hist);
-    build_unreserve(m.rec, rec_mapped);
-    build_unreserve(m.items, item_bytes);
+    build_unreserve(m.bd.mem, m.rec, rec_mapped);
+    build_unreserve(m.bd.mem, m.items, item_bytes);
     return rc;
 }

@@ -178,24 +178,20 @@ static int mb_report(void *user, double done)
     return p->in->progress(p->in->progress_user, ((double)p->segment + done) / (double)p->segments);
 }
 
-/* Cache-line aligned memory (aligned_alloc wants a multiple of the
- * alignment: 208-byte nodes and 80-byte blocks are not). */
-static void *alloc64(size_t size)
-{
-    return aligned_alloc(64, (size + 63) & ~(size_t)63);
-}
-
+/* The tree's arrays go through its memory accounting (memory.h), cache-line
+ * aligned. */
 static void release_segments(struct rtk_accel *accel)
 {
+    const rtk_memory *m = &accel->memory;
     for (uint32_t s = 0; accel->segments && s < accel->segment_count; s++) {
-        free(accel->segments[s].nodes);
-        free(accel->segments[s].trisi);
+        mem_free(m, accel->segments[s].nodes);
+        mem_free(m, accel->segments[s].trisi);
     }
-    free(accel->segments);
+    mem_free(m, accel->segments);
     for (uint32_t g = 0; accel->mb_geoms && g < accel->mb_geom_count; g++)
-        free(accel->mb_geoms[g].vertices);
-    free(accel->mb_geoms);
-    free(accel->attrs);
+        mem_free(m, accel->mb_geoms[g].vertices);
+    mem_free(m, accel->mb_geoms);
+    mem_free(m, accel->attrs);
 }
 
 void RTK_SYM(rtk_motion_release)(rtk_accel *accel)
@@ -250,8 +246,11 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     uint32_t *index_of = build_geometry_index(in, &m.max_id);
     m.index_of = index_of;
     if (accel) {
-        accel->segments = calloc(segments, sizeof *accel->segments);
-        accel->mb_geoms = calloc(in->geometry_count + 1, sizeof *accel->mb_geoms);
+        const rtk_memory *mem = build_input_memory(in);
+        if (mem)
+            accel->memory = *mem;
+        accel->segments = mem_alloc(&accel->memory, segments * sizeof *accel->segments, 1);
+        accel->mb_geoms = mem_alloc(&accel->memory, (in->geometry_count + 1) * sizeof *accel->mb_geoms, 1);
         accel->mb_geom_count = in->geometry_count;
     }
     m.out = accel;
@@ -267,7 +266,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         mid[g] = malloc((nv ? nv : 1) * 3 * sizeof **mid);
         bad[g] = calloc(nv ? nv : 1, 1);
         rtk_mb_geometry *c = &accel->mb_geoms[g];
-        c->vertices = malloc((3 * nv * m.steps + 1) * sizeof *c->vertices);
+        c->vertices = mem_alloc(&accel->memory, (3 * nv * m.steps + 1) * sizeof *c->vertices, 0);
         c->vertex_count = nv;
         c->steps = m.steps;
         c->geom_id = in->geometries[g].geom_id;
@@ -328,8 +327,8 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         seg->leaf_count = topo->leaf_count;
         seg->segment = s;
         seg->mb_geoms = accel->mb_geoms;
-        seg->nodes = alloc64((topo->node_count ? topo->node_count : 1) * sizeof(rtk_bvh4mb_node));
-        seg->trisi = alloc64((topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4i));
+        seg->nodes = mem_alloc(&accel->memory, (topo->node_count ? topo->node_count : 1) * sizeof(rtk_bvh4mb_node), 0);
+        seg->trisi = mem_alloc(&accel->memory, (topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4i), 0);
         const uint32_t chunks = (uint32_t)((topo->leaf_count + MB_BLOCK_CHUNK - 1) / MB_BLOCK_CHUNK);
         m.block_box = malloc((topo->leaf_count ? topo->leaf_count : 1) * sizeof *m.block_box);
         m.lanes = calloc(chunks ? chunks : 1, sizeof *m.lanes);

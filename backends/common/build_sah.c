@@ -1357,7 +1357,7 @@ static uint32_t part_node(part *p)
         if (n)
             memcpy(n, p->nodes, (size_t)p->node_cap * p->bd->node_size);
         if (p->nodes_mapped)
-            build_unreserve(p->nodes, p->nodes_mapped);
+            build_unreserve(p->bd->mem, p->nodes, p->nodes_mapped);
         p->nodes = n;
         p->nodes_mapped = 0;
         p->in_arena = 0;
@@ -1386,7 +1386,7 @@ static uint32_t part_leaf(part *p, uint32_t begin, uint32_t end)
 static void part_free_nodes(part *p)
 {
     if (p->nodes_mapped)
-        build_unreserve(p->nodes, p->nodes_mapped);
+        build_unreserve(p->bd->mem, p->nodes, p->nodes_mapped);
     else if (!p->in_arena)
         free(p->nodes);
     p->nodes = NULL;
@@ -1580,7 +1580,7 @@ static void build_subtree(part *p, arena *a)
     const size_t room = (size_t)bound * p->bd->node_size;
     if (a && (!a->base || a->bytes - a->used < room)) { /* a new chunk */
         const size_t bytes = room + RTK_ARENA_HEAD > RTK_ARENA_CHUNK ? room + RTK_ARENA_HEAD : RTK_ARENA_CHUNK;
-        char *chunk = build_reserve_huge(bytes);
+        char *chunk = build_reserve_huge(p->bd->mem, bytes);
         if (chunk) {
             *(arena_chunk *)chunk = (arena_chunk){a->base, a->bytes};
             *a = (arena){chunk, bytes, RTK_ARENA_HEAD};
@@ -1591,7 +1591,7 @@ static void build_subtree(part *p, arena *a)
         p->node_cap = bound;
         p->in_arena = 1;
     } else {
-        p->nodes = build_reserve(room);
+        p->nodes = build_reserve(p->bd->mem, room);
         if (p->nodes) {
             p->nodes_mapped = room;
             p->node_cap = bound;
@@ -1965,7 +1965,7 @@ static void arenas_free(top *t)
         arena *a = &t->arenas[w];
         while (a->base) {
             const arena_chunk c = *(const arena_chunk *)a->base;
-            build_unreserve(a->base, a->bytes);
+            build_unreserve(t->nodes.bd->mem, a->base, a->bytes);
             a->base = c.prev;
             a->bytes = c.bytes;
         }
@@ -2074,7 +2074,7 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
         room = RTK_LEAF_INDEX_LIMIT - 1 - total;
     bd.spatial = room > 0;
     const size_t ref_bytes = (total + room ? total + room : 1) * sizeof *bd.refs;
-    bd.refs = build_reserve_huge(ref_bytes);
+    bd.refs = build_reserve_huge(bd.mem, ref_bytes);
     refgen g = {.bd = &bd, .total = total, .chunks = (uint32_t)((total + RTK_REF_CHUNK - 1) / RTK_REF_CHUNK)};
     const size_t nc = g.chunks ? g.chunks : 1;
     uint64_t *geom_first = build_geom_first(in);
@@ -2196,7 +2196,7 @@ done:
     free(g.skipped);
     free(g.degenerate);
     free(g.bounds);
-    build_unreserve(bd.refs, ref_bytes);
+    build_unreserve(bd.mem, bd.refs, ref_bytes);
     return rc;
 }
 
@@ -2258,7 +2258,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
     uint32_t max_id;
     uint32_t *index_of = build_geometry_index(in, &max_id);
     const size_t ref_bytes = (t->prim_count ? t->prim_count : 1) * sizeof *bd.refs;
-    bd.refs = build_reserve_huge(ref_bytes);
+    bd.refs = build_reserve_huge(bd.mem, ref_bytes);
     part p = {.bd = &bd, .node_count = (uint32_t)t->node_count, .leaf_count = (uint32_t)t->leaf_count};
     p.nodes = malloc((t->node_count ? t->node_count : 1) * bd.node_size);
     p.leaves = malloc((t->leaf_count ? t->leaf_count : 1) * sizeof *p.leaves);
@@ -2267,7 +2267,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
     if (!accel) {
         free(index_of);
         part_free(&p);
-        build_unreserve(bd.refs, ref_bytes);
+        build_unreserve(bd.mem, bd.refs, ref_bytes);
         build_set_message(out, "out of memory for the BVH");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
@@ -2325,7 +2325,7 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
                                                        : t->root;
     const uint32_t depth = t->root == RTK_BVH_EMPTY ? 0 : tree_depth(t, t->root, 1);
     part_free(&p);
-    build_unreserve(bd.refs, ref_bytes);
+    build_unreserve(bd.mem, bd.refs, ref_bytes);
     build_accel_finish(&bd, accel, root, t->prim_count, depth, &bounds, out);
     return RTK_OK;
 }

@@ -23,6 +23,7 @@
 #include <stdlib.h>
 
 #include "backend_common.h"
+#include "memory.h"
 #include "rtk/rtk_backend.h"
 
 /* A child reference: an inner node index, a leaf, or RTK_BVH4_EMPTY.  A leaf
@@ -234,6 +235,9 @@ struct rtk_accel {
     uint32_t mask_pass_all;
     /* some geometry is quads (RTK_GEOMETRY_ATTR_QUAD): hits are translated */
     uint32_t quads;
+    /* the memory monitor's accounting the tree's memory goes through
+     * (memory.h): rtk_build_input.memory's, or none */
+    rtk_memory memory;
     /* 1: every node's leaf children lie ahead of its inner children's
      * subtrees (the SAH builders, build_sah.c, build_inner); 0: each child's
      * subtree whole, in slot order (the Morton builder, imported trees).
@@ -277,7 +281,7 @@ static inline int rtk_accel_copy_attrs(struct rtk_accel *accel, const rtk_build_
     uint32_t count = 0;
     for (uint32_t g = 0; g < in->geometry_count; g++)
         count = in->geometries[g].geom_id + 1 > count ? in->geometries[g].geom_id + 1 : count;
-    rtk_geometry_attrs *a = malloc((count ? count : 1) * sizeof *a);
+    rtk_geometry_attrs *a = mem_alloc(&accel->memory, (count ? count : 1) * sizeof *a, 0);
     if (!a)
         return 0;
     for (uint32_t i = 0; i < count; i++)

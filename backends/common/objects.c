@@ -40,6 +40,7 @@ typedef struct obj_build {
     rtk_build_object *objects; /* in leaf order */
     uint64_t object_count;
     const rtk_build_input *in;
+    const rtk_memory *mem; /* the top level's memory accounting */
     uint32_t max_depth;
     double sah; /* sum over nodes of their area (relative to the root's, at the end) */
 } obj_build;
@@ -167,7 +168,7 @@ static int64_t new_node(obj_build *b)
 {
     if (b->node_count == b->node_cap) {
         const uint64_t cap = b->node_cap ? 2 * b->node_cap : 16;
-        void *p = realloc(b->nodes, cap * sizeof *b->nodes);
+        void *p = mem_realloc(b->mem, b->nodes, cap * sizeof *b->nodes);
         if (!p)
             return -1;
         b->nodes = p;
@@ -247,12 +248,17 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     }
     obj_build b = {.in = in};
     rtk_accel *accel = calloc(1, sizeof *accel);
-    b.refs = malloc((in->object_count ? in->object_count : 1) * sizeof *b.refs);
-    b.objects = malloc((in->object_count ? in->object_count : 1) * sizeof *b.objects);
+    if (accel && build_input_memory(in))
+        accel->memory = *build_input_memory(in);
+    b.mem = accel ? &accel->memory : NULL;
+    b.refs = accel ? mem_alloc(b.mem, (in->object_count ? in->object_count : 1) * sizeof *b.refs, 0) : NULL;
+    b.objects = accel ? mem_alloc(b.mem, (in->object_count ? in->object_count : 1) * sizeof *b.objects, 0) : NULL;
     if (!accel || !b.refs || !b.objects) {
+        if (accel) {
+            mem_free(b.mem, b.refs);
+            mem_free(b.mem, b.objects);
+        }
         free(accel);
-        free(b.refs);
-        free(b.objects);
         build_set_message(out, "out of memory");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
@@ -273,14 +279,14 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     accel->layout = RTK_LAYOUT_BVH4_OBJECT;
     accel->root = RTK_BVH4_EMPTY;
     if (n && !build_range(&b, b.refs, n, 0, &accel->root, lo, hi)) {
-        free(b.nodes);
-        free(b.refs);
-        free(b.objects);
+        mem_free(b.mem, b.nodes);
+        mem_free(b.mem, b.refs);
+        mem_free(b.mem, b.objects);
         free(accel);
         build_set_message(out, "out of memory");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
-    free(b.refs);
+    mem_free(b.mem, b.refs);
     accel->nodes = b.nodes;
     accel->node_count = b.node_count;
     accel->objects = b.objects;
@@ -312,8 +318,8 @@ void RTK_SYM(rtk_objects_release)(rtk_accel *accel)
 {
     if (!accel)
         return;
-    free(accel->nodes);
-    free(accel->objects);
+    mem_free(&accel->memory, accel->nodes);
+    mem_free(&accel->memory, accel->objects);
     free(accel);
 }
 

@@ -319,12 +319,12 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
     r.total = geom_first ? geom_first[in->geometry_count] : 0;
     const uint32_t tri_chunks = (uint32_t)((r.total + REFIT_CHUNK - 1) / REFIT_CHUNK);
     if (exact) {
-        r.kept = calloc(r.total / 64 + 1, sizeof *r.kept);
+        r.kept = mem_alloc(bd.mem, (r.total / 64 + 1) * sizeof *r.kept, 1);
         r.counts = calloc(tri_chunks ? tri_chunks : 1, sizeof *r.counts);
     }
     uint32_t *index_of = bd.indexed ? NULL : build_geometry_index(in, &r.max_id);
     r.index_of = index_of;
-    r.node_sah = malloc((accel->node_count ? accel->node_count : 1) * sizeof *r.node_sah);
+    r.node_sah = mem_alloc(bd.mem, (accel->node_count ? accel->node_count : 1) * sizeof *r.node_sah, 0);
     if (!geom_first || (exact && (!r.kept || !r.counts)) || (!bd.indexed && !index_of) || !r.node_sah) {
         rc = refit_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the refit");
         goto done;
@@ -370,9 +370,9 @@ done:
         build_set_message(out, "the triangles that go in the tree have changed: a vertex became or stopped being "
                                "NaN or infinite");
     free(geom_first);
-    free(r.kept);
+    mem_free(bd.mem, r.kept);
     free(r.counts);
-    free(r.node_sah);
+    mem_free(bd.mem, r.node_sah);
     free(index_of);
     return rc;
 }

@@ -217,6 +217,29 @@ RTK_API rtk_error rtk_device_set_task_system(rtk_device device, const rtk_task_s
 /* The number of threads builds on this device may use. */
 RTK_API uint32_t rtk_device_get_thread_count(rtk_device device);
 
+/* ---- memory monitor (added after rtk 0.2.0) ----
+ * A device's memory monitor sees the memory rtk takes for the device's
+ * scenes (Embree's rtcSetDeviceMemoryMonitorFunction), and may refuse it:
+ * monitor(user, bytes, post) is called with bytes > 0 (post 0) before rtk
+ * takes that many bytes, and returning 0 refuses them: the call that
+ * needed them fails with RTK_ERROR_MEMORY_REFUSED (a commit leaving the
+ * scene's previous tree as it was: a device with a monitor builds every
+ * tree in fresh memory, never its scene's old tree's); and with bytes < 0
+ * (post 1) after rtk has given bytes back (the return value is then
+ * ignored).  What it sees is what grows with the scene: geometry buffers
+ * rtk allocates (rtk_geometry_set_new_buffer), the trees' node, leaf and
+ * attribute arrays, the builders' working arrays (references, codes, node
+ * arenas), the motion builder's copies of the time steps, the top level's
+ * nodes and objects, and a refit's scratch; not a build's fixed
+ * bookkeeping (a few kilobytes) nor the stream calls' lists of pointers.
+ * Every byte reported taken is reported given back when freed, so the
+ * running sum is what the device holds.  The monitor is called from the
+ * threads builds run on, several at once.  Set it before the device's
+ * scenes are committed (memory taken before is not reported when freed);
+ * NULL removes it. */
+typedef int (*rtk_memory_monitor_fn)(void *user, int64_t bytes, int post);
+RTK_API rtk_error rtk_device_set_memory_monitor(rtk_device device, rtk_memory_monitor_fn monitor, void *user);
+
 /* Name of the backend this device runs on ("avx2", ...). */
 RTK_API const char *rtk_device_get_backend_name(rtk_device device);
 

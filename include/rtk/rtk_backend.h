@@ -194,7 +194,19 @@ typedef struct rtk_build_input {
      * RTK_ERROR_CANCELLED. */
     int (*progress)(void *user, double done);
     void *progress_user;
+    /* Added after rtk 0.2.0 (the same way): NULL, or where the builder
+     * reports the memory it takes for the build and the tree (the device's
+     * memory monitor).  The tree keeps a copy for its release. */
+    const struct rtk_memory *memory;
 } rtk_build_input;
+
+/* Memory accounting (rtk_build_input.memory): account(user, bytes) with
+ * bytes > 0 before taking that many bytes (0 refuses them: the allocation
+ * fails), with bytes < 0 after giving them back.  Any thread. */
+typedef struct rtk_memory {
+    int (*account)(void *user, int64_t bytes);
+    void *user;
+} rtk_memory;
 
 /* What a triangle geometry asks of the kernels beyond its triangles
  * (rtk.h: masks, filters), one per rtk_build_input.geometries entry.  The
