@@ -364,9 +364,10 @@ done:
 }
 
 rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count,
-                            uint64_t *non_finite, uint64_t *degenerate, uint64_t *in_tree, char *msg, size_t size)
+                            uint64_t *non_finite, uint64_t *degenerate, uint64_t *out_of_range, uint64_t *in_tree,
+                            char *msg, size_t size)
 {
-    *non_finite = *degenerate = *in_tree = 0;
+    *non_finite = *degenerate = *out_of_range = *in_tree = 0;
     /* geom_id -> index in geoms, and each geometry's first triangle in one
      * array of "referenced" marks. */
     uint32_t max_id = 0;
@@ -419,16 +420,16 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
             const float *v[3] = {vertex_at(&geoms[g], tri[0]), vertex_at(&geoms[g], tri[1]),
                                  vertex_at(&geoms[g], tri[2])};
             const size_t at = base[g] + p.prim_id;
-            const int finite = rtk_triangle_is_finite(v[0], v[1], v[2]);
-            const int flat = finite && rtk_triangle_is_degenerate(v[0], v[1], v[2]);
+            const enum rtk_triangle_class kind = rtk_triangle_classify(v[0], v[1], v[2]);
+            const int flat = kind == RTK_TRIANGLE_DEGENERATE || kind == RTK_TRIANGLE_TINY;
             if (flat && (geoms[g].flags & RTK_BUILD_GEOMETRY_DEFORMS)) {
                 marked[at] = 2; /* kept for a refit, never hit: no box needs to hold it */
                 continue;
             }
-            if (!finite || flat) {
+            if (kind != RTK_TRIANGLE_HITTABLE) {
                 err = bad(msg, size,
-                          "leaf %llu: triangle %u of geometry %u can never be hit (zero area or a non-finite "
-                          "vertex), so it cannot be in a tree",
+                          "leaf %llu: triangle %u of geometry %u can never be hit (zero area, a non-finite "
+                          "vertex, or outside rtk's range), so it cannot be in a tree",
                           (unsigned long long)j, p.prim_id, p.geom_id);
                 goto done;
             }
@@ -499,9 +500,13 @@ rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, u
             const uint32_t *tri = triangle_at(&geoms[g], p);
             const float *v0 = vertex_at(&geoms[g], tri[0]), *v1 = vertex_at(&geoms[g], tri[1]),
                         *v2 = vertex_at(&geoms[g], tri[2]);
-            if (!rtk_triangle_is_finite(v0, v1, v2)) {
+            const enum rtk_triangle_class kind = rtk_triangle_classify(v0, v1, v2);
+            if (kind == RTK_TRIANGLE_NON_FINITE) {
                 (*non_finite)++; /* never marked: refused above */
-            } else if (rtk_triangle_is_degenerate(v0, v1, v2)) {
+            } else if (kind == RTK_TRIANGLE_FAR ||
+                       (kind == RTK_TRIANGLE_TINY && !(geoms[g].flags & RTK_BUILD_GEOMETRY_DEFORMS))) {
+                (*out_of_range)++;
+            } else if (kind != RTK_TRIANGLE_HITTABLE) { /* no area, or a deforming geometry's tiny one */
                 (*degenerate)++;
             } else if (!marks) {
                 err = bad(msg, size, "triangle %zu of geometry %u can be hit but is not in the tree", p,

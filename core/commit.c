@@ -568,14 +568,14 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
         /* Everything the backend will trust is checked here first. */
         const rtk_layout_io_entry *io = find_layout_io(bk, layout->id);
         char why[256];
-        uint64_t non_finite = 0, degenerate = 0, in_tree = 0;
+        uint64_t non_finite = 0, degenerate = 0, out_of_range = 0, in_tree = 0;
         rtk_error err = RTK_OK;
         if (!io)
             err = rtk_fail(dev, RTK_ERROR_INVALID_OPERATION, "%s: backend %s cannot import a tree into layout %s", fn,
                            bk->name, layout->name);
         else if ((err = rtk_bvh_check(tree, why, sizeof why)) ||
-                 (err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, &in_tree, why,
-                                          sizeof why)))
+                 (err = rtk_bvh_check_fit(tree, in_geoms, (uint32_t)n, &non_finite, &degenerate, &out_of_range,
+                                          &in_tree, why, sizeof why)))
             rtk_fail(dev, err, "%s: %s", fn, why);
         if (err) {
             free(attrs);
@@ -587,6 +587,7 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
         out.prims = in_tree;
         out.prims_skipped = non_finite;
         out.prims_degenerate = degenerate;
+        out.prims_out_of_range = out_of_range;
     } else {
         rc = builder->build(&in, &out);
     }
@@ -627,6 +628,9 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     if (out.prims_degenerate)
         rtk_log(dev, 1, "scene: %llu zero-area triangles left out (never hit)",
                 (unsigned long long)out.prims_degenerate);
+    if (out.prims_out_of_range)
+        rtk_log(dev, 1, "scene: %llu triangles outside rtk's range (a coordinate beyond +-2^36, or too small an "
+                "area) left out (never hit)", (unsigned long long)out.prims_out_of_range);
     rtk_log(dev, 2, "scene: %s/%s on %s: %llu triangles, %llu nodes, %llu leaves, depth %u, %.1f bytes/triangle, "
             "SAH %.2f, %.3f s on %u thread%s",
             *builder_name, layout->name, bk->name, (unsigned long long)out.prims, (unsigned long long)out.nodes,
@@ -836,6 +840,7 @@ static void add_output(rtk_build_output *total, uint64_t *motion, const rtk_buil
     total->prims += o->prims;
     total->prims_skipped += o->prims_skipped;
     total->prims_degenerate += o->prims_degenerate;
+    total->prims_out_of_range += o->prims_out_of_range;
     total->refs += o->refs ? o->refs : o->prims;
     total->bytes += o->bytes;
     if (tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB || tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST)

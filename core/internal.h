@@ -138,12 +138,13 @@ RTK_INTERNAL void rtk_log(rtk_device device, int level, const char *fmt, ...) __
  * be built over: see rtk_scene_commit_bvh.  RTK_ERROR_INVALID_ARGUMENT with
  * the first problem in msg.  A tree may hold a triangle that cannot be hit
  * only where a build would (build_hittable): a deforming geometry's
- * zero-area triangle.  On success the triangles are counted as a build
- * counts them: left out for a non-finite vertex, of zero area (in the tree
- * or not), and distinct ones in the tree. */
+ * zero-area or tiny triangle.  On success the triangles are counted as a
+ * build counts them (rtk_triangle_classify): left out for a non-finite
+ * vertex, of zero area (in the tree or not), outside rtk's range, and
+ * distinct ones in the tree. */
 RTK_INTERNAL rtk_error rtk_bvh_check_fit(const rtk_bvh *t, const rtk_build_geometry *geoms, uint32_t geom_count,
-                                         uint64_t *non_finite, uint64_t *degenerate, uint64_t *in_tree, char *msg,
-                                         size_t size);
+                                         uint64_t *non_finite, uint64_t *degenerate, uint64_t *out_of_range,
+                                         uint64_t *in_tree, char *msg, size_t size);
 /* Allocates the arrays of a tree of these sizes (leaves + 1 leaf_first). */
 RTK_INTERNAL rtk_error rtk_bvh_alloc(rtk_bvh *t, uint32_t width, uint64_t nodes, uint64_t leaves, uint64_t prims);
 

@@ -1,4 +1,5 @@
 /* The ray queries: single rays and packets. */
+#include <math.h>
 #include <stddef.h>
 #include <stdio.h>
 #include <string.h>
@@ -23,8 +24,11 @@ static inline rtk_error intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query_
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
     const rtk_query q = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
-    if (ray_valid(&rh->ray))
+    const int kind = ray_check(&rh->ray);
+    if (__builtin_expect(kind == RAY_PLAIN, 1))
         s->intersect1(s->accel, rh, ctx ? &q : &query_plain);
+    else if (kind == RAY_RANGE)
+        range_intersect1(s, rh, ctx ? &q : &query_plain);
     return RTK_OK;
 }
 
@@ -39,8 +43,11 @@ static inline rtk_error occluded1(rtk_scene s, rtk_ray *ray, const rtk_query_con
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
     const rtk_query q = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
-    if (ray_valid(ray))
+    const int kind = ray_check(ray);
+    if (__builtin_expect(kind == RAY_PLAIN, 1))
         s->occluded1(s->accel, ray, ctx ? &q : &query_plain);
+    else if (kind == RAY_RANGE)
+        range_occluded1(s, ray, ctx ? &q : &query_plain);
     return RTK_OK;
 }
 
@@ -117,22 +124,27 @@ static inline __attribute__((always_inline)) void trace_split(rtk_scene s, const
 }
 
 /* The lanes of a packet of n rays that are on (valid, or valid NULL) and
- * pass ray_valid, as -1 / 0 into active; whether any does.  Read straight
- * from the structure of arrays, lane by lane with no branches, so the
- * compiler does all lanes at once (inlined where n is a constant). */
+ * pass ray_check, as -1 / 0 into active; whether any does; and in *range
+ * the mask of those that ray_check sends through ray_range.c.  Read
+ * straight from the structure of arrays, lane by lane with no branches,
+ * so the compiler does all lanes at once (inlined where n is a constant). */
 static inline __attribute__((always_inline)) int packet_active(const void *packet, uint32_t n, const int *valid,
-                                                               int32_t *active)
+                                                               int32_t *active, uint32_t *range)
 {
     const float *f = packet;
     const uint32_t *u = packet;
 #define LANE(field) f[RAY_ROW(field) * n + i]
     int32_t any = 0;
+    uint32_t far = 0;
     for (uint32_t i = 0; i < n; i++) {
         const float z = 0.0f * LANE(org_x) + 0.0f * LANE(org_y) + 0.0f * LANE(org_z) + 0.0f * LANE(dir_x) +
                         0.0f * LANE(dir_y) + 0.0f * LANE(dir_z) + 0.0f * LANE(tnear);
         const float tnear = LANE(tnear);
         active[i] = -((z == 0.0f) & (tnear >= 0.0f) & (tnear <= LANE(tfar)) & (u[RAY_ROW(mask) * n + i] != 0));
         any |= active[i];
+        const float mo = fmaxf(fmaxf(fabsf(LANE(org_x)), fabsf(LANE(org_y))), fabsf(LANE(org_z)));
+        const float md = fmaxf(fmaxf(fabsf(LANE(dir_x)), fabsf(LANE(dir_y))), fabsf(LANE(dir_z)));
+        far |= (uint32_t)((mo > RAY_ORG_MAX) | (md < RAY_DIR_MIN) | (md > RAY_DIR_MAX)) << i;
     }
 #undef LANE
     if (valid) {
@@ -142,6 +154,9 @@ static inline __attribute__((always_inline)) int packet_active(const void *packe
             any |= active[i];
         }
     }
+    for (uint32_t i = 0; i < n; i++) /* of the lanes that are on */
+        far &= active[i] ? ~0u : ~(1u << i);
+    *range = far;
     return any != 0;
 }
 
@@ -167,11 +182,30 @@ static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s,
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_%s%u: the scene was never committed", q, n);
 
     _Alignas(64) int32_t active[16];
-    if (!packet_active(packet, n, valid, active))
+    uint32_t range;
+    if (!packet_active(packet, n, valid, active, &range))
         return RTK_OK;
     const rtk_query query = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID};
-    const struct packet_kernel *k = &s->packet[occluded][n == 4 ? 0 : n == 8 ? 1 : 2];
     const size_t fields = occluded ? RAY_FIELDS : RAYHIT_FIELDS;
+    if (__builtin_expect(range != 0, 0)) { /* those rays alone, through ray_range.c */
+        int32_t left = 0;
+        for (uint32_t i = 0; i < n; i++) {
+            if (range >> i & 1) {
+                rtk_rayhit rh;
+                copy_lanes(&rh, 1, 0, packet, n, i, 1, fields);
+                if (occluded)
+                    range_occluded1(s, &rh.ray, &query);
+                else
+                    range_intersect1(s, &rh, &query);
+                copy_lanes(packet, n, i, &rh, 1, 0, 1, fields);
+                active[i] = 0;
+            }
+            left |= active[i];
+        }
+        if (!left)
+            return RTK_OK;
+    }
+    const struct packet_kernel *k = &s->packet[occluded][n == 4 ? 0 : n == 8 ? 1 : 2];
     if (k->width == n) {
         k->fn(s->accel, active, packet, &query);
     } else if (k->width == 8) { /* narrower packets: through an aligned copy */

@@ -336,5 +336,7 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
         info->quads = s->quads;
     if (keep >= offsetof(rtk_scene_info, stream_in_flight) + sizeof info->stream_in_flight)
         info->stream_in_flight = s->stream_in_flight;
+    if (keep >= offsetof(rtk_scene_info, triangles_out_of_range) + sizeof info->triangles_out_of_range)
+        info->triangles_out_of_range = tris->prims_out_of_range;
     return RTK_OK;
 }

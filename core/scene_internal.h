@@ -198,13 +198,22 @@ typedef struct user_prim {
     uint32_t geom_id, prim_id;
 } user_prim;
 
-/* A ray's validity (rtk.h): what every query checks before a kernel sees
- * the ray. */
+/* A ray's validity (rtk.h), and whether it lies in the range the kernels
+ * answer in: what every query checks before a kernel sees the ray. */
 /* org and tnear, dir and time: the two runs of four floats rtk_ray starts with */
 typedef float ray_floats4 __attribute__((vector_size(16)));
 typedef int32_t ray_ints4 __attribute__((vector_size(16)));
 
-static inline int ray_valid(const rtk_ray *r)
+/* The window of directions the kernels take as they are (the largest
+ * component's magnitude), and the origins (every component's): rays
+ * outside go through ray_range.c, which moves and rescales them. */
+#define RAY_DIR_MIN 0x1p-8f
+#define RAY_DIR_MAX 0x1p16f
+#define RAY_ORG_MAX 0x1p36f
+
+enum { RAY_INVALID, RAY_PLAIN, RAY_RANGE };
+
+static inline int ray_check(const rtk_ray *r)
 {
     /* 0 * x is 0 for finite x and NaN for NaN or infinity: four lanes at
      * once (org and tnear, dir with time's lane cleared), on every call */
@@ -218,8 +227,21 @@ static inline int ray_valid(const rtk_ray *r)
 #else
     const int all = (finite[0] & finite[1] & finite[2] & finite[3]) != 0;
 #endif
-    return all && r->tnear >= 0.0f && r->tnear <= r->tfar && r->mask != 0;
+    if (!(all && r->tnear >= 0.0f && r->tnear <= r->tfar && r->mask != 0))
+        return RAY_INVALID;
+    /* magnitudes: the origin's (tnear's lane cleared) and the direction's */
+    const ray_floats4 ao = (ray_floats4)((ray_ints4)o & (ray_ints4){0x7fffffff, 0x7fffffff, 0x7fffffff, 0});
+    const ray_floats4 ad = (ray_floats4)((ray_ints4)d & 0x7fffffff);
+    const float mo = ao[0] > ao[1] ? ao[0] : ao[1], md = ad[0] > ad[1] ? ad[0] : ad[1];
+    const float mo3 = mo > ao[2] ? mo : ao[2], md3 = md > ad[2] ? md : ad[2];
+    return (mo3 > RAY_ORG_MAX) | (md3 < RAY_DIR_MIN) | (md3 > RAY_DIR_MAX) ? RAY_RANGE : RAY_PLAIN;
 }
+
+/* ray_range.c: a ray of class RAY_RANGE traced, in place, with the answer
+ * it would get were it inside the window (rtk.h, "the range rtk answers
+ * in"); through the scene's single-ray kernels. */
+RTK_INTERNAL void range_intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query *q);
+RTK_INTERNAL void range_occluded1(rtk_scene s, rtk_ray *ray, const rtk_query *q);
 
 /* An error for a call that must not overlap a commit of the scene (fn
  * names it), when one is running; RTK_OK otherwise. */

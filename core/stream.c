@@ -46,6 +46,15 @@ static rtk_error stream_check(rtk_scene s, const void *rays, size_t count, size_
     return RTK_OK;
 }
 
+/* A ray outside the kernels' window (ray_check), alone. */
+static void trace_range(rtk_scene s, void *ray, int occluded, const rtk_query *q)
+{
+    if (occluded)
+        range_occluded1(s, ray, q);
+    else
+        range_intersect1(s, ray, q);
+}
+
 /* Traces rays [0, count) of the (checked) stream: the valid ones, a chunk
  * at a time, through the stream kernel, or ray by ray without one. */
 static void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occluded, const rtk_query *q)
@@ -53,11 +62,12 @@ static void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, i
     if (!(occluded ? (void (*)(void))s->occluded_stream : (void (*)(void))s->intersect_stream)) {
         for (size_t i = 0; i < count; i++) {
             rtk_rayhit *r = (rtk_rayhit *)(void *)(rays + i * stride);
-            if (!ray_valid(&r->ray))
-                continue;
-            if (occluded)
+            const int kind = ray_check(&r->ray);
+            if (kind == RAY_RANGE)
+                trace_range(s, r, occluded, q);
+            else if (kind == RAY_PLAIN && occluded)
                 s->occluded1(s->accel, &r->ray, q);
-            else
+            else if (kind == RAY_PLAIN)
                 s->intersect1(s->accel, r, q);
         }
         return;
@@ -75,8 +85,11 @@ static void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, i
         uint32_t n = 0;
         for (; i < count && n < chunk; i++) {
             void *r = rays + i * stride;
-            if (ray_valid(r))
+            const int kind = ray_check(r);
+            if (__builtin_expect(kind == RAY_PLAIN, 1))
                 list[n++] = r;
+            else if (kind == RAY_RANGE) /* alone, in order with the rest: a stream's rays are independent */
+                trace_range(s, r, occluded, q);
         }
         if (!n)
             continue;

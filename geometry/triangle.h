@@ -84,6 +84,59 @@ static inline int rtk_triangle_is_finite(const float v0[3], const float v1[3], c
     return s == 0.0f; /* NaN for any NaN or infinity */
 }
 
+/* rtk's range (rtk.h, "the range rtk answers in"): vertex coordinates
+ * within +-RTK_COORD_LIMIT, and triangles whose cross product of edges
+ * |(v1 - v0) x (v2 - v0)| (in double, its largest component) is at least
+ * RTK_CROSS_LIMIT.  Within it the fast test's products stay normal floats:
+ * |T| <= |e2| |s| |e1| and the watertight test's
+ * T <= 192 (2^36)^3 * 2^8 (for a direction rescaled to the core's window,
+ * see query.c) stay below 2^124, and |det| = |e1 x e2| |d| cos stays above
+ * FLT_MIN for all but rays within 2^-22 of the triangle's plane. */
+#ifndef RTK_COORD_LIMIT
+#define RTK_COORD_LIMIT 68719476736.0f /* 2^36, as rtk.h */
+#endif
+#define RTK_CROSS_LIMIT 0x1p-80
+
+/* Every coordinate finite and within +-RTK_COORD_LIMIT (NaN fails). */
+static inline int rtk_triangle_coords_in_range(const float v0[3], const float v1[3], const float v2[3])
+{
+    int in = 1;
+    for (int k = 0; k < 3; k++)
+        in &= (fabsf(v0[k]) <= RTK_COORD_LIMIT) & (fabsf(v1[k]) <= RTK_COORD_LIMIT) &
+              (fabsf(v2[k]) <= RTK_COORD_LIMIT);
+    return in;
+}
+
+/* A triangle of some area (not rtk_triangle_is_degenerate) too small for
+ * rtk's range: its cross product of edges below RTK_CROSS_LIMIT. */
+static inline int rtk_triangle_is_tiny(const float v0[3], const float v1[3], const float v2[3])
+{
+    double a[3] = {(double)v1[0] - v0[0], (double)v1[1] - v0[1], (double)v1[2] - v0[2]};
+    double b[3] = {(double)v2[0] - v0[0], (double)v2[1] - v0[1], (double)v2[2] - v0[2]};
+    const double c[3] = {a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]};
+    return fabs(c[0]) < RTK_CROSS_LIMIT && fabs(c[1]) < RTK_CROSS_LIMIT && fabs(c[2]) < RTK_CROSS_LIMIT;
+}
+
+/* What a build does with a triangle, the same in every builder: */
+enum rtk_triangle_class {
+    RTK_TRIANGLE_HITTABLE,
+    RTK_TRIANGLE_NON_FINITE,   /* a NaN or infinite vertex: left out */
+    RTK_TRIANGLE_FAR,          /* a coordinate beyond RTK_COORD_LIMIT: left out */
+    RTK_TRIANGLE_DEGENERATE,   /* no area: left out (kept, never hit, where the geometry deforms) */
+    RTK_TRIANGLE_TINY,         /* area below the range: like a degenerate one */
+};
+
+static inline enum rtk_triangle_class rtk_triangle_classify(const float v0[3], const float v1[3], const float v2[3])
+{
+    if (!rtk_triangle_is_finite(v0, v1, v2))
+        return RTK_TRIANGLE_NON_FINITE;
+    if (!rtk_triangle_coords_in_range(v0, v1, v2))
+        return RTK_TRIANGLE_FAR;
+    if (rtk_triangle_is_degenerate(v0, v1, v2))
+        return RTK_TRIANGLE_DEGENERATE;
+    return rtk_triangle_is_tiny(v0, v1, v2) ? RTK_TRIANGLE_TINY : RTK_TRIANGLE_HITTABLE;
+}
+
 typedef struct rtk_tri_hit {
     float t, u, v;
 } rtk_tri_hit;

@@ -608,9 +608,8 @@ static void chosen_builder_and_layout(void **state)
 /* Long thin triangles crossing each other and large ones lying in likely
  * split planes, at high quality: the clipped references must still find
  * every hit.  Also far from the origin (coordinates near 1e6, ulp 1/16)
- * and at scales of 1e12 and 1e-9; at 1e-15, with directions as small, the
- * determinant of every ray-triangle test is denormal and nothing is hit
- * (t would be NaN: geometry/triangle.h). */
+ * and at scales of 1e10 and 1e-9; at 1e-15 the triangles lie below rtk's
+ * range (rtk.h: left out and counted) and nothing is hit. */
 static void spatial_splits_vs_brute_force(void **state)
 {
     (void)state;
@@ -619,7 +618,7 @@ static void spatial_splits_vs_brute_force(void **state)
     static const struct {
         float scale, offset, dir_scale;
         int must_split, min_hits;
-    } cases[] = {{1.0f, 0.0f, 1.0f, 1, 400},     {1000.0f, 1e6f, 1000.0f, 1, 400}, {1e12f, 0.0f, 1e12f, 0, 400},
+    } cases[] = {{1.0f, 0.0f, 1.0f, 1, 400},     {1000.0f, 1e6f, 1000.0f, 1, 400}, {1e10f, 0.0f, 1e10f, 0, 400},
                  {1e-9f, 1e-9f, 1e-9f, 0, 400},   {1e-15f, 1e-15f, 1e-15f, 0, 0}};
     for (size_t c = 0; c < sizeof cases / sizeof *cases; c++) {
         rng r = {77 + c};
@@ -721,8 +720,10 @@ static void morton_edge_cases(void **state)
     for (size_t i = 0; i < 3 * STACK; i++)
         stack_idx[i] = (uint32_t)(i % 3);
     /* a GRID x GRID patch of unit squares at the origin and two triangles
-     * near +-FLT_MAX in x: the centroids' extent overflows a float, and
-     * every triangle of the patch falls in the same cell */
+     * at the ends of rtk's range in x (+-2^36; beyond it, near +-FLT_MAX,
+     * where the centroids' extent once overflowed a float, triangles are
+     * left out: test_range.c): every triangle of the patch falls in the
+     * same cell */
     const size_t gv = (GRID + 1) * (GRID + 1), gt = 2 * GRID * GRID + 2;
     float *grid_v = malloc((gv + 6) * 3 * sizeof *grid_v);
     uint32_t *grid_idx = malloc(gt * 3 * sizeof *grid_idx);
@@ -731,7 +732,8 @@ static void morton_edge_cases(void **state)
             float *p = grid_v + 3 * ((size_t)y * (GRID + 1) + x);
             p[0] = (float)x / GRID, p[1] = (float)y / GRID, p[2] = 0.01f * (float)((x * 7 + y * 3) % 5);
         }
-    static const float far_v[18] = {-3e38f, 0, 0, -3e38f, 1, 0, -3e38f, 0, 1, 3e38f, 0, 0, 3e38f, 1, 0, 3e38f, 0, 1};
+    static const float far_v[18] = {-RTK_COORD_LIMIT, 0, 0, -RTK_COORD_LIMIT, 1, 0, -RTK_COORD_LIMIT, 0, 1,
+                                    RTK_COORD_LIMIT,  0, 0, RTK_COORD_LIMIT,  1, 0, RTK_COORD_LIMIT,  0, 1};
     memcpy(grid_v + 3 * gv, far_v, sizeof far_v);
     size_t t = 0;
     for (int y = 0; y < GRID; y++)

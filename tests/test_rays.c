@@ -10,14 +10,15 @@
 
 /* A unit square at z = 0 (two triangles), an axis-aligned box face at
  * x = 2 (two triangles, a flat box in x), a far wall at z = -10, and a
- * rectangle at z = 0 far out in x: [2^67, 2^67 + 2^45] x [0, 1] (prims 6, 7;
- * far enough that x * 1e18 overflows, small enough in extent that the
- * triangle test's products stay in range). */
+ * rectangle at z = 0 far out in x, at the edge of rtk's range (rtk.h):
+ * [2^35, 2^35 + 2^14] x [0, 1] (prims 6, 7; floats there are 2^12 apart).
+ * (It lay at 2^67 once, beyond the range rtk now answers in: such
+ * triangles are left out and counted, test_range.c.) */
 static const float V[] = {
     0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0,          /* square, 0..3 */
     2, -1, -1, 2, 1, -1, 2, 1, 1, 2, -1, 1,      /* wall x = 2, 4..7 */
     -5, -5, -10, 5, -5, -10, 5, 5, -10, -5, 5, -10, /* floor z = -10, 8..11 */
-    0x1p67f, 0, 0, 0x1.000004p67f, 0, 0, 0x1.000004p67f, 1, 0, 0x1p67f, 1, 0, /* far rectangle, 12..15 */
+    0x1p35f, 0, 0, 0x1.000008p35f, 0, 0, 0x1.000008p35f, 1, 0, 0x1p35f, 1, 0, /* far rectangle, 12..15 */
 };
 static const uint32_t I[] = {0, 1, 2, 0, 2, 3, 4, 5, 6, 4, 6, 7, 8, 9, 10, 8, 10, 11, 12, 13, 14, 12, 14, 15};
 #define NV 16
@@ -309,24 +310,25 @@ static void test_closest_of_several(void **state)
 }
 
 /* Coordinates far from the origin.  With FMA the node test computes
- * plane * inv - org * inv; a ray there parallel to x has org * inv beyond
- * the float range (2^67 * 1e18), and the kernel must fall back to the
- * subtract-then-multiply test for it rather than cull every box. */
+ * plane * inv - org * inv; a ray there parallel to x has org * inv near
+ * 2^95 (2^35 * 1e18), where the products' rounding is far larger than the
+ * boxes. */
 static void test_huge_coordinates(void **state)
 {
     (void)state;
-    const float mid = 0x1.000002p67f; /* 2^67 + 2^44, halfway along the rectangle */
+    const float mid = 0x1.000004p35f; /* 2^35 + 2^13, halfway along the rectangle */
     expect("huge x, axis-parallel", test_ray(mid, 0.25f, 5, 0, 0, -1, 0, INFINITY), 6, 5);
     expect("huge x, axis-parallel -0", test_ray(mid, 0.75f, 5, -0.0f, -0.0f, -1, 0, INFINITY), 7, 5);
     expect("huge x, up from below", test_ray(mid, 0.75f, -5, 0, 0, 1, 0, INFINITY), 7, 5);
-    /* org * inv large but finite (2^67 / 1e-3): the fused test, whose error
-     * bound is then far larger than the box's extent in t */
+    /* org * inv large (2^35 / 1e-3): the fused test, whose error bound is
+     * then far larger than the box's extent in t */
     expect("huge x, tilted", test_ray(mid, 0.25f, 5, 1e-3f, 1e-3f, -1, 0, INFINITY), 6, 5);
     expect("huge x, beside", test_ray(mid, 1.25f, 5, 0, 0, -1, 0, INFINITY), -1, 0);
-    /* org * inv overflows on all three axes (2^70 * 1e18): a test built on
-     * that product would have no slab left to reject a box with, not even
-     * the empty child slots.  The scene lies beyond tfar (and beyond the
-     * float range of t: 2^70 / 1e-30 and 2^128). */
+    /* Origins beyond the range (org * inv would overflow on all three axes,
+     * 2^70 * 1e18, leaving a fused node test no slab to reject a box with):
+     * the core moves them to the scene's bounds (ray_range.c).  The scene
+     * lies beyond tfar (and beyond the float range of t: 2^70 / 1e-30 and
+     * 2^128). */
     expect("huge origin, tiny direction",
            test_ray(0x1p70f, 0x1p70f, 0x1p70f, -1e-30f, -1e-30f, -1e-30f, 0, 1e38f), -1, 0);
     expect("huge origin, unit direction",

@@ -497,9 +497,11 @@ static int cmd_trace(int argc, char **argv)
     printf("bvh:        %s, %s builder, %llu nodes, %llu leaves, depth %u, SAH %.2f, %.1f bytes/triangle\n",
            info.layout, info.builder, (unsigned long long)info.nodes, (unsigned long long)info.leaves, info.depth,
            info.sah_cost, info.bytes_per_triangle);
-    if (info.triangles_skipped || info.triangles_degenerate)
-        printf("            left out: %llu triangles with non-finite vertices, %llu of zero area\n",
-               (unsigned long long)info.triangles_skipped, (unsigned long long)info.triangles_degenerate);
+    if (info.triangles_skipped || info.triangles_degenerate || info.triangles_out_of_range)
+        printf("            left out: %llu triangles with non-finite vertices, %llu of zero area, %llu outside "
+               "rtk's range (rtk.h)\n",
+               (unsigned long long)info.triangles_skipped, (unsigned long long)info.triangles_degenerate,
+               (unsigned long long)info.triangles_out_of_range);
     if (load)
         printf("build:      none: the tree of %s, checked and committed in %.3f s\n", load, info.build_seconds);
     else

@@ -22,7 +22,7 @@ __attribute__((noinline)) double build_node_sah(const build *bd, uint64_t index)
         if (ref == RTK_BVH4_EMPTY)
             continue;
         box4 b = {vf4_set(v.lx[c], v.ly[c], v.lz[c], 0.0f), vf4_set(v.ux[c], v.uy[c], v.uz[c], 0.0f)};
-        sah += (double)box_half_area(&b) * (ref & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(ref) : 1);
+        sah += box_half_area_d(&b) * (ref & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(ref) : 1);
     }
     return sah;
 }
@@ -62,7 +62,7 @@ static double tree_sah(const build *bd, uint64_t node_count, uint32_t root, cons
 {
     if (root == RTK_BVH4_EMPTY)
         return 0.0;
-    double sah = (double)box_half_area(bounds) * (root & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(root) : 1);
+    double sah = box_half_area_d(bounds) * (root & RTK_BVH4_LEAF_BIT ? rtk_leaf_blocks(root) : 1);
     const uint32_t chunks = (uint32_t)((node_count + RTK_SAH_CHUNK - 1) / RTK_SAH_CHUNK);
     sah_sum s = {bd, node_count, chunks > 1 ? malloc(chunks * sizeof *s.chunk) : NULL};
     if (s.chunk)
@@ -510,8 +510,8 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
     out->bytes = accel->node_count * bd->node_size + accel->leaf_count * bd->leaf_size + geom_bytes +
                  accel->attr_count * sizeof *accel->attrs;
     out->depth = prims ? depth : 0;
-    const float root_area = box_half_area(bounds);
-    out->sah_cost = root_area > 0.0f ? tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
+    const double root_area = box_half_area_d(bounds);
+    out->sah_cost = root_area > 0.0 ? tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
     accel->extent = 0.0f;
     for (int k = 0; k < 3; k++) {
         out->lower[k] = prims ? box_lo(bounds, k) : 0.0f;
@@ -539,7 +539,9 @@ static uint32_t zero_area_lanes(uint32_t live, vfloat4 ax, vfloat4 ay, vfloat4 a
     uint32_t zero = 0;
     for (uint32_t unsure = live & ~(uint32_t)vb4_mask(sure); unsure; unsure &= unsure - 1) {
         const int lane = __builtin_ctz(unsure);
-        zero |= (uint32_t)rtk_triangle_is_degenerate(v[lane][0], v[lane][1], v[lane][2]) << lane;
+        zero |= (uint32_t)(rtk_triangle_is_degenerate(v[lane][0], v[lane][1], v[lane][2]) ||
+                           rtk_triangle_is_tiny(v[lane][0], v[lane][1], v[lane][2]))
+                << lane;
     }
     return zero;
 }
@@ -564,7 +566,7 @@ uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom
             const rtk_build_geometry *g = &in->geometries[geom[lane]];
             const uint32_t *tri = triangle_at(g, prim[lane]);
             const float *v0 = vertex_at(g, tri[0]), *v1 = vertex_at(g, tri[1]), *v2 = vertex_at(g, tri[2]);
-            if (finite && !rtk_triangle_is_finite(v0, v1, v2))
+            if (finite && !rtk_triangle_coords_in_range(v0, v1, v2))
                 *finite = 0;
             const int never = build_unhittable_lane(g, v0, v1, v2);
             never_hit += (uint32_t)never;
@@ -619,7 +621,9 @@ uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom
             }
         if (bounds)
             box_grow(bounds, lo, hi);
-        if (finite && vb4_mask(vf4_eq(s, zero)) != 0xf)
+        const vfloat4 limit = vf4_set1(RTK_COORD_LIMIT);
+        if (finite && (vb4_mask(vf4_eq(s, zero)) != 0xf ||
+                       vb4_mask(vb4_and(vf4_le(hi, limit), vf4_ge(lo, vf4_set1(-RTK_COORD_LIMIT)))) != 0xf))
             *finite = 0;
     }
     for (int k = 0; k < 3; k++) /* rows of lanes become x, y, z (and zeros) across the lanes */

@@ -155,6 +155,17 @@ static inline float box_half_area(const box4 *b)
     return d[0] * d[1] + d[1] * d[2] + d[2] * d[0];
 }
 
+/* The same in double: what the reported SAH cost sums, so that it stays
+ * finite for boxes whose float area would overflow (sides near 2^64). */
+static inline double box_half_area_d(const box4 *b)
+{
+    _Alignas(16) float d[4];
+    vf4_store(d, vf4_sub(b->hi, b->lo));
+    if (!(d[0] >= 0.0f))
+        return 0.0; /* empty */
+    return (double)d[0] * d[1] + (double)d[1] * d[2] + (double)d[2] * d[0];
+}
+
 static inline float box_lo(const box4 *b, int axis)
 {
     _Alignas(16) float v[4];
@@ -241,18 +252,40 @@ static inline vbool4 build_cross_nonzero(vfloat4 p, vfloat4 q)
     return vb4_and(clear, vf4_gt(sum, vf4_set1(0x1p-60f)));
 }
 
+/* What builds count of the triangles they leave out (rtk_build_output). */
+typedef struct build_counts {
+    uint64_t skipped, degenerate, out_of_range;
+} build_counts;
+
+static inline void build_counts_add(build_counts *sum, const build_counts *c)
+{
+    sum->skipped += c->skipped;
+    sum->degenerate += c->degenerate;
+    sum->out_of_range += c->out_of_range;
+}
+
+/* The counts into the output (the newest field where it has one). */
+static inline void build_counts_store(rtk_build_output *out, const build_counts *c)
+{
+    out->prims_skipped = c->skipped;
+    out->prims_degenerate = c->degenerate;
+    if (out->struct_size >= offsetof(rtk_build_output, prims_out_of_range) + sizeof out->prims_out_of_range)
+        out->prims_out_of_range = c->out_of_range;
+}
+
 /* Whether triangle prim of g goes in the tree, with its vertices in p as
  * (x, y, z, 0): those that can be hit, and a deforming geometry's zero-area
- * ones (as lanes that are never hit: build_write_block).  Every build
- * counts the same way: a non-finite vertex in *skipped (left out), else no
- * area in *degenerate (left out unless the geometry deforms).  The answers
- * are rtk_triangle_is_finite's and rtk_triangle_is_degenerate's, decided in
- * vectors: the exact test of area runs only for a triangle whose float
- * cross product cannot tell (the first pass of the dragon's Morton build,
- * which had spent most of its time in the two scalar tests, took 18% less
- * time; docs/BENCHMARKS.md). */
-static inline int build_hittable(const rtk_build_geometry *g, size_t prim, vfloat4 p[3], uint64_t *skipped,
-                                 uint64_t *degenerate)
+ * or tiny ones (as lanes that are never hit: build_write_block).  Every
+ * build counts the same way (rtk_triangle_classify): a non-finite vertex
+ * in c->skipped (left out), a coordinate beyond the range in
+ * c->out_of_range (left out), else no area in c->degenerate and area below
+ * the range in c->out_of_range (both left out, unless the geometry
+ * deforms: then both are kept, never hit, and counted in c->degenerate).  Decided in vectors: the exact tests of area run only for a
+ * triangle whose float cross product cannot tell (the first pass of the
+ * dragon's Morton build, which had spent most of its time in the two
+ * scalar tests, took 18% less time; docs/BENCHMARKS.md); a component
+ * surely nonzero there is at least 2^-61, far above RTK_CROSS_LIMIT. */
+static inline int build_hittable(const rtk_build_geometry *g, size_t prim, vfloat4 p[3], build_counts *c)
 {
     const uint32_t *tri = triangle_at(g, prim);
     const float *v[3];
@@ -264,24 +297,36 @@ static inline int build_hittable(const rtk_build_geometry *g, size_t prim, vfloa
     const vfloat4 zero = vf4_set1(0.0f);
     const vfloat4 z = vf4_add(vf4_add(vf4_mul(p[0], zero), vf4_mul(p[1], zero)), vf4_mul(p[2], zero));
     if (vb4_mask(vf4_eq(z, zero)) != 15) {
-        (*skipped)++;
+        c->skipped++;
+        return 0;
+    }
+    const vfloat4 big = vf4_max(vf4_max(vf4_abs(p[0]), vf4_abs(p[1])), vf4_abs(p[2]));
+    if (vb4_mask(vf4_le(big, vf4_set1(RTK_COORD_LIMIT))) != 15) {
+        c->out_of_range++;
         return 0;
     }
     /* lane i: the cross product's component i (lane 3 is 0 - 0, never sure) */
     const vfloat4 a = vf4_sub(p[1], p[0]), b = vf4_sub(p[2], p[0]);
-    if (!vb4_mask(build_cross_nonzero(vf4_mul(vf4_yzx(a), vf4_zxy(b)), vf4_mul(vf4_zxy(a), vf4_yzx(b)))) &&
-        rtk_triangle_is_degenerate(v[0], v[1], v[2])) {
-        (*degenerate)++;
-        return (g->flags & RTK_BUILD_GEOMETRY_DEFORMS) != 0;
-    }
-    return 1;
+    if (vb4_mask(build_cross_nonzero(vf4_mul(vf4_yzx(a), vf4_zxy(b)), vf4_mul(vf4_zxy(a), vf4_yzx(b)))))
+        return 1;
+    const int deforms = (g->flags & RTK_BUILD_GEOMETRY_DEFORMS) != 0;
+    if (rtk_triangle_is_degenerate(v[0], v[1], v[2]))
+        c->degenerate++;
+    else if (!rtk_triangle_is_tiny(v[0], v[1], v[2]))
+        return 1;
+    else if (deforms) /* kept and never hit, as a zero-area one (a refit cannot tell them apart) */
+        c->degenerate++;
+    else
+        c->out_of_range++;
+    return deforms;
 }
 
-/* A deforming geometry's triangle of zero area: in the tree, never hit. */
+/* A deforming geometry's triangle of zero area, or tiny: in the tree, never hit. */
 static inline int build_unhittable_lane(const rtk_build_geometry *g, const float *v0, const float *v1,
                                         const float *v2)
 {
-    return (g->flags & RTK_BUILD_GEOMETRY_DEFORMS) && rtk_triangle_is_degenerate(v0, v1, v2);
+    return (g->flags & RTK_BUILD_GEOMETRY_DEFORMS) &&
+           (rtk_triangle_is_degenerate(v0, v1, v2) || rtk_triangle_is_tiny(v0, v1, v2));
 }
 
 #define build_reserve RTK_SYM(rtk_build_reserve)
@@ -511,11 +556,12 @@ RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uin
 /* Leaf block `index` of bd->leaves: `count` (1..4) triangles, geom[k] the
  * index of triangle k's geometry in the build input and prim[k] its
  * primitive index.  If `bounds` is not NULL, the triangles' box is added
- * to it.  A deforming geometry's zero-area triangle gets a lane that is
- * never hit (NaN v0 and no edges; three equal vertex indices), whatever
- * rounding would make of its edges, and keeps its ids for a refit.  If
- * `finite` is not NULL, *finite is set to 0 when a vertex of the block is
- * NaN or infinite (a refit's check; a build's triangles are finite).
+ * to it.  A deforming geometry's zero-area or tiny triangle gets a lane
+ * that is never hit (NaN v0 and no edges; three equal vertex indices),
+ * whatever rounding would make of its edges, and keeps its ids for a
+ * refit.  If `finite` is not NULL, *finite is set to 0 when a vertex of
+ * the block is NaN or infinite or beyond RTK_COORD_LIMIT (a refit's check;
+ * a build's triangles are within it).
  * Returns the number of never-hit lanes. */
 RTK_HIDDEN uint32_t build_write_block(const build *bd, uint64_t index, const uint32_t *geom, const uint32_t *prim,
                                       uint32_t count, box4 *bounds, int *finite);

@@ -65,7 +65,8 @@ typedef struct morton {
     uint32_t chunks;
     /* per chunk of triangles */
     uint32_t *kept;
-    uint64_t *skipped, *degenerate, *first; /* first: where its kept items go */
+    uint64_t *first;      /* where its kept items go */
+    build_counts *counts; /* what it left out */
     box4 *cent;                            /* its centroids' bounds */
     uint32_t spread[1u << RTK_MORTON_BITS]; /* spread3 of every cell coordinate */
     /* the quantisation (lanes 0..2) */
@@ -116,14 +117,14 @@ static void scan_chunk(void *data, uint32_t k)
     const uint64_t begin = (uint64_t)k * RTK_MORTON_CHUNK;
     const uint64_t end = begin + RTK_MORTON_CHUNK < m->total ? begin + RTK_MORTON_CHUNK : m->total;
     uint32_t gi = geometry_of(m, begin), n = 0;
-    uint64_t skipped = 0, degenerate = 0;
+    build_counts counts = {0, 0, 0};
     box4 cent = box_empty();
     float *out = m->rec + 4 * begin;
     for (uint64_t i = begin; i < end; i++) {
         while (i >= m->geom_first[gi + 1])
             gi++;
         vfloat4 p[3];
-        if (!build_hittable(&in->geometries[gi], (size_t)(i - m->geom_first[gi]), p, &skipped, &degenerate))
+        if (!build_hittable(&in->geometries[gi], (size_t)(i - m->geom_first[gi]), p, &counts))
             continue;
         const vfloat4 c = centroid3(p);
         box_grow(&cent, c, c);
@@ -131,8 +132,7 @@ static void scan_chunk(void *data, uint32_t k)
         out[4 * (size_t)n - 1] = rtk_bits_float((uint32_t)i);
     }
     m->kept[k] = n;
-    m->skipped[k] = skipped;
-    m->degenerate[k] = degenerate;
+    m->counts[k] = counts;
     m->cent[k] = cent;
 }
 
@@ -588,14 +588,13 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     uint64_t *geom_first = build_geom_first(in);
     m.geom_first = geom_first;
     m.kept = malloc(nc * sizeof *m.kept);
-    m.skipped = malloc(nc * sizeof *m.skipped);
-    m.degenerate = malloc(nc * sizeof *m.degenerate);
+    m.counts = malloc(nc * sizeof *m.counts);
     m.first = malloc(nc * sizeof *m.first);
     m.cent = malloc(nc * sizeof *m.cent);
     m.hist = malloc((size_t)RTK_SORT_CHUNKS_MAX * RTK_RADIX_SIZE * sizeof *m.hist);
     top t = {.m = &m};
     uint64_t *order = NULL;
-    if (!m.rec || !m.items || !geom_first || !m.kept || !m.skipped || !m.degenerate || !m.first || !m.cent ||
+    if (!m.rec || !m.items || !geom_first || !m.kept || !m.counts || !m.first || !m.cent ||
         !m.hist) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the build's Morton codes");
@@ -605,12 +604,12 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     /* 1. The hittable triangles and their centroids' bounds, then the codes. */
     run_parallel(&m.bd, m.chunks, scan_chunk, &m);
     box4 cent = box_empty();
-    uint64_t skipped = 0, degenerate = 0, n = 0;
+    build_counts counts = {0, 0, 0};
+    uint64_t n = 0;
     for (uint32_t k = 0; k < m.chunks; k++) {
         m.first[k] = n;
         n += m.kept[k];
-        skipped += m.skipped[k];
-        degenerate += m.degenerate[k];
+        build_counts_add(&counts, &m.counts[k]);
         box_grow(&cent, m.cent[k].lo, m.cent[k].hi);
     }
     m.n = (uint32_t)n;
@@ -693,8 +692,7 @@ int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out)
     box4 bounds = box_empty();
     const uint32_t root = root_local == RTK_BVH4_EMPTY ? RTK_BVH4_EMPTY : write_top(&t, root_local, &bounds);
     build_accel_finish(&m.bd, accel, root, n, depth, &bounds, out);
-    out->prims_skipped = skipped;
-    out->prims_degenerate = degenerate;
+    build_counts_store(out, &counts);
     rc = RTK_OK;
     if (0) {
     cancelled:
@@ -709,8 +707,7 @@ done:
     free(t.subtrees);
     free(geom_first);
     free(m.kept);
-    free(m.skipped);
-    free(m.degenerate);
+    free(m.counts);
     free(m.first);
     free(m.cent);
     free(m.hist);

@@ -21,9 +21,10 @@
  * vertices (bvh4_triangle4.h).
  *
  * A triangle is left out (at every time) when a vertex is NaN or infinite
- * at some time step; a triangle of zero area at some or every step stays
+ * at some time step, or beyond rtk's range (RTK_COORD_LIMIT); a triangle of zero area at some or every step stays
  * in (it may have area in between), hit only where it has area.
  */
+#include <math.h>
 #include <stdlib.h>
 
 #include "build_common.h"
@@ -209,16 +210,17 @@ static int mb_fail(rtk_build_output *out, int rc, const char *text)
 }
 
 /* The vertices at the middle of segment s, into mid[g] (3 floats each); a
- * vertex non-finite at any time step is NaN there, so every triangle using
- * it is left out of every segment's tree. */
+ * vertex non-finite at any time step is NaN there, and one beyond rtk's
+ * range at any step lies beyond it there, so every triangle using it is
+ * left out of every segment's tree. */
 static void middle_vertices(const mb *m, uint32_t s, float *const *mid, const uint8_t *const *bad)
 {
     const rtk_build_input *in = m->in;
     for (uint32_t g = 0; g < in->geometry_count; g++)
         for (size_t v = 0; v < in->geometries[g].vertex_count; v++) {
             float *q = &mid[g][3 * v];
-            if (bad[g][v]) {
-                q[0] = q[1] = q[2] = NAN;
+            if (bad[g][v]) { /* NaN, or finite beyond the range, so the build counts it alike */
+                q[0] = q[1] = q[2] = bad[g][v] & 1 ? NAN : 2.0f * RTK_COORD_LIMIT;
                 continue;
             }
             const float *a = step_vertex(m, g, s, (uint32_t)v), *b = step_vertex(m, g, s + 1, (uint32_t)v);
@@ -280,7 +282,11 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
             for (size_t v = 0; v < nv; v++) {
                 const float *p = step_vertex(&m, g, k, (uint32_t)v);
                 memcpy(&c->vertices[3 * (v * m.steps + k)], p, 3 * sizeof *p);
-                bad[g][v] |= !(0.0f * p[0] + 0.0f * p[1] + 0.0f * p[2] == 0.0f);
+                /* 1: NaN or infinite at some step; 2: beyond rtk's range */
+                const int finite = 0.0f * p[0] + 0.0f * p[1] + 0.0f * p[2] == 0.0f;
+                const int near = fabsf(p[0]) <= RTK_COORD_LIMIT && fabsf(p[1]) <= RTK_COORD_LIMIT &&
+                                 fabsf(p[2]) <= RTK_COORD_LIMIT;
+                bad[g][v] |= !finite ? 1 : !near ? 2 : 0;
             }
         geoms[g] = in->geometries[g];
         geoms[g].vertices = mid[g];
@@ -306,7 +312,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     m.bd = (build){.in = in, .tasks = in->tasks && in->threads > 1 && in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks ? in->tasks : NULL};
 
     lbox total = {{box_empty(), box_empty()}};
-    uint64_t nodes = 0, blocks = 0, prims = 0, skipped = 0;
+    uint64_t nodes = 0, blocks = 0, prims = 0, skipped = 0, out_of_range = 0;
     uint32_t depth = 0, threads = 1;
     double sah = 0.0;
     for (uint32_t s = 0; s < segments && !rc; s++) {
@@ -364,6 +370,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
             blocks += topo->leaf_count;
             prims = lanes;
             skipped = topo_out.prims_skipped;
+            out_of_range = topo_out.prims_out_of_range;
             depth = topo_out.depth > depth ? topo_out.depth : depth;
             threads = topo_out.threads > threads ? topo_out.threads : threads;
             sah += topo_out.sah_cost;
@@ -382,8 +389,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     out->accel = accel;
     out->depth = depth;
     out->prims = prims;
-    out->prims_skipped = skipped;
-    out->prims_degenerate = 0;
+    build_counts_store(out, &(build_counts){skipped, 0, out_of_range});
     out->nodes = nodes;
     out->leaves = blocks;
     out->bytes = nodes * sizeof(rtk_bvh4mb_node) + blocks * sizeof(rtk_triangle4i) + vertex_bytes + sizeof *accel +

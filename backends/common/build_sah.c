@@ -1997,7 +1997,7 @@ typedef struct refgen {
     uint64_t total;
     uint32_t chunks;
     uint32_t *kept;  /* per chunk: references written from the chunk's start */
-    uint64_t *skipped, *degenerate;
+    build_counts *counts; /* what it left out */
     range *bounds;
 } refgen;
 
@@ -2016,13 +2016,13 @@ static void make_refs(void *data, uint32_t k)
     range_init(&bounds, 0, 0);
     primref *out = g->bd->refs + begin;
     uint32_t n = 0;
-    uint64_t skipped = 0, degenerate = 0;
+    build_counts counts = {0, 0, 0};
     for (uint64_t i = begin; i < end; i++) {
         while (i >= g->geom_first[gi + 1])
             gi++;
         const size_t prim = (size_t)(i - g->geom_first[gi]);
         vfloat4 p[3];
-        if (!build_hittable(&in->geometries[gi], prim, p, &skipped, &degenerate))
+        if (!build_hittable(&in->geometries[gi], prim, p, &counts))
             continue;
         primref *ref = &out[n++];
         const vfloat4 blo = vf4_min(vf4_min(p[0], p[1]), p[2]), bhi = vf4_max(vf4_max(p[0], p[1]), p[2]);
@@ -2034,8 +2034,7 @@ static void make_refs(void *data, uint32_t k)
     }
     g->bounds[k] = bounds;
     g->kept[k] = n;
-    g->skipped[k] = skipped;
-    g->degenerate[k] = degenerate;
+    g->counts[k] = counts;
 }
 
 /* ---- the builder ---- */
@@ -2080,13 +2079,12 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     uint64_t *geom_first = build_geom_first(in);
     g.geom_first = geom_first;
     g.kept = malloc(nc * sizeof *g.kept);
-    g.skipped = malloc(nc * sizeof *g.skipped);
-    g.degenerate = malloc(nc * sizeof *g.degenerate);
+    g.counts = malloc(nc * sizeof *g.counts);
     g.bounds = malloc(nc * sizeof *g.bounds);
     refpages pages = {0};
     top t = {.nodes = {.bd = &bd}, .scratch = calloc(build_threads(&bd) + 1, sizeof *t.scratch)};
     t.queue_ready = build_queue_init(&t.queue, top_task, &t);
-    if (!bd.refs || !geom_first || !g.kept || !g.skipped || !g.degenerate || !g.bounds || !t.scratch ||
+    if (!bd.refs || !geom_first || !g.kept || !g.counts || !g.bounds || !t.scratch ||
         !t.queue_ready) {
         rc = RTK_ERROR_OUT_OF_MEMORY;
         build_set_message(out, "out of memory for the build's primitive references");
@@ -2099,14 +2097,13 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     range root;
     range_init(&root, 0, 0);
     uint32_t n = 0;
-    uint64_t skipped = 0, degenerate = 0;
+    build_counts counts = {0, 0, 0};
     for (uint32_t k = 0; k < g.chunks; k++) {
         const uint64_t from = (uint64_t)k * RTK_REF_CHUNK;
         if (n != from && g.kept[k])
             memmove(bd.refs + n, bd.refs + from, (size_t)g.kept[k] * sizeof *bd.refs);
         n += g.kept[k];
-        skipped += g.skipped[k];
-        degenerate += g.degenerate[k];
+        build_counts_add(&counts, &g.counts[k]);
         range_merge(&root, &g.bounds[k]);
     }
     root.end = n;
@@ -2185,16 +2182,14 @@ static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spati
     build_accel_finish(&bd, accel, root_ref, n, depth, &root.geom, out);
     if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
         out->refs = refs;
-    out->prims_skipped = skipped;
-    out->prims_degenerate = degenerate;
+    build_counts_store(out, &counts);
     rc = RTK_OK;
 done:
     free_parts(&t);
     free(pages.users);
     free(geom_first);
     free(g.kept);
-    free(g.skipped);
-    free(g.degenerate);
+    free(g.counts);
     free(g.bounds);
     build_unreserve(bd.mem, bd.refs, ref_bytes);
     return rc;

@@ -51,6 +51,13 @@ static float half_area(const float lo[3], const float hi[3])
     return d[0] >= 0.0f ? d[0] * d[1] + d[1] * d[2] + d[2] * d[0] : 0.0f;
 }
 
+/* In double, for the reported SAH cost (finite for any finite boxes). */
+static double half_area_d(const float lo[3], const float hi[3])
+{
+    const double d[3] = {(double)hi[0] - lo[0], (double)hi[1] - lo[1], (double)hi[2] - lo[2]};
+    return d[0] >= 0.0 ? d[0] * d[1] + d[1] * d[2] + d[2] * d[0] : 0.0;
+}
+
 static void grow(float lo[3], float hi[3], const float blo[3], const float bhi[3])
 {
     for (int k = 0; k < 3; k++) {
@@ -211,7 +218,7 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
     const int64_t index = new_node(b);
     if (index < 0)
         return 0;
-    b->sah += half_area(lo, hi);
+    b->sah += half_area_d(lo, hi);
     box4 box[4];
     uint32_t child[4];
     for (int c = 0; c < nc; c++) {
@@ -305,8 +312,8 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     out->leaves = n && !b.node_count ? 1 : leaves;
     out->depth = b.max_depth;
     out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.object_count * sizeof(rtk_build_object);
-    const float root_area = half_area(lo, hi);
-    out->sah_cost = root_area > 0.0f ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
+    const double root_area = half_area_d(lo, hi);
+    out->sah_cost = root_area > 0.0 ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
     memcpy(out->lower, lo, sizeof lo);
     memcpy(out->upper, hi, sizeof hi);
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)

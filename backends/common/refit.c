@@ -9,7 +9,7 @@
  * in each of them again: its parts' planes are not kept.
  *
  * If the triangles that go in the tree now (build_hittable: those that
- * can be hit, and a deforming geometry's zero-area ones) are not the ones
+ * can be hit, and a deforming geometry's zero-area and tiny ones) are not the ones
  * it holds, RTK_REFIT_NEEDS_BUILD, and the core builds afresh.  One walk
  * of the tree does the work, as Embree's refit does: each leaf is written
  * again (reading each triangle's vertices once) and its box taken into its
@@ -48,7 +48,8 @@ typedef struct refit {
     uint64_t total;             /* triangles over all geometries */
     uint64_t *kept;             /* exact check: one bit per triangle that goes in the tree, by global index */
     double *node_sah;           /* per node: build_node_sah */
-    uint64_t (*counts)[3];      /* per chunk of the exact check: non-finite, zero-area, kept */
+    build_counts *counts;       /* per chunk of the exact check: what it left out */
+    uint64_t *kept_counts;      /* and kept */
     const uint32_t *index_of;   /* triangle4 leaves: geometry id -> index in the input */
     uint32_t max_id;
     uint32_t cuts[REFIT_MAX_CUTS]; /* the subtrees refitted in parallel, in depth-first order */
@@ -69,19 +70,19 @@ static void mark_kept(void *data, uint32_t chunk)
     const uint64_t begin = (uint64_t)chunk * REFIT_CHUNK;
     const uint64_t end = begin + REFIT_CHUNK < r->total ? begin + REFIT_CHUNK : r->total;
     uint32_t gi = build_geometry_of(r->geom_first, in->geometry_count, begin);
-    uint64_t skipped = 0, degenerate = 0, kept = 0;
+    build_counts counts = {0, 0, 0};
+    uint64_t kept = 0;
     for (uint64_t i = begin; i < end; i++) {
         while (i >= r->geom_first[gi + 1])
             gi++;
         vfloat4 p[3];
-        if (build_hittable(&in->geometries[gi], i - r->geom_first[gi], p, &skipped, &degenerate)) {
+        if (build_hittable(&in->geometries[gi], i - r->geom_first[gi], p, &counts)) {
             r->kept[i / 64] |= (uint64_t)1 << (i % 64);
             kept++;
         }
     }
-    r->counts[chunk][0] = skipped;
-    r->counts[chunk][1] = degenerate;
-    r->counts[chunk][2] = kept;
+    r->counts[chunk] = counts;
+    r->kept_counts[chunk] = kept;
 }
 
 /* The triangles of leaf block k: input geometry indices and primitive
@@ -306,13 +307,15 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
     bd.ids_kept = 1; /* unwritten, so a task may read the ids of blocks ahead in another task's subtree */
 
     /* The quick check serves when nothing was left out for a non-finite
-     * vertex and every triangle is in one leaf: then the tree holds every
-     * triangle of the deforming geometries, and the others have not
-     * changed (rtk_accel_refit), so the walk need only find every
-     * triangle still finite.  Otherwise the exact check first marks the
+     * vertex or for rtk's range and every triangle is in one leaf: then
+     * the tree holds every triangle of the deforming geometries, and the
+     * others have not changed (rtk_accel_refit), so the walk need only
+     * find every triangle still finite and within the range.  Otherwise the exact check first marks the
      * triangles that go in the tree now. */
     const uint64_t refs = out->refs ? out->refs : out->prims;
-    const int exact = out->prims_skipped != 0 || refs != out->prims;
+    const int has_range = out->struct_size >= offsetof(rtk_build_output, prims_out_of_range) +
+                                                  sizeof out->prims_out_of_range;
+    const int exact = out->prims_skipped != 0 || (has_range && out->prims_out_of_range != 0) || refs != out->prims;
     refit r = {.bd = &bd, .accel = accel};
     uint64_t *geom_first = build_geom_first(in);
     r.geom_first = geom_first;
@@ -321,23 +324,23 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
     if (exact) {
         r.kept = mem_alloc(bd.mem, (r.total / 64 + 1) * sizeof *r.kept, 1);
         r.counts = calloc(tri_chunks ? tri_chunks : 1, sizeof *r.counts);
+        r.kept_counts = calloc(tri_chunks ? tri_chunks : 1, sizeof *r.kept_counts);
     }
     uint32_t *index_of = bd.indexed ? NULL : build_geometry_index(in, &r.max_id);
     r.index_of = index_of;
     r.node_sah = mem_alloc(bd.mem, (accel->node_count ? accel->node_count : 1) * sizeof *r.node_sah, 0);
-    if (!geom_first || (exact && (!r.kept || !r.counts)) || (!bd.indexed && !index_of) || !r.node_sah) {
+    if (!geom_first || (exact && (!r.kept || !r.counts || !r.kept_counts)) || (!bd.indexed && !index_of) || !r.node_sah) {
         rc = refit_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the refit");
         goto done;
     }
 
-    uint64_t skipped = 0, degenerate = 0;
+    build_counts left = {0, 0, 0};
     if (exact) {
         run_parallel(&bd, tri_chunks, mark_kept, &r);
         uint64_t kept = 0;
         for (uint32_t c = 0; c < tri_chunks; c++) {
-            skipped += r.counts[c][0];
-            degenerate += r.counts[c][1];
-            kept += r.counts[c][2];
+            build_counts_add(&left, &r.counts[c]);
+            kept += r.kept_counts[c];
         }
         if (kept != out->prims) {
             rc = RTK_REFIT_NEEDS_BUILD;
@@ -357,21 +360,21 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
         goto done;
     }
     if (!exact) /* left out: the unchanged geometries' zero-area triangles */
-        degenerate = r.total - out->prims + counts.never_hit;
+        left.degenerate = r.total - out->prims + counts.never_hit;
     bd.node_sah = r.node_sah;
     build_accel_finish(&bd, accel, accel->root, out->prims, out->depth, &bounds, out);
     if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
         out->refs = refs;
-    out->prims_skipped = skipped;
-    out->prims_degenerate = degenerate;
+    build_counts_store(out, &left);
 
 done:
     if (rc == RTK_REFIT_NEEDS_BUILD)
         build_set_message(out, "the triangles that go in the tree have changed: a vertex became or stopped being "
-                               "NaN or infinite");
+                               "NaN, infinite or beyond rtk's range");
     free(geom_first);
     mem_free(bd.mem, r.kept);
     free(r.counts);
+    free(r.kept_counts);
     mem_free(bd.mem, r.node_sah);
     free(index_of);
     return rc;

@@ -350,6 +350,33 @@ RTK_API rtk_error rtk_scene_attach_geometry(rtk_scene scene, rtk_geometry geomet
 RTK_API rtk_error rtk_scene_detach_geometry(rtk_scene scene, uint32_t geom_id);
 RTK_API rtk_geometry rtk_scene_get_geometry(rtk_scene scene, uint32_t geom_id);
 
+/* ---- the range rtk answers in (added after rtk 0.2.0) ----
+ * Every query answers as documented for
+ *  - vertex coordinates within +-RTK_COORD_LIMIT (2^36, about 6.9e10);
+ *  - triangles whose cross product of edges (v1 - v0) x (v2 - v0) has a
+ *    component of at least 2^-80 in magnitude (in double precision): a
+ *    triangle of sides about 1e-12 and up, or a needle no thinner than
+ *    that per unit of length (only triangles near the origin can be
+ *    smaller: at coordinates of 1 two vertices are at least 2^-24 apart);
+ *  - any finite ray.
+ * Triangles outside the range are left out at commit (never hit) and
+ * counted in rtk_scene_info.triangles_out_of_range (and in the device's
+ * log at verbose >= 1), as NaN vertices are: before, triangles of edges
+ * 1e-19 and smaller or 1e20 and larger were counted in the tree and never
+ * hit.  Rays need nothing: one whose direction's largest component is
+ * below 2^-8 or above 2^16 is traced with its direction scaled by a power
+ * of two (and tnear, tfar and the hit distance by its inverse), and one
+ * whose origin lies beyond +-2^36 from where it enters the scene's bounds
+ * (the origin moved there along the ray, rounded to float), so a direction
+ * of (0, 0, -1e-38) hits a triangle at t = 1e38 and a ray from 1e20 away
+ * hits what it points at; a hit farther than FLT_MAX (a direction of
+ * 2^-140 toward a triangle 1 away) cannot be reported and is a miss.  Filters and user geometry called for such a ray
+ * see it moved and scaled (at its own address), and it is restored before
+ * the query returns.  The SAH cost is computed in double and stays finite
+ * for any finite scene.  Instances: each scene's own triangles are
+ * checked in its own coordinates; a ray is checked in the top level's. */
+#define RTK_COORD_LIMIT 68719476736.0f
+
 /* Validates every attached, enabled, committed geometry and builds the BVH.
  * Fails (and names the geometry and triangle) on an index out of range.
  * Triangles with a NaN or infinite vertex are left out of the BVH (they can
@@ -458,6 +485,14 @@ typedef struct rtk_scene_info {
      * keep in flight per thread, 0 when the scene's layout has no stream
      * kernel and they trace ray by ray. */
     uint32_t stream_in_flight;
+    /* Added after rtk 0.2.0: triangles outside the range rtk answers in
+     * (see "the range rtk answers in" above rtk_scene_commit): a
+     * coordinate beyond +-RTK_COORD_LIMIT, or an area below the range.
+     * Left out (never hit); not counted in triangles_skipped or
+     * triangles_degenerate.  (REFIT geometries keep their tiny ones in the
+     * tree, never hit, and count them in triangles_degenerate, as their
+     * zero-area ones: a refit may give them their area back.) */
+    uint64_t triangles_out_of_range;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 

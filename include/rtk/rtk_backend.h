@@ -256,6 +256,12 @@ typedef struct rtk_build_output {
      * in->recycle's memory; after a failed build that tree is then gone. */
     uint32_t recycled;
     uint32_t reserved;
+    /* Added after rtk 0.2.0 (the same way): left out for lying outside
+     * rtk's range (rtk.h): a coordinate beyond +-2^36, or area too small
+     * (a deforming geometry's tiny triangles are kept, never hit, and
+     * counted in prims_degenerate instead); not counted in prims_skipped
+     * or prims_degenerate. */
+    uint64_t prims_out_of_range;
 } rtk_build_output;
 
 RTK_BACKEND_FN(int, rtk_build, (const rtk_build_input *in, rtk_build_output *out));
