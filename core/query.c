@@ -134,17 +134,18 @@ static inline __attribute__((always_inline)) int packet_active(const void *packe
     const float *f = packet;
     const uint32_t *u = packet;
 #define LANE(field) f[RAY_ROW(field) * n + i]
-    int32_t any = 0;
-    uint32_t far = 0;
+    int32_t any = 0, far[16];
     for (uint32_t i = 0; i < n; i++) {
         const float z = 0.0f * LANE(org_x) + 0.0f * LANE(org_y) + 0.0f * LANE(org_z) + 0.0f * LANE(dir_x) +
                         0.0f * LANE(dir_y) + 0.0f * LANE(dir_z) + 0.0f * LANE(tnear);
         const float tnear = LANE(tnear);
         active[i] = -((z == 0.0f) & (tnear >= 0.0f) & (tnear <= LANE(tfar)) & (u[RAY_ROW(mask) * n + i] != 0));
         any |= active[i];
-        const float mo = fmaxf(fmaxf(fabsf(LANE(org_x)), fabsf(LANE(org_y))), fabsf(LANE(org_z)));
-        const float md = fmaxf(fmaxf(fabsf(LANE(dir_x)), fabsf(LANE(dir_y))), fabsf(LANE(dir_z)));
-        far |= (uint32_t)((mo > RAY_ORG_MAX) | (md < RAY_DIR_MIN) | (md > RAY_DIR_MAX)) << i;
+        /* ray_check's window, in comparisons alone (so in vectors) */
+        const float ax = fabsf(LANE(dir_x)), ay = fabsf(LANE(dir_y)), az = fabsf(LANE(dir_z));
+        far[i] = -((fabsf(LANE(org_x)) > RAY_ORG_MAX) | (fabsf(LANE(org_y)) > RAY_ORG_MAX) |
+                   (fabsf(LANE(org_z)) > RAY_ORG_MAX) | (ax > RAY_DIR_MAX) | (ay > RAY_DIR_MAX) | (az > RAY_DIR_MAX) |
+                   ((ax < RAY_DIR_MIN) & (ay < RAY_DIR_MIN) & (az < RAY_DIR_MIN)));
     }
 #undef LANE
     if (valid) {
@@ -154,9 +155,12 @@ static inline __attribute__((always_inline)) int packet_active(const void *packe
             any |= active[i];
         }
     }
-    for (uint32_t i = 0; i < n; i++) /* of the lanes that are on */
-        far &= active[i] ? ~0u : ~(1u << i);
-    *range = far;
+    int32_t any_far = 0;
+    for (uint32_t i = 0; i < n; i++)
+        any_far |= far[i] & active[i];
+    *range = 0;
+    for (uint32_t i = 0; any_far && i < n; i++) /* (rare) the lanes that are on and outside */
+        *range |= (uint32_t)(far[i] & active[i] & 1) << i;
     return any != 0;
 }
 
