@@ -184,9 +184,13 @@ static inline int rtk_triangle_intersect(const float o[3], const float d[3], flo
 }
 
 /* The per-ray part of the watertight test: the axis of the largest
- * direction component becomes z (kz), the other two x and y in the order that
- * keeps the winding (kx, ky swapped for a negative z component), and the
- * shear constants sx = d[kx]/d[kz], sy = d[ky]/d[kz], sz = 1/d[kz]. */
+ * direction component becomes z (kz), the next two cyclically x and y, and
+ * the shear constants sx = d[kx]/d[kz], sy = d[ky]/d[kz], sz = 1/d[kz].
+ * Where d[kz] < 0 this mirrors the plane and turns every edge function's
+ * sign round (Woop et al. swap kx and ky there to keep the winding): the
+ * test takes either sign, u, v and t are quotients of two of them, and
+ * culling reads the normal, so nothing changes but the signs; the kernels
+ * then need three permutations, not six (traverse_bvhn.h). */
 typedef struct rtk_watertight_ray {
     int kx, ky, kz;
     float sx, sy, sz;
@@ -196,12 +200,7 @@ static inline void rtk_watertight_ray_init(const float d[3], rtk_watertight_ray 
 {
     const float ax = fabsf(d[0]), ay = fabsf(d[1]), az = fabsf(d[2]);
     int kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
-    int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-    if (d[kz] < 0.0f) {
-        const int k = kx;
-        kx = ky;
-        ky = k;
-    }
+    const int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
     w->kx = kx;
     w->ky = ky;
     w->kz = kz;
@@ -280,7 +279,9 @@ static inline int rtk_triangle_intersect_watertight(const float o[3], const rtk_
     float W = b[0] * a[1] - b[1] * a[0];
     const float det = U + V + W;
     const float absdet = fabsf(det);
-    if (U == 0.0f || V == 0.0f || W == 0.0f || absdet < FLT_MIN) {
+    /* a zero among U, V, W makes the product zero (so does an underflow,
+     * decided exactly too), in every kernel the same way */
+    if ((U * V) * W == 0.0f || absdet < FLT_MIN) {
         const float z[3] = {w->sz * az, w->sz * bz, w->sz * cz};
         if (!rtk_watertight_double(a, b, c, z, tnear, tfar, hit))
             return 0;

@@ -98,6 +98,14 @@ static void test_arithmetic(void **state)
     assert_true(r[0] == 1.0f && r[1] == 0.0f && !signbit(r[1]) && r[2] == 2.0f && r[3] == INFINITY);
     get4(vf4_xor_sign(vf4_set(1.0f, 1.0f, -1.0f, 0.0f), vf4_set(-3.0f, 3.0f, -0.0f, -1.0f)), r);
     assert_true(r[0] == -1.0f && r[1] == 1.0f && r[2] == 1.0f && r[3] == 0.0f && signbit(r[3]));
+    /* bitwise xor and or: the sign bits of (x ^ y) | (x ^ z) say where signs differ */
+    assert_int_equal(vf4_signs(vf4_or(vf4_xor(vf4_set(1.0f, -1.0f, 2.0f, -0.0f), vf4_set(3.0f, -3.0f, -2.0f, 0.0f)),
+                                      vf4_xor(vf4_set(1.0f, -1.0f, 2.0f, -0.0f), vf4_set(4.0f, 4.0f, 1.0f, -1.0f)))),
+                     0xe);
+    get4(vf4_xor(vf4_set(1.0f, -2.0f, 0.0f, 8.0f), vf4_set(-0.0f, -0.0f, -0.0f, 0.0f)), r);
+    assert_true(r[0] == -1.0f && r[1] == 2.0f && r[2] == 0.0f && signbit(r[2]) && r[3] == 8.0f);
+    get4(vf4_or(vf4_set(1.0f, -2.0f, 0.0f, 8.0f), vf4_set(-0.0f, -0.0f, 0.0f, 0.0f)), r);
+    assert_true(r[0] == -1.0f && r[1] == -2.0f && r[2] == 0.0f && !signbit(r[2]) && r[3] == 8.0f);
     assert_true(vf4_reduce_min(vf4_set(3.0f, 1.0f, 2.0f, -5.0f)) == -5.0f);
     assert_true(vf4_reduce_min3(vf4_set(3.0f, 1.0f, 2.0f, -5.0f)) == 1.0f);
     assert_true(vf4_reduce_max3(vf4_set(3.0f, 1.0f, 2.0f, 9.0f)) == 3.0f);

@@ -224,11 +224,6 @@ typedef struct ray_pre {
     vnode norg[3], ninv[3], ninv_far[3]; /* for the node tests */
 #if RTK_ROBUST
     vnode norg_far[3];        /* the origin for the far planes (norg: for the near ones) */
-    /* the watertight test: the permuted origin, the shear, and the offsets
-     * in floats of each permuted axis' coordinates in a block of vertices */
-    vfloat4 worg[3], sx, sy, sz;
-    rtk_watertight_ray w;
-    int axis_off[3];
 #endif
 #if RTK_SIMD_HAS_FMA
     int fma;                   /* 0: org * inv is out of range, use the sub-mul test */
@@ -248,6 +243,33 @@ typedef struct ray_pre {
  * Miguel's diffuse and shadow rays about 1.8% faster; the dragon's diffuse
  * rays within 1%, its shadow rays about 0.8% slower (there the broadcasts
  * now lie on the way to the first triangle test). */
+#if RTK_ROBUST
+/* For the watertight test (rtk_watertight_ray_init): the axis kz of the
+ * direction's largest component, the origin along kx, ky, kz and the shear
+ * d[kx] / d[kz], d[ky] / d[kz], 1 / d[kz], kept in memory and broadcast at
+ * each block as the fused test's ray (ray_mem); made at the first leaf,
+ * one division for the three quotients. */
+typedef struct leaf_ray {
+    _Alignas(16) float wo[4], s[4];
+    int kz;
+} leaf_ray;
+
+static inline __attribute__((always_inline)) void leaf_ray_init(leaf_ray *l, const ray_pre *p)
+{
+    const float *d = p->ds, *o = p->os;
+    const float ax = fabsf(d[0]), ay = fabsf(d[1]), az = fabsf(d[2]);
+    const int kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    const int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+    l->kz = kz;
+    vf4_store(l->s, vf4_div(vf4_set(d[kx], d[ky], 1.0f, 1.0f), vf4_set1(d[kz])));
+    vf4_store(l->wo, vf4_set(o[kx], o[ky], o[kz], 0.0f));
+}
+#if defined(__AVX__)
+#define LR_SET1(x) vf4_set1_at(&(x))
+#else
+#define LR_SET1(x) vf4_set1(x)
+#endif
+#else
 typedef struct leaf_ray {
     vfloat4 org[3], dir[3];
 } leaf_ray;
@@ -259,6 +281,7 @@ static inline void leaf_ray_init(leaf_ray *l, const ray_pre *p)
         l->dir[k] = vf4_set1(p->ds[k]);
     }
 }
+#endif
 
 /* Masks, culling and filters (rtk.h), for a ray that asks for culling in
  * a tree that holds geometry attributes: its candidate hits go through
@@ -325,7 +348,8 @@ static const size_t plane_offsets[8][2][3] = {PLANE_OFFSETS(0), PLANE_OFFSETS(1)
  * ray's instructions on dragon.ply: 176 of 1648, callgrind).  The values
  * are those of per-axis arithmetic bit for bit (the same IEEE operations
  * lane by lane). */
-static inline void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r, const rtk_accel *accel)
+static inline __attribute__((always_inline)) void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r,
+                                                                const rtk_accel *accel)
 {
     (void)accel;
     p->m = pm;
@@ -401,17 +425,6 @@ static inline void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r, const
     }
     memcpy(p->near_off, plane_offsets[neg][0], sizeof p->near_off);
     memcpy(p->far_off, plane_offsets[neg][1], sizeof p->far_off);
-#if RTK_ROBUST
-    rtk_watertight_ray_init(p->ds, &p->w);
-    const int axes[3] = {p->w.kx, p->w.ky, p->w.kz};
-    for (int k = 0; k < 3; k++) {
-        p->worg[k] = vf4_set1(p->os[axes[k]]);
-        p->axis_off[k] = 4 * axes[k];
-    }
-    p->sx = vf4_set1(p->w.sx);
-    p->sy = vf4_set1(p->w.sy);
-    p->sz = vf4_set1(p->w.sz);
-#endif
 }
 
 static inline vnode plane(const node_t *n, size_t off)
@@ -672,71 +685,104 @@ typedef struct tri4_hit {
  * alone in double precision (rare: a ray exactly through an edge or vertex,
  * a triangle seen edge-on, or one so small that its products underflow).  U and V are the weights of v1 and v2 times |det|, T the
  * distance times |det|; a lane decided in double gets |det| = 1. */
-static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, vfloat4 tnear,
-                                           vfloat4 tfar, tri4_hit *h)
+/* The lanes whose float edge functions came out exactly zero (or |det|
+ * below FLT_MIN), decided again in double: rare, so out of the loops. */
+static __attribute__((noinline, cold)) unsigned watertight_lanes(unsigned mask, unsigned zeros, const vfloat4 *xs,
+                                                                 const vfloat4 *ys, const vfloat4 *zs, vfloat4 tnear,
+                                                                 vfloat4 tfar, tri4_hit *h)
 {
-    (void)l; /* (the watertight test takes the ray from p) */
-    const float *f = (const float *)t;
-    const int ox = p->axis_off[0], oy = p->axis_off[1], oz = p->axis_off[2];
-    /* vertex k's coordinate along permuted axis j: f[12 * k + axis_off[j]] */
-    const vfloat4 az = vf4_sub(vf4_load(f + oz), p->worg[2]);
-    const vfloat4 bz = vf4_sub(vf4_load(f + 12 + oz), p->worg[2]);
-    const vfloat4 cz = vf4_sub(vf4_load(f + 24 + oz), p->worg[2]);
-    const vfloat4 ax = vf4_sub(vf4_sub(vf4_load(f + ox), p->worg[0]), vf4_mul(p->sx, az));
-    const vfloat4 ay = vf4_sub(vf4_sub(vf4_load(f + oy), p->worg[1]), vf4_mul(p->sy, az));
-    const vfloat4 bx = vf4_sub(vf4_sub(vf4_load(f + 12 + ox), p->worg[0]), vf4_mul(p->sx, bz));
-    const vfloat4 by = vf4_sub(vf4_sub(vf4_load(f + 12 + oy), p->worg[1]), vf4_mul(p->sy, bz));
-    const vfloat4 cx = vf4_sub(vf4_sub(vf4_load(f + 24 + ox), p->worg[0]), vf4_mul(p->sx, cz));
-    const vfloat4 cy = vf4_sub(vf4_sub(vf4_load(f + 24 + oy), p->worg[1]), vf4_mul(p->sy, cz));
+    _Alignas(16) float lx[3][4], ly[3][4], lz[3][4], hu[4], hv[4], ht[4], hd[4], tn[4], tf[4];
+    for (int k = 0; k < 3; k++) {
+        vf4_store(lx[k], xs[k]);
+        vf4_store(ly[k], ys[k]);
+        vf4_store(lz[k], zs[k]);
+    }
+    vf4_store(hu, h->U), vf4_store(hv, h->V), vf4_store(ht, h->T), vf4_store(hd, h->absdet);
+    vf4_store(tn, tnear), vf4_store(tf, tfar);
+    for (; zeros; zeros &= zeros - 1) {
+        const int i = __builtin_ctz(zeros);
+        const float a2[2] = {lx[0][i], ly[0][i]}, b2[2] = {lx[1][i], ly[1][i]}, c2[2] = {lx[2][i], ly[2][i]};
+        const float z[3] = {lz[0][i], lz[1][i], lz[2][i]};
+        rtk_tri_hit hit;
+        mask &= ~(1u << i);
+        if (!rtk_watertight_double(a2, b2, c2, z, tn[i], tf[i], &hit))
+            continue;
+        mask |= 1u << i;
+        hu[i] = hit.u;
+        hv[i] = hit.v;
+        ht[i] = hit.t;
+        hd[i] = 1.0f;
+    }
+    h->U = vf4_load(hu);
+    h->V = vf4_load(hv);
+    h->T = vf4_load(ht);
+    h->absdet = vf4_load(hd);
+    return mask;
+}
+
+/* The test with the permuted axes kx, ky, kz as constants: each leaf
+ * block's nine loads at fixed offsets (with the axes as variables the
+ * kernel recomputed and spilled nine addresses at every leaf). */
+static inline __attribute__((always_inline)) unsigned watertight4(const float *f, const leaf_ray *l, int kx, int ky,
+                                                                  int kz, vfloat4 tnear, vfloat4 tfar, tri4_hit *h)
+{
+    /* vertex k's coordinate along axis j: f[12 * k + 4 * j] */
+    const vfloat4 ox = LR_SET1(l->wo[0]), oy = LR_SET1(l->wo[1]), oz = LR_SET1(l->wo[2]);
+    const vfloat4 sx = LR_SET1(l->s[0]), sy = LR_SET1(l->s[1]);
+    const vfloat4 az = vf4_sub(vf4_load(f + 4 * kz), oz);
+    const vfloat4 bz = vf4_sub(vf4_load(f + 12 + 4 * kz), oz);
+    const vfloat4 cz = vf4_sub(vf4_load(f + 24 + 4 * kz), oz);
+    const vfloat4 ax = vf4_sub(vf4_sub(vf4_load(f + 4 * kx), ox), vf4_mul(sx, az));
+    const vfloat4 ay = vf4_sub(vf4_sub(vf4_load(f + 4 * ky), oy), vf4_mul(sy, az));
+    const vfloat4 bx = vf4_sub(vf4_sub(vf4_load(f + 12 + 4 * kx), ox), vf4_mul(sx, bz));
+    const vfloat4 by = vf4_sub(vf4_sub(vf4_load(f + 12 + 4 * ky), oy), vf4_mul(sy, bz));
+    const vfloat4 cx = vf4_sub(vf4_sub(vf4_load(f + 24 + 4 * kx), ox), vf4_mul(sx, cz));
+    const vfloat4 cy = vf4_sub(vf4_sub(vf4_load(f + 24 + 4 * ky), oy), vf4_mul(sy, cz));
     const vfloat4 U = vf4_sub(vf4_mul(cx, by), vf4_mul(cy, bx));
     const vfloat4 V = vf4_sub(vf4_mul(ax, cy), vf4_mul(ay, cx));
     const vfloat4 W = vf4_sub(vf4_mul(bx, ay), vf4_mul(by, ax));
     const vfloat4 zero = vf4_set1(0.0f);
-    const vbool4 pos = vb4_and(vb4_and(vf4_ge(U, zero), vf4_ge(V, zero)), vf4_ge(W, zero));
-    const vbool4 neg = vb4_and(vb4_and(vf4_le(U, zero), vf4_le(V, zero)), vf4_le(W, zero));
     const vfloat4 det = vf4_add(vf4_add(U, V), W);
     const vfloat4 absdet = vf4_abs(det);
-    const vfloat4 T = vf4_xor_sign(
-        vf4_add(vf4_add(vf4_mul(U, vf4_mul(p->sz, az)), vf4_mul(V, vf4_mul(p->sz, bz))), vf4_mul(W, vf4_mul(p->sz, cz))),
-        det);
-    vbool4 ok = vb4_or(pos, neg);
-    ok = vb4_and(ok, vf4_ge(absdet, vf4_set1(FLT_MIN)));
+    const vfloat4 sz = LR_SET1(l->s[2]);
+    const vfloat4 szaz = vf4_mul(sz, az), szbz = vf4_mul(sz, bz), szcz = vf4_mul(sz, cz);
+    const vfloat4 T = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(U, szaz), vf4_mul(V, szbz)), vf4_mul(W, szcz)), det);
+    vbool4 ok = vf4_ge(absdet, vf4_set1(FLT_MIN));
     ok = vb4_and(ok, vf4_ge(T, vf4_mul(tnear, absdet)));
     ok = vb4_and(ok, vf4_le(T, vf4_mul(tfar, absdet)));
+    /* inside: U, V and W of one sign, their sign bits agreeing (a lane
+     * with a zero among them is decided below) */
+    unsigned mask = (unsigned)vb4_mask(ok) & ~(unsigned)vf4_signs(vf4_or(vf4_xor(U, V), vf4_xor(U, W)));
+    /* a zero among U, V, W makes the product zero (so does one that
+     * underflows, which the exact test below then decides too; an empty
+     * lane's NaN never does) */
+    const unsigned zeros = (unsigned)vb4_mask(
+        vb4_or(vf4_eq(vf4_mul(vf4_mul(U, V), W), zero), vf4_lt(absdet, vf4_set1(FLT_MIN))));
     h->U = vf4_xor_sign(V, det);
     h->V = vf4_xor_sign(W, det);
     h->T = T;
     h->absdet = absdet;
-    unsigned mask = (unsigned)vb4_mask(ok);
-    unsigned zeros = (unsigned)vb4_mask(vb4_or(vb4_or(vb4_or(vf4_eq(U, zero), vf4_eq(V, zero)), vf4_eq(W, zero)),
-                                               vf4_lt(absdet, vf4_set1(FLT_MIN))));
     if (__builtin_expect(zeros != 0, 0)) {
-        _Alignas(16) float lx[3][4], ly[3][4], lz[3][4], hu[4], hv[4], ht[4], hd[4], tn[4], tf[4];
-        vf4_store(lx[0], ax), vf4_store(lx[1], bx), vf4_store(lx[2], cx);
-        vf4_store(ly[0], ay), vf4_store(ly[1], by), vf4_store(ly[2], cy);
-        vf4_store(lz[0], vf4_mul(p->sz, az)), vf4_store(lz[1], vf4_mul(p->sz, bz)), vf4_store(lz[2], vf4_mul(p->sz, cz));
-        vf4_store(hu, h->U), vf4_store(hv, h->V), vf4_store(ht, T), vf4_store(hd, absdet);
-        vf4_store(tn, tnear), vf4_store(tf, tfar);
-        for (; zeros; zeros &= zeros - 1) {
-            const int i = __builtin_ctz(zeros);
-            const float a2[2] = {lx[0][i], ly[0][i]}, b2[2] = {lx[1][i], ly[1][i]}, c2[2] = {lx[2][i], ly[2][i]};
-            const float z[3] = {lz[0][i], lz[1][i], lz[2][i]};
-            rtk_tri_hit hit;
-            mask &= ~(1u << i);
-            if (!rtk_watertight_double(a2, b2, c2, z, tn[i], tf[i], &hit))
-                continue;
-            mask |= 1u << i;
-            hu[i] = hit.u;
-            hv[i] = hit.v;
-            ht[i] = hit.t;
-            hd[i] = 1.0f;
-        }
-        h->U = vf4_load(hu);
-        h->V = vf4_load(hv);
-        h->T = vf4_load(ht);
-        h->absdet = vf4_load(hd);
+        const vfloat4 xs[3] = {ax, bx, cx}, ys[3] = {ay, by, cy}, zs[3] = {szaz, szbz, szcz};
+        mask = watertight_lanes(mask, zeros, xs, ys, zs, tnear, tfar, h);
     }
     return mask;
+}
+
+static inline __attribute__((always_inline)) unsigned triangle4_intersect(const block_t *t, const ray_pre *p,
+                                                                          const leaf_ray *l, vfloat4 tnear,
+                                                                          vfloat4 tfar, tri4_hit *h)
+{
+    (void)p; /* (the watertight test takes the ray from l) */
+    const float *f = (const float *)t;
+    switch (l->kz) {
+    case 0:
+        return watertight4(f, l, 1, 2, 0, tnear, tfar, h);
+    case 1:
+        return watertight4(f, l, 2, 0, 1, tnear, tfar, h);
+    default:
+        return watertight4(f, l, 0, 1, 2, tnear, tfar, h);
+    }
 }
 #else
 static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, const leaf_ray *l, vfloat4 tnear,

@@ -309,20 +309,15 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
 #if RTK_ROBUST
     /* the axes as rtk_watertight_ray_init picks them, for all lanes at once
      * (the same comparisons and IEEE divisions, so the same values): kz the
-     * largest |d| component, kx and ky the next two cyclically, swapped
-     * where d[kz] < 0 */
+     * largest |d| component, kx and ky the next two cyclically */
     const vk ax = VK(abs)(p->dir[0]), ay = VK(abs)(p->dir[1]), az = VK(abs)(p->dir[2]);
     const vkb xy = VK(gt)(ax, ay);
     const vkb z0 = VKB(and)(xy, VK(gt)(ax, az));       /* kz = x */
     const vkb z1 = VKB(andnot)(VK(gt)(ay, az), xy);    /* kz = y */
     const vkb z2 = VKB(andnot)(VKB(andnot)(VK(eq)(ax, ax), z0), z1); /* kz = z (NaN lanes: none; inactive) */
-    const vk dkz = VK(select)(z0, p->dir[0], VK(select)(z1, p->dir[1], p->dir[2]));
-    const vkb neg = VK(lt)(dkz, VK(set1)(0.0f));
-#define PK_EITHER(m, a, b) VKB(or)(VKB(and)(m, a), VKB(andnot)(b, m)) /* a where m, else b */
-    /* unswapped, kx is x where kz = z, y where kz = x; ky is x where kz = y, y where kz = z */
-    p->is_x[0] = PK_EITHER(neg, z1, z2), p->is_y[0] = PK_EITHER(neg, z2, z0);
-    p->is_x[1] = PK_EITHER(neg, z2, z1), p->is_y[1] = PK_EITHER(neg, z0, z2);
-#undef PK_EITHER
+    /* kx is x where kz = z, y where kz = x; ky is x where kz = y, y where kz = z */
+    p->is_x[0] = z2, p->is_y[0] = z0;
+    p->is_x[1] = z1, p->is_y[1] = z2;
     p->is_x[2] = z0, p->is_y[2] = z1;
     vk dk[3];
     for (int j = 0; j < 3; j++) {
@@ -404,8 +399,9 @@ static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(pac
     *V_out = VK(xor_sign)(W, det);
     *T_out = T;
     *absdet_out = absdet;
-    unsigned zeros = (unsigned)VKB(mask)(VKB(or)(VKB(or)(VKB(or)(VK(eq)(U, zero), VK(eq)(V, zero)), VK(eq)(W, zero)),
-                                                 VK(lt)(absdet, VK(set1)(FLT_MIN))));
+    /* a zero among U, V, W (or a product that underflows), as the single-ray test */
+    unsigned zeros = (unsigned)VKB(mask)(
+        VKB(or)(VK(eq)(VK(mul)(VK(mul)(U, V), W), zero), VK(lt)(absdet, VK(set1)(FLT_MIN))));
     if (__builtin_expect(zeros == 0, 1))
         return ok;
     _Alignas(64) float lx[3][RTK_PACKET], ly[3][RTK_PACKET], lz[3][RTK_PACKET];

@@ -46,7 +46,7 @@ typedef struct stream_slot {
     vnode ntnear, ntfar; /* tnear and tfar broadcast for the node tests (-0.0 made +0.0) */
     ray_pre p;
     ray_mem m;
-#if !RTK_SIMD_HAS_FMA
+#if !RTK_SIMD_HAS_FMA || RTK_ROBUST
     leaf_ray lr; /* (the fused triangle test reads the ray from m) */
 #endif
     void *ray; /* the rtk_rayhit or rtk_ray */
@@ -88,7 +88,8 @@ static inline __attribute__((always_inline)) int stream_start(const rtk_accel *a
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(!s->p.fma, 0))
         return 0;
-#else
+#endif
+#if !RTK_SIMD_HAS_FMA || RTK_ROBUST
     leaf_ray_init(&s->lr, &s->p);
 #endif
     s->ray = r;
@@ -104,7 +105,7 @@ static inline __attribute__((always_inline)) int stream_start(const rtk_accel *a
 
 static inline const leaf_ray *stream_leaf_ray(const stream_slot *s)
 {
-#if RTK_SIMD_HAS_FMA
+#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
     (void)s;
     return NULL;
 #else

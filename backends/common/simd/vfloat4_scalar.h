@@ -78,6 +78,9 @@ RTK_INLINE vfloat4 vf4_xor_sign(vfloat4 a, vfloat4 s)
 {
     RTK_S4_F(rtk_s_float(rtk_s_bits(a.f[k]) ^ (rtk_s_bits(s.f[k]) & INT32_MIN)));
 }
+/* the bits of a and b: xor, or */
+RTK_INLINE vfloat4 vf4_xor(vfloat4 a, vfloat4 b) { RTK_S4_F(rtk_s_float(rtk_s_bits(a.f[k]) ^ rtk_s_bits(b.f[k]))); }
+RTK_INLINE vfloat4 vf4_or(vfloat4 a, vfloat4 b) { RTK_S4_F(rtk_s_float(rtk_s_bits(a.f[k]) | rtk_s_bits(b.f[k]))); }
 /* bit k = lane k's sign bit (-0.0 and negative NaNs included) */
 RTK_INLINE int vf4_signs(vfloat4 a)
 {

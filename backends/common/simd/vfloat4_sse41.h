@@ -89,6 +89,9 @@ RTK_INLINE vfloat4 vf4_yzx(vfloat4 a) { return _mm_shuffle_ps(a, a, _MM_SHUFFLE(
 RTK_INLINE vfloat4 vf4_zxy(vfloat4 a) { return _mm_shuffle_ps(a, a, _MM_SHUFFLE(3, 1, 0, 2)); }
 RTK_INLINE vfloat4 vf4_xor_sign(vfloat4 a, vfloat4 s) { return _mm_xor_ps(a, _mm_and_ps(s, _mm_set1_ps(-0.0f))); }
 /* bit i = lane i's sign bit (-0.0 and negative NaNs included): one movmskps, no comparison */
+/* the bits of a and b: xor, or */
+RTK_INLINE vfloat4 vf4_xor(vfloat4 a, vfloat4 b) { return _mm_xor_ps(a, b); }
+RTK_INLINE vfloat4 vf4_or(vfloat4 a, vfloat4 b) { return _mm_or_ps(a, b); }
 RTK_INLINE int vf4_signs(vfloat4 a) { return _mm_movemask_ps(a); }
 RTK_INLINE float vf4_reduce_min(vfloat4 a)
 {
