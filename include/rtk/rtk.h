@@ -290,10 +290,12 @@ typedef enum rtk_scene_flags {
      * Woop, Benthin and Wald's (2013), with double precision where a float
      * edge function is exactly zero or underflows; boxes are padded.
      * Tested on closed meshes from 1e-20 to 1e8 in size and up to 1e6 from
-     * the origin (tests/test_robust.c).  Costs 6-10% of the default's
-     * diffuse-ray rate.  Moving geometry gets bvh4.triangle4mb.robust (the
-     * vertices interpolated to the ray's time, then the same test), and
-     * packets the same test ray by ray within the packet kernels. */
+     * the origin (tests/test_robust.c).  Costs 2-5% of the default's
+     * rate (rtktool trace on the dragon and San Miguel, 1 thread;
+     * docs/BENCHMARKS.md, "Shared edges").  Moving geometry gets
+     * bvh4.triangle4mb.robust (the vertices interpolated to the ray's
+     * time, then the same test), and packets the same test ray by ray
+     * within the packet kernels. */
     RTK_SCENE_FLAG_ROBUST = 1 << 1,
     /* Geometry changes often: two levels, a tree per triangle geometry
      * (built with the geometry's own quality: low the Morton builder,
