@@ -24,6 +24,7 @@
 
 #include "geometry/triangle.h"
 #include "mesh_import.h"
+#include "mesh_tools.h"
 
 static uint64_t rng_state = 88172645463325252ull;
 static float rnd(void)
@@ -36,20 +37,33 @@ static float rnd(void)
 
 /* ---- the formulations: 1 when the ray (t >= 0) hits the triangle v ---- */
 
-/* rtk 0.2's default: Moeller-Trumbore, U = s . (d x e2), V = d . (s x e1) */
-static int f_rtk(const float *o, const float *d, const float v[3][3])
-{
+/* rtk 0.2's default: Moeller-Trumbore, U = s . (d x e2), V = d . (s x e1);
+ * U, V, T (times |det|), |det| and the edges in *r, and whether it hits. */
+typedef struct mt {
+    float U, V, T, ad;
     float e1[3], e2[3];
+} mt;
+
+static int mt_test(const float *o, const float *d, const float v[3][3], mt *r)
+{
+    float *e1 = r->e1, *e2 = r->e2;
     for (int k = 0; k < 3; k++)
         e1[k] = v[1][k] - v[0][k], e2[k] = v[2][k] - v[0][k];
     const float px = d[1] * e2[2] - d[2] * e2[1], py = d[2] * e2[0] - d[0] * e2[2], pz = d[0] * e2[1] - d[1] * e2[0];
-    const float det = e1[0] * px + e1[1] * py + e1[2] * pz, ad = fabsf(det);
+    const float det = e1[0] * px + e1[1] * py + e1[2] * pz;
     const float sx = o[0] - v[0][0], sy = o[1] - v[0][1], sz = o[2] - v[0][2];
     const float qx = sy * e1[2] - sz * e1[1], qy = sz * e1[0] - sx * e1[2], qz = sx * e1[1] - sy * e1[0];
-    const float U = rtk_xor_sign(sx * px + sy * py + sz * pz, det);
-    const float V = rtk_xor_sign(d[0] * qx + d[1] * qy + d[2] * qz, det);
-    const float T = rtk_xor_sign(e2[0] * qx + e2[1] * qy + e2[2] * qz, det);
-    return U >= 0 && V >= 0 && U + V <= ad && ad >= FLT_MIN && T >= 0;
+    r->ad = fabsf(det);
+    r->U = rtk_xor_sign(sx * px + sy * py + sz * pz, det);
+    r->V = rtk_xor_sign(d[0] * qx + d[1] * qy + d[2] * qz, det);
+    r->T = rtk_xor_sign(e2[0] * qx + e2[1] * qy + e2[2] * qz, det);
+    return r->U >= 0 && r->V >= 0 && r->U + r->V <= r->ad && r->ad >= FLT_MIN && r->T >= 0;
+}
+
+static int f_rtk(const float *o, const float *d, const float v[3][3])
+{
+    mt r;
+    return mt_test(o, d, v, &r);
 }
 
 /* The first nonzero component's sign of e: which of an edge's two
@@ -96,16 +110,9 @@ static int f_watertight(const float *o, const float *d, const float v[3][3])
 static size_t hybrid_tests, hybrid_border;
 static int f_hybrid(const float *o, const float *d, const float v[3][3], float margin)
 {
-    float e1[3], e2[3];
-    for (int k = 0; k < 3; k++)
-        e1[k] = v[1][k] - v[0][k], e2[k] = v[2][k] - v[0][k];
-    const float px = d[1] * e2[2] - d[2] * e2[1], py = d[2] * e2[0] - d[0] * e2[2], pz = d[0] * e2[1] - d[1] * e2[0];
-    const float det = e1[0] * px + e1[1] * py + e1[2] * pz, ad = fabsf(det);
-    const float sx = o[0] - v[0][0], sy = o[1] - v[0][1], sz = o[2] - v[0][2];
-    const float qx = sy * e1[2] - sz * e1[1], qy = sz * e1[0] - sx * e1[2], qz = sx * e1[1] - sy * e1[0];
-    const float U = rtk_xor_sign(sx * px + sy * py + sz * pz, det);
-    const float V = rtk_xor_sign(d[0] * qx + d[1] * qy + d[2] * qz, det);
-    const float T = rtk_xor_sign(e2[0] * qx + e2[1] * qy + e2[2] * qz, det);
+    mt r;
+    mt_test(o, d, v, &r);
+    const float U = r.U, V = r.V, T = r.T, ad = r.ad, *e1 = r.e1, *e2 = r.e2;
     const float m = margin * ad;
     hybrid_tests++;
     if (!(U >= -m && V >= -m && U + V <= ad + m && ad >= FLT_MIN && T >= 0))
@@ -113,27 +120,13 @@ static int f_hybrid(const float *o, const float *d, const float v[3][3], float m
     if (U >= m && V >= m && U + V <= ad - m)
         return 1;
     hybrid_border++;
-    float r[3][3];
+    float back[3][3];
     for (int k = 0; k < 3; k++)
-        r[0][k] = v[0][k], r[1][k] = v[0][k] + e1[k], r[2][k] = v[0][k] + e2[k];
-    return f_watertight(o, d, (const float(*)[3])r);
+        back[0][k] = v[0][k], back[1][k] = v[0][k] + e1[k], back[2][k] = v[0][k] + e2[k];
+    return f_watertight(o, d, (const float(*)[3])back);
 }
 
 /* ---- the mesh ---- */
-
-typedef struct edge {
-    uint32_t a, b, tri;
-} edge;
-
-static int edge_cmp(const void *x, const void *y)
-{
-    const edge *p = x, *q = y;
-    if (p->a != q->a)
-        return p->a < q->a ? -1 : 1;
-    if (p->b != q->b)
-        return p->b < q->b ? -1 : 1;
-    return p->tri < q->tri ? -1 : p->tri > q->tri;
-}
 
 /* Each triangle's first corner (0, 1 or 2): greedily, vertices in index
  * order become hubs where none of their triangles has one yet, and each
@@ -243,24 +236,11 @@ int main(int argc, char **argv)
         return 1;
     }
     const size_t nt = m.triangle_count;
-    edge *e = malloc((nt ? 3 * nt : 1) * sizeof *e);
+    rtk_mesh_edge *e;
+    const size_t pairs = rtk_mesh_shared_edges(&m, 1, &e);
     if (!e) {
         fprintf(stderr, "out of memory\n");
         return 1;
-    }
-    for (size_t t = 0; t < nt; t++)
-        for (int k = 0; k < 3; k++) {
-            const uint32_t a = m.indices[3 * t + (size_t)k], b = m.indices[3 * t + (size_t)(k + 1) % 3];
-            e[3 * t + (size_t)k] = (edge){a < b ? a : b, a < b ? b : a, (uint32_t)t};
-        }
-    qsort(e, 3 * nt, sizeof *e, edge_cmp);
-    size_t pairs = 0; /* entries 2k, 2k + 1: edge k in its two triangles */
-    for (size_t i = 0; i + 1 < 3 * nt; i++) {
-        const int starts = i == 0 || e[i - 1].a != e[i].a || e[i - 1].b != e[i].b;
-        const int two = e[i + 1].a == e[i].a && e[i + 1].b == e[i].b &&
-                        (i + 2 >= 3 * nt || e[i + 2].a != e[i].a || e[i + 2].b != e[i].b);
-        if (starts && two && e[i].a != e[i].b)
-            e[pairs++] = e[i], e[pairs++] = e[i + 1];
     }
     if (pairs < 2) {
         fprintf(stderr, "edge_formulations: %s has no edge shared by two triangles\n", path);

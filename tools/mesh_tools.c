@@ -163,3 +163,36 @@ int rtk_mesh_procedural_name(const char *name, size_t *triangles)
     *triangles = (size_t)(v * scale);
     return 1;
 }
+
+static int edge_cmp(const void *x, const void *y)
+{
+    const rtk_mesh_edge *p = x, *q = y;
+    if (p->a != q->a)
+        return p->a < q->a ? -1 : 1;
+    if (p->b != q->b)
+        return p->b < q->b ? -1 : 1;
+    return p->tri < q->tri ? -1 : p->tri > q->tri;
+}
+
+size_t rtk_mesh_shared_edges(const rtk_mesh *m, int distinct, rtk_mesh_edge **out)
+{
+    const size_t nt = m->triangle_count;
+    rtk_mesh_edge *e = *out = malloc(3 * nt * sizeof *e + 1);
+    if (!e)
+        return 0;
+    for (size_t t = 0; t < nt; t++)
+        for (int k = 0; k < 3; k++) {
+            const uint32_t a = m->indices[3 * t + (size_t)k], b = m->indices[3 * t + (size_t)(k + 1) % 3];
+            e[3 * t + (size_t)k] = (rtk_mesh_edge){a < b ? a : b, a < b ? b : a, (uint32_t)t};
+        }
+    qsort(e, 3 * nt, sizeof *e, edge_cmp);
+    size_t pairs = 0;
+    for (size_t i = 0; i + 1 < 3 * nt; i++) {
+        const int starts = i == 0 || e[i - 1].a != e[i].a || e[i - 1].b != e[i].b;
+        const int two = e[i + 1].a == e[i].a && e[i + 1].b == e[i].b &&
+                        (i + 2 >= 3 * nt || e[i + 2].a != e[i].a || e[i + 2].b != e[i].b);
+        if (starts && two && (!distinct || e[i].a != e[i].b))
+            e[pairs++] = e[i], e[pairs++] = e[i + 1];
+    }
+    return pairs;
+}

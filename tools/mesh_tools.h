@@ -22,6 +22,17 @@ void rtk_mesh_drop_unhittable(rtk_mesh *mesh, size_t *degenerate, size_t *non_fi
 /* Counts without dropping. */
 void rtk_mesh_count_unhittable(const rtk_mesh *mesh, size_t *degenerate, size_t *non_finite);
 
+/* An edge of a triangle: its vertex indices, a < b, and the triangle. */
+typedef struct rtk_mesh_edge {
+    uint32_t a, b;
+    uint32_t tri;
+} rtk_mesh_edge;
+/* The edges of exactly two triangles (with distinct != 0, only those
+ * joining two distinct vertices), sorted: entries 2k and 2k + 1 of *out
+ * are edge k in its two triangles; returns the number of entries.  *out is
+ * malloc'd (NULL when out of memory, the return then 0). */
+size_t rtk_mesh_shared_edges(const rtk_mesh *mesh, int distinct, rtk_mesh_edge **out);
+
 /* A procedural mesh of about `triangles` triangles (at least 2): a sphere
  * of radius 1 with bumps at several scales, as a grid of 2 R^2 triangles in
  * scanline order (as scans come).  What "procedural:N" names to the tools.

@@ -9,48 +9,6 @@
 
 /* ---- edge rays (accuracy) ---- */
 
-typedef struct edge {
-    uint32_t a, b; /* vertex indices, a < b */
-    uint32_t tri;
-} edge;
-
-static int edge_cmp(const void *x, const void *y)
-{
-    const edge *p = x, *q = y;
-    if (p->a != q->a)
-        return p->a < q->a ? -1 : 1;
-    if (p->b != q->b)
-        return p->b < q->b ? -1 : 1;
-    return p->tri < q->tri ? -1 : p->tri > q->tri;
-}
-
-/* The edges of exactly two triangles (distinct: only those of two distinct
- * vertices), sorted: entries 2k and 2k + 1 of *out are edge k in its two
- * triangles; returns the number of entries.  *out is malloc'd (NULL when
- * out of memory). */
-static size_t shared_edges(const rtk_mesh *m, int distinct, edge **out)
-{
-    const size_t nt = m->triangle_count;
-    edge *e = *out = malloc(3 * nt * sizeof *e + 1);
-    if (!e)
-        return 0;
-    for (size_t t = 0; t < nt; t++)
-        for (int k = 0; k < 3; k++) {
-            const uint32_t a = m->indices[3 * t + (size_t)k], b = m->indices[3 * t + (size_t)(k + 1) % 3];
-            e[3 * t + (size_t)k] = (edge){a < b ? a : b, a < b ? b : a, (uint32_t)t};
-        }
-    qsort(e, 3 * nt, sizeof *e, edge_cmp);
-    size_t pairs = 0;
-    for (size_t i = 0; i + 1 < 3 * nt; i++) {
-        const int starts = i == 0 || e[i - 1].a != e[i].a || e[i - 1].b != e[i].b;
-        const int two = e[i + 1].a == e[i].a && e[i + 1].b == e[i].b &&
-                        (i + 2 >= 3 * nt || e[i + 2].a != e[i].a || e[i + 2].b != e[i].b);
-        if (starts && two && (!distinct || e[i].a != e[i].b))
-            e[pairs++] = e[i], e[pairs++] = e[i + 1];
-    }
-    return pairs;
-}
-
 /* The corner k of triangle t whose edge to corner k + 1 joins a and b
  * (either way round), or -1. */
 static int edge_corner(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
@@ -66,8 +24,8 @@ static int edge_corner(const rtk_mesh *m, uint32_t t, uint32_t a, uint32_t b)
 int quads_make(const rtk_mesh *m, quad_list *out)
 {
     const size_t nt = m->triangle_count;
-    edge *e;
-    const size_t pairs = shared_edges(m, 0, &e);
+    rtk_mesh_edge *e;
+    const size_t pairs = rtk_mesh_shared_edges(m, 0, &e);
     uint64_t *across = malloc((nt ? 3 * nt : 1) * sizeof *across); /* the edge 3 t + k's other side, or ~0 */
     unsigned char *used = calloc(nt ? nt : 1, 1);
     out->q = malloc((nt ? nt : 1) * 4 * sizeof *out->q);
@@ -133,8 +91,8 @@ size_t make_edge_rays(const rtk_mesh *m, size_t want, rayset *set)
     set->rays = NULL;
     set->pair = NULL;
     set->n = 0;
-    edge *e;
-    const size_t pairs = shared_edges(m, 1, &e);
+    rtk_mesh_edge *e;
+    const size_t pairs = rtk_mesh_shared_edges(m, 1, &e);
     if (!e)
         return 0;
     float lo[3], hi[3];
