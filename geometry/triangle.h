@@ -196,17 +196,23 @@ typedef struct rtk_watertight_ray {
     float sx, sy, sz;
 } rtk_watertight_ray;
 
-static inline void rtk_watertight_ray_init(const float d[3], rtk_watertight_ray *w)
+/* The axes alone: kz of the largest |d| component, kx and ky the next two
+ * cyclically (the kernels' set-up takes these and divides its own way,
+ * traverse_bvhn.h's leaf_ray_init). */
+static inline void rtk_watertight_axes(const float d[3], int *kx, int *ky, int *kz)
 {
     const float ax = fabsf(d[0]), ay = fabsf(d[1]), az = fabsf(d[2]);
-    int kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
-    const int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
-    w->kx = kx;
-    w->ky = ky;
-    w->kz = kz;
-    w->sx = d[kx] / d[kz];
-    w->sy = d[ky] / d[kz];
-    w->sz = 1.0f / d[kz];
+    *kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
+    *kx = *kz == 2 ? 0 : *kz + 1;
+    *ky = *kx == 2 ? 0 : *kx + 1;
+}
+
+static inline void rtk_watertight_ray_init(const float d[3], rtk_watertight_ray *w)
+{
+    rtk_watertight_axes(d, &w->kx, &w->ky, &w->kz);
+    w->sx = d[w->kx] / d[w->kz];
+    w->sy = d[w->ky] / d[w->kz];
+    w->sz = 1.0f / d[w->kz];
 }
 
 /* An edge function's sign at the ray moved by (e, e^2) in the sheared

@@ -257,9 +257,8 @@ typedef struct leaf_ray {
 static inline __attribute__((always_inline)) void leaf_ray_init(leaf_ray *l, const ray_pre *p)
 {
     const float *d = p->ds, *o = p->os;
-    const float ax = fabsf(d[0]), ay = fabsf(d[1]), az = fabsf(d[2]);
-    const int kz = ax > ay ? (ax > az ? 0 : 2) : (ay > az ? 1 : 2);
-    const int kx = kz == 2 ? 0 : kz + 1, ky = kx == 2 ? 0 : kx + 1;
+    int kx, ky, kz;
+    rtk_watertight_axes(d, &kx, &ky, &kz);
     l->kz = kz;
     vf4_store(l->s, vf4_div(vf4_set(d[kx], d[ky], 1.0f, 1.0f), vf4_set1(d[kz])));
     vf4_store(l->wo, vf4_set(o[kx], o[ky], o[kz], 0.0f));
@@ -679,14 +678,9 @@ typedef struct tri4_hit {
 } tri4_hit;
 
 #if RTK_ROBUST
-/* The watertight test (rtk_triangle_intersect_watertight) on four
- * triangles at once, lane by lane the same arithmetic; a lane where an edge
- * function comes out exactly zero, or |det| below FLT_MIN, is decided again
- * alone in double precision (rare: a ray exactly through an edge or vertex,
- * a triangle seen edge-on, or one so small that its products underflow).  U and V are the weights of v1 and v2 times |det|, T the
- * distance times |det|; a lane decided in double gets |det| = 1. */
-/* The lanes whose float edge functions came out exactly zero (or |det|
- * below FLT_MIN), decided again in double: rare, so out of the loops. */
+/* The lanes of watertight4 whose float edge functions came out exactly
+ * zero (or |det| below FLT_MIN), decided again in double: rare, so out of
+ * the loops. */
 static __attribute__((noinline, cold)) unsigned watertight_lanes(unsigned mask, unsigned zeros, const vfloat4 *xs,
                                                                  const vfloat4 *ys, const vfloat4 *zs, vfloat4 tnear,
                                                                  vfloat4 tfar, tri4_hit *h)
@@ -720,9 +714,17 @@ static __attribute__((noinline, cold)) unsigned watertight_lanes(unsigned mask, 
     return mask;
 }
 
-/* The test with the permuted axes kx, ky, kz as constants: each leaf
- * block's nine loads at fixed offsets (with the axes as variables the
- * kernel recomputed and spilled nine addresses at every leaf). */
+/* The watertight test (rtk_triangle_intersect_watertight) on four
+ * triangles at once, lane by lane the same arithmetic; a lane where an edge
+ * function comes out exactly zero, or |det| below FLT_MIN, is decided again
+ * alone in double precision (rare: a ray exactly through an edge or vertex,
+ * a triangle seen edge-on, or one so small that its products underflow).
+ * U and V are the weights of v1 and v2 times |det|, T the distance times
+ * |det|; a lane decided in double gets |det| = 1.  The permuted axes kx,
+ * ky, kz are constants here (triangle4_intersect picks one of three
+ * copies), so each block's nine loads are at fixed offsets: with the axes
+ * as variables the kernel recomputed and spilled nine addresses at every
+ * leaf. */
 static inline __attribute__((always_inline)) unsigned watertight4(const float *f, const leaf_ray *l, int kx, int ky,
                                                                   int kz, vfloat4 tnear, vfloat4 tfar, tri4_hit *h)
 {

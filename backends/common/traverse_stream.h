@@ -47,7 +47,7 @@ typedef struct stream_slot {
     ray_pre p;
     ray_mem m;
 #if !RTK_SIMD_HAS_FMA || RTK_ROBUST
-    leaf_ray lr; /* (the fused triangle test reads the ray from m) */
+    leaf_ray lr; /* the ray of the unfused and the watertight triangle tests (the fused one reads m) */
 #endif
     void *ray; /* the rtk_rayhit or rtk_ray */
     closest_hit best;
