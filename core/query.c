@@ -197,10 +197,7 @@ static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s,
             if (range >> i & 1) {
                 rtk_rayhit rh;
                 copy_lanes(&rh, 1, 0, packet, n, i, 1, fields);
-                if (occluded)
-                    range_occluded1(s, &rh.ray, &query);
-                else
-                    range_intersect1(s, &rh, &query);
+                range_trace1(s, &rh, occluded, &query);
                 copy_lanes(packet, n, i, &rh, 1, 0, 1, fields);
                 active[i] = 0;
             }

@@ -138,3 +138,11 @@ void range_occluded1(rtk_scene s, rtk_ray *ray, const rtk_query *q)
         s->occluded1(s->accel, ray, q);
     range_leave(ray, &k, 1);
 }
+
+void range_trace1(rtk_scene s, void *ray, int occluded, const rtk_query *q)
+{
+    if (occluded)
+        range_occluded1(s, ray, q);
+    else
+        range_intersect1(s, ray, q);
+}

@@ -242,6 +242,8 @@ static inline int ray_check(const rtk_ray *r)
  * in"); through the scene's single-ray kernels. */
 RTK_INTERNAL void range_intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query *q);
 RTK_INTERNAL void range_occluded1(rtk_scene s, rtk_ray *ray, const rtk_query *q);
+/* either, for an rtk_ray (occluded) or an rtk_rayhit */
+RTK_INTERNAL void range_trace1(rtk_scene s, void *ray, int occluded, const rtk_query *q);
 
 /* An error for a call that must not overlap a commit of the scene (fn
  * names it), when one is running; RTK_OK otherwise. */

@@ -46,15 +46,6 @@ static rtk_error stream_check(rtk_scene s, const void *rays, size_t count, size_
     return RTK_OK;
 }
 
-/* A ray outside the kernels' window (ray_check), alone. */
-static void trace_range(rtk_scene s, void *ray, int occluded, const rtk_query *q)
-{
-    if (occluded)
-        range_occluded1(s, ray, q);
-    else
-        range_intersect1(s, ray, q);
-}
-
 /* Traces rays [0, count) of the (checked) stream: the valid ones, a chunk
  * at a time, through the stream kernel, or ray by ray without one. */
 static void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occluded, const rtk_query *q)
@@ -64,7 +55,7 @@ static void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, i
             rtk_rayhit *r = (rtk_rayhit *)(void *)(rays + i * stride);
             const int kind = ray_check(&r->ray);
             if (kind == RAY_RANGE)
-                trace_range(s, r, occluded, q);
+                range_trace1(s, r, occluded, q);
             else if (kind == RAY_PLAIN && occluded)
                 s->occluded1(s->accel, &r->ray, q);
             else if (kind == RAY_PLAIN)
@@ -89,7 +80,7 @@ static void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, i
             if (__builtin_expect(kind == RAY_PLAIN, 1))
                 list[n++] = r;
             else if (kind == RAY_RANGE) /* alone, in order with the rest: a stream's rays are independent */
-                trace_range(s, r, occluded, q);
+                range_trace1(s, r, occluded, q);
         }
         if (!n)
             continue;
