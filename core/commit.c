@@ -188,6 +188,16 @@ static const rtk_task_system *commit_tasks(rtk_scene s, rtk_task_system *copy)
     return rtk_device_tasks(s->device, copy);
 }
 
+/* The layout's width-1 kernel for a query the core may not require
+ * (closest points), or NULL. */
+static const rtk_kernel_entry *find_query_kernel(const rtk_backend_desc *d, uint32_t layout, uint32_t query)
+{
+    for (const rtk_kernel_entry *k = d->kernels; k->layout; k++)
+        if (k->layout == layout && k->query == query && k->width == 1)
+            return k;
+    return NULL;
+}
+
 /* The layout's stream kernel for the query, or NULL. */
 static const rtk_kernel_entry *find_stream_kernel(const rtk_backend_desc *d, uint32_t layout, uint32_t query)
 {
@@ -427,6 +437,8 @@ static void install(rtk_scene s, accel_ref *ref, const rtk_build_output *out, co
     s->intersect_stream = si ? si->fn.intersect_stream : NULL;
     s->occluded_stream = so ? so->fn.occluded_stream : NULL;
     s->stream_in_flight = si && so ? (si->in_flight ? si->in_flight : 1) : 0;
+    const rtk_kernel_entry *cp = find_query_kernel(bk, ref->layout->id, RTK_QUERY_CLOSEST_POINT);
+    s->closest_point = cp ? cp->fn.closest_point : NULL;
     remember_built(s);
 }
 
@@ -811,6 +823,9 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     top->child_count = nchildren;
     top->depth = depth;
     top->user_prims = prims;
+    top->user_deep = used;
+    for (uint32_t c = 0; c < nchildren; c++)
+        top->user_deep += children[c]->user_deep;
     install(s, top, &out, "objects", own_seconds + (t1 - t0));
     if (!used) /* the objects' packet kernels serve user primitives' callbacks; other top levels go ray by ray */
         for (int w = 0; w < 3; w++)

@@ -89,6 +89,7 @@ void scene_drop_accel(rtk_scene s)
     s->occluded1 = NULL;
     s->intersect_stream = NULL;
     s->occluded_stream = NULL;
+    s->closest_point = NULL;
     s->stream_in_flight = 0;
 }
 

@@ -38,8 +38,10 @@ typedef struct accel_ref {
     uint32_t child_count;
     uint32_t depth; /* levels of instances below: 0 for a tree of triangles */
     float lower[3], upper[3];
-    /* A top level: the user primitives its objects point to. */
+    /* A top level: the user primitives its objects point to, and how many
+     * there are in it and in the trees below (which closest points refuse). */
     struct user_prim *user_prims;
+    uint64_t user_deep;
 } accel_ref;
 
 typedef struct buffer {
@@ -143,6 +145,9 @@ struct rtk_scene_s {
     rtk_intersect_stream_fn intersect_stream;
     rtk_occluded_stream_fn occluded_stream;
     uint32_t stream_in_flight; /* rtk_scene_info.stream_in_flight */
+    /* For closest points (point_query.c): the layout's kernel, NULL when it
+     * has none. */
+    rtk_closest_point_kernel_fn closest_point;
     rtk_build_output stats;
     double build_seconds;
     /* With instances: how many, and the build of the scene's own triangles

@@ -229,6 +229,20 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersect1 = RTK_SYM(rtk_bvh4mbr_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, .query = RTK_QUERY_OCCLUDED, .width = 1,
      .fn.occluded1 = RTK_SYM(rtk_bvh4mbr_occluded1)},
+    /* closest points: one kernel walks every layout (point_query.c) */
+#define CLOSEST(id) {.layout = id, .query = RTK_QUERY_CLOSEST_POINT, .width = 1, .fn.closest_point = RTK_SYM(rtk_closest_point)}
+#ifdef RTK_SIMD_HAS_8
+    CLOSEST(RTK_LAYOUT_BVH8_TRIANGLE4),
+    CLOSEST(RTK_LAYOUT_BVH8_TRIANGLE4V),
+#endif
+    CLOSEST(RTK_LAYOUT_BVH4_TRIANGLE4),
+    CLOSEST(RTK_LAYOUT_BVH4_TRIANGLE4I),
+    CLOSEST(RTK_LAYOUT_BVH4_TRIANGLE4V),
+    CLOSEST(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST),
+    CLOSEST(RTK_LAYOUT_BVH4_OBJECT),
+    CLOSEST(RTK_LAYOUT_BVH4_TRIANGLE4MB),
+    CLOSEST(RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST),
+#undef CLOSEST
     {0},
 };
 

@@ -81,4 +81,6 @@ RTK_STREAM_DECL_(4ir)
 #undef RTK_STREAM_DECL_
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+/* closest points, every layout (point_query.c) */
+RTK_HIDDEN void RTK_SYM(rtk_closest_point)(const rtk_accel *accel, rtk_point_state *state, const rtk_query *q);
 #endif

@@ -70,7 +70,8 @@ RTK_API const char *rtk_version_string(void);
     X(RTK_ERROR_UNSUPPORTED_CPU, 7, "the CPU lacks a required instruction set")     \
     X(RTK_ERROR_INVALID_GEOMETRY, 8, "invalid geometry")                            \
     X(RTK_ERROR_CANCELLED, 9, "cancelled by the progress callback")                 \
-    X(RTK_ERROR_MEMORY_REFUSED, 10, "memory refused by the memory monitor")
+    X(RTK_ERROR_MEMORY_REFUSED, 10, "memory refused by the memory monitor")         \
+    X(RTK_ERROR_UNSUPPORTED, 11, "not supported for this scene or backend")
 
 typedef enum rtk_error {
 #define RTK_X_(name, value, text) name = value,
@@ -915,6 +916,62 @@ RTK_API rtk_error rtk_intersect_batch(rtk_scene scene, rtk_rayhit *rays, size_t 
                                       const rtk_query_context *context);
 RTK_API rtk_error rtk_occluded_batch(rtk_scene scene, rtk_ray *rays, size_t count, size_t byte_stride,
                                      const rtk_query_context *context);
+
+/* ---- closest points (added after rtk 0.2.0) --------------------------------
+ * The point of the scene's surface nearest to a query point, within a
+ * radius: for the geometry tools that ask for distances rather than hits.
+ * The traversal visits the boxes nearest to the point first and leaves out
+ * every box farther than the best triangle so far, so a query costs a few
+ * dozen box and triangle steps wherever the point lies.
+ *
+ * The surface is the scene's triangles as rays see them: triangle and quad
+ * meshes, through instances (instances of instances too: the distance is
+ * measured in the scene's space whatever the instance's scale or shear),
+ * at the query's time for motion blur, and without the triangles rays
+ * never hit either (those left out at the commit: zero area, NaN or
+ * infinite vertices, outside rtk's range; rtk_scene_info counts them).
+ * Masks and filters play no part.  Scenes with user geometry are refused
+ * (RTK_ERROR_UNSUPPORTED): rtk cannot measure a distance to them.
+ *
+ * Precision: the query point is a double and the answer is computed in
+ * double from the scene's float vertices, so it loses nothing of either;
+ * distance is the distance from the query point to the point x, y, z
+ * reported.  The default layouts keep a vertex and two edges per triangle
+ * (v1 = v0 + (v1 - v0)), which can move a vertex by half an ulp of an
+ * edge; robust scenes (RTK_SCENE_FLAG_ROBUST) and compact ones keep or
+ * read the vertices themselves.  Two triangles at the same distance (a
+ * point nearest to a shared edge or vertex): either may be reported.  */
+typedef struct rtk_point_query {
+    double x, y, z;  /* the query point: finite, each coordinate within +-2^64 */
+    double radius;   /* only surface within this distance counts: >= 0, INFINITY for all of it */
+    float time;      /* motion blur: the time in [0, 1] the scene is taken at */
+    uint32_t reserved; /* 0 */
+} rtk_point_query;
+
+typedef struct rtk_point_hit {
+    double x, y, z;  /* the nearest point of the surface */
+    double distance; /* from the query point to it; INFINITY when no surface lies within the radius */
+    float u, v;      /* its barycentric coordinates on the triangle (over the quad for quads), as a hit's */
+    float n_x, n_y, n_z; /* the triangle's unit normal in the scene's space, oriented as a hit's Ng (0 when it has no area) */
+    uint32_t primID, geomID, instID; /* as a hit's; RTK_INVALID_GEOMETRY_ID when no surface lies within the radius */
+} rtk_point_hit;
+
+/* One query, on the calling thread.  RTK_ERROR_INVALID_ARGUMENT for a NULL
+ * argument, a point not finite or beyond +-2^64, a radius negative or NaN,
+ * a time outside [0, 1] or reserved not 0 (nothing written);
+ * RTK_ERROR_INVALID_OPERATION for a scene never committed or being
+ * committed; RTK_ERROR_UNSUPPORTED for a scene with user geometry or a
+ * backend without closest-point kernels. */
+RTK_API rtk_error rtk_closest_point(rtk_scene scene, const rtk_point_query *query, rtk_point_hit *result);
+
+/* `count` queries over the device's threads (its pool, or the
+ * application's task system), results[i] for queries[i].  The errors of
+ * rtk_closest_point for the call as a whole (then nothing is written);
+ * a query that is not valid gets distance NaN and the invalid ids
+ * (RTK_INVALID_GEOMETRY_ID) and the others their answers, and the call
+ * succeeds. */
+RTK_API rtk_error rtk_closest_point_batch(rtk_scene scene, const rtk_point_query *queries,
+                                          rtk_point_hit *results, size_t count);
 
 /* ---- ray packets -----------------------------------------------------------
  * Packets of 4, 8 or 16 rays as structures of arrays: the fields of rtk_ray

@@ -290,10 +290,33 @@ RTK_BACKEND_FN(void, rtk_occluded_stream, (const rtk_accel *accel, rtk_ray *cons
                                             const rtk_query *query));
 #define RTK_KERNEL_WIDTH_STREAM 0xffffffffu
 
+/* Closest points (added after rtk 0.2.0; interface version 2 still: a core
+ * that knows them looks for kernel entries of query
+ * RTK_QUERY_CLOSEST_POINT, width 1, an older one passes over them, and a
+ * scene whose layout has none answers RTK_ERROR_UNSUPPORTED).  The core
+ * fills the state: the query point and time (checked as rtk.h says),
+ * best2 the squared radius, the result's ids RTK_INVALID_GEOMETRY_ID.  The
+ * kernel looks for the triangle nearest to the point, in the same space
+ * (through the objects of a top level, in the space of the accel it is
+ * handed), and wherever it finds one nearer than sqrt(best2) it lowers
+ * best2 to its squared distance and writes the result: the point, u, v,
+ * the unit normal, primID, geomID and instID (the outermost instance
+ * entered, or query->inst_id); distance is left for the core to set. */
+typedef struct rtk_point_state {
+    double p[3];
+    double best2;
+    float time;
+    uint32_t reserved;
+    rtk_point_hit *result;
+} rtk_point_state;
+RTK_BACKEND_FN(void, rtk_closest_point_kernel, (const rtk_accel *accel, rtk_point_state *state,
+                                                const rtk_query *query));
+
 enum rtk_query_kind {
     RTK_QUERY_NONE = 0, /* ends a table */
     RTK_QUERY_INTERSECT = 1,
     RTK_QUERY_OCCLUDED = 2,
+    RTK_QUERY_CLOSEST_POINT = 3, /* width 1: fn.closest_point */
 };
 
 /* Layout ids are global so the core can name and choose them. */
@@ -341,6 +364,7 @@ typedef struct rtk_kernel_entry {
         rtk_occludedN_fn occludedN;
         rtk_intersect_stream_fn intersect_stream; /* width RTK_KERNEL_WIDTH_STREAM */
         rtk_occluded_stream_fn occluded_stream;
+        rtk_closest_point_kernel_fn closest_point; /* query RTK_QUERY_CLOSEST_POINT */
         void (*any)(void);
     } fn;
 } rtk_kernel_entry;

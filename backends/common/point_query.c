@@ -1,0 +1,480 @@
+/*
+ * Closest points (rtk.h: rtk_closest_point): the triangle of an accel
+ * nearest to a query point, one kernel for every layout of this backend.
+ *
+ * The walk visits the boxes nearest to the point first: at a node the
+ * children's squared distances from the point come from one SIMD step
+ * (4 or 8 lanes, the node's width), the children within the best distance
+ * so far are sorted, the nearest is entered and the others pushed with
+ * their distances, and a popped entry is dropped when the best distance has
+ * fallen below it since.  At a leaf each triangle's nearest point is
+ * computed in double (geometry/closest_point.h) from the vertices the
+ * layout keeps.
+ *
+ * Boxes are tested in float against the point rounded to float: a box is
+ * left out only when even its distance lowered by the rounding (the
+ * point's, dp, and a relative 2^-22 of each gap) exceeds the best distance
+ * raised by 2^-20, so the walk never leaves out a box that holds a nearer
+ * triangle, and the answer is the double-precision one.
+ *
+ * Through the objects of a top level (instances, a dynamic scene's trees)
+ * the walk goes on in each object's space: the point taken there by its
+ * world_to_object map M, boxes compared with the best distance scaled by a
+ * bound of M's largest singular value (a surface point within d of the
+ * point in the level's space is within |M| d in the object's), and each
+ * triangle's vertices taken back to the scene's space (through the
+ * inverse, composed down the levels), where every distance is measured.
+ */
+#include <float.h>
+#include <math.h>
+#include <stddef.h>
+#include <string.h>
+
+#include "backend_common.h"
+#include "bvh4_triangle4.h"
+#include "geometry/closest_point.h"
+#include "kernels.h"
+#include "simd/simd.h"
+
+/* The query as one level of the scene sees it. */
+typedef struct pq_level {
+    rtk_point_state *st;  /* the query, in the scene's space: best2 and the result */
+    double p[3];          /* the point in this level's space */
+    float pf[3];          /* rounded to float */
+    float dp;             /* the largest |p - pf| of the three */
+    double scale2;        /* a bound of the squared largest singular value of scene -> level (1: the scene's) */
+    int transformed;      /* o2w holds level -> scene */
+    double o2w[12];       /* row-major 3x4 */
+    uint32_t inst_id;     /* the outermost instance entered, else the query's */
+} pq_level;
+
+static void level_point(pq_level *l)
+{
+    float dp = 0.0f;
+    for (int k = 0; k < 3; k++) {
+        l->pf[k] = (float)l->p[k];
+        const float d = (float)fabs(l->p[k] - (double)l->pf[k]);
+        dp = d > dp ? d : dp;
+    }
+    /* rounding up: the float of a double may be below it */
+    l->dp = dp > 0.0f ? nextafterf(dp, INFINITY) : 0.0f;
+}
+
+/* The best squared distance in this level's space, rounded up and raised
+ * by 2^-20 for the float box test's own rounding. */
+static inline float level_bound(const pq_level *l)
+{
+    const double b = l->st->best2 * l->scale2 * (1.0 + 0x1p-20);
+    return b >= (double)FLT_MAX ? INFINITY : nextafterf((float)b, INFINITY);
+}
+
+/* A box's distance from the point on one axis, lowered for rounding (see
+ * the top): 0 inside. */
+#define GAP_(V, lo, hi, p)                                                                                             \
+    V##_max(V##_sub(V##_mul(V##_max(V##_sub(lo, p), V##_sub(p, hi)), V##_set1(1.0f - 0x1p-22f)), dp), zero)
+
+/* ---- triangles ---- */
+
+/* One triangle's vertices in this level's space: its nearest point to the
+ * query, kept when nearer than the best so far. */
+static void consider(pq_level *l, const double *a0, const double *b0, const double *c0, uint32_t geom,
+                     uint32_t prim, const rtk_geometry_attrs *attrs)
+{
+    double a[3], b[3], c[3];
+    const double *va = a0, *vb = b0, *vc = c0;
+    if (l->transformed) {
+        const double *m = l->o2w;
+        for (int r = 0; r < 3; r++) {
+            a[r] = m[4 * r] * a0[0] + m[4 * r + 1] * a0[1] + m[4 * r + 2] * a0[2] + m[4 * r + 3];
+            b[r] = m[4 * r] * b0[0] + m[4 * r + 1] * b0[1] + m[4 * r + 2] * b0[2] + m[4 * r + 3];
+            c[r] = m[4 * r] * c0[0] + m[4 * r + 1] * c0[1] + m[4 * r + 2] * c0[2] + m[4 * r + 3];
+        }
+        va = a, vb = b, vc = c;
+    }
+    rtk_point_state *st = l->st;
+    rtk_tri_closest t;
+    rtk_closest_point_triangle(&t, st->p, va, vb, vc);
+    if (!(t.d2 <= st->best2))
+        return;
+    const double e1[3] = {vb[0] - va[0], vb[1] - va[1], vb[2] - va[2]};
+    const double e2[3] = {vc[0] - va[0], vc[1] - va[1], vc[2] - va[2]};
+    const double n[3] = {e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]};
+    const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    if (!(len > 0.0))
+        return; /* no area: rays never hit it, and it is no surface here either */
+    st->best2 = t.d2;
+    rtk_point_hit *r = st->result;
+    r->x = t.p[0];
+    r->y = t.p[1];
+    r->z = t.p[2];
+    r->n_x = (float)(n[0] / len);
+    r->n_y = (float)(n[1] / len);
+    r->n_z = (float)(n[2] / len);
+    float u = (float)t.u, v = (float)t.v;
+    if (attrs)
+        rtk_quad_hit(attrs, geom, &prim, &u, &v);
+    r->u = u;
+    r->v = v;
+    r->primID = prim;
+    r->geomID = geom;
+    r->instID = l->inst_id;
+}
+
+static inline void load3(double *d, const float *f)
+{
+    d[0] = f[0];
+    d[1] = f[1];
+    d[2] = f[2];
+}
+
+enum leaf_kind { LEAF_TRI4, LEAF_TRI4V, LEAF_TRI4I, LEAF_MB };
+
+/* The motion-blur segment at the query's time (traverse_bvh4mb.h:
+ * segment_at, the same floats). */
+typedef struct mb_time {
+    float f;
+    vfloat4 f4;
+} mb_time;
+
+static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind kind, const mb_time *mt)
+{
+    const rtk_geometry_attrs *attrs = a->quads ? a->attrs : NULL;
+    const uint32_t first = rtk_leaf_first(ref), end = first + rtk_leaf_blocks(ref);
+    for (uint32_t i = first; i < end; i++) {
+        double v0[3], v1[3], v2[3];
+        if (kind == LEAF_TRI4 || kind == LEAF_TRI4V) {
+            const rtk_triangle4 *t = &a->tris[i];
+            const rtk_triangle4v *tv = (const rtk_triangle4v *)t;
+            /* the four triangles' boxes first, as a node's children: only
+             * the lanes whose box is within the best distance go on to the
+             * double-precision test (unused lanes are NaN: never) */
+            const vfloat4 zero = vf4_set1(0.0f), dp = vf4_set1(l->dp);
+            vfloat4 d2 = zero;
+            const float *f = (const float *)t; /* v0 x, y, z, then e1 (or v1), then e2 (or v2): 4 lanes each */
+            for (int ax = 0; ax < 3; ax++) {
+                const vfloat4 x0 = vf4_load(f + 4 * ax), y1 = vf4_load(f + 12 + 4 * ax), y2 = vf4_load(f + 24 + 4 * ax);
+                const vfloat4 x1 = kind == LEAF_TRI4V ? y1 : vf4_add(x0, y1);
+                const vfloat4 x2 = kind == LEAF_TRI4V ? y2 : vf4_add(x0, y2);
+                const vfloat4 g = GAP_(vf4, vf4_min(vf4_min(x0, x1), x2), vf4_max(vf4_max(x0, x1), x2), vf4_set1(l->pf[ax]));
+                d2 = vf4_add(d2, vf4_mul(g, g));
+            }
+            unsigned live = (unsigned)vb4_mask(vf4_le(d2, vf4_set1(level_bound(l))));
+            for (; live; live &= live - 1) {
+                const int k = __builtin_ctz(live);
+                if (t->prim[k] == RTK_BVH4_EMPTY)
+                    continue;
+                if (kind == LEAF_TRI4V) {
+                    v0[0] = tv->v0x[k], v0[1] = tv->v0y[k], v0[2] = tv->v0z[k];
+                    v1[0] = tv->v1x[k], v1[1] = tv->v1y[k], v1[2] = tv->v1z[k];
+                    v2[0] = tv->v2x[k], v2[1] = tv->v2y[k], v2[2] = tv->v2z[k];
+                } else {
+                    /* v0 + e in double: exact, the stored edge as it is */
+                    v0[0] = t->v0x[k], v0[1] = t->v0y[k], v0[2] = t->v0z[k];
+                    v1[0] = v0[0] + t->e1x[k], v1[1] = v0[1] + t->e1y[k], v1[2] = v0[2] + t->e1z[k];
+                    v2[0] = v0[0] + t->e2x[k], v2[1] = v0[1] + t->e2y[k], v2[2] = v0[2] + t->e2z[k];
+                }
+                consider(l, v0, v1, v2, t->geom[k], t->prim[k], attrs);
+            }
+        } else {
+            const rtk_triangle4i *t = &a->trisi[i];
+            for (int k = 0; k < 4; k++) {
+                if (t->prim[k] == RTK_BVH4_EMPTY)
+                    continue;
+                const uint32_t idx[3] = {t->v0[k], t->v1[k], t->v2[k]};
+                double *v[3] = {v0, v1, v2};
+                uint32_t geom;
+                if (kind == LEAF_MB) {
+                    /* interpolated as the traversal does: (1 - f) a + f b,
+                     * not fused, in float */
+                    const rtk_mb_geometry *g = &a->mb_geoms[t->geom[k]];
+                    const float *base = g->vertices + 3 * (size_t)a->segment;
+                    const size_t step = 3 * (size_t)g->steps;
+                    const vfloat4 one_f = vf4_set1(1.0f - mt->f);
+                    for (int j = 0; j < 3; j++) {
+                        const float *q = base + step * idx[j];
+                        float x[4];
+                        vf4_storeu(x, vf4_add(vf4_mul(mt->f4, vf4_loadu(q + 3)), vf4_mul(one_f, vf4_loadu(q))));
+                        load3(v[j], x);
+                    }
+                    geom = g->geom_id;
+                } else {
+                    const rtk_leaf_geometry *g = &a->geoms[t->geom[k]];
+                    for (int j = 0; j < 3; j++)
+                        load3(v[j], (const float *)(g->vertices + (size_t)idx[j] * g->stride));
+                    geom = g->geom_id;
+                }
+                consider(l, v0, v1, v2, geom, t->prim[k], attrs);
+            }
+        }
+    }
+}
+
+/* ---- nodes ---- */
+
+/* The squared distances of a node's child boxes from the point, lowered
+ * for rounding (see the top); the mask of those within bound. */
+
+static inline unsigned node4_dist(const rtk_bvh4_node *n, const pq_level *l, float bound, float *d)
+{
+    const vfloat4 zero = vf4_set1(0.0f), dp = vf4_set1(l->dp);
+    const vfloat4 gx = GAP_(vf4, vf4_load(n->lower_x), vf4_load(n->upper_x), vf4_set1(l->pf[0]));
+    const vfloat4 gy = GAP_(vf4, vf4_load(n->lower_y), vf4_load(n->upper_y), vf4_set1(l->pf[1]));
+    const vfloat4 gz = GAP_(vf4, vf4_load(n->lower_z), vf4_load(n->upper_z), vf4_set1(l->pf[2]));
+    const vfloat4 d2 = vf4_add(vf4_add(vf4_mul(gx, gx), vf4_mul(gy, gy)), vf4_mul(gz, gz));
+    vf4_storeu(d, d2);
+    return (unsigned)vb4_mask(vf4_le(d2, vf4_set1(bound)));
+}
+
+static inline unsigned node_mb_dist(const rtk_bvh4mb_node *n, const pq_level *l, float bound, float *d,
+                                    const mb_time *mt)
+{
+    const vfloat4 zero = vf4_set1(0.0f), dp = vf4_set1(l->dp), f = mt->f4;
+#define MB_(axis)                                                                                                      \
+    GAP_(vf4, vf4_add(vf4_load(n->lower_##axis), vf4_mul(f, vf4_load(n->dlower_##axis))),                              \
+         vf4_add(vf4_load(n->upper_##axis), vf4_mul(f, vf4_load(n->dupper_##axis))), vf4_set1(l->pf[#axis[0] - 'x']))
+    const vfloat4 gx = MB_(x), gy = MB_(y), gz = MB_(z);
+#undef MB_
+    const vfloat4 d2 = vf4_add(vf4_add(vf4_mul(gx, gx), vf4_mul(gy, gy)), vf4_mul(gz, gz));
+    vf4_storeu(d, d2);
+    return (unsigned)vb4_mask(vf4_le(d2, vf4_set1(bound)));
+}
+
+#ifdef RTK_SIMD_HAS_8
+static inline unsigned node8_dist(const rtk_bvh8_node *n, const pq_level *l, float bound, float *d)
+{
+    const vfloat8 zero = vf8_set1(0.0f), dp = vf8_set1(l->dp);
+    const vfloat8 gx = GAP_(vf8, vf8_load(n->lower_x), vf8_load(n->upper_x), vf8_set1(l->pf[0]));
+    const vfloat8 gy = GAP_(vf8, vf8_load(n->lower_y), vf8_load(n->upper_y), vf8_set1(l->pf[1]));
+    const vfloat8 gz = GAP_(vf8, vf8_load(n->lower_z), vf8_load(n->upper_z), vf8_set1(l->pf[2]));
+    const vfloat8 d2 = vf8_add(vf8_add(vf8_mul(gx, gx), vf8_mul(gy, gy)), vf8_mul(gz, gz));
+    _Alignas(32) float tmp[8];
+    vf8_store(tmp, d2);
+    memcpy(d, tmp, sizeof tmp);
+    return (unsigned)vb8_mask(vf8_le(d2, vf8_set1(bound)));
+}
+#endif
+#undef GAP_
+
+static void closest_in(const rtk_accel *a, pq_level *l);
+
+static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l);
+
+#define PQ_STACK RTK_BVHN_STACK_SIZE(8)
+
+/* The walk over one tree: width 4 or 8, its leaves of the given kind (or
+ * objects); specialised by its callers' constants. */
+static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const rtk_accel *leaves, pq_level *l,
+                                                       int width, int objects, enum leaf_kind kind,
+                                                       const mb_time *mt)
+{
+    (void)width;
+    uint32_t stack[PQ_STACK];
+    float sd[PQ_STACK];
+    int sp = 0;
+    uint32_t cur = a->root;
+    float bound = level_bound(l);
+    for (;;) {
+        if (cur & RTK_BVH4_LEAF_BIT) {
+            if (objects)
+                objects_leaf(a, cur, l);
+            else
+                leaf(leaves, cur, l, kind, mt);
+            bound = level_bound(l);
+        } else {
+            float d[8];
+            unsigned mask;
+            const uint32_t *child;
+            if (kind == LEAF_MB && !objects) {
+                const rtk_bvh4mb_node *n = &((const rtk_bvh4mb_node *)a->nodes)[cur];
+                mask = node_mb_dist(n, l, bound, d, mt);
+                child = n->child;
+            }
+#ifdef RTK_SIMD_HAS_8
+            else if (width == 8) {
+                const rtk_bvh8_node *n = &((const rtk_bvh8_node *)a->nodes)[cur];
+                mask = node8_dist(n, l, bound, d);
+                child = n->child;
+            }
+#endif
+            else {
+                const rtk_bvh4_node *n = &((const rtk_bvh4_node *)a->nodes)[cur];
+                mask = node4_dist(n, l, bound, d);
+                child = n->child;
+            }
+            /* the children within bound, nearest first */
+            uint32_t r[8];
+            float rd[8];
+            int m = 0;
+            for (; mask; mask &= mask - 1) {
+                const int c = __builtin_ctz(mask);
+                if (child[c] == RTK_BVH4_EMPTY)
+                    continue;
+                int j = m++;
+                for (; j > 0 && rd[j - 1] > d[c]; j--) {
+                    rd[j] = rd[j - 1];
+                    r[j] = r[j - 1];
+                }
+                rd[j] = d[c];
+                r[j] = child[c];
+            }
+            if (m) {
+                for (int j = m - 1; j > 0; j--) {
+                    stack[sp] = r[j];
+                    sd[sp++] = rd[j];
+                }
+                cur = r[0];
+                continue;
+            }
+        }
+        /* the next entry still within the best distance */
+        for (;;) {
+            if (!sp)
+                return;
+            sp--;
+            if (sd[sp] <= bound)
+                break;
+        }
+        cur = stack[sp];
+    }
+}
+
+static void walk_tri4(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 0, LEAF_TRI4, NULL); }
+static void walk_tri4v(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 0, LEAF_TRI4V, NULL); }
+static void walk_tri4i(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 0, LEAF_TRI4I, NULL); }
+static void walk_objects(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 1, LEAF_TRI4, NULL); }
+#ifdef RTK_SIMD_HAS_8
+static void walk8_tri4(const rtk_accel *a, pq_level *l) { walk(a, a, l, 8, 0, LEAF_TRI4, NULL); }
+static void walk8_tri4v(const rtk_accel *a, pq_level *l) { walk(a, a, l, 8, 0, LEAF_TRI4V, NULL); }
+#endif
+
+/* Motion blur: the tree of the time segment the query's time falls in
+ * (the core has checked the time is in [0, 1]). */
+static void walk_mb(const rtk_accel *a, pq_level *l)
+{
+    const uint32_t n = a->segment_count;
+    const float ts = l->st->time * (float)n;
+    uint32_t s = (uint32_t)ts;
+    s = s < n ? s : n - 1;
+    const mb_time mt = {.f = ts - (float)s, .f4 = vf4_set1(ts - (float)s)};
+    const rtk_accel *seg = &a->segments[s];
+    if (seg->root == RTK_BVH4_EMPTY)
+        return;
+    /* the segment's nodes and leaves, the top accel's attributes */
+    rtk_accel view = *seg;
+    view.attrs = a->attrs;
+    view.quads = a->quads;
+    walk(seg, &view, l, 4, 0, LEAF_MB, &mt);
+}
+
+/* ---- objects ---- */
+
+/* A bound of the largest singular value of the 3x3 part of m (3x4): the
+ * least of the Frobenius norm and sqrt(|m|_1 |m|_inf), squared. */
+static double scale2_bound(const double *m)
+{
+    double fro = 0.0, row = 0.0, col = 0.0;
+    for (int r = 0; r < 3; r++) {
+        double s = 0.0;
+        for (int c = 0; c < 3; c++) {
+            fro += m[4 * r + c] * m[4 * r + c];
+            s += fabs(m[4 * r + c]);
+        }
+        row = s > row ? s : row;
+    }
+    for (int c = 0; c < 3; c++) {
+        const double s = fabs(m[c]) + fabs(m[4 + c]) + fabs(m[8 + c]);
+        col = s > col ? s : col;
+    }
+    const double b = fro < row * col ? fro : row * col;
+    return b * (1.0 + 0x1p-40);
+}
+
+/* The inverse of the affine map m (3x4), 0 when it has none. */
+static int invert3x4(const double *m, double *inv)
+{
+    const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9], i = m[10];
+    const double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
+    const double det = a * A + b * B + c * C;
+    if (!(fabs(det) > 0.0) || !isfinite(det))
+        return 0;
+    const double s = 1.0 / det;
+    const double r[9] = {A * s, (c * h - b * i) * s, (b * f - c * e) * s,
+                         B * s, (a * i - c * g) * s, (c * d - a * f) * s,
+                         C * s, (b * g - a * h) * s, (a * e - b * d) * s};
+    for (int k = 0; k < 3; k++) {
+        inv[4 * k] = r[3 * k];
+        inv[4 * k + 1] = r[3 * k + 1];
+        inv[4 * k + 2] = r[3 * k + 2];
+        inv[4 * k + 3] = -(r[3 * k] * m[3] + r[3 * k + 1] * m[7] + r[3 * k + 2] * m[11]);
+    }
+    return 1;
+}
+
+/* x = p * q as affine maps (3x4 each): q first. */
+static void compose3x4(const double *p, const double *q, double *x)
+{
+    for (int r = 0; r < 3; r++) {
+        for (int c = 0; c < 4; c++)
+            x[4 * r + c] = p[4 * r] * q[c] + p[4 * r + 1] * q[4 + c] + p[4 * r + 2] * q[8 + c];
+        x[4 * r + 3] += p[4 * r + 3];
+    }
+}
+
+static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
+{
+    const uint32_t first = rtk_leaf_first(ref), end = first + rtk_leaf_blocks(ref);
+    for (uint32_t i = first; i < end; i++) {
+        const rtk_build_object *o = &a->objects[i];
+        if (o->intersect_packet)
+            continue; /* a user primitive: the core refuses those scenes */
+        pq_level in = *l;
+        if (in.inst_id == RTK_INVALID_GEOMETRY_ID)
+            in.inst_id = o->inst_id;
+        if (!(o->flags & RTK_BUILD_OBJECT_IDENTITY)) {
+            double m[12], minv[12];
+            for (int k = 0; k < 12; k++)
+                m[k] = o->world_to_object[k];
+            if (!invert3x4(m, minv))
+                continue; /* flat: the object has no surface in this space */
+            for (int r = 0; r < 3; r++)
+                in.p[r] = m[4 * r] * l->p[0] + m[4 * r + 1] * l->p[1] + m[4 * r + 2] * l->p[2] + m[4 * r + 3];
+            level_point(&in);
+            in.scale2 = l->scale2 * scale2_bound(m);
+            if (l->transformed)
+                compose3x4(l->o2w, minv, in.o2w);
+            else
+                memcpy(in.o2w, minv, sizeof minv);
+            in.transformed = 1;
+        }
+        closest_in(o->accel, &in);
+    }
+}
+
+static void closest_in(const rtk_accel *a, pq_level *l)
+{
+    if (a->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB && a->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST &&
+        a->root == RTK_BVH4_EMPTY)
+        return;
+    switch (a->layout) {
+    case RTK_LAYOUT_BVH4_TRIANGLE4: walk_tri4(a, l); break;
+    case RTK_LAYOUT_BVH4_TRIANGLE4V: walk_tri4v(a, l); break;
+    case RTK_LAYOUT_BVH4_TRIANGLE4I:
+    case RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST: walk_tri4i(a, l); break;
+#ifdef RTK_SIMD_HAS_8
+    case RTK_LAYOUT_BVH8_TRIANGLE4: walk8_tri4(a, l); break;
+    case RTK_LAYOUT_BVH8_TRIANGLE4V: walk8_tri4v(a, l); break;
+#endif
+    case RTK_LAYOUT_BVH4_OBJECT: walk_objects(a, l); break;
+    case RTK_LAYOUT_BVH4_TRIANGLE4MB:
+    case RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST: walk_mb(a, l); break;
+    default: break;
+    }
+}
+
+void RTK_SYM(rtk_closest_point)(const rtk_accel *accel, rtk_point_state *st, const rtk_query *q)
+{
+    pq_level l = {.st = st, .scale2 = 1.0, .inst_id = q->inst_id};
+    memcpy(l.p, st->p, sizeof l.p);
+    level_point(&l);
+    closest_in(accel, &l);
+}

@@ -1,0 +1,139 @@
+/* Closest points (rtk.h: rtk_closest_point, rtk_closest_point_batch): the
+ * checks, the result's defaults, and batches over the device's threads; the
+ * walk itself is the backend's (backends/common/point_query.c). */
+#include <math.h>
+#include <stdint.h>
+
+#include "scene_internal.h"
+
+/* A query's point within +-2^64: its float is finite, and squared
+ * distances stay far from double's range. */
+#define POINT_MAX 0x1p64
+
+/* What rtk_closest_point would refuse the scene for, per call: RTK_OK, or
+ * the error (reported). */
+static rtk_error scene_check(rtk_scene s, const char *fn)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (scene_not_committing(s, fn))
+        return RTK_ERROR_INVALID_OPERATION;
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+    if (s->ref->user_deep)
+        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
+                        "%s: the scene has user geometry (%llu primitives, in it or in the scenes it instances), "
+                        "and rtk cannot measure distances to it",
+                        fn, (unsigned long long)s->ref->user_deep);
+    if (!s->closest_point)
+        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
+                        "%s: backend %s has no closest-point kernel for layout %s (it predates them)", fn,
+                        s->device->backend->name, s->layout->name);
+    return RTK_OK;
+}
+
+/* Why a query is not valid (rtk.h), or NULL. */
+static const char *query_fault(const rtk_point_query *q)
+{
+    if (!(fabs(q->x) <= POINT_MAX && fabs(q->y) <= POINT_MAX && fabs(q->z) <= POINT_MAX))
+        return "the point is not finite or lies beyond +-2^64";
+    if (!(q->radius >= 0.0))
+        return "the radius is negative or NaN";
+    if (!(q->time >= 0.0f && q->time <= 1.0f))
+        return "the time is outside [0, 1]";
+    if (q->reserved)
+        return "reserved is not 0";
+    return NULL;
+}
+
+static void no_result(rtk_point_hit *r, double distance)
+{
+    *r = (rtk_point_hit){.x = NAN, .y = NAN, .z = NAN, .distance = distance, .u = NAN, .v = NAN,
+                             .primID = RTK_INVALID_GEOMETRY_ID, .geomID = RTK_INVALID_GEOMETRY_ID,
+                             .instID = RTK_INVALID_GEOMETRY_ID};
+}
+
+/* One checked query into *r. */
+static void closest1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r)
+{
+    no_result(r, INFINITY);
+    rtk_point_state st = {.p = {q->x, q->y, q->z}, .best2 = q->radius * q->radius, .time = q->time, .result = r};
+    if (q->radius == INFINITY)
+        st.best2 = INFINITY;
+    const rtk_query rq = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
+    s->closest_point(s->accel, &st, &rq);
+    if (r->geomID != RTK_INVALID_GEOMETRY_ID)
+        r->distance = sqrt(st.best2);
+}
+
+rtk_error rtk_closest_point(rtk_scene s, const rtk_point_query *query, rtk_point_hit *result)
+{
+    static const char fn[] = "rtk_closest_point";
+    if (!query || !result)
+        return rtk_fail(s ? s->device : NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn,
+                        query ? "result" : "query");
+    const rtk_error err = scene_check(s, fn);
+    if (err)
+        return err;
+    const char *fault = query_fault(query);
+    if (fault)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s", fn, fault);
+    closest1(s, query, result);
+    return RTK_OK;
+}
+
+/* ---- batches over the device's threads ---- */
+
+/* Queries per task: enough to pay for a task's hand-over many times over,
+ * few enough that two threads share a batch of a few thousand. */
+#define POINT_PIECE 1024
+
+typedef struct point_job {
+    rtk_scene scene;
+    const rtk_point_query *queries;
+    rtk_point_hit *results;
+    size_t count;
+} point_job;
+
+static void point_range(const point_job *j, size_t begin, size_t end)
+{
+    for (size_t i = begin; i < end; i++) {
+        if (query_fault(&j->queries[i]))
+            no_result(&j->results[i], NAN);
+        else
+            closest1(j->scene, &j->queries[i], &j->results[i]);
+    }
+}
+
+static void point_piece(void *data, uint32_t index)
+{
+    const point_job *j = data;
+    const size_t begin = (size_t)index * POINT_PIECE;
+    point_range(j, begin, j->count - begin < POINT_PIECE ? j->count : begin + POINT_PIECE);
+}
+
+rtk_error rtk_closest_point_batch(rtk_scene s, const rtk_point_query *queries, rtk_point_hit *results,
+                                  size_t count)
+{
+    static const char fn[] = "rtk_closest_point_batch";
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (count && (!queries || !results))
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s is NULL (count %zu)", fn,
+                        queries ? "results" : "queries", count);
+    const rtk_error err = scene_check(s, fn);
+    if (err || !count)
+        return err;
+    const size_t pieces = (count + POINT_PIECE - 1) / POINT_PIECE;
+    if (pieces > UINT32_MAX)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu queries are more than a batch takes", fn,
+                        count);
+    const point_job job = {.scene = s, .queries = queries, .results = results, .count = count};
+    rtk_task_system copy;
+    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(s->device, &copy) : NULL;
+    if (ts)
+        ts->parallel_for(ts->user, (uint32_t)pieces, point_piece, (void *)&job);
+    else
+        point_range(&job, 0, count);
+    return RTK_OK;
+}
