@@ -68,7 +68,8 @@ static void bench_usage(FILE *f)
             "  tree), refit (a deforming mesh: refit time, and the trace speed of the refitted tree), two\n"
             "  levels (instances and a dynamic scene: commit times and trace speed), motion blur (2 and 5\n"
             "  time steps: start time, memory, trace speed at random ray times), accuracy (rays aimed at\n"
-            "  shared edges that leak through, beside speed) and, once per run, closed (the accuracy\n"
+            "  shared edges that leak through, beside speed), points (closest points near the surface and\n"
+            "  all through the box, against rtcPointQuery) and, once per run, closed (the accuracy\n"
             "  harness: rays aimed at the vertices and edges of closed procedural meshes moved to\n"
             "  10^0..10^8 and sized 1e-8..1e8, needles and zero-area triangles, grazing rays; false misses,\n"
             "  double hits, t error in ulps, each library's default and robust mode; no MESH needed for\n"
@@ -83,7 +84,7 @@ static void bench_usage(FILE *f)
             "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow,incoherent (bounces from\n"
             "                    random points of the whole mesh),sun (shadow rays along one direction from\n"
             "                    random points of the whole mesh) (default: all)\n"
-            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed\n"
+            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed,points\n"
             "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
             "  --repeat N        passes per measurement (default: 3); trace: every pass cut into 8 pieces\n"
@@ -108,7 +109,7 @@ int cmd_bench(int argc, char **argv)
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
                     .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1, 1}, .set_on = {1, 1, 1, 1, 1},
                     .do_trace = 1, .do_render = 1, .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1,
-                    .do_accuracy = 1, .do_features = 1, .do_closed = 1, .render_w = 512, .render_h = 384,
+                    .do_accuracy = 1, .do_features = 1, .do_closed = 1, .do_points = 1, .render_w = 512, .render_h = 384,
                     .render_spp = 1};
     const char *meshes[64];
     int nmeshes = 0;
@@ -181,7 +182,7 @@ int cmd_bench(int argc, char **argv)
         } else if (!strcmp(a, "--only") && more) {
             n = parse_list(argv[++i], items, 8);
             o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_twolevel = o.do_motion = o.do_accuracy =
-                o.do_features = o.do_closed = 0;
+                o.do_features = o.do_closed = o.do_points = 0;
             for (int k = 0; k < n; k++) {
                 int *flag = !strcmp(items[k], "trace")      ? &o.do_trace
                             : !strcmp(items[k], "render")   ? &o.do_render
@@ -192,6 +193,7 @@ int cmd_bench(int argc, char **argv)
                             : !strcmp(items[k], "accuracy") ? &o.do_accuracy
                             : !strcmp(items[k], "features") ? &o.do_features
                             : !strcmp(items[k], "closed")   ? &o.do_closed
+                            : !strcmp(items[k], "points")   ? &o.do_points
                                                             : NULL;
                 if (!flag)
                     n = -1;
@@ -201,7 +203,7 @@ int cmd_bench(int argc, char **argv)
             if (n < 1) {
                 fprintf(stderr,
                         "rtktool bench: --only wants a list of trace, render, build, refit, twolevel, motion, "
-                        "accuracy, features, closed (got '%s')\n",
+                        "accuracy, features, closed, points (got '%s')\n",
                         argv[i]);
                 return 2;
             }
@@ -244,7 +246,7 @@ int cmd_bench(int argc, char **argv)
         }
     }
     const int mesh_sections = o.do_trace || o.do_render || o.do_build || o.do_refit || o.do_twolevel ||
-                              o.do_motion || o.do_accuracy || o.do_features;
+                              o.do_motion || o.do_accuracy || o.do_features || o.do_points;
     if (!nmeshes && mesh_sections) {
         bench_usage(stderr);
         return 2;
@@ -369,7 +371,8 @@ int cmd_bench(int argc, char **argv)
                   (o.do_twolevel && section_twolevel(&c, err, sizeof err)) ||
                   (o.do_motion && section_motion(&c, err, sizeof err)) ||
                   (o.do_accuracy && section_accuracy(&c, err, sizeof err)) ||
-                  (o.do_features && section_features(&c, err, sizeof err));
+                  (o.do_features && section_features(&c, err, sizeof err)) ||
+                  (o.do_points && section_points(&c, err, sizeof err));
         free_sets(&c);
         free(padded);
         rtk_mesh_free(&m);

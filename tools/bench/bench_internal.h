@@ -2,7 +2,7 @@
  * their scenes, the ray sets, tracing them, the output, the settings and
  * the context a section runs in.  Each section is a file of its own
  * (trace.c, render.c, build.c, refit.c, twolevel.c, motion.c, accuracy.c,
- * features.c, closed.c); common.c defines what is declared here, edges.c
+ * features.c, closed.c, points.c); common.c defines what is declared here, edges.c
  * the rays aimed at shared edges, bench.c the command line. */
 #ifndef RTK_TOOLS_BENCH_INTERNAL_H
 #define RTK_TOOLS_BENCH_INTERNAL_H
@@ -102,7 +102,7 @@ typedef struct bench_opts {
     int nisa;
     int api_on[NAPIS];
     int set_on[NSETS]; /* --rays: the trace section's ray sets */
-    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed;
+    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed, do_points;
     int render_w, render_h, render_spp;
     int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
     int quick;      /* --quick: the closed section's meshes coarser and fewer grazing rays */
@@ -194,5 +194,7 @@ int section_closed(ctx *c, char *err, size_t err_size);
 
 /* features.c */
 int section_features(ctx *c, char *err, size_t err_size);
+/* points.c: closest points against Embree's rtcPointQuery */
+int section_points(ctx *c, char *err, size_t err_size);
 
 #endif
