@@ -4,6 +4,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "geometry/affine.h"
 #include "scene_internal.h"
 /* ---- geometry ---- */
 
@@ -493,26 +494,20 @@ rtk_error rtk_geometry_set_transform(rtk_geometry g, rtk_format format, const fl
 }
 
 /* inv = the inverse of the affine map m (row-major 3x4), in double
- * precision; 0 when m is singular or the inverse is not finite. */
+ * precision (geometry/affine.h) and rounded; 0 when m is singular or the
+ * inverse is not finite. */
 static int invert_3x4(const float *m, float *inv)
 {
-    const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9], i = m[10];
-    const double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
-    const double det = a * A + b * B + c * C;
-    if (!(fabs(det) > 0.0) || !isfinite(det))
-        return 0;
-    const double r[9] = {A / det, (c * h - b * i) / det, (b * f - c * e) / det,
-                         B / det, (a * i - c * g) / det, (c * d - a * f) / det,
-                         C / det, (b * g - a * h) / det, (a * e - b * d) / det};
-    const double t[3] = {m[3], m[7], m[11]};
-    for (int row = 0; row < 3; row++) {
-        for (int col = 0; col < 3; col++)
-            inv[4 * row + col] = (float)r[3 * row + col];
-        inv[4 * row + 3] = (float)-(r[3 * row] * t[0] + r[3 * row + 1] * t[1] + r[3 * row + 2] * t[2]);
-    }
+    double md[12], id[12];
     for (int k = 0; k < 12; k++)
+        md[k] = m[k];
+    if (!rtk_affine_invert(md, id))
+        return 0;
+    for (int k = 0; k < 12; k++) {
+        inv[k] = (float)id[k];
         if (!isfinite(inv[k]))
             return 0;
+    }
     return 1;
 }
 

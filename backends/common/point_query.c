@@ -32,6 +32,7 @@
 
 #include "backend_common.h"
 #include "bvh4_triangle4.h"
+#include "geometry/affine.h"
 #include "geometry/closest_point.h"
 #include "kernels.h"
 #include "simd/simd.h"
@@ -389,27 +390,6 @@ static double scale2_bound(const double *m)
     return b * (1.0 + 0x1p-40);
 }
 
-/* The inverse of the affine map m (3x4), 0 when it has none. */
-static int invert3x4(const double *m, double *inv)
-{
-    const double a = m[0], b = m[1], c = m[2], d = m[4], e = m[5], f = m[6], g = m[8], h = m[9], i = m[10];
-    const double A = e * i - f * h, B = f * g - d * i, C = d * h - e * g;
-    const double det = a * A + b * B + c * C;
-    if (!(fabs(det) > 0.0) || !isfinite(det))
-        return 0;
-    const double s = 1.0 / det;
-    const double r[9] = {A * s, (c * h - b * i) * s, (b * f - c * e) * s,
-                         B * s, (a * i - c * g) * s, (c * d - a * f) * s,
-                         C * s, (b * g - a * h) * s, (a * e - b * d) * s};
-    for (int k = 0; k < 3; k++) {
-        inv[4 * k] = r[3 * k];
-        inv[4 * k + 1] = r[3 * k + 1];
-        inv[4 * k + 2] = r[3 * k + 2];
-        inv[4 * k + 3] = -(r[3 * k] * m[3] + r[3 * k + 1] * m[7] + r[3 * k + 2] * m[11]);
-    }
-    return 1;
-}
-
 /* x = p * q as affine maps (3x4 each): q first. */
 static void compose3x4(const double *p, const double *q, double *x)
 {
@@ -434,7 +414,7 @@ static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
             double m[12], minv[12];
             for (int k = 0; k < 12; k++)
                 m[k] = o->world_to_object[k];
-            if (!invert3x4(m, minv))
+            if (!rtk_affine_invert(m, minv))
                 continue; /* flat: the object has no surface in this space */
             for (int r = 0; r < 3; r++)
                 in.p[r] = m[4 * r] * l->p[0] + m[4 * r + 1] * l->p[1] + m[4 * r + 2] * l->p[2] + m[4 * r + 3];
