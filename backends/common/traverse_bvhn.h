@@ -295,6 +295,7 @@ typedef struct feat_ctx {
 } feat_ctx;
 #define RTK_FEAT_CULL (RTK_RAY_FLAG_CULL_BACK | RTK_RAY_FLAG_CULL_FRONT)
 #define RTK_FEAT_ATTRS (1u << 8)
+#define RTK_FEAT_QUERY_FILTER (1u << 9) /* the query's filter (rtk_query.filter) */
 
 /* 1 when a ray of mask `mask` needs the attributes of a tree whose
  * rtk_accel.mask_pass_all is pass_all: some geometry in it has a filter, or
@@ -318,10 +319,16 @@ static inline unsigned ray_feat(const rtk_accel *accel, const rtk_ray *r)
     return (r->flags & RTK_FEAT_CULL) | feat_attrs(accel, r->mask);
 }
 
+/* The features the query asks for: its filter. */
+static inline unsigned query_feat(const rtk_query *q)
+{
+    return q->flags & RTK_QUERY_FLAG_FILTER ? RTK_FEAT_QUERY_FILTER : 0u;
+}
+
 /* f filled for the ray, or NULL when it needs none of the features. */
 static inline const feat_ctx *feat_init(feat_ctx *f, const rtk_ray *r, const rtk_accel *accel, const rtk_query *q)
 {
-    const unsigned feat = ray_feat(accel, r);
+    const unsigned feat = ray_feat(accel, r) | query_feat(q);
     if (__builtin_expect(!feat, 1))
         return NULL;
     *f = (feat_ctx){feat, accel->attrs, r, q};
@@ -875,7 +882,8 @@ static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, con
     if (a && !(a->mask & r->mask))
         return 0;
     const rtk_filter_fn filter = !a ? NULL : occluded ? a->occluded_filter : a->intersect_filter;
-    if (!filter && !(p->feat & RTK_FEAT_CULL))
+    const rtk_filter_fn qfilter = p->feat & RTK_FEAT_QUERY_FILTER ? p->q->filter : NULL;
+    if (!filter && !qfilter && !(p->feat & RTK_FEAT_CULL))
         return 1;
     float v0[3], e1[3], e2[3], ng[3];
     lane_triangle(t, lane, v0, e1, e2);
@@ -887,16 +895,19 @@ static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, con
         if (((r->flags & RTK_RAY_FLAG_CULL_BACK) && dn > 0.0f) || ((r->flags & RTK_RAY_FLAG_CULL_FRONT) && dn < 0.0f))
             return 0;
     }
-    if (!filter)
+    if (!filter && !qfilter)
         return 1;
     rtk_ray ray = *r;
     ray.tfar = tfar;
     rtk_hit hit = {.Ng_x = ng[0], .Ng_y = ng[1], .Ng_z = ng[2], .u = u, .v = v, .primID = t->prim[lane],
                    .geomID = t->geom[lane], .instID = p->q->inst_id};
-    rtk_quad_hit(p->attrs, hit.geomID, &hit.primID, &hit.u, &hit.v);
-    const rtk_filter_args args = {.geometry_user = a->user, .context = p->q->context, .ray = &ray, .hit = &hit,
-                                  .t = tt};
-    return filter(&args) != 0;
+    if (p->attrs)
+        rtk_quad_hit(p->attrs, hit.geomID, &hit.primID, &hit.u, &hit.v);
+    const rtk_filter_args args = {.geometry_user = a ? a->user : NULL, .context = p->q->context, .ray = &ray,
+                                  .hit = &hit, .t = tt};
+    if (filter && !filter(&args))
+        return 0;
+    return !qfilter || qfilter(&args) != 0;
 }
 
 /* The closest-hit query's candidates of one block (mask, the lanes hit
@@ -1417,14 +1428,14 @@ static __attribute__((noinline)) void occluded1_feat(const rtk_accel *accel, rtk
  * the tree */
 static inline int masks_alone(const rtk_accel *accel, unsigned feat)
 {
-    return !(feat & RTK_FEAT_CULL) && !accel->attr_filter;
+    return !(feat & (RTK_FEAT_CULL | RTK_FEAT_QUERY_FILTER)) && !accel->attr_filter;
 }
 
 void BVHN_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
-    const unsigned feat = ray_feat(accel, &rayhit->ray);
+    const unsigned feat = ray_feat(accel, &rayhit->ray) | query_feat(q);
     if (__builtin_expect(feat != 0, 0)) {
         if (masks_alone(accel, feat))
             intersect1_masks(accel, rayhit, q);
@@ -1439,7 +1450,7 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
-    const unsigned feat = ray_feat(accel, ray);
+    const unsigned feat = ray_feat(accel, ray) | query_feat(q);
     if (__builtin_expect(feat != 0, 0)) {
         if (masks_alone(accel, feat))
             occluded1_masks(accel, ray, q);

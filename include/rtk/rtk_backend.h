@@ -98,8 +98,18 @@ typedef struct rtk_build_geometry {
 typedef struct rtk_query {
     const rtk_query_context *context; /* the application's (rtk_intersect1_ctx ...), or NULL */
     uint32_t inst_id; /* the outermost instance the ray is inside, else RTK_INVALID_GEOMETRY_ID */
-    uint32_t reserved;
+    uint32_t flags;   /* RTK_QUERY_FLAG_* (was reserved: 0 from a core before them) */
+    /* Added after rtk 0.2.0 (interface version 2 still), read only when
+     * flags has RTK_QUERY_FLAG_FILTER: a filter every candidate hit of
+     * the width-1 kernels goes through after its geometry's own (a hit
+     * counts only when both accept), with this query's context, in the
+     * geometry's space as a geometry filter sees it (instances included).
+     * The core's queries for every crossing (rtk_count_intersections ...)
+     * collect through it; a backend that honours it says so
+     * (RTK_BACKEND_CAP_QUERY_FILTER). */
+    rtk_filter_fn filter;
 } rtk_query;
+#define RTK_QUERY_FLAG_FILTER 1u
 
 RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *query));
 RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray, const rtk_query *query));
@@ -447,7 +457,11 @@ typedef struct rtk_backend_desc {
      * time steps).  Builders over rtk_build_input.time_steps > 1, whose
      * layouts read rtk_ray.time; never used for a scene without motion. */
     const rtk_builder_entry *motion_builders;
+    /* Added after rtk 0.2.0 (the same way; absent = 0): RTK_BACKEND_CAP_*. */
+    uint64_t caps;
 } rtk_backend_desc;
+/* The width-1 kernels honour rtk_query.filter (RTK_QUERY_FLAG_FILTER). */
+#define RTK_BACKEND_CAP_QUERY_FILTER 1u
 
 #define RTK_BACKEND_EXPORT __attribute__((visibility("default")))
 
