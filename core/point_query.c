@@ -53,8 +53,8 @@ static void no_result(rtk_point_hit *r, double distance)
                              .instID = RTK_INVALID_GEOMETRY_ID};
 }
 
-/* One checked query into *r. */
-static void closest1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r)
+/* One checked query into *r (scene_internal.h). */
+void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r)
 {
     no_result(r, INFINITY);
     rtk_point_state st = {.p = {q->x, q->y, q->z}, .best2 = q->radius * q->radius, .time = q->time, .result = r};
@@ -78,7 +78,7 @@ rtk_error rtk_closest_point(rtk_scene s, const rtk_point_query *query, rtk_point
     const char *fault = query_fault(query);
     if (fault)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s", fn, fault);
-    closest1(s, query, result);
+    closest_point1(s, query, result);
     return RTK_OK;
 }
 
@@ -101,7 +101,7 @@ static void point_range(const point_job *j, size_t begin, size_t end)
         if (query_fault(&j->queries[i]))
             no_result(&j->results[i], NAN);
         else
-            closest1(j->scene, &j->queries[i], &j->results[i]);
+            closest_point1(j->scene, &j->queries[i], &j->results[i]);
     }
 }
 

@@ -131,6 +131,20 @@ void range_intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query *q)
     range_leave(&rh->ray, &k, 0);
 }
 
+void range_intersect1_map(rtk_scene s, rtk_rayhit *rh, const rtk_query *q, double *shift, double *scale)
+{
+    range_ray k;
+    *shift = 0.0;
+    *scale = 1.0;
+    if (range_enter(s, &rh->ray, &k)) {
+        *shift = k.shift;
+        *scale = k.scale;
+        s->intersect1(s->accel, rh, q);
+    } else
+        k.tfar_traced = rh->ray.tfar;
+    range_leave(&rh->ray, &k, 0);
+}
+
 void range_occluded1(rtk_scene s, rtk_ray *ray, const rtk_query *q)
 {
     range_ray k;

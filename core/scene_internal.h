@@ -247,12 +247,20 @@ static inline int ray_check(const rtk_ray *r)
  * in"); through the scene's single-ray kernels. */
 RTK_INTERNAL void range_intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query *q);
 RTK_INTERNAL void range_occluded1(rtk_scene s, rtk_ray *ray, const rtk_query *q);
+/* range_intersect1, saying how the traced ray's distances t' map back to
+ * the ray's: t = t' / scale + shift (crossings.c maps its filter's) */
+RTK_INTERNAL void range_intersect1_map(rtk_scene s, rtk_rayhit *rh, const rtk_query *q, double *shift,
+                                       double *scale);
 /* either, for an rtk_ray (occluded) or an rtk_rayhit */
 RTK_INTERNAL void range_trace1(rtk_scene s, void *ray, int occluded, const rtk_query *q);
 
 /* An error for a call that must not overlap a commit of the scene (fn
  * names it), when one is running; RTK_OK otherwise. */
 RTK_INTERNAL rtk_error scene_not_committing(rtk_scene s, const char *fn);
+
+/* point_query.c: one closest-point query, checked valid (rtk.h), through
+ * the scene's kernel (s->closest_point, which must be there) */
+RTK_INTERNAL void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r);
 
 /* scene.c */
 RTK_INTERNAL void blob_release(blob *m);

@@ -973,6 +973,53 @@ RTK_API rtk_error rtk_closest_point(rtk_scene scene, const rtk_point_query *quer
 RTK_API rtk_error rtk_closest_point_batch(rtk_scene scene, const rtk_point_query *queries,
                                           rtk_point_hit *results, size_t count);
 
+/* ---- every crossing, inside and outside (added after rtk 0.2.0) ------------
+ * For geometry tools: how many times and where each ray crosses the
+ * surface, and whether points lie inside closed meshes.  Each ray is
+ * traced once, every candidate hit within [tnear, tfar] collected (the
+ * geometries' masks and filters apply as for rtk_intersect1: a candidate
+ * counts when they accept it), sorted by t, a triangle met twice at the
+ * same t kept once.
+ *
+ * Exactly once per crossing needs RTK_SCENE_FLAG_ROBUST: its watertight
+ * test gives a ray through an edge or vertex shared by the triangles of a
+ * closed mesh exactly one of them where the surface crosses the ray once
+ * (tests/test_points.c counts rays through vertices and edges); the
+ * default intersector may count such a ray twice or not at all.  Scenes
+ * with user geometry are refused (RTK_ERROR_UNSUPPORTED), as is a backend
+ * whose kernels predate the query filters the collection goes through.
+ * Over the device's threads; invalid rays (rtk_ray's rules) cross nothing.
+ * Rays with a byte stride as the stream calls take them. */
+typedef struct rtk_crossing {
+    float t;             /* along the ray */
+    float u, v;          /* as a hit's */
+    float Ng_x, Ng_y, Ng_z; /* as a hit's: unnormalised, in the instanced scene's space */
+    uint32_t primID, geomID, instID;
+} rtk_crossing;
+
+/* counts[i]: the crossings of ray i. */
+RTK_API rtk_error rtk_count_intersections(rtk_scene scene, const rtk_ray *rays, size_t count, size_t byte_stride,
+                                          uint32_t *counts);
+/* Ray i's crossings, sorted by t, into crossings[offsets[i] ..
+ * offsets[i + 1]): offsets (count + 1 entries, non-decreasing) from the
+ * prefix sums of rtk_count_intersections on the same rays.  A ray with
+ * more crossings than its room gets what fits and the call
+ * RTK_ERROR_INVALID_ARGUMENT, naming it. */
+RTK_API rtk_error rtk_list_intersections(rtk_scene scene, const rtk_ray *rays, size_t count, size_t byte_stride,
+                                         const uint64_t *offsets, rtk_crossing *crossings);
+/* inside[i] = 1 when point i (x, y, z and time of rtk_point_query; radius
+ * ignored) lies inside the surface or on it, 0 outside,
+ * RTK_OCCUPANCY_INVALID for a point not finite, beyond +-2^64 or at a
+ * time outside [0, 1].  The rule: the parity of the crossings of a ray
+ * from the point (rounded to float: a double point within half an ulp of
+ * the surface is taken as its float) in a fixed direction; a crossing at
+ * t = 0 (the point on the surface) makes it inside.  Exact for closed
+ * meshes (every edge shared by two triangles) in robust scenes, points at
+ * edges and vertices included; for open meshes the answer is that ray's
+ * parity, which another direction may contradict. */
+#define RTK_OCCUPANCY_INVALID 255u
+RTK_API rtk_error rtk_occupancy(rtk_scene scene, const rtk_point_query *points, size_t count, uint8_t *inside);
+
 /* ---- ray packets -----------------------------------------------------------
  * Packets of 4, 8 or 16 rays as structures of arrays: the fields of rtk_ray
  * and rtk_hit, in the same order, one array of N per field.  A packet must be

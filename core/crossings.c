@@ -1,0 +1,281 @@
+/* Every crossing along a ray, and inside or outside (rtk.h:
+ * rtk_count_intersections, rtk_list_intersections, rtk_occupancy): each
+ * ray traced once through the width-1 kernels with the query's filter
+ * (rtk_query.filter) collecting every candidate and rejecting it, so the
+ * walk goes on to the ray's tfar; then the crossings sorted by t, and a
+ * triangle met twice at the same t (spatial splits put one in several
+ * leaves) kept once.  Over the device's threads, as the batches of rays. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+
+#include "scene_internal.h"
+
+/* One ray's crossings, as the filter finds them. */
+typedef struct collector {
+    rtk_query_context ctx; /* ctx.user = the collector: what the filter sees */
+    rtk_crossing *c;
+    size_t n, cap;
+    int oom;
+} collector;
+
+static int collect(const rtk_filter_args *a)
+{
+    collector *k = a->context->user;
+    if (k->n == k->cap) {
+        const size_t cap = k->cap ? 2 * k->cap : 64;
+        rtk_crossing *c = realloc(k->c, cap * sizeof *c);
+        if (!c) {
+            k->oom = 1;
+            return 0;
+        }
+        k->c = c;
+        k->cap = cap;
+    }
+    const rtk_hit *h = a->hit;
+    k->c[k->n++] = (rtk_crossing){.t = a->t, .u = h->u, .v = h->v, .Ng_x = h->Ng_x, .Ng_y = h->Ng_y,
+                                  .Ng_z = h->Ng_z, .primID = h->primID, .geomID = h->geomID, .instID = h->instID};
+    return 0; /* rejected: the walk goes on */
+}
+
+static int by_t(const void *x, const void *y)
+{
+    const rtk_crossing *a = x, *b = y;
+    if (a->t != b->t)
+        return a->t < b->t ? -1 : 1;
+    if (a->instID != b->instID)
+        return a->instID < b->instID ? -1 : 1;
+    if (a->geomID != b->geomID)
+        return a->geomID < b->geomID ? -1 : 1;
+    return a->primID < b->primID ? -1 : a->primID > b->primID;
+}
+
+/* Ray r's crossings within [tnear, tfar] into k (sorted, each once); 0
+ * for a ray that is not valid (none then). */
+static int crossings1(rtk_scene s, const rtk_ray *r, collector *k)
+{
+    k->n = 0;
+    rtk_rayhit rh = {.ray = *r};
+    rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+    const int cls = ray_check(&rh.ray);
+    if (cls == RAY_INVALID)
+        return 0;
+    const rtk_query q = {.context = &k->ctx, .inst_id = RTK_INVALID_GEOMETRY_ID, .flags = RTK_QUERY_FLAG_FILTER,
+                         .filter = collect};
+    double shift = 0.0, scale = 1.0;
+    if (cls == RAY_PLAIN)
+        s->intersect1(s->accel, &rh, &q);
+    else
+        range_intersect1_map(s, &rh, &q, &shift, &scale);
+    if (cls != RAY_PLAIN)
+        for (size_t i = 0; i < k->n; i++) { /* the traced ray's t back to the given one's */
+            const float t = (float)((double)k->c[i].t / scale + shift);
+            k->c[i].t = t < r->tnear ? r->tnear : t > r->tfar ? r->tfar : t;
+        }
+    qsort(k->c, k->n, sizeof *k->c, by_t);
+    size_t m = 0;
+    for (size_t i = 0; i < k->n; i++)
+        if (!m || by_t(&k->c[i], &k->c[m - 1]))
+            k->c[m++] = k->c[i];
+    k->n = m;
+    return 1;
+}
+
+/* ---- the checks ---- */
+
+static rtk_error scene_check(rtk_scene s, const char *fn)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (scene_not_committing(s, fn))
+        return RTK_ERROR_INVALID_OPERATION;
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+    if (s->ref->user_deep)
+        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
+                        "%s: the scene has user geometry (%llu primitives, in it or in the scenes it instances), "
+                        "whose crossings rtk cannot list",
+                        fn, (unsigned long long)s->ref->user_deep);
+    const rtk_backend_desc *bk = s->device->backend;
+    if (!RTK_DESC_HAS(bk, caps) || !(bk->caps & RTK_BACKEND_CAP_QUERY_FILTER))
+        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
+                        "%s: backend %s cannot collect every crossing (it predates query filters)", fn, bk->name);
+    return RTK_OK;
+}
+
+static rtk_error array_check(rtk_scene s, const void *p, size_t count, size_t stride, size_t size, const char *what,
+                             const char *fn)
+{
+    if (!count)
+        return RTK_OK;
+    if (!p)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s is NULL (count %zu)", fn, what, count);
+    if ((uintptr_t)p % 4)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s at %p is not aligned to 4 bytes", fn, what, p);
+    if (stride < size || stride % 4)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: the byte stride %zu of %s is below its struct's %zu bytes or not a multiple of 4", fn,
+                        stride, what, size);
+    if ((count - 1) > (UINTPTR_MAX - (uintptr_t)p - size) / stride)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu %s run past the end of the address space",
+                        fn, count, what);
+    return RTK_OK;
+}
+
+/* ---- over the device's threads ---- */
+
+#define CROSSING_PIECE 1024
+
+enum { JOB_COUNT, JOB_LIST, JOB_OCCUPANCY };
+
+typedef struct crossing_job {
+    rtk_scene scene;
+    int kind;
+    const char *rays; /* JOB_COUNT, JOB_LIST */
+    size_t stride;
+    const rtk_point_query *points; /* JOB_OCCUPANCY */
+    size_t count;
+    uint32_t *counts;
+    const uint64_t *offsets;
+    rtk_crossing *out;
+    uint8_t *inside;
+    atomic_int oom;
+    atomic_size_t short_ray; /* JOB_LIST: the first ray with more crossings than room, + 1 */
+} crossing_job;
+
+/* The direction occupancy's rays take: none of a mesh's usual planes
+ * (axis-aligned, diagonal) holds it. */
+static const float occupancy_dir[3] = {0.80178373f, 0.53452248f, 0.26726124f};
+
+static void crossing_range(crossing_job *j, size_t begin, size_t end)
+{
+    collector k = {.c = NULL};
+    k.ctx.user = &k;
+    for (size_t i = begin; i < end; i++) {
+        if (j->kind == JOB_OCCUPANCY) {
+            const rtk_point_query *p = &j->points[i];
+            if (!(fabs(p->x) <= 0x1p64 && fabs(p->y) <= 0x1p64 && fabs(p->z) <= 0x1p64) ||
+                !(p->time >= 0.0f && p->time <= 1.0f)) {
+                j->inside[i] = RTK_OCCUPANCY_INVALID;
+                continue;
+            }
+            const rtk_ray r = {.org_x = (float)p->x, .org_y = (float)p->y, .org_z = (float)p->z, .tnear = 0.0f,
+                               .dir_x = occupancy_dir[0], .dir_y = occupancy_dir[1], .dir_z = occupancy_dir[2],
+                               .time = p->time, .tfar = INFINITY, .mask = ~0u};
+            crossings1(j->scene, &r, &k);
+            int in = (k.n & 1) || (k.n && k.c[0].t == 0.0f);
+            /* On the surface counts as inside.  A ray from a vertex or an
+             * edge that leaves the surface there may cross nothing at 0
+             * (the watertight test decides it as moved off the edge), so a
+             * point the parity puts outside is looked for on the surface:
+             * a closest point within radius 0, which visits only the boxes
+             * holding the point. */
+            if (!in && j->scene->closest_point) {
+                rtk_point_hit h;
+                const rtk_point_query q0 = {.x = p->x, .y = p->y, .z = p->z, .radius = 0.0, .time = p->time};
+                closest_point1(j->scene, &q0, &h);
+                in = h.geomID != RTK_INVALID_GEOMETRY_ID;
+            }
+            j->inside[i] = (uint8_t)in;
+            continue;
+        }
+        const rtk_ray *r = (const rtk_ray *)(j->rays + i * j->stride);
+        if (!crossings1(j->scene, r, &k))
+            k.n = 0;
+        if (j->kind == JOB_COUNT) {
+            j->counts[i] = k.n > UINT32_MAX ? UINT32_MAX : (uint32_t)k.n;
+            continue;
+        }
+        const uint64_t room = j->offsets[i + 1] - j->offsets[i];
+        const size_t n = k.n < room ? k.n : (size_t)room;
+        memcpy(j->out + j->offsets[i], k.c, n * sizeof *k.c);
+        if (k.n > room) {
+            size_t none = 0;
+            atomic_compare_exchange_strong(&j->short_ray, &none, i + 1);
+        }
+    }
+    if (k.oom)
+        atomic_store(&j->oom, 1);
+    free(k.c);
+}
+
+static void crossing_piece(void *data, uint32_t index)
+{
+    crossing_job *j = data;
+    const size_t begin = (size_t)index * CROSSING_PIECE;
+    crossing_range(j, begin, j->count - begin < CROSSING_PIECE ? j->count : begin + CROSSING_PIECE);
+}
+
+static rtk_error run(crossing_job *j, const char *fn)
+{
+    const size_t pieces = (j->count + CROSSING_PIECE - 1) / CROSSING_PIECE;
+    if (pieces > UINT32_MAX)
+        return rtk_fail(j->scene->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu queries are more than a batch takes",
+                        fn, j->count);
+    rtk_task_system copy;
+    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(j->scene->device, &copy) : NULL;
+    if (ts)
+        ts->parallel_for(ts->user, (uint32_t)pieces, crossing_piece, j);
+    else
+        crossing_range(j, 0, j->count);
+    if (atomic_load(&j->oom))
+        return rtk_fail(j->scene->device, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory collecting crossings", fn);
+    const size_t short_ray = atomic_load(&j->short_ray);
+    if (short_ray)
+        return rtk_fail(j->scene->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: ray %zu has more crossings than offsets give it room for (offsets must come from "
+                        "rtk_count_intersections on the same rays)",
+                        fn, short_ray - 1);
+    return RTK_OK;
+}
+
+rtk_error rtk_count_intersections(rtk_scene s, const rtk_ray *rays, size_t count, size_t byte_stride,
+                                  uint32_t *counts)
+{
+    static const char fn[] = "rtk_count_intersections";
+    rtk_error err = scene_check(s, fn);
+    if (!err)
+        err = array_check(s, rays, count, byte_stride, sizeof *rays, "rays", fn);
+    if (!err && count && !counts)
+        err = rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: counts is NULL (count %zu)", fn, count);
+    if (err || !count)
+        return err;
+    crossing_job j = {.scene = s, .kind = JOB_COUNT, .rays = (const char *)rays, .stride = byte_stride,
+                      .count = count, .counts = counts};
+    return run(&j, fn);
+}
+
+rtk_error rtk_list_intersections(rtk_scene s, const rtk_ray *rays, size_t count, size_t byte_stride,
+                                 const uint64_t *offsets, rtk_crossing *crossings)
+{
+    static const char fn[] = "rtk_list_intersections";
+    rtk_error err = scene_check(s, fn);
+    if (!err)
+        err = array_check(s, rays, count, byte_stride, sizeof *rays, "rays", fn);
+    if (!err && count && !offsets)
+        err = rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: offsets is NULL (count %zu)", fn, count);
+    if (err || !count)
+        return err;
+    for (size_t i = 0; i < count; i++)
+        if (offsets[i + 1] < offsets[i])
+            return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: offsets[%zu] > offsets[%zu]", fn, i, i + 1);
+    if (offsets[count] > offsets[0] && !crossings)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: crossings is NULL", fn);
+    crossing_job j = {.scene = s, .kind = JOB_LIST, .rays = (const char *)rays, .stride = byte_stride,
+                      .count = count, .offsets = offsets, .out = crossings};
+    return run(&j, fn);
+}
+
+rtk_error rtk_occupancy(rtk_scene s, const rtk_point_query *points, size_t count, uint8_t *inside)
+{
+    static const char fn[] = "rtk_occupancy";
+    rtk_error err = scene_check(s, fn);
+    if (!err)
+        err = array_check(s, points, count, sizeof *points, sizeof *points, "points", fn);
+    if (!err && count && !inside)
+        err = rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: inside is NULL (count %zu)", fn, count);
+    if (err || !count)
+        return err;
+    crossing_job j = {.scene = s, .kind = JOB_OCCUPANCY, .points = points, .count = count, .inside = inside};
+    return run(&j, fn);
+}
