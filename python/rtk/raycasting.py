@@ -1,0 +1,349 @@
+"""RaycastingScene: Open3D's open3d.t.geometry.RaycastingScene over rtk.
+
+The same methods, arguments and returned keys, so that moving over is one
+changed import.  Inputs are numpy arrays (or Open3D tensors, or anything
+numpy.asarray takes); results are numpy arrays with a .numpy() method (as
+Open3D's tensors have), or Open3D tensors when the input was one.
+
+What rtk does differently, on purpose:
+- the scene is built robust (RTK_SCENE_FLAG_ROBUST): a ray through an edge or
+  vertex shared by triangles of a closed mesh meets exactly one of them, so
+  count_intersections, list_intersections and compute_occupancy count each
+  crossing once, and inside/outside is exact (no voting over several rays);
+- closest points and distances are computed in double precision: float64
+  query points get float64 distances and points back;
+- triangles of zero area are left out (rays never hit them) instead of
+  crashing (Open3D 0.16 aborts on a mesh that has one).
+"""
+import ctypes
+import math
+
+import numpy as np
+
+from . import _native as N
+
+INVALID_ID = N.INVALID_ID
+
+
+class Array(np.ndarray):
+    """A numpy array with .numpy(), as Open3D's tensors have."""
+
+    def numpy(self):
+        return self.view(np.ndarray)
+
+
+def _out(a, like_o3d):
+    a = np.ascontiguousarray(a)
+    if like_o3d:
+        import open3d as o3d  # only when the caller handed Open3D tensors
+
+        return o3d.core.Tensor.from_numpy(a)
+    return a.view(Array)
+
+
+def _is_o3d(x):
+    return type(x).__module__.startswith("open3d")
+
+
+def _as_array(x, name):
+    if _is_o3d(x) and hasattr(x, "numpy"):
+        x = x.numpy()
+    try:
+        return np.asarray(x)
+    except Exception as e:  # a clear error, not a crash
+        raise TypeError(f"{name}: expected an array, got {type(x).__name__}") from e
+
+
+def _last_dim(a, k, name):
+    if a.ndim < 1 or a.shape[-1] != k:
+        raise ValueError(f"{name}: expected shape (..., {k}), got {a.shape}")
+    if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
+        raise TypeError(f"{name}: expected numbers, got dtype {a.dtype}")
+
+
+class RaycastingScene:
+    """A scene of triangle meshes and the queries of Open3D's
+    RaycastingScene: cast_rays, test_occlusions, count_intersections,
+    list_intersections, compute_closest_points, compute_distance,
+    compute_signed_distance, compute_occupancy."""
+
+    INVALID_ID = N.INVALID_ID
+
+    def __init__(self, nthreads=0, device=None):
+        """nthreads: the threads queries run on (0: every core).  rtk's
+        threads belong to the scene's device, so this is where they are set;
+        the queries' own nthreads argument is accepted, for Open3D's code,
+        and changes nothing."""
+        if not isinstance(nthreads, (int, np.integer)) or nthreads < 0:
+            raise ValueError(f"nthreads: expected a whole number >= 0, got {nthreads!r}")
+        dev = ctypes.c_void_p()
+        cfg = f"threads={int(nthreads)}".encode()
+        if N.device_new(cfg, ctypes.byref(dev)) != 0:
+            msg = N.device_get_error_message(None)
+            raise RuntimeError("rtk: device: " + (msg.decode() if msg else "failed"))
+        self._dev = dev
+        scene = ctypes.c_void_p()
+        N.check(N.scene_new(dev, ctypes.byref(scene)), dev, "scene")
+        self._scene = scene
+        N.check(N.scene_set_flags(scene, N.SCENE_FLAG_ROBUST), dev, "scene flags")
+        self._arrays = []  # the buffers rtk reads at the commit
+        self._dirty = True
+        self._count = 0
+
+    def __del__(self):
+        scene = getattr(self, "_scene", None)
+        if scene:
+            N.scene_release(scene)
+            self._scene = None
+        dev = getattr(self, "_dev", None)
+        if dev:
+            N.device_release(dev)
+            self._dev = None
+
+    @property
+    def backend(self):
+        """The rtk backend in use (avx2, avx, sse41, scalar)."""
+        return N.device_get_backend_name(self._dev).decode()
+
+    # ---- building ----
+
+    def add_triangles(self, vertex_positions, triangle_indices=None):
+        """Adds a triangle mesh: vertex_positions (N, 3) and triangle_indices
+        (M, 3), or an Open3D TriangleMesh (legacy or tensor).  Returns the
+        geometry id its hits report."""
+        if triangle_indices is None:
+            mesh = vertex_positions
+            if hasattr(mesh, "vertex") and hasattr(mesh, "triangle"):  # open3d.t.geometry.TriangleMesh
+                vertex_positions, triangle_indices = mesh.vertex.positions, mesh.triangle.indices
+            elif hasattr(mesh, "vertices") and hasattr(mesh, "triangles"):  # legacy, or trimesh
+                vertex_positions, triangle_indices = mesh.vertices, mesh.triangles
+            else:
+                raise TypeError("add_triangles: expected vertex_positions and triangle_indices, or a triangle mesh")
+        v = _as_array(vertex_positions, "vertex_positions")
+        t = _as_array(triangle_indices, "triangle_indices")
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise ValueError(f"vertex_positions: expected shape (N, 3), got {v.shape}")
+        if t.ndim != 2 or t.shape[1] != 3:
+            raise ValueError(f"triangle_indices: expected shape (M, 3), got {t.shape}")
+        if not np.issubdtype(v.dtype, np.floating):
+            raise TypeError(f"vertex_positions: expected floats, got dtype {v.dtype}")
+        if not np.issubdtype(t.dtype, np.integer):
+            raise TypeError(f"triangle_indices: expected integers, got dtype {t.dtype}")
+        if t.size and (t.min() < 0 or t.max() >= len(v)):
+            raise ValueError(f"triangle_indices: an index outside [0, {len(v)})")
+        v = np.ascontiguousarray(v, dtype=np.float32)
+        t = np.ascontiguousarray(t, dtype=np.uint32)
+        g = ctypes.c_void_p()
+        N.check(N.geometry_new(self._dev, N.GEOMETRY_TYPE_TRIANGLE, ctypes.byref(g)), self._dev, "geometry")
+        try:
+            N.check(N.geometry_set_shared_buffer(g, N.BUFFER_VERTEX, N.ptr(v), 0, 12, len(v)), self._dev,
+                    "vertex_positions")
+            N.check(N.geometry_set_shared_buffer(g, N.BUFFER_INDEX, N.ptr(t), 0, 12, len(t)), self._dev,
+                    "triangle_indices")
+            N.check(N.geometry_commit(g), self._dev, "add_triangles")
+            gid = ctypes.c_uint32()
+            N.check(N.scene_attach_geometry(self._scene, g, ctypes.byref(gid)), self._dev, "add_triangles")
+        finally:
+            N.geometry_release(g)
+        self._arrays.append((v, t))
+        self._dirty = True
+        self._count += 1
+        return int(gid.value)
+
+    def _commit(self):
+        if self._dirty:
+            N.check(N.scene_commit(self._scene), self._dev, "commit")
+            self._dirty = False
+
+    # ---- rays ----
+
+    def _rays(self, rays, tnear=0.0, tfar=math.inf):
+        r = _as_array(rays, "rays")
+        _last_dim(r, 6, "rays")
+        shape = r.shape[:-1]
+        flat = np.ascontiguousarray(r.reshape(-1, 6), dtype=np.float32)
+        out = np.zeros(flat.shape[0], dtype=N.RAYHIT)
+        out["ray"]["org"] = flat[:, :3]
+        out["ray"]["dir"] = flat[:, 3:]
+        out["ray"]["tnear"] = tnear
+        out["ray"]["tfar"] = tfar
+        out["ray"]["mask"] = 0xFFFFFFFF
+        out["hit"]["geomID"] = N.INVALID_ID
+        out["hit"]["primID"] = N.INVALID_ID
+        out["hit"]["instID"] = N.INVALID_ID
+        return out, shape, _is_o3d(rays)
+
+    def cast_rays(self, rays, nthreads=0):
+        """The first hit of each ray (..., 6): origin and direction.  Keys
+        t_hit (inf for a miss, in units of the direction's length),
+        geometry_ids, primitive_ids (INVALID_ID for a miss), primitive_uvs,
+        primitive_normals (unit)."""
+        rh, shape, o3 = self._rays(rays)
+        self._commit()
+        if len(rh):
+            N.check(N.intersect_batch(self._scene, N.ptr(rh), len(rh), N.RAYHIT.itemsize, None), self._dev,
+                    "cast_rays")
+        hit = rh["hit"]["geomID"] != N.INVALID_ID
+        t = np.where(hit, rh["ray"]["tfar"], np.float32(np.inf)).astype(np.float32)
+        ng = rh["hit"]["Ng"].astype(np.float32)
+        ln = np.linalg.norm(ng, axis=1, keepdims=True)
+        ng = np.where(hit[:, None] & (ln > 0), ng / np.where(ln > 0, ln, 1), 0).astype(np.float32)
+        uv = np.stack([rh["hit"]["u"], rh["hit"]["v"]], axis=1)
+        uv = np.where(hit[:, None], uv, 0).astype(np.float32)
+        return {"t_hit": _out(t.reshape(shape), o3),
+                "geometry_ids": _out(rh["hit"]["geomID"].reshape(shape), o3),
+                "primitive_ids": _out(np.where(hit, rh["hit"]["primID"], N.INVALID_ID).astype(np.uint32)
+                                      .reshape(shape), o3),
+                "primitive_uvs": _out(uv.reshape(shape + (2,)), o3),
+                "primitive_normals": _out(ng.reshape(shape + (3,)), o3)}
+
+    def test_occlusions(self, rays, tnear=0.0, tfar=math.inf, nthreads=0):
+        """Whether anything lies along each ray within [tnear, tfar]."""
+        rh, shape, o3 = self._rays(rays, tnear, tfar)
+        ray = np.ascontiguousarray(rh["ray"])
+        self._commit()
+        if len(ray):
+            N.check(N.occluded_batch(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, None), self._dev,
+                    "test_occlusions")
+        return _out((ray["tfar"] == -np.inf).reshape(shape), o3)
+
+    def count_intersections(self, rays, nthreads=0):
+        """How many times each ray crosses the surface (each crossing once:
+        the scene is robust)."""
+        rh, shape, o3 = self._rays(rays)
+        ray = np.ascontiguousarray(rh["ray"])
+        counts = np.zeros(len(ray), dtype=np.uint32)
+        self._commit()
+        if len(ray):
+            N.check(N.count_intersections(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, N.ptr(counts)),
+                    self._dev, "count_intersections")
+        return _out(counts.astype(np.int32).reshape(shape), o3)
+
+    def list_intersections(self, rays, nthreads=0):
+        """Every crossing of every ray, sorted by t per ray.  Keys ray_splits
+        (ray i's crossings are [ray_splits[i], ray_splits[i + 1])), ray_ids,
+        geometry_ids, primitive_ids, primitive_uvs, t_hit."""
+        rh, shape, o3 = self._rays(rays)
+        ray = np.ascontiguousarray(rh["ray"])
+        counts = np.zeros(len(ray), dtype=np.uint32)
+        self._commit()
+        if len(ray):
+            N.check(N.count_intersections(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, N.ptr(counts)),
+                    self._dev, "list_intersections")
+        splits = np.zeros(len(ray) + 1, dtype=np.uint64)
+        np.cumsum(counts, out=splits[1:])
+        c = np.zeros(int(splits[-1]), dtype=N.CROSSING)
+        if len(ray):
+            N.check(N.list_intersections(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, N.ptr(splits),
+                                         N.ptr(c) if len(c) else None), self._dev, "list_intersections")
+        ray_ids = np.repeat(np.arange(len(ray), dtype=np.uint32), counts)
+        return {"ray_splits": _out(splits.astype(np.int32 if splits[-1] < 2**31 else np.int64), o3),
+                "ray_ids": _out(ray_ids, o3),
+                "geometry_ids": _out(c["geomID"], o3),
+                "primitive_ids": _out(c["primID"], o3),
+                "primitive_uvs": _out(np.stack([c["u"], c["v"]], axis=1).astype(np.float32), o3),
+                "t_hit": _out(c["t"].astype(np.float32), o3)}
+
+    # ---- points ----
+
+    def _points(self, query_points):
+        p = _as_array(query_points, "query_points")
+        _last_dim(p, 3, "query_points")
+        dtype = np.float64 if p.dtype == np.float64 else np.float32
+        q = np.zeros(int(np.prod(p.shape[:-1], dtype=np.int64)), dtype=N.POINT_QUERY)
+        q["p"] = p.reshape(-1, 3)
+        q["radius"] = np.inf
+        return q, p.shape[:-1], dtype, _is_o3d(query_points)
+
+    def _closest(self, q):
+        res = np.zeros(len(q), dtype=N.POINT_HIT)
+        self._commit()
+        if len(q):
+            N.check(N.closest_point_batch(self._scene, N.ptr(q), N.ptr(res), len(q)), self._dev,
+                    "compute_closest_points")
+        return res
+
+    def compute_closest_points(self, query_points, nthreads=0):
+        """The nearest point of the surface to each point (..., 3).  Keys
+        points, geometry_ids, primitive_ids, primitive_uvs,
+        primitive_normals (unit); points keep float64 when given it."""
+        q, shape, dtype, o3 = self._points(query_points)
+        res = self._closest(q)
+        return {"points": _out(res["p"].astype(dtype).reshape(shape + (3,)), o3),
+                "geometry_ids": _out(res["geomID"].reshape(shape), o3),
+                "primitive_ids": _out(res["primID"].reshape(shape), o3),
+                "primitive_uvs": _out(np.stack([res["u"], res["v"]], axis=1).astype(np.float32)
+                                      .reshape(shape + (2,)), o3),
+                "primitive_normals": _out(res["n"].astype(np.float32).reshape(shape + (3,)), o3)}
+
+    def compute_distance(self, query_points, nthreads=0):
+        """The distance from each point to the surface (float64 for float64
+        points)."""
+        q, shape, dtype, o3 = self._points(query_points)
+        return _out(self._closest(q)["distance"].astype(dtype).reshape(shape), o3)
+
+    def _inside(self, q):
+        inside = np.zeros(len(q), dtype=np.uint8)
+        self._commit()
+        if len(q):
+            N.check(N.occupancy(self._scene, N.ptr(q), len(q), N.ptr(inside)), self._dev, "compute_occupancy")
+        return inside
+
+    def compute_occupancy(self, query_points, nthreads=0, nsamples=1):
+        """1 for a point inside the closed surface or on it, 0 outside: the
+        exact parity of one ray's crossings in the robust scene (nsamples,
+        Open3D's vote over rays, is accepted and not needed)."""
+        q, shape, dtype, o3 = self._points(query_points)
+        inside = self._inside(q)
+        occ = np.where(inside == 255, np.nan, inside).astype(dtype)
+        return _out(occ.reshape(shape), o3)
+
+    def compute_signed_distance(self, query_points, nthreads=0, nsamples=1):
+        """The distance to the surface, negative inside (see
+        compute_occupancy); 0 on the surface."""
+        q, shape, dtype, o3 = self._points(query_points)
+        d = self._closest(q)["distance"]
+        inside = self._inside(q)
+        sd = np.where(inside == 1, -d, d)
+        sd = np.where(inside == 255, np.nan, sd).astype(dtype)
+        return _out(sd.reshape(shape), o3)
+
+    # ---- cameras ----
+
+    @staticmethod
+    def create_rays_pinhole(*args, **kw):
+        """Rays through the pixel centres of a pinhole camera, shape
+        (height_px, width_px, 6): either (fov_deg, center, eye, up, width_px,
+        height_px) or (intrinsic_matrix, extrinsic_matrix, width_px,
+        height_px), as Open3D's."""
+        names_fov = ["fov_deg", "center", "eye", "up", "width_px", "height_px"]
+        names_k = ["intrinsic_matrix", "extrinsic_matrix", "width_px", "height_px"]
+        if "fov_deg" in kw or (len(args) == 6):
+            a = dict(zip(names_fov, args))
+            a.update(kw)
+            w, h = int(a["width_px"]), int(a["height_px"])
+            f = 0.5 * w / math.tan(math.radians(float(a["fov_deg"])) / 2)
+            K = np.array([[f, 0, 0.5 * w], [0, f, 0.5 * h], [0, 0, 1.0]])
+            eye = np.asarray(_as_array(a["eye"], "eye"), dtype=np.float64).reshape(3)
+            z = np.asarray(_as_array(a["center"], "center"), dtype=np.float64).reshape(3) - eye
+            z /= np.linalg.norm(z)
+            x = np.cross(np.asarray(_as_array(a["up"], "up"), dtype=np.float64).reshape(3), z)
+            x /= np.linalg.norm(x)
+            y = np.cross(z, x)
+            R = np.stack([x, y, z])
+            origin = eye
+            o3 = any(_is_o3d(a[k]) for k in ("center", "eye", "up"))
+        else:
+            a = dict(zip(names_k, args))
+            a.update(kw)
+            w, h = int(a["width_px"]), int(a["height_px"])
+            K = np.asarray(_as_array(a["intrinsic_matrix"], "intrinsic_matrix"), dtype=np.float64).reshape(3, 3)
+            E = np.asarray(_as_array(a["extrinsic_matrix"], "extrinsic_matrix"), dtype=np.float64).reshape(4, 4)
+            R, t = E[:3, :3], E[:3, 3]
+            origin = -R.T @ t
+            o3 = _is_o3d(a["intrinsic_matrix"]) or _is_o3d(a["extrinsic_matrix"])
+        u, v = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+        pix = np.stack([u, v, np.ones_like(u)], axis=-1).reshape(-1, 3)
+        d = (R.T @ np.linalg.solve(K, pix.T)).T
+        rays = np.concatenate([np.broadcast_to(origin, d.shape), d], axis=1).astype(np.float32)
+        return _out(rays.reshape(h, w, 6), o3)

@@ -1,0 +1,276 @@
+"""rtk.RaycastingScene: Open3D's interface over rtk, checked against brute
+force in numpy, on closed meshes where inside/outside is known exactly, at
+shared edges and vertices, with the shapes, dtypes and bad input a user
+brings; against Open3D itself where python3-open3d is installed."""
+import math
+
+import numpy as np
+import pytest
+
+import rtk
+
+
+def cube(n=4, c=(0.5, 0.25, -0.75), h=0.5):
+    """The closed box c +- h, each face an n x n grid (n a power of two and
+    c, h exact: every vertex exact in float), outward-facing triangles."""
+    verts, tris, index = [], [], {}
+
+    def vid(p):
+        key = tuple(p)
+        if key not in index:
+            index[key] = len(verts)
+            verts.append(p)
+        return index[key]
+
+    for axis in range(3):
+        for side in (-1, 1):
+            u, v = (axis + 1) % 3, (axis + 2) % 3
+            for i in range(n):
+                for j in range(n):
+                    q = []
+                    for di, dj in ((0, 0), (1, 0), (1, 1), (0, 1)):
+                        p = [0.0, 0.0, 0.0]
+                        p[axis] = c[axis] + side * h
+                        p[u] = c[u] - h + 2 * h * (i + di) / n
+                        p[v] = c[v] - h + 2 * h * (j + dj) / n
+                        q.append(vid(p))
+                    a, b, cc, d = q if side > 0 else q[::-1]
+                    tris += [[a, b, cc], [a, cc, d]]
+    return np.array(verts, np.float32), np.array(tris, np.int64)
+
+
+def sphere(seg=24, rings=12):
+    """A closed UV sphere of radius 1 (shared poles)."""
+    v = [[0, 0, 1]]
+    for r in range(1, rings):
+        th = math.pi * r / rings
+        for s in range(seg):
+            ph = 2 * math.pi * s / seg
+            v.append([math.sin(th) * math.cos(ph), math.sin(th) * math.sin(ph), math.cos(th)])
+    v.append([0, 0, -1])
+    t = []
+    for s in range(seg):
+        t.append([0, 1 + s, 1 + (s + 1) % seg])
+    for r in range(rings - 2):
+        for s in range(seg):
+            a, b = 1 + r * seg + s, 1 + r * seg + (s + 1) % seg
+            t += [[a, a + seg, b], [b, a + seg, b + seg]]
+    last = len(v) - 1
+    for s in range(seg):
+        a, b = 1 + (rings - 2) * seg + s, 1 + (rings - 2) * seg + (s + 1) % seg
+        t.append([a, last, b])
+    return np.array(v, np.float32), np.array(t, np.int32)
+
+
+def brute_closest(v, t, q):
+    """Distances from points q to triangles (v, t) by dense projection: the
+    nearest of the face projections inside and the three edges."""
+    a, b, c = (v[t[:, k]].astype(np.float64) for k in range(3))
+    out = []
+    for p in q.astype(np.float64):
+        def seg(x, y):
+            d = y - x
+            tt = np.clip(np.einsum("ij,ij->i", p - x, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-300), 0, 1)
+            return np.linalg.norm(x + tt[:, None] * d - p, axis=1)
+        e = np.minimum(np.minimum(seg(a, b), seg(b, c)), seg(c, a))
+        n = np.cross(b - a, c - a)
+        nn = np.linalg.norm(n, axis=1)
+        n = n / np.where(nn > 0, nn, 1)[:, None]
+        dist = np.einsum("ij,ij->i", p - a, n)
+        proj = p - dist[:, None] * n
+        # inside: the same side of every edge
+        s1 = np.einsum("ij,ij->i", np.cross(b - a, proj - a), n)
+        s2 = np.einsum("ij,ij->i", np.cross(c - b, proj - b), n)
+        s3 = np.einsum("ij,ij->i", np.cross(a - c, proj - c), n)
+        inside = (s1 >= 0) & (s2 >= 0) & (s3 >= 0) & (nn > 0)
+        f = np.where(inside, np.abs(dist), np.inf)
+        out.append(min(e[nn > 0].min(), f.min()))
+    return np.array(out)
+
+
+@pytest.fixture
+def cube_scene():
+    v, t = cube()
+    s = rtk.RaycastingScene()
+    assert s.add_triangles(v, t) == 0
+    return s, v, t
+
+
+def test_cast_rays_shapes_and_keys(cube_scene):
+    s, v, t = cube_scene
+    rays = rtk.RaycastingScene.create_rays_pinhole(60, [0.5, 0.25, -0.75], [3, 2, 1], [0, 0, 1], 16, 12)
+    assert rays.shape == (12, 16, 6) and rays.dtype == np.float32
+    ans = s.cast_rays(rays)
+    assert set(ans) == {"t_hit", "geometry_ids", "primitive_ids", "primitive_uvs", "primitive_normals"}
+    assert ans["t_hit"].shape == (12, 16) and ans["t_hit"].dtype == np.float32
+    assert ans["primitive_uvs"].shape == (12, 16, 2) and ans["primitive_normals"].shape == (12, 16, 3)
+    hit = ans["geometry_ids"].numpy() != rtk.INVALID_ID
+    assert hit.any() and not hit.all()
+    assert np.all(np.isinf(ans["t_hit"].numpy()[~hit]))
+    assert np.all(ans["primitive_ids"].numpy()[~hit] == rtk.INVALID_ID)
+    # hit points lie on the cube's surface
+    r = rays.numpy().reshape(-1, 6)[hit.ravel()]
+    p = r[:, :3] + ans["t_hit"].numpy()[hit][:, None] * r[:, 3:]
+    d = np.abs(p - np.array([0.5, 0.25, -0.75])).max(axis=1)
+    assert np.allclose(d, 0.5, atol=1e-5)
+    n = ans["primitive_normals"].numpy()[hit]
+    assert np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-6)
+    # facing the rays: outward normals against incoming directions
+    assert np.all(np.einsum("ij,ij->i", n, r[:, 3:]) < 0)
+    occ = s.test_occlusions(rays)
+    assert occ.dtype == bool and np.array_equal(occ.numpy(), hit)
+    assert not s.test_occlusions(rays, tfar=1e-3).numpy().any()
+
+
+def test_counts_and_lists_at_vertices_and_edges(cube_scene):
+    """Rays through every vertex and edge middle of the closed cube, from
+    outside: each crossing once, so even counts all the way through and odd
+    up to the centre; the list sorted and equal to the counts."""
+    s, v, t = cube_scene
+    centre = np.array([0.5, 0.25, -0.75], np.float32)
+    targets = np.concatenate([v, 0.5 * (v[t[:, 0]] + v[t[:, 1]])])
+    rng = np.random.default_rng(1)
+    d = targets - centre
+    d = d / np.linalg.norm(d, axis=1, keepdims=True) + rng.uniform(-0.3, 0.3, d.shape)
+    d = d / np.linalg.norm(d, axis=1, keepdims=True)
+    origins = (targets + 2 * d).astype(np.float32)
+    rays = np.concatenate([origins, (-d).astype(np.float32)], axis=1)
+    counts = s.count_intersections(rays).numpy()
+    assert counts.dtype == np.int32
+    # (a ray that grazes the cube at a corner or along an edge crosses 0 or 2 times)
+    assert np.all(counts % 2 == 0), np.unique(counts)
+    assert (counts == 2).mean() > 0.5
+    lst = s.list_intersections(rays)
+    splits = lst["ray_splits"].numpy()
+    assert np.array_equal(np.diff(splits), counts)
+    th = lst["t_hit"].numpy()
+    for i in range(len(rays)):
+        seg = th[splits[i]:splits[i + 1]]
+        assert np.all(np.diff(seg) >= 0)
+    assert np.array_equal(lst["ray_ids"].numpy(), np.repeat(np.arange(len(rays)), counts))
+    # from the centre: exactly one crossing, through vertices and edges too
+    out = np.concatenate([np.broadcast_to(centre, targets.shape), targets - centre], axis=1).astype(np.float32)
+    assert np.all(s.count_intersections(out).numpy() == 1)
+
+
+def test_occupancy_and_signed_distance_exact(cube_scene):
+    s, v, t = cube_scene
+    c = np.array([0.5, 0.25, -0.75])
+    on = np.concatenate([v, 0.5 * (v[t[:, 0]] + v[t[:, 1]]), (v[t[:, 0]] + v[t[:, 1]] + 2.0 * v[t[:, 2]]) / 4])
+    occ = s.compute_occupancy(on.astype(np.float32)).numpy()
+    assert occ.dtype == np.float32 and np.all(occ == 1)  # on the surface: inside
+    assert np.all(s.compute_signed_distance(on.astype(np.float32)).numpy() == 0)
+    rng = np.random.default_rng(2)
+    p = c + rng.uniform(-0.8, 0.8, (2000, 3))
+    inside = np.all(np.abs(p - c) < 0.5, axis=1)
+    edge = np.abs(np.abs(p - c) - 0.5).min(axis=1) < 1e-6
+    occ = s.compute_occupancy(p).numpy()
+    assert occ.dtype == np.float64
+    assert np.array_equal(occ[~edge] == 1, inside[~edge])
+    sd = s.compute_signed_distance(p).numpy()
+    want = brute_closest(v, t, p)
+    assert np.allclose(np.abs(sd), want, rtol=1e-9, atol=1e-12)
+    assert np.all((sd < 0) == (inside & (want > 0)))
+
+
+def test_closest_points_vs_brute_force():
+    v, t = sphere()
+    s = rtk.RaycastingScene()
+    s.add_triangles(v, t)
+    rng = np.random.default_rng(3)
+    q = rng.uniform(-1.5, 1.5, (500, 3)).astype(np.float32)
+    ans = s.compute_closest_points(q)
+    assert set(ans) == {"points", "geometry_ids", "primitive_ids", "primitive_uvs", "primitive_normals"}
+    assert ans["points"].dtype == np.float32
+    d = s.compute_distance(q).numpy()
+    assert d.dtype == np.float32
+    want = brute_closest(v, t, q)
+    assert np.allclose(d, want, rtol=1e-6, atol=1e-7)
+    assert np.allclose(np.linalg.norm(ans["points"].numpy() - q, axis=1), d, atol=1e-6)
+    # the reported triangle and barycentrics give the reported point
+    pid = ans["primitive_ids"].numpy()
+    uv = ans["primitive_uvs"].numpy().astype(np.float64)
+    a, b, c = (v[t[pid, k]].astype(np.float64) for k in range(3))
+    p = (1 - uv[:, :1] - uv[:, 1:]) * a + uv[:, :1] * b + uv[:, 1:] * c
+    assert np.allclose(p, ans["points"].numpy(), atol=1e-5)
+    # signed: inside the sphere negative, by the mesh's exact parity
+    sd = s.compute_signed_distance(q).numpy()
+    r = np.linalg.norm(q, axis=1)
+    clear = np.abs(r - 1) > 0.05  # (the mesh lies within 0.05 of the unit sphere)
+    assert np.all((sd[clear] < 0) == (r[clear] < 1))
+
+
+def test_float64_kept():
+    s = rtk.RaycastingScene()
+    s.add_triangles(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64), np.array([[0, 1, 2]]))
+    q = np.array([[0.3, 0.3, 1e-12], [0.3, 0.3, -1e-12]])
+    d = s.compute_distance(q).numpy()
+    assert d.dtype == np.float64 and d[0] == 1e-12 and d[1] == 1e-12
+    p = s.compute_closest_points(q)["points"].numpy()
+    assert p.dtype == np.float64 and np.array_equal(p[0], [0.3, 0.3, 0.0])
+
+
+def test_zero_area_triangles_and_empty():
+    """Open3D 0.16 aborts the process on these; rtk leaves them out."""
+    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 2, 2], [3, 3, 3]], np.float32)
+    t = np.array([[0, 1, 2], [3, 4, 3], [3, 3, 3]])
+    s = rtk.RaycastingScene()
+    s.add_triangles(v, t)
+    d = s.compute_distance(np.array([[2.5, 2.5, 2.5]], np.float32)).numpy()
+    assert abs(d[0] - np.linalg.norm([2.5 - 0.5, 2.5 - 0.5, 2.5])) < 1e-5 or d[0] > 3
+    e = rtk.RaycastingScene()
+    assert e.cast_rays(np.zeros((0, 6), np.float32))["t_hit"].shape == (0,)
+    ans = e.cast_rays(np.array([[0, 0, 0, 1, 0, 0]], np.float32))
+    assert np.isinf(ans["t_hit"].numpy()[0])
+    assert np.isinf(e.compute_distance(np.zeros((1, 3), np.float32)).numpy()[0])
+    assert e.compute_occupancy(np.zeros((1, 3), np.float32)).numpy()[0] == 0
+
+
+def test_bad_input_is_an_error_not_a_crash(cube_scene):
+    s, v, t = cube_scene
+    with pytest.raises(ValueError):
+        s.cast_rays(np.zeros((4, 5), np.float32))
+    with pytest.raises(ValueError):
+        s.compute_distance(np.zeros((4,), np.float32))
+    with pytest.raises(TypeError):
+        s.compute_distance(np.array([["a", "b", "c"]]))
+    with pytest.raises(ValueError):
+        s.add_triangles(v, np.array([[0, 1, len(v)]]))
+    with pytest.raises(ValueError):
+        s.add_triangles(v[:, :2], t)
+    with pytest.raises(TypeError):
+        s.add_triangles(v, t.astype(np.float32))
+    with pytest.raises(ValueError):
+        rtk.RaycastingScene(nthreads=-1)
+    # NaN points and rays: answered as nothing, not crashed
+    d = s.compute_distance(np.array([[np.nan, 0, 0], [0.5, 0.25, 0]], np.float32)).numpy()
+    assert np.isnan(d[0]) and d[1] > 0
+    r = s.cast_rays(np.array([[np.nan, 0, 0, 1, 0, 0]], np.float32))
+    assert np.isinf(r["t_hit"].numpy()[0])
+
+
+def test_pinhole_matches_open3d():
+    o3d = pytest.importorskip("open3d")
+    R = o3d.t.geometry.RaycastingScene
+    a = R.create_rays_pinhole(fov_deg=60, center=[0, 0, 0], eye=[1, 2, 3], up=[0, 1, 0], width_px=8, height_px=5)
+    b = rtk.RaycastingScene.create_rays_pinhole(fov_deg=60, center=[0, 0, 0], eye=[1, 2, 3], up=[0, 1, 0],
+                                                width_px=8, height_px=5)
+    assert np.allclose(a.numpy(), b.numpy(), atol=1e-6)
+    K = np.array([[100, 0, 4], [0, 100, 2.5], [0, 0, 1.0]])
+    E = np.eye(4)
+    E[:3, 3] = [0.1, 0.2, 0.3]
+    a = R.create_rays_pinhole(intrinsic_matrix=K, extrinsic_matrix=E, width_px=8, height_px=5)
+    b = rtk.RaycastingScene.create_rays_pinhole(K, E, 8, 5)
+    assert np.allclose(a.numpy(), b.numpy(), atol=1e-6)
+
+
+def test_open3d_tensors_in_and_out(cube_scene):
+    o3d = pytest.importorskip("open3d")
+    s, v, t = cube_scene
+    q = o3d.core.Tensor(np.array([[2.0, 0.25, -0.75]], np.float32))
+    d = s.compute_distance(q)
+    assert isinstance(d, o3d.core.Tensor)
+    assert abs(d.numpy()[0] - 1.0) < 1e-6
+    ref = o3d.t.geometry.RaycastingScene()
+    ref.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(t.astype(np.uint32)))
+    assert np.allclose(ref.compute_distance(q).numpy(), d.numpy(), atol=1e-6)
