@@ -85,17 +85,9 @@ static int crossings1(rtk_scene s, const rtk_ray *r, collector *k)
 
 static rtk_error scene_check(rtk_scene s, const char *fn)
 {
-    if (!s)
-        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
-    if (scene_not_committing(s, fn))
-        return RTK_ERROR_INVALID_OPERATION;
-    if (!s->accel)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
-    if (s->ref->user_deep)
-        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
-                        "%s: the scene has user geometry (%llu primitives, in it or in the scenes it instances), "
-                        "whose crossings rtk cannot list",
-                        fn, (unsigned long long)s->ref->user_deep);
+    const rtk_error err = geometry_query_check(s, fn, "list the crossings of");
+    if (err)
+        return err;
     const rtk_backend_desc *bk = s->device->backend;
     if (!RTK_DESC_HAS(bk, caps) || !(bk->caps & RTK_BACKEND_CAP_QUERY_FILTER))
         return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,

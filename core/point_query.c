@@ -10,9 +10,7 @@
  * distances stay far from double's range. */
 #define POINT_MAX 0x1p64
 
-/* What rtk_closest_point would refuse the scene for, per call: RTK_OK, or
- * the error (reported). */
-static rtk_error scene_check(rtk_scene s, const char *fn)
+rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot)
 {
     if (!s)
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
@@ -23,8 +21,18 @@ static rtk_error scene_check(rtk_scene s, const char *fn)
     if (s->ref->user_deep)
         return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
                         "%s: the scene has user geometry (%llu primitives, in it or in the scenes it instances), "
-                        "and rtk cannot measure distances to it",
-                        fn, (unsigned long long)s->ref->user_deep);
+                        "and rtk cannot %s it",
+                        fn, (unsigned long long)s->ref->user_deep, cannot);
+    return RTK_OK;
+}
+
+/* What rtk_closest_point would refuse the scene for, per call: RTK_OK, or
+ * the error (reported). */
+static rtk_error scene_check(rtk_scene s, const char *fn)
+{
+    const rtk_error err = geometry_query_check(s, fn, "measure distances to");
+    if (err)
+        return err;
     if (!s->closest_point)
         return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
                         "%s: backend %s has no closest-point kernel for layout %s (it predates them)", fn,

@@ -258,6 +258,10 @@ RTK_INTERNAL void range_trace1(rtk_scene s, void *ray, int occluded, const rtk_q
  * names it), when one is running; RTK_OK otherwise. */
 RTK_INTERNAL rtk_error scene_not_committing(rtk_scene s, const char *fn);
 
+/* point_query.c: what the geometry queries (closest points, crossings)
+ * refuse every scene for: NULL, being committed, never committed, user
+ * geometry in it or below (which rtk cannot `cannot`, for the message). */
+RTK_INTERNAL rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot);
 /* point_query.c: one closest-point query, checked valid (rtk.h), through
  * the scene's kernel (s->closest_point, which must be there) */
 RTK_INTERNAL void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r);

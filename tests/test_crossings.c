@@ -269,15 +269,6 @@ static void test_instances_masks(void **state)
     rtk_closed_free(&m);
 }
 
-static void user_bounds(const rtk_bounds_args *a)
-{
-    for (int k = 0; k < 3; k++) {
-        a->lower[k] = 0;
-        a->upper[k] = 1;
-    }
-}
-static void user_nothing(const rtk_user_query_args *a) { (void)a; }
-
 static void test_errors(void **state)
 {
     (void)state;
@@ -313,17 +304,7 @@ static void test_errors(void **state)
     assert_int_equal(rtk_occupancy(s, &pt, 1, NULL), RTK_ERROR_INVALID_ARGUMENT);
     rtk_scene_release(s);
     /* user geometry: refused */
-    rtk_geometry g;
-    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
-    assert_int_equal(rtk_geometry_set_user_primitive_count(g, 1), RTK_OK);
-    assert_int_equal(rtk_geometry_set_bounds_function(g, user_bounds), RTK_OK);
-    assert_int_equal(rtk_geometry_set_intersect_function(g, user_nothing), RTK_OK);
-    assert_int_equal(rtk_geometry_set_occluded_function(g, user_nothing), RTK_OK);
-    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
-    rtk_geometry_release(g);
-    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    s = test_user_scene(dev);
     assert_int_equal(rtk_count_intersections(s, &ray, 1, sizeof ray, &n), RTK_ERROR_UNSUPPORTED);
     assert_int_equal(rtk_occupancy(s, &pt, 1, &in), RTK_ERROR_UNSUPPORTED);
     rtk_scene_release(s);

@@ -646,18 +646,6 @@ static void test_batch(void **state)
 
 /* ---- errors and empty scenes ---- */
 
-static int user_bounds_calls;
-static void user_bounds(const rtk_bounds_args *a)
-{
-    user_bounds_calls++;
-    for (int k = 0; k < 3; k++) {
-        a->lower[k] = 0;
-        a->upper[k] = 1;
-    }
-}
-
-static void user_nothing(const rtk_user_query_args *a) { (void)a; }
-
 static void test_errors(void **state)
 {
     (void)state;
@@ -697,18 +685,7 @@ static void test_errors(void **state)
     assert_int_equal(h.geomID, RTK_INVALID_GEOMETRY_ID);
     rtk_scene_release(s);
     /* user geometry, directly and through an instance: refused */
-    rtk_scene us;
-    rtk_geometry g;
-    assert_int_equal(rtk_scene_new(dev, &us), RTK_OK);
-    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
-    assert_int_equal(rtk_geometry_set_user_primitive_count(g, 1), RTK_OK);
-    assert_int_equal(rtk_geometry_set_bounds_function(g, user_bounds), RTK_OK);
-    assert_int_equal(rtk_geometry_set_intersect_function(g, user_nothing), RTK_OK);
-    assert_int_equal(rtk_geometry_set_occluded_function(g, user_nothing), RTK_OK);
-    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-    assert_int_equal(rtk_scene_attach_geometry(us, g, NULL), RTK_OK);
-    rtk_geometry_release(g);
-    assert_int_equal(rtk_scene_commit(us), RTK_OK);
+    rtk_scene us = test_user_scene(dev);
     assert_int_equal(rtk_closest_point(us, &good, &h), RTK_ERROR_UNSUPPORTED);
     assert_non_null(strstr(rtk_device_get_error_message(dev), "user geometry"));
     rtk_scene outer = test_instancing_scene(dev, us);

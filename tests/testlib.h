@@ -40,6 +40,10 @@ rtk_scene test_instancing_scene(rtk_device dev, rtk_scene inner);
  * it and the scene. */
 void test_commit_moved(rtk_scene s, rtk_geometry g);
 
+/* A committed scene of one user primitive (the box [0, 1]^3) whose
+ * callbacks report nothing: for the queries that refuse user geometry. */
+rtk_scene test_user_scene(rtk_device dev);
+
 /* Two exported trees are the same, array for array (fails the test otherwise). */
 void test_assert_same_tree(const rtk_bvh *a, const rtk_bvh *b);
 

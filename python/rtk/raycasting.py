@@ -211,25 +211,24 @@ class RaycastingScene:
         """How many times each ray crosses the surface (each crossing once:
         the scene is robust)."""
         rh, shape, o3 = self._rays(rays)
+        ray, counts = self._counts(rh, "count_intersections")
+        return _out(counts.astype(np.int32).reshape(shape), o3)
+
+    def _counts(self, rh, what):
         ray = np.ascontiguousarray(rh["ray"])
         counts = np.zeros(len(ray), dtype=np.uint32)
         self._commit()
         if len(ray):
             N.check(N.count_intersections(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, N.ptr(counts)),
-                    self._dev, "count_intersections")
-        return _out(counts.astype(np.int32).reshape(shape), o3)
+                    self._dev, what)
+        return ray, counts
 
     def list_intersections(self, rays, nthreads=0):
         """Every crossing of every ray, sorted by t per ray.  Keys ray_splits
         (ray i's crossings are [ray_splits[i], ray_splits[i + 1])), ray_ids,
         geometry_ids, primitive_ids, primitive_uvs, t_hit."""
         rh, shape, o3 = self._rays(rays)
-        ray = np.ascontiguousarray(rh["ray"])
-        counts = np.zeros(len(ray), dtype=np.uint32)
-        self._commit()
-        if len(ray):
-            N.check(N.count_intersections(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, N.ptr(counts)),
-                    self._dev, "list_intersections")
+        ray, counts = self._counts(rh, "list_intersections")
         splits = np.zeros(len(ray) + 1, dtype=np.uint64)
         np.cumsum(counts, out=splits[1:])
         c = np.zeros(int(splits[-1]), dtype=N.CROSSING)
