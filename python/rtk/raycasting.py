@@ -346,3 +346,69 @@ class RaycastingScene:
         d = (R.T @ np.linalg.solve(K, pix.T)).T
         rays = np.concatenate([np.broadcast_to(origin, d.shape), d], axis=1).astype(np.float32)
         return _out(rays.reshape(h, w, 6), o3)
+
+
+class RayMeshIntersector:
+    """trimesh's ray interface (trimesh.ray.ray_triangle and the embreex
+    one) over rtk, for one mesh: intersects_first, intersects_any,
+    intersects_id, intersects_location, contains_points.  Each crossing is
+    listed once (the scene is robust), so multiple hits need no re-casting
+    from just past the last one."""
+
+    def __init__(self, vertices, faces, nthreads=0):
+        self._scene = RaycastingScene(nthreads)
+        self._scene.add_triangles(vertices, faces)
+        self._v = np.asarray(vertices, dtype=np.float64)
+
+    def _rays(self, ray_origins, ray_directions):
+        o = np.asarray(ray_origins, dtype=np.float32)
+        d = np.asarray(ray_directions, dtype=np.float32)
+        if o.ndim != 2 or o.shape[1] != 3 or d.shape != o.shape:
+            raise ValueError(f"ray_origins and ray_directions: expected two (N, 3) arrays, got {o.shape} and "
+                             f"{d.shape}")
+        return np.concatenate([o, d], axis=1)
+
+    def intersects_first(self, ray_origins, ray_directions):
+        """The index of the first triangle each ray hits, -1 for none."""
+        ids = self._scene.cast_rays(self._rays(ray_origins, ray_directions))["primitive_ids"].numpy()
+        return np.where(ids == INVALID_ID, -1, ids.astype(np.int64))
+
+    def intersects_any(self, ray_origins, ray_directions):
+        """Whether each ray hits anything."""
+        return self._scene.test_occlusions(self._rays(ray_origins, ray_directions)).numpy()
+
+    def intersects_id(self, ray_origins, ray_directions, multiple_hits=True, max_hits=20, return_locations=False):
+        """index_tri, index_ray (and locations): every crossing of every
+        ray (the first only without multiple_hits), at most max_hits per
+        ray, ordered by ray and then by distance."""
+        rays = self._rays(ray_origins, ray_directions)
+        if multiple_hits:
+            lst = self._scene.list_intersections(rays)
+            ray_ids = lst["ray_ids"].numpy().astype(np.int64)
+            tri = lst["primitive_ids"].numpy().astype(np.int64)
+            t = lst["t_hit"].numpy().astype(np.float64)
+            splits = lst["ray_splits"].numpy().astype(np.int64)
+            rank = np.arange(len(ray_ids)) - splits[ray_ids]
+            keep = rank < max_hits
+            ray_ids, tri, t = ray_ids[keep], tri[keep], t[keep]
+        else:
+            ans = self._scene.cast_rays(rays)
+            hit = ans["geometry_ids"].numpy() != INVALID_ID
+            ray_ids = np.nonzero(hit)[0]
+            tri = ans["primitive_ids"].numpy()[hit].astype(np.int64)
+            t = ans["t_hit"].numpy()[hit].astype(np.float64)
+        if not return_locations:
+            return tri, ray_ids
+        loc = rays[ray_ids, :3].astype(np.float64) + t[:, None] * rays[ray_ids, 3:].astype(np.float64)
+        return tri, ray_ids, loc
+
+    def intersects_location(self, ray_origins, ray_directions, multiple_hits=True):
+        """locations, index_ray, index_tri: every crossing's point."""
+        tri, ray_ids, loc = self.intersects_id(ray_origins, ray_directions, multiple_hits=multiple_hits,
+                                               max_hits=np.iinfo(np.int64).max, return_locations=True)
+        return loc, ray_ids, tri
+
+    def contains_points(self, points):
+        """Whether each point lies inside the (closed) mesh, or on it:
+        exact, one ray's crossing parity in the robust scene."""
+        return self._scene.compute_occupancy(np.asarray(points, dtype=np.float64)).numpy() == 1

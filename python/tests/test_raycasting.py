@@ -274,3 +274,22 @@ def test_open3d_tensors_in_and_out(cube_scene):
     ref = o3d.t.geometry.RaycastingScene()
     ref.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(t.astype(np.uint32)))
     assert np.allclose(ref.compute_distance(q).numpy(), d.numpy(), atol=1e-6)
+
+
+def test_trimesh_interface():
+    v, t = cube()
+    m = rtk.RayMeshIntersector(v, t)
+    c = np.array([0.5, 0.25, -0.75])
+    o = np.array([c + [0, 0, 3], c + [5, 5, 5], c])
+    d = np.array([[0, 0, -1], [1, 0, 0], [1, 0, 0]], np.float64)
+    first = m.intersects_first(o, d)
+    assert first[1] == -1 and first[0] >= 0 and first[2] >= 0
+    assert np.array_equal(m.intersects_any(o, d), [True, False, True])
+    loc, ray, tri = m.intersects_location(o, d)
+    assert np.array_equal(ray, [0, 0, 2])  # through the cube: in and out; from inside: out
+    assert np.allclose(loc[:2, 2], [c[2] + 0.5, c[2] - 0.5]) and np.allclose(loc[2], c + [0.5, 0, 0])
+    tri1, ray1 = m.intersects_id(o, d, multiple_hits=False)
+    assert np.array_equal(ray1, [0, 2]) and tri1[0] == first[0]
+    assert np.array_equal(m.contains_points([c, c + [0.5, 0.5, 0.5], c + [0.6, 0, 0]]), [True, True, False])
+    with pytest.raises(ValueError):
+        m.intersects_first(o, d[:2])
