@@ -72,7 +72,8 @@ static int crossings1(rtk_scene s, const rtk_ray *r, collector *k)
             const float t = (float)((double)k->c[i].t / scale + shift);
             k->c[i].t = t < r->tnear ? r->tnear : t > r->tfar ? r->tfar : t;
         }
-    qsort(k->c, k->n, sizeof *k->c, by_t);
+    if (k->n > 1)
+        qsort(k->c, k->n, sizeof *k->c, by_t);
     size_t m = 0;
     for (size_t i = 0; i < k->n; i++)
         if (!m || by_t(&k->c[i], &k->c[m - 1]))
@@ -180,7 +181,8 @@ static void crossing_range(crossing_job *j, size_t begin, size_t end)
         }
         const uint64_t room = j->offsets[i + 1] - j->offsets[i];
         const size_t n = k.n < room ? k.n : (size_t)room;
-        memcpy(j->out + j->offsets[i], k.c, n * sizeof *k.c);
+        if (n)
+            memcpy(j->out + j->offsets[i], k.c, n * sizeof *k.c);
         if (k.n > room) {
             size_t none = 0;
             atomic_compare_exchange_strong(&j->short_ray, &none, i + 1);
