@@ -96,25 +96,6 @@ static rtk_error scene_check(rtk_scene s, const char *fn)
     return RTK_OK;
 }
 
-static rtk_error array_check(rtk_scene s, const void *p, size_t count, size_t stride, size_t size, const char *what,
-                             const char *fn)
-{
-    if (!count)
-        return RTK_OK;
-    if (!p)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s is NULL (count %zu)", fn, what, count);
-    if ((uintptr_t)p % 4)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s at %p is not aligned to 4 bytes", fn, what, p);
-    if (stride < size || stride % 4)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
-                        "%s: the byte stride %zu of %s is below its struct's %zu bytes or not a multiple of 4", fn,
-                        stride, what, size);
-    if ((count - 1) > (UINTPTR_MAX - (uintptr_t)p - size) / stride)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu %s run past the end of the address space",
-                        fn, count, what);
-    return RTK_OK;
-}
-
 /* ---- over the device's threads ---- */
 
 #define CROSSING_PIECE 1024
@@ -147,8 +128,7 @@ static void crossing_range(crossing_job *j, size_t begin, size_t end)
     for (size_t i = begin; i < end; i++) {
         if (j->kind == JOB_OCCUPANCY) {
             const rtk_point_query *p = &j->points[i];
-            if (!(fabs(p->x) <= 0x1p64 && fabs(p->y) <= 0x1p64 && fabs(p->z) <= 0x1p64) ||
-                !(p->time >= 0.0f && p->time <= 1.0f)) {
+            if (point_fault(p)) {
                 j->inside[i] = RTK_OCCUPANCY_INVALID;
                 continue;
             }

@@ -40,15 +40,23 @@ static rtk_error scene_check(rtk_scene s, const char *fn)
     return RTK_OK;
 }
 
-/* Why a query is not valid (rtk.h), or NULL. */
-static const char *query_fault(const rtk_point_query *q)
+const char *point_fault(const rtk_point_query *q)
 {
     if (!(fabs(q->x) <= POINT_MAX && fabs(q->y) <= POINT_MAX && fabs(q->z) <= POINT_MAX))
         return "the point is not finite or lies beyond +-2^64";
-    if (!(q->radius >= 0.0))
-        return "the radius is negative or NaN";
     if (!(q->time >= 0.0f && q->time <= 1.0f))
         return "the time is outside [0, 1]";
+    return NULL;
+}
+
+/* Why a closest-point query is not valid (rtk.h), or NULL. */
+static const char *query_fault(const rtk_point_query *q)
+{
+    const char *fault = point_fault(q);
+    if (fault)
+        return fault;
+    if (!(q->radius >= 0.0))
+        return "the radius is negative or NaN";
     if (q->reserved)
         return "reserved is not 0";
     return NULL;

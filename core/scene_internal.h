@@ -242,6 +242,14 @@ static inline int ray_check(const rtk_ray *r)
     return (mo3 > RAY_ORG_MAX) | (md3 < RAY_DIR_MIN) | (md3 > RAY_DIR_MAX) ? RAY_RANGE : RAY_PLAIN;
 }
 
+/* stream.c: the checks of an array of `count` structs of `size` bytes,
+ * `stride` bytes apart, at p (named `what` in the message: "rays",
+ * "points"): not NULL, aligned to 4 bytes, the stride no smaller than a
+ * struct and a multiple of 4, not running past the address space.  RTK_OK
+ * for a count of 0. */
+RTK_INTERNAL rtk_error array_check(rtk_scene s, const void *p, size_t count, size_t stride, size_t size,
+                                   const char *what, const char *fn);
+
 /* ray_range.c: a ray of class RAY_RANGE traced, in place, with the answer
  * it would get were it inside the window (rtk.h, "the range rtk answers
  * in"); through the scene's single-ray kernels. */
@@ -262,6 +270,10 @@ RTK_INTERNAL rtk_error scene_not_committing(rtk_scene s, const char *fn);
  * refuse every scene for: NULL, being committed, never committed, user
  * geometry in it or below (which rtk cannot `cannot`, for the message). */
 RTK_INTERNAL rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot);
+/* point_query.c: why a query's point and time are not valid (rtk.h:
+ * finite, within +-2^64, time in [0, 1]), or NULL; for closest points and
+ * occupancy */
+RTK_INTERNAL const char *point_fault(const rtk_point_query *q);
 /* point_query.c: one closest-point query, checked valid (rtk.h), through
  * the scene's kernel (s->closest_point, which must be there) */
 RTK_INTERNAL void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r);

@@ -19,6 +19,27 @@ enum { STREAM_CHUNK = 65536, STREAM_STACK_CHUNK = 512 };
  * a small share, few enough that the threads share the work evenly. */
 enum { BATCH_PIECE = 4096 };
 
+rtk_error array_check(rtk_scene s, const void *p, size_t count, size_t stride, size_t size, const char *what,
+                      const char *fn)
+{
+    if (!count)
+        return RTK_OK;
+    if (!p)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s is NULL (count %zu)", fn, what, count);
+    if ((uintptr_t)p % 4)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: the %s at %p are not aligned to 4 bytes", fn, what,
+                        p);
+    if (stride < size || stride % 4)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: byte_stride %zu of the %s is below their struct's %zu bytes or not a multiple of 4", fn,
+                        stride, what, size);
+    if ((count - 1) > (UINTPTR_MAX - (uintptr_t)p - size) / stride)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: %zu %s %zu bytes apart from %p run past the end of the address space", fn, count, what,
+                        stride, p);
+    return RTK_OK;
+}
+
 /* The checks of every stream call; RTK_OK when the stream may be traced. */
 static rtk_error stream_check(rtk_scene s, const void *rays, size_t count, size_t stride, size_t size, const char *fn)
 {
@@ -26,19 +47,9 @@ static rtk_error stream_check(rtk_scene s, const void *rays, size_t count, size_
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
     if (!count)
         return RTK_OK;
-    if (!rays)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: rays is NULL (count %zu)", fn, count);
-    if ((uintptr_t)rays % 4)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: the rays at %p are not aligned to 4 bytes", fn,
-                        rays);
-    if (stride < size || stride % 4)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
-                        "%s: byte_stride %zu is below the ray struct's %zu bytes or not a multiple of 4", fn, stride,
-                        size);
-    if ((count - 1) > (UINTPTR_MAX - (uintptr_t)rays - size) / stride)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
-                        "%s: %zu rays %zu bytes apart from %p run past the end of the address space", fn, count,
-                        stride, rays);
+    const rtk_error err = array_check(s, rays, count, stride, size, "rays", fn);
+    if (err)
+        return err;
     if (scene_not_committing(s, fn))
         return RTK_ERROR_INVALID_OPERATION;
     if (!s->accel)

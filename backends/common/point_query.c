@@ -215,29 +215,34 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
 /* The squared distances of a node's child boxes from the point, lowered
  * for rounding (see the top); the mask of those within bound. */
 
-static inline unsigned node4_dist(const rtk_bvh4_node *n, const pq_level *l, float bound, float *d)
+/* Four boxes, their planes given (lo*, hi*), the node's width-4 step. */
+static inline unsigned boxes4_dist(vfloat4 lx, vfloat4 hx, vfloat4 ly, vfloat4 hy, vfloat4 lz, vfloat4 hz,
+                                   const pq_level *l, float bound, float *d)
 {
     const vfloat4 zero = vf4_set1(0.0f), dp = vf4_set1(l->dp);
-    const vfloat4 gx = GAP_(vf4, vf4_load(n->lower_x), vf4_load(n->upper_x), vf4_set1(l->pf[0]));
-    const vfloat4 gy = GAP_(vf4, vf4_load(n->lower_y), vf4_load(n->upper_y), vf4_set1(l->pf[1]));
-    const vfloat4 gz = GAP_(vf4, vf4_load(n->lower_z), vf4_load(n->upper_z), vf4_set1(l->pf[2]));
+    const vfloat4 gx = GAP_(vf4, lx, hx, vf4_set1(l->pf[0]));
+    const vfloat4 gy = GAP_(vf4, ly, hy, vf4_set1(l->pf[1]));
+    const vfloat4 gz = GAP_(vf4, lz, hz, vf4_set1(l->pf[2]));
     const vfloat4 d2 = vf4_add(vf4_add(vf4_mul(gx, gx), vf4_mul(gy, gy)), vf4_mul(gz, gz));
     vf4_storeu(d, d2);
     return (unsigned)vb4_mask(vf4_le(d2, vf4_set1(bound)));
 }
 
+static inline unsigned node4_dist(const rtk_bvh4_node *n, const pq_level *l, float bound, float *d)
+{
+    return boxes4_dist(vf4_load(n->lower_x), vf4_load(n->upper_x), vf4_load(n->lower_y), vf4_load(n->upper_y),
+                       vf4_load(n->lower_z), vf4_load(n->upper_z), l, bound, d);
+}
+
+/* A motion node's planes at the query's time: start + f * change. */
 static inline unsigned node_mb_dist(const rtk_bvh4mb_node *n, const pq_level *l, float bound, float *d,
                                     const mb_time *mt)
 {
-    const vfloat4 zero = vf4_set1(0.0f), dp = vf4_set1(l->dp), f = mt->f4;
-#define MB_(axis)                                                                                                      \
-    GAP_(vf4, vf4_add(vf4_load(n->lower_##axis), vf4_mul(f, vf4_load(n->dlower_##axis))),                              \
-         vf4_add(vf4_load(n->upper_##axis), vf4_mul(f, vf4_load(n->dupper_##axis))), vf4_set1(l->pf[#axis[0] - 'x']))
-    const vfloat4 gx = MB_(x), gy = MB_(y), gz = MB_(z);
-#undef MB_
-    const vfloat4 d2 = vf4_add(vf4_add(vf4_mul(gx, gx), vf4_mul(gy, gy)), vf4_mul(gz, gz));
-    vf4_storeu(d, d2);
-    return (unsigned)vb4_mask(vf4_le(d2, vf4_set1(bound)));
+    const vfloat4 f = mt->f4;
+#define AT_(plane) vf4_add(vf4_load(n->plane), vf4_mul(f, vf4_load(n->d##plane)))
+    return boxes4_dist(AT_(lower_x), AT_(upper_x), AT_(lower_y), AT_(upper_y), AT_(lower_z), AT_(upper_z), l, bound,
+                       d);
+#undef AT_
 }
 
 #ifdef RTK_SIMD_HAS_8

@@ -52,17 +52,9 @@ static const char *const point_set_names[NPOINTSETS] = {"near", "box"};
  * of the box's diagonal in every direction (what a remeshing or
  * registration tool asks); "box": uniform in the mesh's box grown by 10%
  * on each side (what a distance field asks). */
-static void make_points(const rtk_mesh *m, int set, size_t n, rtk_point_query *q)
+static void make_points(const rtk_mesh *m, int set, size_t n, const float lo[3], const float hi[3], double diag,
+                        rtk_point_query *q)
 {
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    for (size_t i = 0; i < m->vertex_count; i++)
-        for (int a = 0; a < 3; a++) {
-            const float x = m->vertices[3 * i + a];
-            lo[a] = x < lo[a] ? x : lo[a];
-            hi[a] = x > hi[a] ? x : hi[a];
-        }
-    const double diag =
-        sqrt((hi[0] - lo[0]) * (hi[0] - lo[0]) + (hi[1] - lo[1]) * (hi[1] - lo[1]) + (hi[2] - lo[2]) * (hi[2] - lo[2]));
     for (size_t i = 0; i < n; i++) {
         double p[3];
         if (set == POINTS_NEAR) {
@@ -133,9 +125,11 @@ int section_points(ctx *c, char *err, size_t err_size)
         snprintf(err, err_size, "out of memory");
         return 1;
     }
+    float lo[3], hi[3];
+    const double diag = rtk_mesh_bounds(c->m, lo, hi);
     int rc = 0;
     for (int set = 0; set < NPOINTSETS && !rc; set++) {
-        make_points(c->m, set, n, q);
+        make_points(c->m, set, n, lo, hi, diag, q);
         double ref_rate = 0;
         for (int l = 0; l < c->nlibs && !rc; l++) {
             scene sc;
@@ -159,16 +153,6 @@ int section_points(ctx *c, char *err, size_t err_size)
                 memcpy(dref, d, n * sizeof *d);
             size_t agree = 0;
             double maxdiff = 0;
-            float lo[3], hi[3];
-            memcpy(lo, c->m->vertices, sizeof lo);
-            memcpy(hi, c->m->vertices, sizeof hi);
-            for (size_t i = 0; i < c->m->vertex_count; i++)
-                for (int a = 0; a < 3; a++) {
-                    lo[a] = fminf(lo[a], c->m->vertices[3 * i + a]);
-                    hi[a] = fmaxf(hi[a], c->m->vertices[3 * i + a]);
-                }
-            const double diag = sqrt((double)(hi[0] - lo[0]) * (hi[0] - lo[0]) + (double)(hi[1] - lo[1]) * (hi[1] - lo[1]) +
-                                     (double)(hi[2] - lo[2]) * (hi[2] - lo[2]));
             for (size_t i = 0; i < n; i++) {
                 const double diff = fabs(d[i] - dref[i]);
                 agree += diff <= 1e-6 * diag;
