@@ -3,6 +3,7 @@
  * walk itself is the backend's (backends/common/point_query.c). */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 #include "scene_internal.h"
 
@@ -69,18 +70,43 @@ static void no_result(rtk_point_hit *r, double distance)
                              .instID = RTK_INVALID_GEOMETRY_ID};
 }
 
-/* One checked query into *r (scene_internal.h). */
-void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r)
+/* One checked query into *r, given a point of the surface at the query's
+ * time (hint, or NULL): its distance, raised by far more than its
+ * rounding, bounds the answer's from above, and the walk starts with that
+ * bound instead of the radius.  The answer is the same either way: the
+ * walk visits the boxes it keeps in the same order, and no box holding a
+ * triangle at the least distance is left out with either bound (so the
+ * last such triangle visited is the same one).  Should the raised bound
+ * still fall short, the query runs again from the radius. */
+static void closest_hinted(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r, const double *hint)
 {
     no_result(r, INFINITY);
     rtk_point_state st = {.p = {q->x, q->y, q->z}, .best2 = q->radius * q->radius, .time = q->time, .result = r};
     if (q->radius == INFINITY)
         st.best2 = INFINITY;
+    const double radius2 = st.best2;
+    if (hint) {
+        double d2 = 0.0, mag = 0.0;
+        for (int a = 0; a < 3; a++) {
+            const double g = hint[a] - st.p[a];
+            d2 += g * g;
+            mag = fmax(mag, fmax(fabs(hint[a]), fabs(st.p[a])));
+        }
+        const double up = sqrt(d2) * (1.0 + 0x1p-30) + mag * 0x1p-30;
+        st.best2 = fmin(st.best2, up * up);
+    }
     const rtk_query rq = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
     s->closest_point(s->accel, &st, &rq);
+    if (r->geomID == RTK_INVALID_GEOMETRY_ID && st.best2 < radius2) {
+        st.best2 = radius2;
+        s->closest_point(s->accel, &st, &rq);
+    }
     if (r->geomID != RTK_INVALID_GEOMETRY_ID)
         r->distance = sqrt(st.best2);
 }
+
+/* One checked query into *r (scene_internal.h). */
+void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r) { closest_hinted(s, q, r, NULL); }
 
 rtk_error rtk_closest_point(rtk_scene s, const rtk_point_query *query, rtk_point_hit *result)
 {
@@ -103,21 +129,44 @@ rtk_error rtk_closest_point(rtk_scene s, const rtk_point_query *query, rtk_point
 /* Queries per task: enough to pay for a task's hand-over many times over,
  * few enough that two threads share a batch of a few thousand. */
 #define POINT_PIECE 1024
+/* Queries put in order at a time (point_order.c): 16 MB of ordering, and
+ * neighbours along the curve close enough to share what is in cache. */
+#define POINT_WINDOW ((size_t)1 << 20)
+/* Batches smaller than this are walked as they come. */
+#define POINT_ORDER_MIN 64
 
 typedef struct point_job {
     rtk_scene scene;
     const rtk_point_query *queries;
     rtk_point_hit *results;
+    const uint32_t *order; /* the walk's order of queries [0, count), or NULL: as they come */
     size_t count;
 } point_job;
 
 static void point_range(const point_job *j, size_t begin, size_t end)
 {
-    for (size_t i = begin; i < end; i++) {
-        if (query_fault(&j->queries[i]))
-            no_result(&j->results[i], NAN);
-        else
-            closest_point1(j->scene, &j->queries[i], &j->results[i]);
+    /* along the curve, the previous query's answer is near: a hint */
+    const rtk_point_hit *prev = NULL;
+    float prev_time = 0.0f;
+    for (size_t n = begin; n < end; n++) {
+        const size_t i = j->order ? j->order[n] : n;
+        if (j->order && n + 4 < end) {
+            /* along the curve the queries are scattered through the array */
+            __builtin_prefetch(&j->queries[j->order[n + 4]]);
+            __builtin_prefetch(&j->results[j->order[n + 4]], 1);
+        }
+        const rtk_point_query *q = &j->queries[i];
+        rtk_point_hit *r = &j->results[i];
+        if (query_fault(q)) {
+            no_result(r, NAN);
+            continue;
+        }
+        const double hint[3] = {prev ? prev->x : 0.0, prev ? prev->y : 0.0, prev ? prev->z : 0.0};
+        closest_hinted(j->scene, q, r, prev && prev_time == q->time ? hint : NULL);
+        if (j->order && r->geomID != RTK_INVALID_GEOMETRY_ID) {
+            prev = r;
+            prev_time = q->time;
+        }
     }
 }
 
@@ -140,16 +189,23 @@ rtk_error rtk_closest_point_batch(rtk_scene s, const rtk_point_query *queries, r
     const rtk_error err = scene_check(s, fn);
     if (err || !count)
         return err;
-    const size_t pieces = (count + POINT_PIECE - 1) / POINT_PIECE;
-    if (pieces > UINT32_MAX)
-        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu queries are more than a batch takes", fn,
-                        count);
-    const point_job job = {.scene = s, .queries = queries, .results = results, .count = count};
+    /* window by window, each walked along its Morton curve (or as it
+     * comes, for a small batch or when memory for the order runs out) */
+    const size_t window = count < POINT_WINDOW ? count : POINT_WINDOW;
+    uint32_t *order = count >= POINT_ORDER_MIN ? malloc(window * sizeof *order) : NULL;
     rtk_task_system copy;
-    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(s->device, &copy) : NULL;
-    if (ts)
-        ts->parallel_for(ts->user, (uint32_t)pieces, point_piece, (void *)&job);
-    else
-        point_range(&job, 0, count);
+    const rtk_task_system *ts = count > POINT_PIECE ? rtk_device_tasks(s->device, &copy) : NULL;
+    for (size_t at = 0; at < count; at += window) {
+        const size_t n = count - at < window ? count - at : window;
+        point_job job = {.scene = s, .queries = queries + at, .results = results + at, .count = n};
+        if (order && !point_order(job.queries, n, order))
+            job.order = order;
+        const size_t pieces = (n + POINT_PIECE - 1) / POINT_PIECE;
+        if (ts && pieces > 1)
+            ts->parallel_for(ts->user, (uint32_t)pieces, point_piece, &job);
+        else
+            point_range(&job, 0, n);
+    }
+    free(order);
     return RTK_OK;
 }

@@ -277,6 +277,11 @@ RTK_INTERNAL const char *point_fault(const rtk_point_query *q);
 /* point_query.c: one closest-point query, checked valid (rtk.h), through
  * the scene's kernel (s->closest_point, which must be there) */
 RTK_INTERNAL void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r);
+/* point_order.c: the order to walk `count` point queries in (along a
+ * Morton curve over the valid points' box) into order, a permutation of
+ * [0, count); 0, or non-zero (order untouched) when out of memory or count
+ * exceeds 2^32 - 1 */
+RTK_INTERNAL int point_order(const rtk_point_query *q, size_t count, uint32_t *order);
 
 /* scene.c */
 RTK_INTERNAL void blob_release(blob *m);

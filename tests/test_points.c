@@ -616,9 +616,19 @@ static void test_batch(void **state)
     rtk_point_hit *h = malloc(n * sizeof *h), one;
     assert_true(q && h);
     rng r = {77};
-    for (size_t i = 0; i < n; i++)
+    /* random points, and (walked along the batch's curve next to each
+     * other, each answer a hint for the next) points on vertices and edges,
+     * where several triangles tie: the batch must pick the single call's */
+    for (size_t i = 0; i < n; i++) {
         q[i] = (rtk_point_query){.x = rng_float(&r) * 4 - 2, .y = rng_float(&r) * 4 - 2, .z = rng_float(&r) * 4 - 2,
                                  .radius = i % 3 ? INFINITY : 0.2};
+        const uint32_t *t = &ball.idx[3 * (rng_u32(&r) % ball.nt)];
+        const float *a = &ball.v[3 * t[0]], *b = &ball.v[3 * t[1]];
+        if (i % 5 == 4)
+            q[i].x = a[0], q[i].y = a[1], q[i].z = a[2];
+        else if (i % 5 == 3)
+            q[i].x = 0.5 * a[0] + 0.5 * b[0], q[i].y = 0.5 * a[1] + 0.5 * b[1], q[i].z = 0.5 * a[2] + 0.5 * b[2];
+    }
     q[100].x = NAN;
     q[200].radius = -1;
     q[300].z = INFINITY;
