@@ -283,15 +283,20 @@ static void test_soup(void **state)
 
 /* Scaled far up and far down (rtk's range: 2^36 and areas above its
  * floor), and moved far from the origin: the same answers relative to the
- * size. */
+ * size.  The last: the unit ball moved 2^20 away, its vertices on float's
+ * grid of 1/16 there, and points in double between float's (what a float
+ * bound must allow for: the point's rounding, far more than the ball's
+ * own). */
 static void test_scales(void **state)
 {
     (void)state;
-    const double scales[] = {1e-4, 1e8};
-    const double offsets[] = {0.0, 100.0}; /* (at 1e8: 1e10, within rtk's 2^36) */
+    const double scales[] = {1e-4, 1e8, 1.0};
+    const double offsets[] = {0.0, 100.0, 0x1p20}; /* (at 1e8: 1e10, within rtk's 2^36) */
     rtk_device dev = default_device();
-    for (int i = 0; i < 2; i++)
-        for (int o = 0; o < 2; o++) {
+    for (int i = 0; i < 3; i++)
+        for (int o = 0; o < 3; o++) {
+            if ((i == 2) != (o == 2))
+                continue;
             float *v = malloc(ball.nv * 3 * sizeof *v);
             assert_non_null(v);
             for (size_t k = 0; k < ball.nv * 3; k++)

@@ -7,9 +7,11 @@
  * (4 or 8 lanes, the node's width), the children within the best distance
  * so far are sorted, the nearest is entered and the others pushed with
  * their distances, and a popped entry is dropped when the best distance has
- * fallen below it since.  At a leaf each triangle's nearest point is
- * computed in double (geometry/closest_point.h) from the vertices the
- * layout keeps.
+ * fallen below it since.  At a leaf the four triangles' boxes are tested
+ * in one SIMD step, the survivors' distances bounded from below in float
+ * (tri4_lower), and they are measured in double (geometry/closest_point.h,
+ * from the vertices the layout keeps), nearest bound first, while that
+ * bound is within the best distance.
  *
  * Boxes are tested in float against the point rounded to float: a box is
  * left out only when even its distance lowered by the rounding (the
@@ -28,6 +30,7 @@
 #include <float.h>
 #include <math.h>
 #include <stddef.h>
+#include <stdint.h>
 #include <string.h>
 
 #include "backend_common.h"
@@ -49,6 +52,16 @@ typedef struct pq_level {
     uint32_t inst_id;     /* the outermost instance entered, else the query's */
 } pq_level;
 
+/* The next float up from a finite x >= 0 (nextafterf, without the call). */
+static inline float float_up(float x)
+{
+    uint32_t u;
+    memcpy(&u, &x, sizeof u);
+    u++;
+    memcpy(&x, &u, sizeof x);
+    return x;
+}
+
 static void level_point(pq_level *l)
 {
     float dp = 0.0f;
@@ -58,7 +71,7 @@ static void level_point(pq_level *l)
         dp = d > dp ? d : dp;
     }
     /* rounding up: the float of a double may be below it */
-    l->dp = dp > 0.0f ? nextafterf(dp, INFINITY) : 0.0f;
+    l->dp = dp > 0.0f ? float_up(dp) : 0.0f;
 }
 
 /* The best squared distance in this level's space, rounded up and raised
@@ -66,7 +79,7 @@ static void level_point(pq_level *l)
 static inline float level_bound(const pq_level *l)
 {
     const double b = l->st->best2 * l->scale2 * (1.0 + 0x1p-20);
-    return b >= (double)FLT_MAX ? INFINITY : nextafterf((float)b, INFINITY);
+    return b >= (double)FLT_MAX ? INFINITY : float_up((float)b);
 }
 
 /* A box's distance from the point on one axis, lowered for rounding (see
@@ -128,6 +141,72 @@ static inline void load3(double *d, const float *f)
     d[2] = f[2];
 }
 
+/* Lower bounds of four triangles' distances from the point (vertex a,
+ * edges e1 = b - a and e2 = c - a, per axis), in float, before any is
+ * measured in double.
+ *
+ * Each is the float distance, lowered for rounding: where the point's
+ * projection falls inside the triangle, its distance from the plane;
+ * elsewhere, from the nearest of the three edges as segments.  Everything
+ * is computed with lengths divided by R = |p - a|_1 + |e1|_1 + |e2|_1, so
+ * that nothing overflows or underflows, and the result is lowered by
+ * 2^-10 R (a triangle whose angle at a has a sine of at least 2^-4 costs a
+ * few hundred ulps of R, and a point taken for inside or outside wrongly
+ * lies within that of an edge, where both answers agree) and by twice the
+ * point's own rounding dp.  Triangles that do not qualify get 0: angles
+ * under that (needles and zero-area triangles), edges under 2^-20 R (the
+ * point far off), and anything NaN (unused lanes). */
+static inline vfloat4 tri4_lower(vfloat4 ax, vfloat4 ay, vfloat4 az, vfloat4 e1x, vfloat4 e1y, vfloat4 e1z,
+                                 vfloat4 e2x, vfloat4 e2y, vfloat4 e2z, const pq_level *l)
+{
+    vfloat4 xx = vf4_sub(vf4_set1(l->pf[0]), ax), xy = vf4_sub(vf4_set1(l->pf[1]), ay),
+            xz = vf4_sub(vf4_set1(l->pf[2]), az);
+    const vfloat4 r = vf4_add(vf4_add(vf4_add(vf4_abs(xx), vf4_abs(xy)), vf4_abs(xz)),
+                              vf4_add(vf4_add(vf4_add(vf4_abs(e1x), vf4_abs(e1y)), vf4_abs(e1z)),
+                                      vf4_add(vf4_add(vf4_abs(e2x), vf4_abs(e2y)), vf4_abs(e2z))));
+    const vfloat4 inv = vf4_div(vf4_set1(1.0f), r);
+#define DOT_(ax_, ay_, az_, bx_, by_, bz_) vf4_add(vf4_add(vf4_mul(ax_, bx_), vf4_mul(ay_, by_)), vf4_mul(az_, bz_))
+    xx = vf4_mul(xx, inv), xy = vf4_mul(xy, inv), xz = vf4_mul(xz, inv);
+    e1x = vf4_mul(e1x, inv), e1y = vf4_mul(e1y, inv), e1z = vf4_mul(e1z, inv);
+    e2x = vf4_mul(e2x, inv), e2y = vf4_mul(e2y, inv), e2z = vf4_mul(e2z, inv);
+    const vfloat4 nx = vf4_sub(vf4_mul(e1y, e2z), vf4_mul(e1z, e2y));
+    const vfloat4 ny = vf4_sub(vf4_mul(e1z, e2x), vf4_mul(e1x, e2z));
+    const vfloat4 nz = vf4_sub(vf4_mul(e1x, e2y), vf4_mul(e1y, e2x));
+    const vfloat4 nn = DOT_(nx, ny, nz, nx, ny, nz);
+    const vfloat4 ee1 = DOT_(e1x, e1y, e1z, e1x, e1y, e1z), ee2 = DOT_(e2x, e2y, e2z, e2x, e2y, e2z);
+    const vfloat4 zero = vf4_set1(0.0f), one = vf4_set1(1.0f);
+    vfloat4 seg = vf4_set1(INFINITY); /* the nearest edge's squared distance */
+    vfloat4 out = zero;               /* the largest outward measure: > 0 outside an edge */
+    /* an edge from its start (the point at x from there) */
+#define EDGE_(x, y, z, ex, ey, ez, ee)                                                                                 \
+    do {                                                                                                               \
+        /* n . ((p - start) x edge): positive outside */                                                              \
+        const vfloat4 cx = vf4_sub(vf4_mul(y, ez), vf4_mul(z, ey)), cy = vf4_sub(vf4_mul(z, ex), vf4_mul(x, ez)),      \
+                      cz = vf4_sub(vf4_mul(x, ey), vf4_mul(y, ex));                                                    \
+        out = vf4_max(out, DOT_(nx, ny, nz, cx, cy, cz));                                                              \
+        const vfloat4 t = vf4_min(vf4_max(vf4_div(DOT_(x, y, z, ex, ey, ez), ee), zero), one);                         \
+        const vfloat4 gx = vf4_sub(x, vf4_mul(t, ex)), gy = vf4_sub(y, vf4_mul(t, ey)),                                \
+                      gz = vf4_sub(z, vf4_mul(t, ez));                                                                 \
+        seg = vf4_min(seg, DOT_(gx, gy, gz, gx, gy, gz));                                                              \
+    } while (0)
+    const vfloat4 fx = vf4_sub(e2x, e1x), fy = vf4_sub(e2y, e1y), fz = vf4_sub(e2z, e1z);
+    EDGE_(xx, xy, xz, e1x, e1y, e1z, ee1);
+    EDGE_(vf4_sub(xx, e1x), vf4_sub(xy, e1y), vf4_sub(xz, e1z), fx, fy, fz, DOT_(fx, fy, fz, fx, fy, fz));
+    EDGE_(vf4_sub(xx, e2x), vf4_sub(xy, e2y), vf4_sub(xz, e2z), vf4_sub(zero, e2x), vf4_sub(zero, e2y),
+          vf4_sub(zero, e2z), ee2);
+#undef EDGE_
+    const vfloat4 h = DOT_(nx, ny, nz, xx, xy, xz);
+#undef DOT_
+    const vfloat4 d2 = vf4_select(vf4_gt(out, zero), seg, vf4_div(vf4_mul(h, h), nn)); /* (distance / R)^2 */
+    const vfloat4 edge_min = vf4_set1(0x1p-40f);
+    const vbool4 fit = vb4_and(vb4_and(vf4_gt(nn, vf4_mul(vf4_set1(0x1p-8f), vf4_mul(ee1, ee2))),
+                                       vf4_ge(ee1, edge_min)),
+                               vf4_ge(ee2, edge_min));
+    const vfloat4 lo = vf4_sub(vf4_mul(vf4_sub(vf4_sqrt(d2), vf4_set1(0x1p-10f)), r), vf4_set1(2.0f * l->dp));
+    /* NaN lanes fail the comparison: 0 */
+    return vf4_select(vb4_and(fit, vf4_gt(lo, zero)), lo, zero);
+}
+
 enum leaf_kind { LEAF_TRI4, LEAF_TRI4V, LEAF_TRI4I, LEAF_MB };
 
 /* The motion-blur segment at the query's time (traverse_bvh4mb.h:
@@ -150,7 +229,7 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
              * the lanes whose box is within the best distance go on to the
              * double-precision test (unused lanes are NaN: never) */
             const vfloat4 zero = vf4_set1(0.0f), dp = vf4_set1(l->dp);
-            vfloat4 d2 = zero;
+            vfloat4 d2 = zero, a[3], e1[3], e2[3];
             const float *f = (const float *)t; /* v0 x, y, z, then e1 (or v1), then e2 (or v2): 4 lanes each */
             for (int ax = 0; ax < 3; ax++) {
                 const vfloat4 x0 = vf4_load(f + 4 * ax), y1 = vf4_load(f + 12 + 4 * ax), y2 = vf4_load(f + 24 + 4 * ax);
@@ -158,10 +237,24 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
                 const vfloat4 x2 = kind == LEAF_TRI4V ? y2 : vf4_add(x0, y2);
                 const vfloat4 g = GAP_(vf4, vf4_min(vf4_min(x0, x1), x2), vf4_max(vf4_max(x0, x1), x2), vf4_set1(l->pf[ax]));
                 d2 = vf4_add(d2, vf4_mul(g, g));
+                a[ax] = x0;
+                e1[ax] = kind == LEAF_TRI4V ? vf4_sub(y1, x0) : y1;
+                e2[ax] = kind == LEAF_TRI4V ? vf4_sub(y2, x0) : y2;
             }
             unsigned live = (unsigned)vb4_mask(vf4_le(d2, vf4_set1(level_bound(l))));
-            for (; live; live &= live - 1) {
-                const int k = __builtin_ctz(live);
+            if (!live)
+                continue;
+            /* the boxes' survivors nearest first by their float bound, each
+             * measured only while that is within the best distance */
+            float lo[4];
+            vf4_storeu(lo, tri4_lower(a[0], a[1], a[2], e1[0], e1[1], e1[2], e2[0], e2[1], e2[2], l));
+            while (live) {
+                int k = __builtin_ctz(live);
+                for (unsigned m = live & (live - 1); m; m &= m - 1)
+                    k = lo[__builtin_ctz(m)] < lo[k] ? __builtin_ctz(m) : k;
+                live &= ~(1u << k);
+                if (!(lo[k] * lo[k] <= level_bound(l)))
+                    break;
                 if (t->prim[k] == RTK_BVH4_EMPTY)
                     continue;
                 if (kind == LEAF_TRI4V) {

@@ -43,6 +43,7 @@
  *   vf4_reduce_min / _max    the least / greatest of the lanes (vf8_ too);
  *                            with NaN lanes the answer depends on the
  *                            order of the pairings, which is not specified
+ *   vf4_div / vf4_sqrt       correctly rounded (IEEE), every ISA
  *   vf4_madd / vf4_msub      fused (one rounding) where the ISA has FMA,
  *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
  *                            which, for kernels whose error bounds depend on

@@ -39,6 +39,7 @@ RTK_INLINE vfloat4 vf4_add(vfloat4 a, vfloat4 b) { RTK_S4_F(a.f[k] + b.f[k]); }
 RTK_INLINE vfloat4 vf4_sub(vfloat4 a, vfloat4 b) { RTK_S4_F(a.f[k] - b.f[k]); }
 RTK_INLINE vfloat4 vf4_mul(vfloat4 a, vfloat4 b) { RTK_S4_F(a.f[k] * b.f[k]); }
 RTK_INLINE vfloat4 vf4_div(vfloat4 a, vfloat4 b) { RTK_S4_F(a.f[k] / b.f[k]); }
+RTK_INLINE vfloat4 vf4_sqrt(vfloat4 a) { RTK_S4_F(__builtin_sqrtf(a.f[k])); }
 RTK_INLINE vfloat4 vf4_min(vfloat4 a, vfloat4 b) { RTK_S4_F(rtk_s_min(a.f[k], b.f[k])); }
 RTK_INLINE vfloat4 vf4_max(vfloat4 a, vfloat4 b) { RTK_S4_F(rtk_s_max(a.f[k], b.f[k])); }
 /* max / min / a > b of the lanes' bits as signed integers (see simd.h) */

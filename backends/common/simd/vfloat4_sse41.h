@@ -32,6 +32,7 @@ RTK_INLINE vfloat4 vf4_add(vfloat4 a, vfloat4 b) { return _mm_add_ps(a, b); }
 RTK_INLINE vfloat4 vf4_sub(vfloat4 a, vfloat4 b) { return _mm_sub_ps(a, b); }
 RTK_INLINE vfloat4 vf4_mul(vfloat4 a, vfloat4 b) { return _mm_mul_ps(a, b); }
 RTK_INLINE vfloat4 vf4_div(vfloat4 a, vfloat4 b) { return _mm_div_ps(a, b); }
+RTK_INLINE vfloat4 vf4_sqrt(vfloat4 a) { return _mm_sqrt_ps(a); }
 RTK_INLINE vfloat4 vf4_min(vfloat4 a, vfloat4 b) { return _mm_min_ps(a, b); }
 RTK_INLINE vfloat4 vf4_max(vfloat4 a, vfloat4 b) { return _mm_max_ps(a, b); }
 /* max / min / a > b of the lanes' bits as signed integers (see simd.h) */
