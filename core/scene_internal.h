@@ -250,6 +250,12 @@ static inline int ray_check(const rtk_ray *r)
 RTK_INTERNAL rtk_error array_check(rtk_scene s, const void *p, size_t count, size_t stride, size_t size,
                                    const char *what, const char *fn);
 
+/* stream.c: rays [0, count) of a checked array (rtk_rayhit, or rtk_ray
+ * when occluded, `stride` bytes apart) traced as a stream on this thread:
+ * the valid ones through the stream kernel (or ray by ray without one),
+ * the invalid ones left as they are. */
+RTK_INTERNAL void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occluded, const rtk_query *q);
+
 /* ray_range.c: a ray of class RAY_RANGE traced, in place, with the answer
  * it would get were it inside the window (rtk.h, "the range rtk answers
  * in"); through the scene's single-ray kernels. */

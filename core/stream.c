@@ -59,7 +59,7 @@ static rtk_error stream_check(rtk_scene s, const void *rays, size_t count, size_
 
 /* Traces rays [0, count) of the (checked) stream: the valid ones, a chunk
  * at a time, through the stream kernel, or ray by ray without one. */
-static void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occluded, const rtk_query *q)
+void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occluded, const rtk_query *q)
 {
     if (!(occluded ? (void (*)(void))s->occluded_stream : (void (*)(void))s->intersect_stream)) {
         for (size_t i = 0; i < count; i++) {

@@ -917,6 +917,44 @@ RTK_API rtk_error rtk_intersect_batch(rtk_scene scene, rtk_rayhit *rays, size_t 
 RTK_API rtk_error rtk_occluded_batch(rtk_scene scene, rtk_ray *rays, size_t count, size_t byte_stride,
                                      const rtk_query_context *context);
 
+/* ---- ray arrays (added after rtk 0.2.0) ------------------------------------
+ * Batches in the form array libraries hold rays and want answers (numpy,
+ * Open3D's RaycastingScene): each ray six numbers, origin then direction,
+ * in float or double, and each answer in an array of its own, over the
+ * device's threads.  rtk builds the rtk_rayhit records itself, a piece at a
+ * time, traces them as rtk_intersect_batch does (the same answers, bit for
+ * bit, for the rays rounded to float) and writes the answers out, so the
+ * caller neither builds records nor reads them back.
+ *
+ * All rays share tnear and tfar (tnear <= tfar, not NaN), time 0, mask
+ * 0xFFFFFFFF, and no filter context.  A ray that rtk_ray's rules make
+ * invalid (NaN, infinite, a zero direction) misses.  Answer arrays left
+ * NULL are not written. */
+typedef struct rtk_ray_arrays {
+    const void *rays;    /* count rays of 6 numbers: org x, y, z, dir x, y, z */
+    int rays_double;     /* non-zero: the numbers are double (else float) */
+    size_t ray_stride;   /* bytes from one ray to the next: 0 for packed (6 numbers); a multiple of 4 */
+    float tnear, tfar;
+    /* rtk_intersect_arrays */
+    float *t_hit;        /* the first hit's t (in direction lengths), +inf for a miss */
+    uint32_t *geom_ids;  /* the hit's geomID, primID and instID, RTK_INVALID_GEOMETRY_ID for a miss */
+    uint32_t *prim_ids;
+    uint32_t *inst_ids;
+    float *uvs;          /* u, v per ray: the hit's, 0 for a miss */
+    float *normals;      /* x, y, z per ray: the hit's Ng made unit length, 0 for a miss */
+    /* rtk_occluded_arrays */
+    uint8_t *occluded;   /* 1 when something lies along the ray within [tnear, tfar], else 0 */
+} rtk_ray_arrays;
+
+/* RTK_ERROR_INVALID_ARGUMENT, with nothing written, for a NULL scene or
+ * arrays, NULL rays with a count above 0, rays not aligned to 4 bytes
+ * (float) or 8 (double), a stride below a ray's six numbers or not a
+ * multiple of 4, tnear negative or NaN, tfar NaN or below tnear, and
+ * (rtk_occluded_arrays) occluded NULL; RTK_ERROR_INVALID_OPERATION for a
+ * scene never committed or being committed. */
+RTK_API rtk_error rtk_intersect_arrays(rtk_scene scene, const rtk_ray_arrays *arrays, size_t count);
+RTK_API rtk_error rtk_occluded_arrays(rtk_scene scene, const rtk_ray_arrays *arrays, size_t count);
+
 /* ---- closest points (added after rtk 0.2.0) --------------------------------
  * The point of the scene's surface nearest to a query point, within a
  * radius: for the geometry tools that ask for distances rather than hits.

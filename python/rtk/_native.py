@@ -84,6 +84,17 @@ list_intersections = _fn("rtk_list_intersections", [P, P, SZ, SZ, P, P])
 occupancy = _fn("rtk_occupancy", [P, P, SZ, P])
 
 
+class RayArrays(ctypes.Structure):
+    """rtk_ray_arrays (rtk.h)."""
+    _fields_ = [("rays", P), ("rays_double", I), ("ray_stride", SZ), ("tnear", ctypes.c_float),
+                ("tfar", ctypes.c_float), ("t_hit", P), ("geom_ids", P), ("prim_ids", P), ("inst_ids", P),
+                ("uvs", P), ("normals", P), ("occluded", P)]
+
+
+intersect_arrays = _fn("rtk_intersect_arrays", [P, ctypes.POINTER(RayArrays), SZ])
+occluded_arrays = _fn("rtk_occluded_arrays", [P, ctypes.POINTER(RayArrays), SZ])
+
+
 def check(rc, device, what):
     if rc != 0:
         msg = device_get_error_message(device)

@@ -179,42 +179,48 @@ class RaycastingScene:
         words[:, 17:20] = N.INVALID_ID    # primID, geomID, instID
         return block.view(N.RAYHIT).reshape(n), shape, _is_o3d(rays)
 
+    def _ray_arrays(self, rays, tnear, tfar):
+        """rtk_ray_arrays over rays (..., 6) as they are where they can be
+        (float32 or float64, C-contiguous), else a float32 copy."""
+        r = _as_array(rays, "rays")
+        _last_dim(r, 6, "rays")
+        if r.dtype not in (np.float32, np.float64) or not r.flags.c_contiguous:
+            r = np.ascontiguousarray(r, dtype=np.float64 if r.dtype == np.float64 else np.float32)
+        tnear, tfar = float(tnear), float(tfar)
+        if not (0.0 <= tnear <= tfar):
+            raise ValueError(f"tnear {tnear} and tfar {tfar}: tnear must be at least 0 and at most tfar")
+        a = N.RayArrays(rays=N.ptr(r), rays_double=int(r.dtype == np.float64), ray_stride=0, tnear=tnear, tfar=tfar)
+        return r, a, r.shape[:-1]
+
     def cast_rays(self, rays, nthreads=0):
         """The first hit of each ray (..., 6): origin and direction.  Keys
         t_hit (inf for a miss, in units of the direction's length),
         geometry_ids, primitive_ids (INVALID_ID for a miss), primitive_uvs,
         primitive_normals (unit)."""
-        rh, shape, o3 = self._rays(rays)
+        r, a, shape = self._ray_arrays(rays, 0.0, math.inf)
+        n = int(np.prod(shape, dtype=np.int64))
+        t = np.empty(n, np.float32)
+        geom, prim = np.empty(n, np.uint32), np.empty(n, np.uint32)
+        uv, ng = np.empty((n, 2), np.float32), np.empty((n, 3), np.float32)
+        a.t_hit, a.geom_ids, a.prim_ids, a.uvs, a.normals = N.ptr(t), N.ptr(geom), N.ptr(prim), N.ptr(uv), N.ptr(ng)
         self._commit()
-        if len(rh):
-            N.check(N.intersect_batch(self._scene, N.ptr(rh), len(rh), N.RAYHIT.itemsize, None), self._dev,
-                    "cast_rays")
-        block = rh.view(np.float32).reshape(-1, 20)
-        words = block.view(np.uint32)
-        geom = words[:, 18]
-        miss = geom == N.INVALID_ID
-        t = block[:, 8].copy()
-        t[miss] = np.inf
-        ng = block[:, 12:15].copy()
-        ln = np.sqrt(np.einsum("ij,ij->i", ng, ng))
-        ln[ln == 0] = 1
-        ng /= ln[:, None]
-        uv = block[:, 15:17].copy()
+        N.check(N.intersect_arrays(self._scene, ctypes.byref(a), n), self._dev, "cast_rays")
+        o3 = _is_o3d(rays)
         return {"t_hit": _out(t.reshape(shape), o3),
                 "geometry_ids": _out(geom.reshape(shape), o3),
-                "primitive_ids": _out(words[:, 17].reshape(shape), o3),
+                "primitive_ids": _out(prim.reshape(shape), o3),
                 "primitive_uvs": _out(uv.reshape(shape + (2,)), o3),
                 "primitive_normals": _out(ng.reshape(shape + (3,)), o3)}
 
     def test_occlusions(self, rays, tnear=0.0, tfar=math.inf, nthreads=0):
         """Whether anything lies along each ray within [tnear, tfar]."""
-        rh, shape, o3 = self._rays(rays, tnear, tfar)
-        ray = np.ascontiguousarray(rh["ray"])
+        r, a, shape = self._ray_arrays(rays, tnear, tfar)
+        n = int(np.prod(shape, dtype=np.int64))
+        hit = np.empty(n, np.uint8)
+        a.occluded = N.ptr(hit)
         self._commit()
-        if len(ray):
-            N.check(N.occluded_batch(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, None), self._dev,
-                    "test_occlusions")
-        return _out((ray["tfar"] == -np.inf).reshape(shape), o3)
+        N.check(N.occluded_arrays(self._scene, ctypes.byref(a), n), self._dev, "test_occlusions")
+        return _out(hit.view(np.bool_).reshape(shape), _is_o3d(rays))
 
     def count_intersections(self, rays, nthreads=0):
         """How many times each ray crosses the surface (each crossing once:

@@ -122,6 +122,27 @@ def test_cast_rays_shapes_and_keys(cube_scene):
     assert not s.test_occlusions(rays, tfar=1e-3).numpy().any()
 
 
+def test_rays_in_every_dtype_and_layout(cube_scene):
+    """float64 rays are read as they are (rounded to float as rtk traces),
+    strided views without a copy, other dtypes converted: the same answers."""
+    s, v, t = cube_scene
+    rays = rtk.RaycastingScene.create_rays_pinhole(60, [0.5, 0.25, -0.75], [3, 2, 1], [0, 0, 1], 16, 12).numpy()
+    ref = s.cast_rays(rays)
+    wide = np.zeros((12, 16, 9), np.float32)
+    wide[..., 1:7] = rays
+    for r in (rays.astype(np.float64), wide[..., 1:7], np.asfortranarray(rays.reshape(-1, 6)).reshape(12, 16, 6)):
+        ans = s.cast_rays(r)
+        for k in ref:
+            assert np.array_equal(ans[k].numpy(), ref[k].numpy()), k
+        assert np.array_equal(s.test_occlusions(r).numpy(), s.test_occlusions(rays).numpy())
+    ints = np.array([[3, 0, -1, -1, 0, 0], [3, 9, 0, -1, 0, 0]], np.int32)  # a hit and a miss
+    assert np.array_equal(s.cast_rays(ints)["t_hit"].numpy(), [2.0, np.inf])
+    with pytest.raises(ValueError):
+        s.test_occlusions(rays, tnear=2.0, tfar=1.0)
+    with pytest.raises(ValueError):
+        s.test_occlusions(rays, tnear=-1.0)
+
+
 def test_counts_and_lists_at_vertices_and_edges(cube_scene):
     """Rays through every vertex and edge middle of the closed cube, from
     outside: each crossing once, so even counts all the way through and odd

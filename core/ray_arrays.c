@@ -1,0 +1,153 @@
+/* Rays in array form (rtk.h: rtk_intersect_arrays, rtk_occluded_arrays):
+ * six numbers a ray in, an array per answer out.  Each task turns its
+ * piece of the rays into records a block at a time, traces the block as a
+ * stream (stream.c) and writes its answers out, so that the records stay
+ * in cache between the three steps. */
+#include <math.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "scene_internal.h"
+
+/* Rays per task (as a batch's pieces), and per block of records: 1024
+ * rtk_rayhit are 80 KB, within a core's L2. */
+enum { ARRAYS_PIECE = 4096, ARRAYS_BLOCK = 1024, ARRAYS_STACK_BLOCK = 64 };
+
+typedef struct arrays_job {
+    rtk_scene scene;
+    const rtk_ray_arrays *a;
+    size_t count, stride;
+    int occluded;
+} arrays_job;
+
+/* Rays [begin, begin + n) as records, hit fields as a miss's. */
+static void load(const arrays_job *j, size_t begin, size_t n, rtk_rayhit *rh)
+{
+    const rtk_ray_arrays *a = j->a;
+    for (size_t i = 0; i < n; i++) {
+        const char *p = (const char *)a->rays + (begin + i) * j->stride;
+        float v[6];
+        if (a->rays_double) {
+            double d[6];
+            memcpy(d, p, sizeof d);
+            for (int k = 0; k < 6; k++)
+                v[k] = (float)d[k];
+        } else
+            memcpy(v, p, sizeof v);
+        rh[i] = (rtk_rayhit){.ray = {.org_x = v[0], .org_y = v[1], .org_z = v[2], .tnear = a->tnear, .dir_x = v[3],
+                                     .dir_y = v[4], .dir_z = v[5], .tfar = a->tfar, .mask = 0xFFFFFFFFu},
+                             .hit = {.primID = RTK_INVALID_GEOMETRY_ID, .geomID = RTK_INVALID_GEOMETRY_ID,
+                                     .instID = RTK_INVALID_GEOMETRY_ID}};
+    }
+}
+
+static void store(const arrays_job *j, size_t begin, size_t n, const rtk_rayhit *rh)
+{
+    const rtk_ray_arrays *a = j->a;
+    for (size_t i = 0; i < n; i++) {
+        const rtk_hit *h = &rh[i].hit;
+        const size_t k = begin + i;
+        const int hit = h->geomID != RTK_INVALID_GEOMETRY_ID;
+        if (a->t_hit)
+            a->t_hit[k] = hit ? rh[i].ray.tfar : INFINITY;
+        if (a->geom_ids)
+            a->geom_ids[k] = h->geomID;
+        if (a->prim_ids)
+            a->prim_ids[k] = h->primID;
+        if (a->inst_ids)
+            a->inst_ids[k] = h->instID;
+        if (a->uvs) {
+            a->uvs[2 * k] = hit ? h->u : 0.0f;
+            a->uvs[2 * k + 1] = hit ? h->v : 0.0f;
+        }
+        if (a->normals) {
+            const float len = sqrtf(h->Ng_x * h->Ng_x + h->Ng_y * h->Ng_y + h->Ng_z * h->Ng_z);
+            const float s = hit && len > 0.0f ? 1.0f / len : 0.0f;
+            a->normals[3 * k] = h->Ng_x * s;
+            a->normals[3 * k + 1] = h->Ng_y * s;
+            a->normals[3 * k + 2] = h->Ng_z * s;
+        }
+    }
+}
+
+static void arrays_range(const arrays_job *j, size_t begin, size_t end)
+{
+    rtk_rayhit stack_block[ARRAYS_STACK_BLOCK], *block = malloc(ARRAYS_BLOCK * sizeof *block);
+    const size_t room = block ? ARRAYS_BLOCK : ARRAYS_STACK_BLOCK;
+    if (!block)
+        block = stack_block;
+    const rtk_query q = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
+    for (size_t at = begin; at < end; at += room) {
+        const size_t n = end - at < room ? end - at : room;
+        load(j, at, n, block);
+        if (j->occluded) {
+            /* each record's ray (first in it): an occluded one's tfar becomes -inf */
+            stream_trace(j->scene, (char *)block, n, sizeof *block, 1, &q);
+            for (size_t i = 0; i < n; i++)
+                j->a->occluded[at + i] = block[i].ray.tfar == -INFINITY;
+        } else {
+            stream_trace(j->scene, (char *)block, n, sizeof *block, 0, &q);
+            store(j, at, n, block);
+        }
+    }
+    if (block != stack_block)
+        free(block);
+}
+
+static void arrays_piece(void *data, uint32_t index)
+{
+    const arrays_job *j = data;
+    const size_t begin = (size_t)index * ARRAYS_PIECE;
+    arrays_range(j, begin, j->count - begin < ARRAYS_PIECE ? j->count : begin + ARRAYS_PIECE);
+}
+
+static rtk_error arrays(rtk_scene s, const rtk_ray_arrays *a, size_t count, int occluded, const char *fn)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (!a)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: arrays is NULL", fn);
+    const size_t size = a->rays_double ? 6 * sizeof(double) : 6 * sizeof(float);
+    const size_t stride = a->ray_stride ? a->ray_stride : size;
+    rtk_error err = array_check(s, a->rays, count, stride, size, "rays", fn);
+    if (err)
+        return err;
+    if (count && a->rays_double && (uintptr_t)a->rays % 8)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: the rays (double) at %p are not aligned to 8 bytes",
+                        fn, a->rays);
+    if (!(a->tnear >= 0.0f && a->tnear <= a->tfar))
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: tnear %g and tfar %g: tnear must be at least 0 and at most tfar, neither NaN", fn,
+                        (double)a->tnear, (double)a->tfar);
+    if (scene_not_committing(s, fn))
+        return RTK_ERROR_INVALID_OPERATION;
+    if (!s->accel)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+    if (!count)
+        return RTK_OK;
+    const size_t pieces = (count + ARRAYS_PIECE - 1) / ARRAYS_PIECE;
+    if (pieces > UINT32_MAX)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu rays are more than a batch takes", fn, count);
+    const arrays_job job = {.scene = s, .a = a, .count = count, .stride = stride, .occluded = occluded};
+    rtk_task_system copy;
+    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(s->device, &copy) : NULL;
+    if (ts)
+        ts->parallel_for(ts->user, (uint32_t)pieces, arrays_piece, (void *)&job);
+    else
+        arrays_range(&job, 0, count);
+    return RTK_OK;
+}
+
+rtk_error rtk_intersect_arrays(rtk_scene s, const rtk_ray_arrays *a, size_t count)
+{
+    return arrays(s, a, count, 0, "rtk_intersect_arrays");
+}
+
+rtk_error rtk_occluded_arrays(rtk_scene s, const rtk_ray_arrays *a, size_t count)
+{
+    static const char fn[] = "rtk_occluded_arrays";
+    if (s && a && count && !a->occluded)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: occluded is NULL (count %zu)", fn, count);
+    return arrays(s, a, count, 1, fn);
+}
