@@ -121,6 +121,110 @@ typedef struct crossing_job {
  * (axis-aligned, diagonal) holds it. */
 static const float occupancy_dir[3] = {0.80178373f, 0.53452248f, 0.26726124f};
 
+/* The crossings of occupancy's ray from the float point o into k. */
+static void occupancy_ray(rtk_scene s, const float o[3], float time, collector *k)
+{
+    const rtk_ray r = {.org_x = o[0], .org_y = o[1], .org_z = o[2], .tnear = 0.0f, .dir_x = occupancy_dir[0],
+                       .dir_y = occupancy_dir[1], .dir_z = occupancy_dir[2], .time = time, .tfar = INFINITY,
+                       .mask = ~0u};
+    crossings1(s, &r, k);
+}
+
+/* The surface's nearest point to p within radius, at time, into *h: 1, or
+ * 0 for none. */
+static int surface_within(rtk_scene s, const double p[3], double radius, float time, rtk_point_hit *h)
+{
+    const rtk_point_query q = {.x = p[0], .y = p[1], .z = p[2], .radius = radius, .time = time};
+    closest_point1(s, &q, h);
+    return h->geomID != RTK_INVALID_GEOMETRY_ID;
+}
+
+/* Whether point p lies inside the surface or on it (rtk.h: rtk_occupancy).
+ *
+ * The parity of a ray's crossings from the point as a float, pf, is exact
+ * for pf (robust mode, a closed mesh).  It is p's answer too unless the
+ * surface passes between them: when p is not pf (a double between
+ * floats), p's distance from the surface is measured, and only when that
+ * is within |p - pf| is more needed.  Then (and when pf's ray meets the
+ * surface at t = 0 without p lying on it) the answer is found further
+ * from the surface: the ball around a point with its distance as radius
+ * holds no surface, so a step within it (0.9 of the distance, straight
+ * away from the nearest point, which makes the distance grow) stays on
+ * the same side; steps are taken until a point's float lies within its
+ * ball, and that float gets the parity.  A surface thinner than a few
+ * ulps of float there (the steps do not get away) leaves pf's answer; a
+ * point within 2^-44 of its coordinates' magnitude from the surface (the
+ * double routine's own rounding) is on it. */
+/* The most steps away from the surface (each at least ~1.8x further from
+ * it, where it is not thinner than that): from 2^-44 of a coordinate's
+ * magnitude to float's ulps takes about 40. */
+#define OCCUPANCY_STEPS 64
+
+static int occupancy1(rtk_scene s, const rtk_point_query *pq, collector *k)
+{
+    const double p[3] = {pq->x, pq->y, pq->z};
+    const float pf[3] = {(float)pq->x, (float)pq->y, (float)pq->z};
+    double r2 = 0.0;
+    for (int a = 0; a < 3; a++)
+        r2 += (p[a] - pf[a]) * (p[a] - pf[a]);
+    occupancy_ray(s, pf, pq->time, k);
+    const int odd = (int)(k->n & 1), at_zero = k->n && k->c[0].t == 0.0f;
+    const int float_rule = odd || at_zero;
+    if (!s->closest_point)
+        return float_rule;
+    rtk_point_hit h;
+    if (r2 == 0.0) {
+        if (odd && !at_zero)
+            return 1;
+        /* On the surface counts as inside.  A ray from a vertex or an edge
+         * that leaves the surface there may cross nothing at 0 (the
+         * watertight test decides it as moved off the edge): a closest
+         * point within radius 0, which visits only the boxes holding the
+         * point. */
+        if (surface_within(s, p, 0.0, pq->time, &h))
+            return 1;
+        if (!at_zero)
+            return 0;
+    } else if (!at_zero && !surface_within(s, p, sqrt(r2) * (1.0 + 0x1p-20), pq->time, &h))
+        return odd;
+    /* within rounding of the surface */
+    if (!surface_within(s, p, INFINITY, pq->time, &h))
+        return float_rule;
+    const double c[3] = {h.x, h.y, h.z}, d = h.distance;
+    double m = 0.0;
+    for (int a = 0; a < 3; a++)
+        m = fmax(m, fmax(fabs(c[a]), fabs(p[a])));
+    /* on the surface as far as double can tell (a double point on an edge
+     * is measured a few ulps of double off it): inside */
+    if (d <= m * 0x1p-44)
+        return 1;
+    /* walk away from the surface, each step within the last point's empty
+     * ball (0.9 of its distance, straight away from its nearest point),
+     * until a point's float lies within its own ball */
+    double q[3] = {p[0], p[1], p[2]}, cq[3] = {c[0], c[1], c[2]}, dq = d;
+    float qf[3];
+    for (int step = 0;; step++) {
+        double rq2 = 0.0;
+        for (int a = 0; a < 3; a++) {
+            qf[a] = (float)q[a];
+            rq2 += (q[a] - qf[a]) * (q[a] - qf[a]);
+        }
+        if (rq2 < 0.81 * dq * dq)
+            break;
+        if (step == OCCUPANCY_STEPS)
+            return float_rule; /* a surface thinner than a few ulps of float there */
+        for (int a = 0; a < 3; a++)
+            q[a] += (q[a] - cq[a]) * 0.9;
+        if (!surface_within(s, q, INFINITY, pq->time, &h))
+            return float_rule;
+        cq[0] = h.x, cq[1] = h.y, cq[2] = h.z, dq = h.distance;
+        if (!(dq > 0.0))
+            return float_rule;
+    }
+    occupancy_ray(s, qf, pq->time, k);
+    return k->n && k->c[0].t == 0.0f ? float_rule : (int)(k->n & 1);
+}
+
 static void crossing_range(crossing_job *j, size_t begin, size_t end)
 {
     collector k = {.c = NULL};
@@ -132,23 +236,7 @@ static void crossing_range(crossing_job *j, size_t begin, size_t end)
                 j->inside[i] = RTK_OCCUPANCY_INVALID;
                 continue;
             }
-            const rtk_ray r = {.org_x = (float)p->x, .org_y = (float)p->y, .org_z = (float)p->z, .tnear = 0.0f,
-                               .dir_x = occupancy_dir[0], .dir_y = occupancy_dir[1], .dir_z = occupancy_dir[2],
-                               .time = p->time, .tfar = INFINITY, .mask = ~0u};
-            crossings1(j->scene, &r, &k);
-            int in = (k.n & 1) || (k.n && k.c[0].t == 0.0f);
-            /* On the surface counts as inside.  A ray from a vertex or an
-             * edge that leaves the surface there may cross nothing at 0
-             * (the watertight test decides it as moved off the edge), so a
-             * point the parity puts outside is looked for on the surface:
-             * a closest point within radius 0, which visits only the boxes
-             * holding the point. */
-            if (!in && j->scene->closest_point) {
-                rtk_point_hit h;
-                const rtk_point_query q0 = {.x = p->x, .y = p->y, .z = p->z, .radius = 0.0, .time = p->time};
-                closest_point1(j->scene, &q0, &h);
-                in = h.geomID != RTK_INVALID_GEOMETRY_ID;
-            }
+            const int in = occupancy1(j->scene, p, &k);
             j->inside[i] = (uint8_t)in;
             continue;
         }

@@ -177,6 +177,117 @@ static void test_on_surface(void **state)
     rtk_closed_free(&m);
 }
 
+/* The winding number of the mesh's closed surface around p, in double
+ * (Van Oosterom and Strackee's solid angle per triangle): +-1 inside, 0
+ * outside, whichever way the mesh faces. */
+static double winding(const rtk_closed_mesh *m, const double p[3])
+{
+    double sum = 0.0;
+    for (size_t t = 0; t < m->closed_triangles; t++) {
+        double v[3][3], l[3];
+        for (int k = 0; k < 3; k++) {
+            const float *x = &m->mesh.vertices[3 * m->mesh.indices[3 * t + (size_t)k]];
+            for (int a = 0; a < 3; a++)
+                v[k][a] = x[a] - p[a];
+            l[k] = sqrt(v[k][0] * v[k][0] + v[k][1] * v[k][1] + v[k][2] * v[k][2]);
+        }
+#define DOT_(a, b) ((a)[0] * (b)[0] + (a)[1] * (b)[1] + (a)[2] * (b)[2])
+        const double bc[3] = {v[1][1] * v[2][2] - v[1][2] * v[2][1], v[1][2] * v[2][0] - v[1][0] * v[2][2],
+                              v[1][0] * v[2][1] - v[1][1] * v[2][0]};
+        sum += 2.0 * atan2(DOT_(v[0], bc), l[0] * l[1] * l[2] + DOT_(v[0], v[1]) * l[2] + DOT_(v[0], v[2]) * l[1] +
+                                               DOT_(v[1], v[2]) * l[0]);
+#undef DOT_
+    }
+    return sum / (4.0 * M_PI);
+}
+
+/* Points in double near closed meshes moved 10^3..10^5 from the origin,
+ * where float's grid is 2^-14..2^-7 and cannot hold them: on vertices and
+ * edge middles (inside: on the surface), and 1e-3 and 1e-4 off vertices,
+ * edge middles and face centres either way, against the winding number in
+ * double.  Rounding the points to float (rtk before this test) put 710 of
+ * the sphere's 6,634 at 10^4 on the wrong side. */
+static void test_far_double_points(void **state)
+{
+    (void)state;
+    const double offsets[] = {1e3, 1e4, 1e5}, deltas[] = {1e-3, -1e-3, 1e-4, -1e-4};
+    rtk_device dev = test_device_threads("avx2", 2);
+    for (int o = 0; o < 3; o++)
+        for (int kind = 0; kind < 3; kind++) {
+            const double c0[3] = {offsets[o], -0.5 * offsets[o], 0.25 * offsets[o]};
+            rtk_closed_mesh m;
+            assert_int_equal(kind == 0   ? rtk_closed_sphere(c0, 1.0, 24, 12, &m)
+                             : kind == 1 ? rtk_closed_torus(c0, 1.0, 0.3, 24, 12, &m)
+                                         : rtk_closed_box(c0, 0.5, 4, &m),
+                             0);
+            rtk_scene s = mesh_scene(dev, &m.mesh, m.closed_triangles, RTK_SCENE_FLAG_ROBUST);
+            const size_t nv = m.mesh.vertex_count, nt = m.closed_triangles;
+            const size_t cap = nv * 5 + nt * 9;
+            rtk_point_query *p = calloc(cap, sizeof *p);
+            uint8_t *want = malloc(cap), *got = malloc(cap);
+            assert_true(p && want && got);
+            size_t n = 0;
+            /* (base point, unit direction): vertices along their normals,
+             * edge middles along their ends' normals' sum, face centres
+             * along the face's normal */
+            for (size_t i = 0; i < nv + 2 * nt; i++) {
+                double b[3], d[3];
+                if (i < nv) {
+                    for (int a = 0; a < 3; a++)
+                        b[a] = m.mesh.vertices[3 * i + (size_t)a], d[a] = m.normal[i][a];
+                } else {
+                    const size_t t = (i - nv) / 2;
+                    const uint32_t *ix = &m.mesh.indices[3 * t];
+                    const float *x0 = &m.mesh.vertices[3 * ix[0]], *x1 = &m.mesh.vertices[3 * ix[1]],
+                                *x2 = &m.mesh.vertices[3 * ix[2]];
+                    if ((i - nv) % 2 == 0)
+                        for (int a = 0; a < 3; a++)
+                            b[a] = 0.5 * ((double)x0[a] + x1[a]), d[a] = m.normal[ix[0]][a] + m.normal[ix[1]][a];
+                    else {
+                        const double e1[3] = {(double)x1[0] - x0[0], (double)x1[1] - x0[1], (double)x1[2] - x0[2]};
+                        const double e2[3] = {(double)x2[0] - x0[0], (double)x2[1] - x0[1], (double)x2[2] - x0[2]};
+                        d[0] = e1[1] * e2[2] - e1[2] * e2[1], d[1] = e1[2] * e2[0] - e1[0] * e2[2];
+                        d[2] = e1[0] * e2[1] - e1[1] * e2[0];
+                        for (int a = 0; a < 3; a++)
+                            b[a] = ((double)x0[a] + x1[a] + x2[a]) / 3.0;
+                    }
+                }
+                const double l = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+                if (!(l > 0.0))
+                    continue;
+                if (i < nv + nt * 2 && (i < nv || (i - nv) % 2 == 0)) { /* on the surface itself */
+                    p[n] = (rtk_point_query){.x = b[0], .y = b[1], .z = b[2]};
+                    want[n++] = 1;
+                }
+                for (int k = 0; k < 4; k++) {
+                    double x[3];
+                    for (int a = 0; a < 3; a++)
+                        x[a] = b[a] + deltas[k] * d[a] / l;
+                    p[n] = (rtk_point_query){.x = x[0], .y = x[1], .z = x[2]};
+                    want[n++] = fabs(winding(&m, x)) > 0.5;
+                }
+            }
+            assert_true(n <= cap);
+            assert_int_equal(rtk_occupancy(s, p, n, got), RTK_OK);
+            size_t wrong = 0, in = 0;
+            for (size_t i = 0; i < n; i++) {
+                in += want[i];
+                if (got[i] != want[i] && wrong++ < 5)
+                    print_message("%s at %g: point (%.17g %.17g %.17g): %u, the winding number says %u\n", m.name,
+                                  offsets[o], p[i].x, p[i].y, p[i].z, got[i], want[i]);
+            }
+            if (wrong)
+                fail_msg("%s at %g: %zu of %zu points on the wrong side", m.name, offsets[o], wrong, n);
+            assert_true(in > n / 4 && in < n); /* both sides there */
+            free(p);
+            free(want);
+            free(got);
+            rtk_scene_release(s);
+            rtk_closed_free(&m);
+        }
+    rtk_device_release(dev);
+}
+
 /* Through an instance (moved and scaled): the same counts as the mesh's
  * own for the rays moved with it; a mask no ray shares: nothing; invalid
  * rays and points. */
@@ -316,6 +427,7 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_closed_meshes),
         cmocka_unit_test(test_on_surface),
+        cmocka_unit_test(test_far_double_points),
         cmocka_unit_test(test_instances_masks),
         cmocka_unit_test(test_errors),
     };

@@ -1049,12 +1049,18 @@ RTK_API rtk_error rtk_list_intersections(rtk_scene scene, const rtk_ray *rays, s
  * ignored) lies inside the surface or on it, 0 outside,
  * RTK_OCCUPANCY_INVALID for a point not finite, beyond +-2^64 or at a
  * time outside [0, 1].  The rule: the parity of the crossings of a ray
- * from the point (rounded to float: a double point within half an ulp of
- * the surface is taken as its float) in a fixed direction; a crossing at
- * t = 0 (the point on the surface) makes it inside.  Exact for closed
- * meshes (every edge shared by two triangles) in robust scenes, points at
- * edges and vertices included; for open meshes the answer is that ray's
- * parity, which another direction may contradict. */
+ * from the point in a fixed direction; a point on the surface is inside.
+ * A double point is answered as a double: where the surface passes
+ * between it and its float (it lies within float's rounding of the
+ * surface), the parity is taken from a point further from the surface on
+ * its side, reached by steps its distance from the surface shows to be
+ * clear (a point within 2^-44 of its coordinates' magnitude from the
+ * surface counts as on it).  Exact for closed meshes (every edge shared
+ * by two triangles) in robust scenes, points at edges and vertices
+ * included, and double points wherever the mesh lies (tests/test_crossings.c:
+ * points 1e-4 off unit meshes 10^5 from the origin, where float's grid
+ * is 2^-7); for open meshes the answer is that ray's parity, which
+ * another direction may contradict. */
 #define RTK_OCCUPANCY_INVALID 255u
 RTK_API rtk_error rtk_occupancy(rtk_scene scene, const rtk_point_query *points, size_t count, uint8_t *inside);
 

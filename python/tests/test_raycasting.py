@@ -231,6 +231,29 @@ def test_float64_kept():
     assert p.dtype == np.float64 and np.array_equal(p[0], [0.3, 0.3, 0.0])
 
 
+def test_double_points_far_from_the_origin():
+    """A box 10^5 from the origin (float's grid there: 2^-7) and float64
+    points 1e-4 inside and outside its faces, edges and corners: every sign
+    right, as the double points they are."""
+    c = (131072.0, -65536.5, 32768.25)
+    v, t = cube(4, c, 0.5)
+    s = rtk.RaycastingScene()
+    s.add_triangles(v, t)
+    rng = np.random.default_rng(3)
+    base = np.array(c) + rng.choice([-0.5, 0.5], (300, 3)) * (rng.random((300, 3)) < 0.7)  # faces, edges, corners
+    base[~(np.abs(base - np.array(c)) == 0.5).any(axis=1), 0] = c[0] + 0.5
+    on = np.abs(base - np.array(c)) == 0.5
+    outward = np.where(on, np.sign(base - np.array(c)), 0.0)
+    outward /= np.linalg.norm(outward, axis=1)[:, None]
+    for delta in (1e-3, 1e-4):
+        q = np.concatenate([base + delta * outward, base - delta * outward])
+        sd = s.compute_signed_distance(q).numpy()
+        assert sd.dtype == np.float64
+        assert np.all(sd[:300] > 0) and np.all(sd[300:] < 0)
+        assert np.array_equal(s.compute_occupancy(q).numpy(), np.repeat([0, 1], 300))
+    assert np.all(s.compute_occupancy(base).numpy() == 1)  # on the surface
+
+
 def test_zero_area_triangles_and_empty():
     """Open3D 0.16 aborts the process on these; rtk leaves them out."""
     v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 2, 2], [3, 3, 3]], np.float32)
