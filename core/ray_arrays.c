@@ -10,9 +10,9 @@
 
 #include "scene_internal.h"
 
-/* Rays per task (as a batch's pieces), and per block of records: 1024
- * rtk_rayhit are 80 KB, within a core's L2. */
-enum { ARRAYS_PIECE = 4096, ARRAYS_BLOCK = 1024, ARRAYS_STACK_BLOCK = 64 };
+/* Rays per task (as a batch's pieces), and per block of records, on the
+ * stack: 256 rtk_rayhit are 20 KB, and nothing to allocate or fail. */
+enum { ARRAYS_PIECE = 4096, ARRAYS_BLOCK = 256 };
 
 typedef struct arrays_job {
     rtk_scene scene;
@@ -73,10 +73,8 @@ static void store(const arrays_job *j, size_t begin, size_t n, const rtk_rayhit 
 
 static void arrays_range(const arrays_job *j, size_t begin, size_t end)
 {
-    rtk_rayhit stack_block[ARRAYS_STACK_BLOCK], *block = malloc(ARRAYS_BLOCK * sizeof *block);
-    const size_t room = block ? ARRAYS_BLOCK : ARRAYS_STACK_BLOCK;
-    if (!block)
-        block = stack_block;
+    rtk_rayhit block[ARRAYS_BLOCK];
+    const size_t room = ARRAYS_BLOCK;
     const rtk_query q = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
     for (size_t at = begin; at < end; at += room) {
         const size_t n = end - at < room ? end - at : room;
@@ -91,8 +89,6 @@ static void arrays_range(const arrays_job *j, size_t begin, size_t end)
             store(j, at, n, block);
         }
     }
-    if (block != stack_block)
-        free(block);
 }
 
 static void arrays_piece(void *data, uint32_t index)

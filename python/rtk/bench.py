@@ -1,4 +1,4 @@
-"""python3 -m rtk.bench [MESH.ply ...] [--threads 1,2] [--points N]
+"""python3 -m rtk.bench [MESH.ply | sphere:N | torus:N ...] [--threads 1,2] [--points N]
 
 rtk.RaycastingScene beside Open3D's open3d.t.geometry.RaycastingScene
 (python3-open3d), same meshes, same rays and points, same run: rates,
@@ -7,6 +7,15 @@ are wrong (no hits at all, no negative signed distance inside a closed
 mesh) the table says so instead of crediting its speed; where Open3D would
 abort the process (its point queries on a mesh with zero-area triangles) it
 is not run, and the table says why.  Without Open3D, rtk alone.
+
+The camera rays also go through C, same rays, same run: rtk's
+rtk_intersect_batch on records built beforehand (what the binding is
+measured against: the cast_rays row says what share of it Python keeps)
+and, where libembree3 is installed, Embree 3's rtcIntersect1M on the same
+records (rtk's cast_rays from Python set beside Embree's C call).
+
+sphere:N and torus:N are closed meshes of about N triangles (1.3M, 300K)
+made on the spot: a UV sphere of radius 1 and a torus of radii 1 and 0.3.
 """
 import argparse
 import os
@@ -16,6 +25,8 @@ import time
 
 import numpy as np
 
+from . import _native as N
+from ._embree import EmbreeScene
 from .raycasting import INVALID_ID, RaycastingScene
 
 _PLY_TYPES = {"char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1", "short": "i2", "ushort": "u2",
@@ -72,6 +83,47 @@ def read_ply(path):
     return v, t
 
 
+def _count(text):
+    mult = {"K": 1e3, "M": 1e6}.get(text[-1:].upper(), 1)
+    return int(float(text[:-1] if mult != 1 else text) * mult)
+
+
+def procedural(spec):
+    """sphere:N or torus:N (closed, every vertex shared): vertices (n, 3)
+    float32 and triangles (m, 3) int64."""
+    kind, n = spec.split(":", 1)
+    n = _count(n)
+    if kind == "sphere":
+        rings = max(3, int(round(np.sqrt(n / 4))))
+        seg = 2 * rings
+        th = np.pi * np.arange(1, rings) / rings
+        ph = 2 * np.pi * np.arange(seg) / seg
+        ring = np.stack([np.sin(th)[:, None] * np.cos(ph), np.sin(th)[:, None] * np.sin(ph),
+                         np.cos(th)[:, None] * np.ones_like(ph)], axis=-1).reshape(-1, 3)
+        v = np.concatenate([[[0, 0, 1]], ring, [[0, 0, -1]]]).astype(np.float32)
+        ids = 1 + np.arange((rings - 1) * seg).reshape(rings - 1, seg)
+        nxt = np.roll(ids, -1, axis=1)
+        a, b, c, d = ids[:-1], nxt[:-1], ids[1:], nxt[1:]
+        quads = np.concatenate([np.stack([a, c, b], -1).reshape(-1, 3), np.stack([b, c, d], -1).reshape(-1, 3)])
+        top = np.stack([np.zeros(seg, np.int64), ids[0], nxt[0]], -1)
+        bottom = np.stack([np.full(seg, len(v) - 1), nxt[-1], ids[-1]], -1)
+        return v, np.concatenate([top, quads, bottom]).astype(np.int64)
+    if kind == "torus":
+        nv = max(3, int(round(np.sqrt(n / 4))))
+        nu = 2 * nv
+        u = 2 * np.pi * np.arange(nu) / nu
+        w = 2 * np.pi * np.arange(nv) / nv
+        rad = 1.0 + 0.3 * np.cos(w)
+        v = np.stack([rad[None, :] * np.cos(u)[:, None], rad[None, :] * np.sin(u)[:, None],
+                      0.3 * np.sin(w)[None, :] * np.ones((nu, 1))], -1).reshape(-1, 3).astype(np.float32)
+        ids = np.arange(nu * nv).reshape(nu, nv)
+        a, b = ids, np.roll(ids, -1, axis=0)
+        c, d = np.roll(ids, -1, axis=1), np.roll(np.roll(ids, -1, axis=0), -1, axis=1)
+        t = np.concatenate([np.stack([a, b, d], -1).reshape(-1, 3), np.stack([a, d, c], -1).reshape(-1, 3)])
+        return v, t.astype(np.int64)
+    raise ValueError(f"{spec}: not a mesh file, sphere:N or torus:N")
+
+
 def cpu_model():
     try:
         with open("/proc/cpuinfo") as f:
@@ -84,7 +136,10 @@ def cpu_model():
 
 
 def best_of(fn, repeat):
-    best, out = float("inf"), None
+    """The least time of `repeat` runs after one untimed (the first calls
+    of a query pay for fresh memory: numpy's output arrays and the
+    allocator's first large blocks, at either library)."""
+    best, out = float("inf"), fn()
     for _ in range(repeat):
         t0 = time.perf_counter()
         out = fn()
@@ -112,7 +167,7 @@ def main(argv=None):
           f"Open3D {o3d.__version__ if o3d else 'not installed: rtk alone'}")
     rng = np.random.default_rng(7)
     for path in a.meshes:
-        v, t = read_ply(path)
+        v, t = procedural(path) if path.split(":", 1)[0] in ("sphere", "torus") else read_ply(path)
         e1, e2 = v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]
         zero_area = int(np.sum(np.all(np.cross(e1.astype(np.float64), e2.astype(np.float64)) == 0, axis=1)))
         lo, hi = v.min(axis=0), v.max(axis=0)
@@ -131,6 +186,7 @@ def main(argv=None):
         print(f"\n{os.path.basename(path)}: {len(t):,} triangles ({zero_area:,} of zero area), "
               f"{w}x{h} camera rays, {n:,} points near the surface (1% of the diagonal) and {n:,} in the box")
         print(f"  {'query':28} {'threads':>7} {'rtk M/s':>9} {'Open3D M/s':>11} {'ratio':>7}  agreement")
+        embree = EmbreeScene.create(v, t)
         for k in threads:
             rs = RaycastingScene(nthreads=k)
             rs.add_triangles(v, t)
@@ -147,10 +203,17 @@ def main(argv=None):
                     ("compute_distance, box", "compute_distance", box),
                     ("compute_signed_distance, box", "compute_signed_distance", box),
                     ("compute_occupancy, box", "compute_occupancy", box)]
+            # rtk's runs (and C's) first, then Open3D's: its worker threads
+            # spin for a while after each call, which would slow whatever
+            # ran next on a machine of few cores
+            mine, c_lines = [], []
             for label, method, arg in jobs:
-                count = arg.shape[0] * (arg.shape[1] if arg.ndim == 3 else 1)
                 tr, ra = best_of(lambda: getattr(rs, method)(arg), a.repeat)
-                ra = ra["t_hit"].numpy() if isinstance(ra, dict) else ra.numpy()
+                mine.append((tr, ra["t_hit"].numpy() if isinstance(ra, dict) else ra.numpy()))
+                if method == "cast_rays":
+                    c_lines = c_rows(rs, embree, arg, arg.size // 6, tr, k, a.repeat)
+            for (label, method, arg), (tr, ra) in zip(jobs, mine):
+                count = arg.shape[0] * (arg.shape[1] if arg.ndim == 3 else 1)
                 cell, ratio, note = "", "", ""
                 point_query = method.startswith("compute_")
                 if os_ and point_query and zero_area:
@@ -163,7 +226,38 @@ def main(argv=None):
                     # no ratio against answers that are wrong
                     ratio = "-" if note.startswith("Open3D WRONG") else f"{ta / tr:6.2f}x"
                 print(f"  {label:28} {k:7d} {count / tr * 1e-6:9.3f} {cell:>11} {ratio:>7}  {note}")
+                if method == "cast_rays":
+                    for line in c_lines:
+                        print(line)
     return 0
+
+
+def c_rows(rs, embree, rays, count, t_python, k, repeat):
+    """The camera rays through C, beside cast_rays from Python (t_python
+    seconds): rtk_intersect_batch on records built beforehand, and Embree 3's
+    rtcIntersect1M on the same records; the table's lines.  Each pass gets
+    fresh records (their copy not timed)."""
+    records, _, _ = rs._rays(rays)
+
+    def timed(call):
+        best = float("inf")
+        for _ in range(repeat):
+            r = records.copy()
+            t0 = time.perf_counter()
+            call(r)
+            best = min(best, time.perf_counter() - t0)
+        return best
+
+    tc = timed(lambda r: N.check(N.intersect_batch(rs._scene, N.ptr(r), len(r), N.RAYHIT.itemsize, None), rs._dev,
+                                 "rtk_intersect_batch"))
+    lines = [f"  {'  C: rtk_intersect_batch':28} {k:7d} {count / tc * 1e-6:9.3f} {'':>11} {'':>7}  "
+             f"cast_rays from Python runs at {tc / t_python:.3f}x of it"]
+    if embree:
+        te = timed(lambda r: embree.intersect1M(r, threads=k))
+        lines.append(f"  {'  C: Embree rtcIntersect1M':28} {k:7d} {count / te * 1e-6:9.3f} {'':>11} {'':>7}  "
+                     f"coherent flag; cast_rays from Python at {te / t_python:.3f}x of it, rtk's C batch at "
+                     f"{te / tc:.3f}x")
+    return lines
 
 
 def agreement(method, r, o, diag):
