@@ -1,8 +1,9 @@
 /* Rays in array form (rtk.h: rtk_intersect_arrays, rtk_occluded_arrays):
  * six numbers a ray in, an array per answer out.  Each task turns its
- * piece of the rays into records a block at a time, traces the block as a
- * stream (stream.c) and writes its answers out, so that the records stay
- * in cache between the three steps. */
+ * piece of the rays into records a block at a time, traces the block (its
+ * coherent groups of eight as packets, the rest as a stream, stream.c) and
+ * writes its answers out, so that the records stay in cache between the
+ * steps. */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -71,6 +72,56 @@ static void store(const arrays_job *j, size_t begin, size_t n, const rtk_rayhit 
     }
 }
 
+/* Whether records r[0..8) are a coherent group: one origin (bit for bit),
+ * directions of one octant, every ray plain (valid, in the kernels'
+ * range).  Camera rays through neighbouring pixels are; a packet kernel
+ * traces such a group with one walk. */
+static int coherent8(const rtk_rayhit *r)
+{
+    uint32_t signs = 0, any = 0;
+    for (int i = 0; i < 8; i++) {
+        const rtk_ray *x = &r[i].ray;
+        if (ray_check(x) != RAY_PLAIN || memcmp(&x->org_x, &r[0].ray.org_x, 3 * sizeof(float)))
+            return 0;
+        uint32_t d[3];
+        memcpy(d, &x->dir_x, sizeof d);
+        const uint32_t sg = (d[0] >> 31) | (d[1] >> 31) << 1 | (d[2] >> 31) << 2;
+        signs |= i ? sg ^ any : 0;
+        any = i ? any : sg;
+    }
+    return signs == 0;
+}
+
+/* The coherent groups of eight among records [0, n) through the packet
+ * kernel (rtk_intersect8 / rtk_occluded8), each traced ray's mask then set
+ * to 0 so that the stream passes over it.  Nothing where the scene's
+ * packets of eight go ray by ray anyway. */
+static void trace_coherent(rtk_scene s, rtk_rayhit *block, size_t n, int occluded)
+{
+    if (s->packet[occluded][1].width < 4)
+        return;
+    _Alignas(32) rtk_rayhit8 p;
+    for (size_t g = 0; g + 8 <= n; g += 8) {
+        if (!coherent8(&block[g]))
+            continue;
+        const size_t fields = (occluded ? sizeof(rtk_ray) : sizeof(rtk_rayhit)) / 4;
+        uint32_t *soa = (uint32_t *)&p;
+        for (size_t i = 0; i < 8; i++) {
+            const uint32_t *aos = (const uint32_t *)&block[g + i];
+            for (size_t f = 0; f < fields; f++)
+                soa[f * 8 + i] = aos[f];
+        }
+        if (occluded ? rtk_occluded8(s, NULL, &p.ray) : rtk_intersect8(s, NULL, &p))
+            continue; /* (cannot fail on a checked scene) the stream traces them */
+        for (size_t i = 0; i < 8; i++) {
+            uint32_t *aos = (uint32_t *)&block[g + i];
+            for (size_t f = 0; f < fields; f++)
+                aos[f] = soa[f * 8 + i];
+            block[g + i].ray.mask = 0;
+        }
+    }
+}
+
 static void arrays_range(const arrays_job *j, size_t begin, size_t end)
 {
     rtk_rayhit block[ARRAYS_BLOCK];
@@ -79,6 +130,7 @@ static void arrays_range(const arrays_job *j, size_t begin, size_t end)
     for (size_t at = begin; at < end; at += room) {
         const size_t n = end - at < room ? end - at : room;
         load(j, at, n, block);
+        trace_coherent(j->scene, block, n, j->occluded);
         if (j->occluded) {
             /* each record's ray (first in it): an occluded one's tfar becomes -inf */
             stream_trace(j->scene, (char *)block, n, sizeof *block, 1, &q);

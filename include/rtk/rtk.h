@@ -922,9 +922,13 @@ RTK_API rtk_error rtk_occluded_batch(rtk_scene scene, rtk_ray *rays, size_t coun
  * Open3D's RaycastingScene): each ray six numbers, origin then direction,
  * in float or double, and each answer in an array of its own, over the
  * device's threads.  rtk builds the rtk_rayhit records itself, a piece at a
- * time, traces them as rtk_intersect_batch does (the same answers, bit for
- * bit, for the rays rounded to float) and writes the answers out, so the
- * caller neither builds records nor reads them back.
+ * time, traces them and writes the answers out, so the caller neither
+ * builds records nor reads them back.  Each group of eight consecutive
+ * rays that share their origin (bit for bit) and their directions' signs
+ * (camera rays through a row of pixels) goes through the packet kernels
+ * (rtk_intersect8), the rest as a stream (rtk_intersect_batch): every ray
+ * gets rtk_intersect1's answer for the ray rounded to float, except, as
+ * with packets, which of two triangles hit at exactly the same t.
  *
  * All rays share tnear and tfar (tnear <= tfar, not NaN), time 0, mask
  * 0xFFFFFFFF, and no filter context.  A ray that rtk_ray's rules make
