@@ -63,11 +63,12 @@ static void store(const arrays_job *j, size_t begin, size_t n, const rtk_rayhit 
             a->uvs[2 * k + 1] = hit ? h->v : 0.0f;
         }
         if (a->normals) {
-            const float len = sqrtf(h->Ng_x * h->Ng_x + h->Ng_y * h->Ng_y + h->Ng_z * h->Ng_z);
-            const float s = hit && len > 0.0f ? 1.0f / len : 0.0f;
-            a->normals[3 * k] = h->Ng_x * s;
-            a->normals[3 * k + 1] = h->Ng_y * s;
-            a->normals[3 * k + 2] = h->Ng_z * s;
+            /* (a miss's Ng is not read: a packet leaves it undefined) */
+            const float len = hit ? sqrtf(h->Ng_x * h->Ng_x + h->Ng_y * h->Ng_y + h->Ng_z * h->Ng_z) : 0.0f;
+            const float s = len > 0.0f ? 1.0f / len : 0.0f;
+            a->normals[3 * k] = hit ? h->Ng_x * s : 0.0f;
+            a->normals[3 * k + 1] = hit ? h->Ng_y * s : 0.0f;
+            a->normals[3 * k + 2] = hit ? h->Ng_z * s : 0.0f;
         }
     }
 }
@@ -102,22 +103,30 @@ static void trace_coherent(rtk_scene s, rtk_rayhit *block, size_t n, int occlude
         return;
     _Alignas(32) rtk_rayhit8 p;
     for (size_t g = 0; g + 8 <= n; g += 8) {
-        if (!coherent8(&block[g]))
+        const rtk_rayhit *r = &block[g];
+        if (!coherent8(r))
             continue;
-        const size_t fields = (occluded ? sizeof(rtk_ray) : sizeof(rtk_rayhit)) / 4;
-        uint32_t *soa = (uint32_t *)&p;
-        for (size_t i = 0; i < 8; i++) {
-            const uint32_t *aos = (const uint32_t *)&block[g + i];
-            for (size_t f = 0; f < fields; f++)
-                soa[f * 8 + i] = aos[f];
+        /* into the packet: the directions lane by lane, the rest shared by
+         * the group (one origin; load()'s tnear, tfar, time, mask) */
+        for (int i = 0; i < 8; i++) {
+            p.ray.org_x[i] = r[0].ray.org_x, p.ray.org_y[i] = r[0].ray.org_y, p.ray.org_z[i] = r[0].ray.org_z;
+            p.ray.tnear[i] = r[0].ray.tnear, p.ray.time[i] = 0.0f, p.ray.tfar[i] = r[0].ray.tfar;
+            p.ray.dir_x[i] = r[i].ray.dir_x, p.ray.dir_y[i] = r[i].ray.dir_y, p.ray.dir_z[i] = r[i].ray.dir_z;
+            p.ray.mask[i] = 0xFFFFFFFFu, p.ray.id[i] = 0, p.ray.flags[i] = 0;
+            p.hit.primID[i] = p.hit.geomID[i] = p.hit.instID[i] = RTK_INVALID_GEOMETRY_ID;
         }
         if (occluded ? rtk_occluded8(s, NULL, &p.ray) : rtk_intersect8(s, NULL, &p))
             continue; /* (cannot fail on a checked scene) the stream traces them */
-        for (size_t i = 0; i < 8; i++) {
-            uint32_t *aos = (uint32_t *)&block[g + i];
-            for (size_t f = 0; f < fields; f++)
-                aos[f] = soa[f * 8 + i];
-            block[g + i].ray.mask = 0;
+        /* back: what the answers are read from (tfar, the hit) */
+        for (int i = 0; i < 8; i++) {
+            rtk_rayhit *x = &block[g + (size_t)i];
+            x->ray.tfar = p.ray.tfar[i];
+            x->ray.mask = 0; /* traced: the stream passes over it */
+            if (occluded)
+                continue;
+            x->hit = (rtk_hit){.Ng_x = p.hit.Ng_x[i], .Ng_y = p.hit.Ng_y[i], .Ng_z = p.hit.Ng_z[i], .u = p.hit.u[i],
+                               .v = p.hit.v[i], .primID = p.hit.primID[i], .geomID = p.hit.geomID[i],
+                               .instID = p.hit.instID[i]};
         }
     }
 }
