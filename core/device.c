@@ -218,6 +218,17 @@ const rtk_task_system *rtk_device_tasks(rtk_device d, rtk_task_system *copy)
     return ts;
 }
 
+void rtk_device_for(rtk_device d, uint32_t pieces, rtk_task_fn fn, void *data)
+{
+    rtk_task_system copy;
+    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(d, &copy) : NULL;
+    if (ts)
+        ts->parallel_for(ts->user, pieces, fn, data);
+    else
+        for (uint32_t i = 0; i < pieces; i++)
+            fn(data, i);
+}
+
 /* The backends' and buffers' accounting (rtk_memory) of a device: its
  * monitor sees the bytes; a refusal is counted. */
 static int device_account(void *user, int64_t bytes)

@@ -121,6 +121,10 @@ struct rtk_device_s {
  * the device's pool (started now if it is not yet), or NULL for the
  * calling thread only (threads=1, or the pool could not start: logged). */
 RTK_INTERNAL const rtk_task_system *rtk_device_tasks(rtk_device device, rtk_task_system *copy);
+/* fn(data, i) for every i < pieces: over the device's task system when
+ * there are several pieces and it has one, else one after the other on
+ * the calling thread.  What every batch query splits its array with. */
+RTK_INTERNAL void rtk_device_for(rtk_device device, uint32_t pieces, rtk_task_fn fn, void *data);
 
 /* The device's memory accounting for builds and buffers (rtk_memory), or
  * NULL when it has no memory monitor. */

@@ -193,18 +193,12 @@ rtk_error rtk_closest_point_batch(rtk_scene s, const rtk_point_query *queries, r
      * comes, for a small batch or when memory for the order runs out) */
     const size_t window = count < POINT_WINDOW ? count : POINT_WINDOW;
     uint32_t *order = count >= POINT_ORDER_MIN ? malloc(window * sizeof *order) : NULL;
-    rtk_task_system copy;
-    const rtk_task_system *ts = count > POINT_PIECE ? rtk_device_tasks(s->device, &copy) : NULL;
     for (size_t at = 0; at < count; at += window) {
         const size_t n = count - at < window ? count - at : window;
         point_job job = {.scene = s, .queries = queries + at, .results = results + at, .count = n};
         if (order && !point_order(job.queries, n, order))
             job.order = order;
-        const size_t pieces = (n + POINT_PIECE - 1) / POINT_PIECE;
-        if (ts && pieces > 1)
-            ts->parallel_for(ts->user, (uint32_t)pieces, point_piece, &job);
-        else
-            point_range(&job, 0, n);
+        rtk_device_for(s->device, (uint32_t)((n + POINT_PIECE - 1) / POINT_PIECE), point_piece, &job);
     }
     free(order);
     return RTK_OK;

@@ -187,12 +187,7 @@ static rtk_error arrays(rtk_scene s, const rtk_ray_arrays *a, size_t count, int 
     if (pieces > UINT32_MAX)
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu rays are more than a batch takes", fn, count);
     const arrays_job job = {.scene = s, .a = a, .count = count, .stride = stride, .occluded = occluded};
-    rtk_task_system copy;
-    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(s->device, &copy) : NULL;
-    if (ts)
-        ts->parallel_for(ts->user, (uint32_t)pieces, arrays_piece, (void *)&job);
-    else
-        arrays_range(&job, 0, count);
+    rtk_device_for(s->device, (uint32_t)pieces, arrays_piece, (void *)&job);
     return RTK_OK;
 }
 

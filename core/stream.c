@@ -167,12 +167,7 @@ static rtk_error batch(rtk_scene s, void *rays, size_t count, size_t stride, int
                         count, (unsigned long long)UINT32_MAX * BATCH_PIECE);
     const batch_job job = {.scene = s, .rays = rays, .count = count, .stride = stride, .occluded = occluded,
                            .q = {.context = ctx, .inst_id = RTK_INVALID_GEOMETRY_ID}};
-    rtk_task_system copy;
-    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(s->device, &copy) : NULL;
-    if (ts)
-        ts->parallel_for(ts->user, (uint32_t)pieces, batch_piece, (void *)&job);
-    else
-        stream_trace(s, rays, count, stride, occluded, &job.q);
+    rtk_device_for(s->device, (uint32_t)pieces, batch_piece, (void *)&job);
     return RTK_OK;
 }
 
