@@ -139,6 +139,11 @@ static int surface_within(rtk_scene s, const double p[3], double radius, float t
     return h->geomID != RTK_INVALID_GEOMETRY_ID;
 }
 
+/* The most steps away from the surface (each at least ~1.8x further from
+ * it, where it is not thinner than that): from 2^-44 of a coordinate's
+ * magnitude to float's ulps takes about 40. */
+#define OCCUPANCY_STEPS 64
+
 /* Whether point p lies inside the surface or on it (rtk.h: rtk_occupancy).
  *
  * The parity of a ray's crossings from the point as a float, pf, is exact
@@ -155,11 +160,6 @@ static int surface_within(rtk_scene s, const double p[3], double radius, float t
  * ulps of float there (the steps do not get away) leaves pf's answer; a
  * point within 2^-44 of its coordinates' magnitude from the surface (the
  * double routine's own rounding) is on it. */
-/* The most steps away from the surface (each at least ~1.8x further from
- * it, where it is not thinner than that): from 2^-44 of a coordinate's
- * magnitude to float's ulps takes about 40. */
-#define OCCUPANCY_STEPS 64
-
 static int occupancy1(rtk_scene s, const rtk_point_query *pq, collector *k)
 {
     const double p[3] = {pq->x, pq->y, pq->z};
@@ -274,12 +274,7 @@ static rtk_error run(crossing_job *j, const char *fn)
     if (pieces > UINT32_MAX)
         return rtk_fail(j->scene->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %zu queries are more than a batch takes",
                         fn, j->count);
-    rtk_task_system copy;
-    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(j->scene->device, &copy) : NULL;
-    if (ts)
-        ts->parallel_for(ts->user, (uint32_t)pieces, crossing_piece, j);
-    else
-        crossing_range(j, 0, j->count);
+    rtk_device_for(j->scene->device, (uint32_t)pieces, crossing_piece, j);
     if (atomic_load(&j->oom))
         return rtk_fail(j->scene->device, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory collecting crossings", fn);
     const size_t short_ray = atomic_load(&j->short_ray);
