@@ -1,0 +1,141 @@
+/*
+ * The top level of a two-level scene (layout bvh4.object, objects.c) as a
+ * ray walks it: the ray set up for its 4-wide nodes, the node test, and
+ * the ray taken into an object's space.  objects.c's traversals and the
+ * merged ones of the triangle layouts (traverse_objects.h) share these, so
+ * both visit the same boxes in the same order and answer alike.
+ */
+#ifndef RTK_OBJECTS_RAY_H
+#define RTK_OBJECTS_RAY_H
+#include <stddef.h>
+
+#include "backend_common.h"
+#include "bvh4_triangle4.h"
+#include "simd/simd.h"
+
+/* The ray, broadcast for 4-wide node tests: planes picked once per ray by
+ * the signs of the direction (near: lower where the direction is positive,
+ * upper where negative), as the triangle kernels do. */
+typedef struct obj_ray {
+    vfloat4 org[3], inv[3], inv_far[3];
+    size_t near_off[3], far_off[3];
+} obj_ray;
+
+/* 1 + 2 * gamma(3): the far distances no smaller than the exact ones. */
+#define OBJ_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
+
+/* x, y and z at once in lanes 0..2 (lane 3 holds tnear or time and is not
+ * used): one division for the three reciprocals instead of three, as the
+ * triangle kernels' ray_pre_init does. */
+static inline void obj_ray_init(obj_ray *p, const rtk_ray *r)
+{
+    static const size_t lower[3] = {offsetof(rtk_bvh4_node, lower_x), offsetof(rtk_bvh4_node, lower_y),
+                                    offsetof(rtk_bvh4_node, lower_z)};
+    static const size_t upper[3] = {offsetof(rtk_bvh4_node, upper_x), offsetof(rtk_bvh4_node, upper_y),
+                                    offsetof(rtk_bvh4_node, upper_z)};
+    const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);
+    /* as the triangle kernels do: no 0 * inf NaN in a slab test, and the
+     * reciprocals with the direction's signs (-0.0 included) */
+    const vfloat4 inv = vf4_rcp_clamped(dir, 1e-18f);
+    _Alignas(16) float o[4], in[4], inf[4];
+    vf4_store(o, org);
+    vf4_store(in, inv);
+    vf4_store(inf, vf4_mul(inv, vf4_set1(OBJ_FAR_SCALE)));
+    const unsigned neg = (unsigned)vf4_signs(dir);
+    for (int k = 0; k < 3; k++) {
+        p->org[k] = vf4_set1(o[k]);
+        p->inv[k] = vf4_set1(in[k]);
+        p->inv_far[k] = vf4_set1(inf[k]);
+        p->near_off[k] = neg >> k & 1 ? upper[k] : lower[k];
+        p->far_off[k] = neg >> k & 1 ? lower[k] : upper[k];
+    }
+}
+
+static inline vfloat4 obj_plane(const rtk_bvh4_node *n, size_t off)
+{
+    return vf4_load((const float *)((const char *)n + off));
+}
+
+/* The mask of n's child slots the ray enters within [tnear, tfar], their
+ * entry distances in t[].  The four boxes at once (an empty slot's
+ * inverted box is never entered). */
+static inline unsigned node_entered(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, float t[4])
+{
+    vfloat4 tmin = vf4_set1(tnear), tmax = vf4_set1(tfar);
+    for (int k = 0; k < 3; k++) {
+        tmin = vf4_max(tmin, vf4_mul(vf4_sub(obj_plane(n, p->near_off[k]), p->org[k]), p->inv[k]));
+        tmax = vf4_min(tmax, vf4_mul(vf4_sub(obj_plane(n, p->far_off[k]), p->org[k]), p->inv_far[k]));
+    }
+    vf4_store(t, tmin);
+    return (unsigned)vb4_mask(vf4_le(tmin, tmax));
+}
+
+/* The children of n the ray enters within [tnear, tfar], nearest first, in
+ * ref[] and dist[]; returns how many. */
+static inline int node_children(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, uint32_t ref[4],
+                         float dist[4])
+{
+    _Alignas(16) float t[4];
+    unsigned mask = node_entered(n, p, tnear, tfar, t);
+    int count = 0;
+    for (; mask; mask &= mask - 1) {
+        const int c = __builtin_ctz(mask);
+        int i = count++;
+        for (; i > 0 && dist[i - 1] > t[c]; i--) {
+            dist[i] = dist[i - 1];
+            ref[i] = ref[i - 1];
+        }
+        dist[i] = t[c];
+        ref[i] = n->child[c];
+    }
+    return count;
+}
+
+/* The ray in the object's space, in `local`; 0 when it is not finite there
+ * (a transform that overflows it): the object is then missed. */
+static inline int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local)
+{
+    *local = *r;
+    if (o->flags & RTK_BUILD_OBJECT_IDENTITY)
+        return 1;
+    const float *m = o->world_to_object;
+    const float ox = m[0] * r->org_x + m[1] * r->org_y + m[2] * r->org_z + m[3];
+    const float oy = m[4] * r->org_x + m[5] * r->org_y + m[6] * r->org_z + m[7];
+    const float oz = m[8] * r->org_x + m[9] * r->org_y + m[10] * r->org_z + m[11];
+    const float dx = m[0] * r->dir_x + m[1] * r->dir_y + m[2] * r->dir_z;
+    const float dy = m[4] * r->dir_x + m[5] * r->dir_y + m[6] * r->dir_z;
+    const float dz = m[8] * r->dir_x + m[9] * r->dir_y + m[10] * r->dir_z;
+    /* org and tnear, dir and time each stored as one vector: the kernels
+     * load them so, and a 16-byte load over four 4-byte stores would stall
+     * on store forwarding */
+    vf4_storeu(&local->org_x, vf4_set(ox, oy, oz, r->tnear));
+    vf4_storeu(&local->dir_x, vf4_set(dx, dy, dz, r->time));
+    const float f = 0.0f * ox + 0.0f * oy + 0.0f * oz + 0.0f * dx + 0.0f * dy + 0.0f * dz;
+    return f == 0.0f;
+}
+
+#define OBJ_STACK (3 * RTK_BVH4_MAX_DEPTH + 4)
+
+/* Whether single rays go through object o as they are, on the caller's
+ * ray and hit, instead of a copy: a tree of this backend in world space (a
+ * dynamic scene's geometry), not an instance (whose hit gets its instID)
+ * and not a user primitive (whose callback may write to what it is
+ * handed).  The triangle kernels write the ray's tfar and the hit only for
+ * a hit within tfar, the answer the copy's was taken for.  With this and
+ * the vector set-up above, the two-level path tracer of rtktool bench
+ * traced a dynamic scene 3-6% faster (docs/BENCHMARKS.md, "Two levels"). */
+static inline int in_place(const rtk_build_object *o)
+{
+    return (o->flags & RTK_BUILD_OBJECT_IDENTITY) && o->inst_id == RTK_INVALID_GEOMETRY_ID && !o->intersect_packet;
+}
+
+/* The query an object's tree gets: the outermost instance's id. */
+static inline rtk_query object_query(const rtk_build_object *o, const rtk_query *q)
+{
+    rtk_query cq = *q;
+    if (cq.inst_id == RTK_INVALID_GEOMETRY_ID)
+        cq.inst_id = o->inst_id;
+    return cq;
+}
+
+#endif
