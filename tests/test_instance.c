@@ -617,6 +617,179 @@ static void dynamic_scene(void **state)
         }
 }
 
+/* ---- the merged traversal against each object alone ----
+ * A top level whose objects are trees of the triangle layouts is walked in
+ * one loop with one set-up of the ray (traverse_objects.h); objects of
+ * other kinds, and rays that need an object's masks or filters, go through
+ * that object's own kernel.  Its answer must be, bit for bit, the nearest
+ * of the answers each object gives alone (ties between objects at the same
+ * distance may go to either).  Each object alone: the scene with every
+ * other geometry disabled (its tree built again, deterministically). */
+
+#define MERGED_PIECES 4
+#define MERGED_RAYS 1500
+
+/* rejects hits on odd triangles */
+static int odd_filter(const rtk_filter_args *a)
+{
+    return !(a->hit->primID & 1);
+}
+
+static void merged_trace(rtk_scene s, rtk_rayhit *hits, int *occluded)
+{
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+    rng g = {77};
+    for (int i = 0; i < MERGED_RAYS; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            /* the box of every geometry, enabled or not: the same rays each time */
+            const float lo = -4.0f, ext = 8.0f;
+            o[k] = lo - 0.5f * ext + 2.0f * ext * rng_float(&g);
+            d[k] = lo + ext * rng_float(&g) - o[k];
+        }
+        rtk_ray r = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+        r.mask = i % 3 == 0 ? 1u : ~0u; /* a third of the rays miss the masked piece */
+        hits[i] = (rtk_rayhit){.ray = r};
+        hits[i].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_intersect1(s, &hits[i]), RTK_OK);
+        assert_int_equal(rtk_occluded1(s, &r), RTK_OK);
+        occluded[i] = r.tfar == -INFINITY;
+    }
+    (void)info;
+}
+
+static int same_hit(const rtk_rayhit *a, const rtk_rayhit *b)
+{
+    return a->ray.tfar == b->ray.tfar && a->hit.geomID == b->hit.geomID && a->hit.primID == b->hit.primID &&
+           a->hit.instID == b->hit.instID && a->hit.u == b->hit.u && a->hit.v == b->hit.v &&
+           a->hit.Ng_x == b->hit.Ng_x && a->hit.Ng_y == b->hit.Ng_y && a->hit.Ng_z == b->hit.Ng_z;
+}
+
+static void merged_vs_each_object(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    static const unsigned flags[3] = {0, RTK_SCENE_FLAG_COMPACT, RTK_SCENE_FLAG_ROBUST};
+    /* the ball's triangles dealt round the pieces: every piece's box is
+     * the ball's, and neighbouring triangles (shared edges: ties) lie in
+     * different pieces */
+    uint32_t *idx[MERGED_PIECES];
+    size_t nt[MERGED_PIECES] = {0};
+    for (int k = 0; k < MERGED_PIECES; k++)
+        idx[k] = malloc(ball.nt * 3 * sizeof(uint32_t));
+    for (size_t t = 0; t < ball.nt; t++) {
+        const int k = (int)(t % MERGED_PIECES);
+        memcpy(idx[k] + 3 * nt[k]++, ball.idx + 3 * t, 3 * sizeof(uint32_t));
+    }
+    double xf[NX][12];
+    transforms(xf);
+    rtk_rayhit *all = malloc(MERGED_RAYS * sizeof *all), *alone = malloc(MERGED_RAYS * sizeof *alone);
+    int *all_occ = malloc(MERGED_RAYS * sizeof(int)), *alone_occ = malloc(MERGED_RAYS * sizeof(int));
+    rtk_rayhit *nearest = malloc(MERGED_RAYS * sizeof *nearest);
+    int *any_occ = malloc(MERGED_RAYS * sizeof(int)), *tie_ok = malloc(MERGED_RAYS * sizeof(int));
+    for (size_t b = 0; b < nb; b++)
+        for (int f = 0; f < 3; f++) {
+            rtk_device dev = test_device(names[b]);
+            rtk_scene s = NULL;
+            assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+            assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC | flags[f]), RTK_OK);
+            rtk_geometry geo[MERGED_PIECES + 4];
+            int ng = 0;
+            for (int k = 0; k < MERGED_PIECES; k++) {
+                rtk_geometry g = NULL;
+                assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+                assert_int_equal(
+                    rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, ball.v, 0, 12, ball.nv), RTK_OK);
+                assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, idx[k], 0, 12, nt[k]),
+                                 RTK_OK);
+                if (k == 1)
+                    assert_int_equal(rtk_geometry_set_mask(g, 2u), RTK_OK);
+                if (k == 2) {
+                    assert_int_equal(rtk_geometry_set_intersect_filter(g, odd_filter), RTK_OK);
+                    assert_int_equal(rtk_geometry_set_occluded_filter(g, odd_filter), RTK_OK);
+                }
+                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                geo[ng++] = g;
+                attach(s, g);
+            }
+            /* instances of the ball (translated, sheared), and of a scene
+             * of instances (another kind: through its own kernel) */
+            rtk_scene child = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
+            rtk_scene inner = NULL;
+            assert_int_equal(rtk_scene_new(dev, &inner), RTK_OK);
+            attach(inner, instance_of(dev, child, xf[1]));
+            assert_int_equal(rtk_scene_commit(inner), RTK_OK);
+            const double *places[3] = {xf[0], xf[2], xf[5]};
+            for (int k = 0; k < 3; k++) {
+                rtk_geometry g = instance_of(dev, k == 2 ? inner : child, places[k]);
+                geo[ng++] = g;
+                attach(s, g);
+            }
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            merged_trace(s, all, all_occ);
+            for (int i = 0; i < MERGED_RAYS; i++) {
+                nearest[i].ray.tfar = INFINITY;
+                nearest[i].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                any_occ[i] = 0;
+                tie_ok[i] = 0;
+            }
+            /* each object alone */
+            for (int k = 0; k < ng; k++) {
+                for (int j = 0; j < ng; j++)
+                    assert_int_equal(j == k ? rtk_geometry_enable(geo[j]) : rtk_geometry_disable(geo[j]), RTK_OK);
+                assert_int_equal(rtk_scene_commit(s), RTK_OK);
+                merged_trace(s, alone, alone_occ);
+                for (int i = 0; i < MERGED_RAYS; i++) {
+                    any_occ[i] |= alone_occ[i];
+                    if (alone[i].hit.geomID == RTK_INVALID_GEOMETRY_ID)
+                        continue;
+                    if (alone[i].ray.tfar < nearest[i].ray.tfar)
+                        tie_ok[i] = 0;
+                    if (alone[i].ray.tfar <= nearest[i].ray.tfar)
+                        nearest[i] = alone[i];
+                    /* the merged answer may be any of the objects' at the nearest distance */
+                    if (alone[i].ray.tfar == nearest[i].ray.tfar && same_hit(&alone[i], &all[i]))
+                        tie_ok[i] = 1;
+                }
+            }
+            int hits = 0, occ = 0;
+            for (int i = 0; i < MERGED_RAYS; i++) {
+                if (all_occ[i] != any_occ[i])
+                    fail_msg("%s, flags %u, ray %d: occluded %d, by the objects alone %d", names[b], flags[f], i,
+                             all_occ[i], any_occ[i]);
+                if (all[i].hit.geomID != RTK_INVALID_GEOMETRY_ID || nearest[i].hit.geomID != RTK_INVALID_GEOMETRY_ID) {
+                    if (!tie_ok[i] || all[i].ray.tfar != nearest[i].ray.tfar)
+                        fail_msg("%s, flags %u, ray %d: geom %u prim %u inst %u t %a; alone: geom %u prim %u inst %u t %a",
+                                 names[b], flags[f], i, all[i].hit.geomID, all[i].hit.primID, all[i].hit.instID,
+                                 all[i].ray.tfar, nearest[i].hit.geomID, nearest[i].hit.primID,
+                                 nearest[i].hit.instID, nearest[i].ray.tfar);
+                    hits++;
+                }
+                occ += all_occ[i];
+            }
+            if (hits <= MERGED_RAYS / 4)
+                fail_msg("%d hits of %d rays", hits, MERGED_RAYS);
+            assert_true(occ == hits);
+            for (int k = 0; k < ng; k++)
+                rtk_geometry_enable(geo[k]);
+            rtk_scene_release(s);
+            rtk_scene_release(inner);
+            rtk_scene_release(child);
+            rtk_device_release(dev);
+        }
+    for (int k = 0; k < MERGED_PIECES; k++)
+        free(idx[k]);
+    free(all);
+    free(alone);
+    free(all_occ);
+    free(alone_occ);
+    free(nearest);
+    free(any_occ);
+    free(tie_ok);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -625,6 +798,7 @@ int main(void)
         cmocka_unit_test(snapshot_until_commit),
         cmocka_unit_test(instance_errors),
         cmocka_unit_test(dynamic_scene),
+        cmocka_unit_test(merged_vs_each_object),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -206,6 +206,10 @@ struct rtk_accel {
     /* bvh4.object (objects.c): the objects in leaf order, else NULL */
     struct rtk_build_object *objects;
     uint64_t object_count;
+    /* bvh4.object: the merged traversal (traverse_objects.h) of the layout
+     * most of its objects' trees have, else NULL (objects.c's own) */
+    rtk_intersect1_fn objects_intersect1;
+    rtk_occluded1_fn objects_occluded1;
     /* bvh4.triangle4mb: the trees of the time segments, else NULL.  Each
      * is an accel of its own (root, nodes: rtk_bvh4mb_node, trisi, and
      * mb_geoms, segment its time segment), sharing the top accel's

@@ -79,6 +79,19 @@ RTK_STREAM_DECL_(4v)
 RTK_STREAM_DECL_(8v)
 RTK_STREAM_DECL_(4ir)
 #undef RTK_STREAM_DECL_
+/* the merged two-level traversals (traverse_objects.h): a top level
+ * (bvh4.object) whose objects are mostly trees of the layout named */
+#define RTK_OBJECTS_MERGED_DECL_(tag)                                                                                  \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit,             \
+                                                                const rtk_query *q);                                   \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_OBJECTS_MERGED_DECL_(4)
+RTK_OBJECTS_MERGED_DECL_(8)
+RTK_OBJECTS_MERGED_DECL_(4i)
+RTK_OBJECTS_MERGED_DECL_(4v)
+RTK_OBJECTS_MERGED_DECL_(8v)
+RTK_OBJECTS_MERGED_DECL_(4ir)
+#undef RTK_OBJECTS_MERGED_DECL_
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 /* closest points, every layout (point_query.c) */

@@ -243,6 +243,41 @@ static int finite_box(const rtk_build_object *o)
     return 1;
 }
 
+/* The layouts with a merged two-level traversal (traverse_objects.h), by
+ * their single-ray kernel. */
+static const struct {
+    rtk_intersect1_fn kernel, merged;
+    rtk_occluded1_fn merged_occluded;
+} merged_layouts[] = {
+    {RTK_SYM(rtk_bvh4_intersect1), RTK_SYM(rtk_bvh4_objects_intersect1), RTK_SYM(rtk_bvh4_objects_occluded1)},
+#ifdef RTK_SIMD_HAS_8
+    {RTK_SYM(rtk_bvh8_intersect1), RTK_SYM(rtk_bvh8_objects_intersect1), RTK_SYM(rtk_bvh8_objects_occluded1)},
+    {RTK_SYM(rtk_bvh8v_intersect1), RTK_SYM(rtk_bvh8v_objects_intersect1), RTK_SYM(rtk_bvh8v_objects_occluded1)},
+#endif
+    {RTK_SYM(rtk_bvh4i_intersect1), RTK_SYM(rtk_bvh4i_objects_intersect1), RTK_SYM(rtk_bvh4i_objects_occluded1)},
+    {RTK_SYM(rtk_bvh4v_intersect1), RTK_SYM(rtk_bvh4v_objects_intersect1), RTK_SYM(rtk_bvh4v_objects_occluded1)},
+    {RTK_SYM(rtk_bvh4ir_intersect1), RTK_SYM(rtk_bvh4ir_objects_intersect1), RTK_SYM(rtk_bvh4ir_objects_occluded1)},
+};
+#define MERGED_LAYOUTS (sizeof merged_layouts / sizeof merged_layouts[0])
+
+/* The merged traversal of the layout most of the objects' trees have
+ * (the first in the table on a tie), none if no tree has one. */
+static void pick_merged(rtk_accel *accel)
+{
+    uint64_t count[MERGED_LAYOUTS] = {0};
+    for (uint64_t i = 0; i < accel->object_count; i++)
+        for (size_t k = 0; k < MERGED_LAYOUTS; k++)
+            count[k] += accel->objects[i].intersect1 == merged_layouts[k].kernel;
+    size_t best = 0;
+    for (size_t k = 1; k < MERGED_LAYOUTS; k++)
+        if (count[k] > count[best])
+            best = k;
+    if (count[best]) {
+        accel->objects_intersect1 = merged_layouts[best].merged;
+        accel->objects_occluded1 = merged_layouts[best].merged_occluded;
+    }
+}
+
 int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
 {
     if (in->struct_size < offsetof(rtk_build_input, objects) + sizeof in->objects ||
@@ -299,6 +334,7 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     accel->node_count = b.node_count;
     accel->objects = b.objects;
     accel->object_count = b.object_count;
+    pick_merged(accel);
     accel->leaf_count = 0;
     out->accel = accel;
     out->prims = b.object_count;
@@ -335,6 +371,10 @@ void RTK_SYM(rtk_objects_release)(rtk_accel *accel)
 
 void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh, const rtk_query *q)
 {
+    if (accel->objects_intersect1) {
+        accel->objects_intersect1(accel, rh, q);
+        return;
+    }
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     obj_ray p;
@@ -387,6 +427,10 @@ void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh, con
 
 void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
+    if (accel->objects_occluded1) {
+        accel->objects_occluded1(accel, ray, q);
+        return;
+    }
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     obj_ray p;

@@ -7,6 +7,7 @@
 #define RTK_ROBUST 1
 #include "traverse_bvhn.h"
 #include "traverse_stream.h"
+#include "traverse_objects.h"
 #define RTK_PACKET 4
 #include "traverse_packet.h"
 #ifdef RTK_SIMD_HAS_8

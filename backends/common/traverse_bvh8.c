@@ -6,6 +6,7 @@
 #define RTK_BVHN 8
 #include "traverse_bvhn.h"
 #include "traverse_stream.h"
+#include "traverse_objects.h"
 #define RTK_PACKET 4
 #include "traverse_packet.h"
 #define RTK_PACKET 8

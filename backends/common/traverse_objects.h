@@ -1,0 +1,253 @@
+/*
+ * Two-level scenes walked in one loop (issue 58): the top level
+ * (bvh4.object, objects.c) and, below its leaves, the trees of this
+ * layout, with one set-up of the ray, one frame and one hit record per
+ * ray.  objects.c's traversal calls each object's kernel through its
+ * pointer, and each call set up the ray again (ray_pre_init), made its own
+ * frame and, on a hit, wrote the normal and ids of a hit that a later
+ * object could replace: on the dragon's dynamic scene about three objects
+ * per ray, 284 instructions of set-up per call (callgrind,
+ * docs/BENCHMARKS.md, "Two levels").
+ *
+ * Here an object whose tree has this layout (its kernel is this layout's
+ * intersect1) is walked inline with closest_from_ / any_from_, from the
+ * same ray_pre for every world-space object (the set-up of the fast
+ * layouts depends on the ray alone; a robust tree's pads by its own extent,
+ * and an instance's ray is its own, so those get a set-up each), and the
+ * closest hit is only written once the walk ends.  Objects of any other
+ * kind (user primitives, instances of two-level scenes, trees of another
+ * layout) and rays that need an object's masks, culling or filters go
+ * through the object's own kernel as objects.c calls it.
+ *
+ * Every answer is the one objects.c's traversal gives, bit for bit: the
+ * same top-level tests in the same order (objects_ray.h), and below them
+ * the kernel's own traversal with the ray_pre its entry point would have
+ * made, so the same triangles are met in the same order and ties go the
+ * same way (tests/test_instance.c compares them).
+ *
+ * A template included after traverse_bvhn.h (not for motion blur).
+ */
+#ifndef RTK_BVHN
+#error "include traverse_bvhn.h first"
+#endif
+#if RTK_MOTION
+#error "no merged two-level traversal for motion blur"
+#endif
+
+#include "objects_ray.h"
+
+#define BVHN_OBJECTS_INTERSECT1 RTK_SYM(BVHN_NAME(BVHN_TAG, objects_intersect1))
+#define BVHN_OBJECTS_OCCLUDED1 RTK_SYM(BVHN_NAME(BVHN_TAG, objects_occluded1))
+
+/* Whether object o's tree is walked here: a tree of this layout with a
+ * root, and a ray that needs none of its features (masks it does not
+ * pass, culling, a filter; qfeat: the query's). */
+static inline int objects_inline(const rtk_build_object *o, const rtk_ray *r, unsigned qfeat)
+{
+    return o->intersect1 == BVHN_INTERSECT1 && !o->intersect_packet && o->accel->root != RTK_BVH4_EMPTY &&
+           !(ray_feat(o->accel, r) | qfeat);
+}
+
+/* An object's tree as its entry point walks it for the usual ray. */
+static inline __attribute__((always_inline)) void objects_closest(const rtk_accel *a, const ray_pre *p, float tnear,
+                                                                  float *tfar, closest_hit *found)
+{
+#if RTK_SIMD_HAS_FMA
+    if (__builtin_expect(!p->fma, 0)) {
+        closest_from_plain(a, a->root, p, tnear, tfar, found);
+        return;
+    }
+#endif
+    closest_from_(a, a->root, p, tnear, tfar, found, BVHN_FUSED, NULL, 0);
+}
+
+static inline __attribute__((always_inline)) int objects_any(const rtk_accel *a, const ray_pre *p, float tnear,
+                                                             float tfar)
+{
+#if RTK_SIMD_HAS_FMA
+    if (__builtin_expect(!p->fma, 0))
+        return any_from_plain(a, a->root, p, tnear, tfar);
+#endif
+    return any_from_usual_(a, a->root, p, tnear, tfar, BVHN_FUSED, NULL);
+}
+
+/* The ray of object o: the world's (set up at its first use) or its own. */
+static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rtk_build_object *o, const rtk_ray *r,
+                                                                        ray_pre *world, ray_mem *world_m, int *ready,
+                                                                        ray_pre *own, ray_mem *own_m)
+{
+    if (!RTK_ROBUST && (o->flags & RTK_BUILD_OBJECT_IDENTITY)) {
+        if (!*ready) {
+            ray_pre_init(world, world_m, r, o->accel);
+            *ready = 1;
+        }
+        return world;
+    }
+    rtk_ray local;
+    if (!to_object(o, r, &local))
+        return NULL;
+    ray_pre_init(own, own_m, &local, o->accel);
+    return own;
+}
+
+/* The closest hit so far (of object tree `leaves`, instance inst) written
+ * into rh as the object's kernel writes it. */
+static inline void objects_hit_write(const rtk_accel *leaves, uint32_t inst, const closest_hit *best, float tfar,
+                                     rtk_rayhit *rh)
+{
+    closest_hit_write(leaves, leaves, best, NULL, tfar, rh);
+    if (inst != RTK_INVALID_GEOMETRY_ID)
+        rh->hit.instID = inst;
+}
+
+/* An object of another kind, through its own kernel, as objects.c calls it. */
+static __attribute__((noinline)) void objects_other1(const rtk_build_object *o, rtk_rayhit *rh, const rtk_query *q)
+{
+    if (in_place(o)) {
+        o->intersect1(o->accel, rh, q);
+        return;
+    }
+    rtk_rayhit local;
+    if (!to_object(o, &rh->ray, &local.ray))
+        return;
+    local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+    const rtk_query cq = object_query(o, q);
+    o->intersect1(o->accel, &local, &cq);
+    if (local.hit.geomID == RTK_INVALID_GEOMETRY_ID)
+        return;
+    rh->ray.tfar = local.ray.tfar;
+    rh->hit = local.hit;
+    if (o->inst_id != RTK_INVALID_GEOMETRY_ID)
+        rh->hit.instID = o->inst_id;
+}
+
+/* 1 when object o (of another kind) finds the ray occluded. */
+static __attribute__((noinline)) int objects_other_occluded(const rtk_build_object *o, rtk_ray *ray,
+                                                            const rtk_query *q)
+{
+    if (in_place(o)) {
+        o->occluded1(o->accel, ray, q);
+        return ray->tfar == -INFINITY;
+    }
+    rtk_ray local;
+    if (!to_object(o, ray, &local))
+        return 0;
+    const rtk_query cq = object_query(o, q);
+    o->occluded1(o->accel, &local, &cq);
+    return local.tfar == -INFINITY;
+}
+
+void BVHN_OBJECTS_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rh, const rtk_query *q)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    obj_ray op;
+    obj_ray_init(&op, &rh->ray);
+    const unsigned qfeat = query_feat(q);
+    ray_pre world, own;
+    ray_mem world_m, own_m;
+    int ready = 0;
+    closest_hit best = CLOSEST_HIT_NONE;
+    const rtk_accel *best_leaves = NULL; /* the tree of the hit in best, NULL: none pending */
+    uint32_t best_inst = RTK_INVALID_GEOMETRY_ID;
+    const float tnear = rh->ray.tnear;
+    float tfar = rh->ray.tfar;
+    const rtk_bvh4_node *nodes = accel->nodes;
+    uint32_t stack[OBJ_STACK];
+    float sdist[OBJ_STACK];
+    int sp = 0;
+    stack[sp] = accel->root;
+    sdist[sp++] = tnear;
+    while (sp) {
+        sp--;
+        if (sdist[sp] > tfar)
+            continue;
+        const uint32_t cur = stack[sp];
+        if (!(cur & RTK_BVH4_LEAF_BIT)) {
+            uint32_t ref[4];
+            float dist[4];
+            const int nc = node_children(&nodes[cur], &op, tnear, tfar, ref, dist);
+            for (int c = nc - 1; c >= 0; c--) { /* the nearest on top */
+                stack[sp] = ref[c];
+                sdist[sp++] = dist[c];
+            }
+            continue;
+        }
+        const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+        for (uint32_t i = first; i < end; i++) {
+            const rtk_build_object *o = &accel->objects[i];
+            if (!(o->mask & rh->ray.mask))
+                continue;
+            if (__builtin_expect(objects_inline(o, &rh->ray, qfeat), 1)) {
+                const ray_pre *p = objects_ray(o, &rh->ray, &world, &world_m, &ready, &own, &own_m);
+                if (!p)
+                    continue;
+                closest_hit found = CLOSEST_HIT_NONE;
+                objects_closest(o->accel, p, tnear, &tfar, &found);
+                if (found.lane >= 0) {
+                    best = found;
+                    best_leaves = o->accel;
+                    best_inst = o->inst_id;
+                }
+                continue;
+            }
+            /* the hit so far goes into rh first: the object's kernel may
+             * replace it (a tie included, as in objects.c) */
+            if (best_leaves) {
+                objects_hit_write(best_leaves, best_inst, &best, tfar, rh);
+                best_leaves = NULL;
+            }
+            objects_other1(o, rh, q);
+            tfar = rh->ray.tfar;
+        }
+    }
+    if (best_leaves)
+        objects_hit_write(best_leaves, best_inst, &best, tfar, rh);
+}
+
+void BVHN_OBJECTS_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return;
+    obj_ray op;
+    obj_ray_init(&op, ray);
+    const unsigned qfeat = query_feat(q);
+    ray_pre world, own;
+    ray_mem world_m, own_m;
+    int ready = 0;
+    const rtk_bvh4_node *nodes = accel->nodes;
+    uint32_t stack[OBJ_STACK];
+    int sp = 0;
+    stack[sp++] = accel->root;
+    while (sp) {
+        const uint32_t cur = stack[--sp];
+        if (!(cur & RTK_BVH4_LEAF_BIT)) {
+            uint32_t ref[4];
+            float dist[4];
+            const int nc = node_children(&nodes[cur], &op, ray->tnear, ray->tfar, ref, dist);
+            for (int c = nc - 1; c >= 0; c--)
+                stack[sp++] = ref[c];
+            continue;
+        }
+        const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+        for (uint32_t i = first; i < end; i++) {
+            const rtk_build_object *o = &accel->objects[i];
+            if (!(o->mask & ray->mask))
+                continue;
+            int hit;
+            if (__builtin_expect(objects_inline(o, ray, qfeat), 1)) {
+                const ray_pre *p = objects_ray(o, ray, &world, &world_m, &ready, &own, &own_m);
+                hit = p && objects_any(o->accel, p, ray->tnear, ray->tfar);
+            } else {
+                hit = objects_other_occluded(o, ray, q);
+            }
+            if (hit) {
+                ray->tfar = -INFINITY;
+                return;
+            }
+        }
+    }
+}
+
+#undef BVHN_OBJECTS_INTERSECT1
+#undef BVHN_OBJECTS_OCCLUDED1
