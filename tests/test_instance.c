@@ -635,6 +635,20 @@ static int odd_filter(const rtk_filter_args *a)
     return !(a->hit->primID & 1);
 }
 
+#define MERGED_POINTS 300
+
+/* closest points of random points about the ball (with a radius: far
+ * points find nothing) */
+static void merged_points(rtk_scene s, rtk_point_hit *out)
+{
+    rng g = {78};
+    for (int i = 0; i < MERGED_POINTS; i++) {
+        const rtk_point_query pq = {.x = 8.0 * rng_float(&g) - 4.0, .y = 8.0 * rng_float(&g) - 4.0,
+                                    .z = 8.0 * rng_float(&g) - 4.0, .radius = 2.5};
+        assert_int_equal(rtk_closest_point(s, &pq, &out[i]), RTK_OK);
+    }
+}
+
 static void merged_trace(rtk_scene s, rtk_rayhit *hits, int *occluded)
 {
     rtk_scene_info info = {.struct_size = sizeof info};
@@ -729,6 +743,34 @@ static void merged_vs_each_object(void **state)
             }
             assert_int_equal(rtk_scene_commit(s), RTK_OK);
             merged_trace(s, all, all_occ);
+            rtk_point_hit all_pts[MERGED_POINTS], alone_pts[MERGED_POINTS];
+            double nearest_pt[MERGED_POINTS];
+            merged_points(s, all_pts);
+            for (int i = 0; i < MERGED_POINTS; i++)
+                nearest_pt[i] = INFINITY;
+            /* packets of 8 give what single rays give (the top level's
+             * packets go lane by lane through the merged traversal) */
+            for (int i = 0; i + 8 <= MERGED_RAYS; i += 8) {
+                rtk_rayhit8 p8;
+                memset(&p8, 0, sizeof p8);
+                int valid[8];
+                for (int l = 0; l < 8; l++) {
+                    rtk_rayhit rh = {.ray = all[i + l].ray};
+                    rh.ray.tfar = INFINITY;
+                    rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                    valid[l] = -1;
+                    test_packet_put(&p8, 8, (unsigned)l, &rh, 0);
+                }
+                assert_int_equal(rtk_intersect8(s, valid, &p8), RTK_OK);
+                for (int l = 0; l < 8; l++) {
+                    rtk_rayhit got;
+                    test_packet_get(&p8, 8, (unsigned)l, &got, 0);
+                    if (!same_hit(&got, &all[i + l]) && !(got.hit.geomID == RTK_INVALID_GEOMETRY_ID &&
+                                                          all[i + l].hit.geomID == RTK_INVALID_GEOMETRY_ID))
+                        fail_msg("%s, flags %u, ray %d: the packet's answer differs from the single ray's", names[b],
+                                 flags[f], i + l);
+                }
+            }
             for (int i = 0; i < MERGED_RAYS; i++) {
                 nearest[i].ray.tfar = INFINITY;
                 nearest[i].hit.geomID = RTK_INVALID_GEOMETRY_ID;
@@ -741,6 +783,10 @@ static void merged_vs_each_object(void **state)
                     assert_int_equal(j == k ? rtk_geometry_enable(geo[j]) : rtk_geometry_disable(geo[j]), RTK_OK);
                 assert_int_equal(rtk_scene_commit(s), RTK_OK);
                 merged_trace(s, alone, alone_occ);
+                merged_points(s, alone_pts);
+                for (int i = 0; i < MERGED_POINTS; i++)
+                    if (alone_pts[i].distance < nearest_pt[i])
+                        nearest_pt[i] = alone_pts[i].distance;
                 for (int i = 0; i < MERGED_RAYS; i++) {
                     any_occ[i] |= alone_occ[i];
                     if (alone[i].hit.geomID == RTK_INVALID_GEOMETRY_ID)
@@ -772,6 +818,14 @@ static void merged_vs_each_object(void **state)
             if (hits <= MERGED_RAYS / 4)
                 fail_msg("%d hits of %d rays", hits, MERGED_RAYS);
             assert_true(occ == hits);
+            int found = 0;
+            for (int i = 0; i < MERGED_POINTS; i++) {
+                if (all_pts[i].distance != nearest_pt[i])
+                    fail_msg("%s, flags %u, point %d: distance %a, by the objects alone %a", names[b], flags[f], i,
+                             all_pts[i].distance, nearest_pt[i]);
+                found += all_pts[i].distance < INFINITY;
+            }
+            assert_true(found > MERGED_POINTS / 3);
             for (int k = 0; k < ng; k++)
                 rtk_geometry_enable(geo[k]);
             rtk_scene_release(s);

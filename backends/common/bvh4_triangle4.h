@@ -210,6 +210,10 @@ struct rtk_accel {
      * most of its objects' trees have, else NULL (objects.c's own) */
     rtk_intersect1_fn objects_intersect1;
     rtk_occluded1_fn objects_occluded1;
+    /* bvh4.object: parallel to objects, the node of each one's tree its
+     * walk starts at, where the builder opened trees into the top level
+     * (objects.c, open_objects); NULL: every walk starts at the root */
+    uint32_t *object_roots;
     /* bvh4.triangle4mb: the trees of the time segments, else NULL.  Each
      * is an accel of its own (root, nodes: rtk_bvh4mb_node, trisi, and
      * mb_geoms, segment its time segment), sharing the top accel's

@@ -7,10 +7,14 @@
  *
  * The builder is a binned SAH builder over the objects' boxes, on the
  * calling thread (scenes hold a few objects to some hundred thousands; the
- * objects' own trees are where the triangles are).  The traversal tests a
- * node's four boxes, visits the children nearest first and calls each
- * object's own kernel with the ray taken into the object's space.  Both are
- * deterministic: the same objects give the same tree, byte for byte.
+ * objects' own trees are where the triangles are), after opening the
+ * upper nodes of world-space trees into references of their own
+ * (open_objects).  The traversal tests a node's four boxes, visits the
+ * children nearest first and, where most objects are trees of one layout,
+ * walks those trees in the same loop (traverse_objects.h); here, each
+ * object's own kernel is called with the ray taken into the object's
+ * space.  Both are deterministic: the same objects give the same tree,
+ * byte for byte.
  */
 #include <math.h>
 #include <stdlib.h>
@@ -32,6 +36,7 @@
 typedef struct obj_ref {
     float lo[3], hi[3], c[3]; /* box and its centre */
     uint32_t index;           /* into in->objects */
+    uint32_t root;            /* the node of the object's tree the walk starts at (open_objects) */
 } obj_ref;
 
 typedef struct obj_build {
@@ -39,6 +44,7 @@ typedef struct obj_build {
     rtk_bvh4_node *nodes;
     uint64_t node_count, node_cap;
     rtk_build_object *objects; /* in leaf order */
+    uint32_t *roots;           /* parallel to objects: obj_ref.root */
     uint64_t object_count;
     const rtk_build_input *in;
     const rtk_memory *mem; /* the top level's memory accounting */
@@ -195,8 +201,10 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
         b->max_depth = depth + 1;
     if (n <= OBJ_LEAF_MAX) {
         const uint64_t first = b->object_count;
-        for (size_t i = 0; i < n; i++)
+        for (size_t i = 0; i < n; i++) {
+            b->roots[b->object_count] = r[i].root;
             b->objects[b->object_count++] = b->in->objects[r[i].index];
+        }
         *ref = rtk_leaf_ref((uint32_t)first, (uint32_t)n);
         return 1;
     }
@@ -244,38 +252,135 @@ static int finite_box(const rtk_build_object *o)
 }
 
 /* The layouts with a merged two-level traversal (traverse_objects.h), by
- * their single-ray kernel. */
+ * their single-ray kernel; the width of their nodes where the top level
+ * may open their trees (open_objects: not the robust layouts, whose
+ * traversal pads every box by the tree's extent). */
 static const struct {
     rtk_intersect1_fn kernel, merged;
     rtk_occluded1_fn merged_occluded;
+    int open_width;
 } merged_layouts[] = {
-    {RTK_SYM(rtk_bvh4_intersect1), RTK_SYM(rtk_bvh4_objects_intersect1), RTK_SYM(rtk_bvh4_objects_occluded1)},
+    {RTK_SYM(rtk_bvh4_intersect1), RTK_SYM(rtk_bvh4_objects_intersect1), RTK_SYM(rtk_bvh4_objects_occluded1), 4},
 #ifdef RTK_SIMD_HAS_8
-    {RTK_SYM(rtk_bvh8_intersect1), RTK_SYM(rtk_bvh8_objects_intersect1), RTK_SYM(rtk_bvh8_objects_occluded1)},
-    {RTK_SYM(rtk_bvh8v_intersect1), RTK_SYM(rtk_bvh8v_objects_intersect1), RTK_SYM(rtk_bvh8v_objects_occluded1)},
+    {RTK_SYM(rtk_bvh8_intersect1), RTK_SYM(rtk_bvh8_objects_intersect1), RTK_SYM(rtk_bvh8_objects_occluded1), 8},
+    {RTK_SYM(rtk_bvh8v_intersect1), RTK_SYM(rtk_bvh8v_objects_intersect1), RTK_SYM(rtk_bvh8v_objects_occluded1), 0},
 #endif
-    {RTK_SYM(rtk_bvh4i_intersect1), RTK_SYM(rtk_bvh4i_objects_intersect1), RTK_SYM(rtk_bvh4i_objects_occluded1)},
-    {RTK_SYM(rtk_bvh4v_intersect1), RTK_SYM(rtk_bvh4v_objects_intersect1), RTK_SYM(rtk_bvh4v_objects_occluded1)},
-    {RTK_SYM(rtk_bvh4ir_intersect1), RTK_SYM(rtk_bvh4ir_objects_intersect1), RTK_SYM(rtk_bvh4ir_objects_occluded1)},
+    {RTK_SYM(rtk_bvh4i_intersect1), RTK_SYM(rtk_bvh4i_objects_intersect1), RTK_SYM(rtk_bvh4i_objects_occluded1), 4},
+    {RTK_SYM(rtk_bvh4v_intersect1), RTK_SYM(rtk_bvh4v_objects_intersect1), RTK_SYM(rtk_bvh4v_objects_occluded1), 0},
+    {RTK_SYM(rtk_bvh4ir_intersect1), RTK_SYM(rtk_bvh4ir_objects_intersect1), RTK_SYM(rtk_bvh4ir_objects_occluded1),
+     0},
 };
-#define MERGED_LAYOUTS (sizeof merged_layouts / sizeof merged_layouts[0])
+#define MERGED_LAYOUTS ((int)(sizeof merged_layouts / sizeof merged_layouts[0]))
 
-/* The merged traversal of the layout most of the objects' trees have
- * (the first in the table on a tie), none if no tree has one. */
-static void pick_merged(rtk_accel *accel)
+/* The merged traversal of the layout most of the objects r[0, n) have
+ * (the first in the table on a tie): its index in merged_layouts, or -1
+ * if no object's tree has one. */
+static int pick_merged(const rtk_build_input *in, const obj_ref *r, size_t n)
 {
     uint64_t count[MERGED_LAYOUTS] = {0};
-    for (uint64_t i = 0; i < accel->object_count; i++)
-        for (size_t k = 0; k < MERGED_LAYOUTS; k++)
-            count[k] += accel->objects[i].intersect1 == merged_layouts[k].kernel;
-    size_t best = 0;
-    for (size_t k = 1; k < MERGED_LAYOUTS; k++)
+    for (size_t i = 0; i < n; i++)
+        for (int k = 0; k < MERGED_LAYOUTS; k++)
+            count[k] += in->objects[r[i].index].intersect1 == merged_layouts[k].kernel;
+    int best = 0;
+    for (int k = 1; k < MERGED_LAYOUTS; k++)
         if (count[k] > count[best])
             best = k;
-    if (count[best]) {
-        accel->objects_intersect1 = merged_layouts[best].merged;
-        accel->objects_occluded1 = merged_layouts[best].merged_occluded;
+    return count[best] ? best : -1;
+}
+
+/* ---- opening the objects' trees into the top level ----
+ * Where objects overlap (a dynamic scene's pieces, meshes cut in runs of
+ * their triangles), a ray enters every one whose box it crosses and
+ * descends each from its root.  As Embree's two-level builder does
+ * (Benthin, Woop, Wald, Afra, "Improved Two-Level BVHs using Partial
+ * Re-Braiding", HPG 2017), the largest references are replaced by their
+ * trees' children before the top level is built over them: its leaves
+ * then name an object and the node its walk starts at (rtk_accel.
+ * object_roots), and the merged traversal goes straight there.  Opened:
+ * world-space trees (no transform) of the merged layout, in a top level
+ * with no user primitives (whose packets objects_packet hands over whole),
+ * largest half area first, until the references number OBJ_OPEN_PER_OBJECT
+ * per object or OBJ_OPEN_MAX. */
+#define OBJ_OPEN_PER_OBJECT 16
+#define OBJ_OPEN_MAX 4096
+
+static int openable(const rtk_build_input *in, const obj_ref *r, int layout)
+{
+    const rtk_build_object *o = &in->objects[r->index];
+    return !(r->root & RTK_BVH4_LEAF_BIT) && r->root != RTK_BVH4_EMPTY && (o->flags & RTK_BUILD_OBJECT_IDENTITY) &&
+           o->intersect1 == merged_layouts[layout].kernel;
+}
+
+/* heap order: the larger half area first, then the lower object and node */
+static int open_before(const obj_ref *x, const obj_ref *y)
+{
+    const float ax = half_area(x->lo, x->hi), ay = half_area(y->lo, y->hi);
+    if (ax != ay)
+        return ax > ay;
+    return x->index != y->index ? x->index < y->index : x->root < y->root;
+}
+
+static void heap_sift(obj_ref *h, size_t n, size_t i)
+{
+    for (;;) {
+        size_t m = i;
+        const size_t l = 2 * i + 1, r = l + 1;
+        if (l < n && open_before(&h[l], &h[m]))
+            m = l;
+        if (r < n && open_before(&h[r], &h[m]))
+            m = r;
+        if (m == i)
+            return;
+        const obj_ref t = h[i];
+        h[i] = h[m];
+        h[m] = t;
+        i = m;
     }
+}
+
+/* Opens the openable references among r[0, n) (room for cap); returns
+ * their number after.  The references not opened keep their place ahead of
+ * the opened ones' children; the result depends on the objects alone. */
+static size_t open_objects(const rtk_build_input *in, obj_ref *r, size_t n, size_t cap, int layout)
+{
+    const int width = merged_layouts[layout].open_width;
+    /* the openable ones moved to the end, as a heap */
+    size_t fixed = 0;
+    for (size_t i = 0; i < n; i++)
+        if (!openable(in, &r[i], layout)) {
+            const obj_ref t = r[fixed];
+            r[fixed++] = r[i];
+            r[i] = t;
+        }
+    obj_ref *h = r + fixed;
+    size_t hn = n - fixed;
+    for (size_t i = hn / 2; i-- > 0;)
+        heap_sift(h, hn, i);
+    const build view = {.width = width};
+    while (hn && fixed + hn + (size_t)width - 1 <= cap && openable(in, &h[0], layout)) {
+        const obj_ref top = h[0];
+        h[0] = h[--hn];
+        heap_sift(h, hn, 0);
+        const node_view v = view_node(&view, in->objects[top.index].accel->nodes, top.root);
+        for (int c = 0; c < width; c++) {
+            if (v.child[c] == RTK_BVH4_EMPTY)
+                continue;
+            obj_ref child = {.lo = {v.lx[c], v.ly[c], v.lz[c]}, .hi = {v.ux[c], v.uy[c], v.uz[c]},
+                             .index = top.index, .root = v.child[c]};
+            for (int k = 0; k < 3; k++)
+                child.c[k] = 0.5f * child.lo[k] + 0.5f * child.hi[k];
+            /* sifted up into the heap */
+            size_t i = hn++;
+            h[i] = child;
+            while (i > 0 && open_before(&h[i], &h[(i - 1) / 2])) {
+                const obj_ref t = h[i];
+                h[i] = h[(i - 1) / 2];
+                h[(i - 1) / 2] = t;
+                i = (i - 1) / 2;
+            }
+        }
+    }
+    return fixed + hn;
 }
 
 int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
@@ -290,16 +395,33 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
         return RTK_ERROR_INVALID_ARGUMENT;
     }
     obj_build b = {.in = in};
+    /* the objects kept, and the references opening may add */
+    size_t kept = 0, opened_room = 0;
+    int packets = 0;
+    for (uint32_t i = 0; i < in->object_count; i++) {
+        const rtk_build_object *o = &in->objects[i];
+        if (finite_box(o) && o->accel && o->intersect1 && o->occluded1) {
+            kept++;
+            packets |= o->intersect_packet != NULL;
+            opened_room += (o->flags & RTK_BUILD_OBJECT_IDENTITY) ? OBJ_OPEN_PER_OBJECT : 0;
+        }
+    }
+    if (packets)
+        opened_room = 0;
+    opened_room = opened_room < OBJ_OPEN_MAX ? opened_room : OBJ_OPEN_MAX;
+    const size_t cap = kept + opened_room;
     rtk_accel *accel = calloc(1, sizeof *accel);
     if (accel && build_input_memory(in))
         accel->memory = *build_input_memory(in);
     b.mem = accel ? &accel->memory : NULL;
-    b.refs = accel ? mem_alloc(b.mem, (in->object_count ? in->object_count : 1) * sizeof *b.refs, 0) : NULL;
-    b.objects = accel ? mem_alloc(b.mem, (in->object_count ? in->object_count : 1) * sizeof *b.objects, 0) : NULL;
-    if (!accel || !b.refs || !b.objects) {
+    b.refs = accel ? mem_alloc(b.mem, (cap ? cap : 1) * sizeof *b.refs, 0) : NULL;
+    b.objects = accel ? mem_alloc(b.mem, (cap ? cap : 1) * sizeof *b.objects, 0) : NULL;
+    b.roots = accel ? mem_alloc(b.mem, (cap ? cap : 1) * sizeof *b.roots, 0) : NULL;
+    if (!accel || !b.refs || !b.objects || !b.roots) {
         if (accel) {
             mem_free(b.mem, b.refs);
             mem_free(b.mem, b.objects);
+            mem_free(b.mem, b.roots);
         }
         free(accel);
         build_set_message(out, "out of memory");
@@ -317,7 +439,11 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
             r->c[k] = 0.5f * o->lower[k] + 0.5f * o->upper[k]; /* finite for any finite box */
         }
         r->index = i;
+        r->root = o->accel->root;
     }
+    const int merged = pick_merged(in, b.refs, n);
+    if (merged >= 0 && merged_layouts[merged].open_width && opened_room)
+        n = open_objects(in, b.refs, n, cap, merged);
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     accel->layout = RTK_LAYOUT_BVH4_OBJECT;
     accel->root = RTK_BVH4_EMPTY;
@@ -325,6 +451,7 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
         mem_free(b.mem, b.nodes);
         mem_free(b.mem, b.refs);
         mem_free(b.mem, b.objects);
+        mem_free(b.mem, b.roots);
         free(accel);
         build_set_message(out, "out of memory");
         return RTK_ERROR_OUT_OF_MEMORY;
@@ -334,12 +461,21 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     accel->node_count = b.node_count;
     accel->objects = b.objects;
     accel->object_count = b.object_count;
-    pick_merged(accel);
+    if (n > kept) { /* some tree opened: the walks start where the roots say */
+        accel->object_roots = b.roots;
+    } else {
+        mem_free(b.mem, b.roots);
+        b.roots = NULL;
+    }
+    if (merged >= 0) {
+        accel->objects_intersect1 = merged_layouts[merged].merged;
+        accel->objects_occluded1 = merged_layouts[merged].merged_occluded;
+    }
     accel->leaf_count = 0;
     out->accel = accel;
-    out->prims = b.object_count;
+    out->prims = kept;
     out->refs = b.object_count;
-    out->prims_skipped = in->object_count - b.object_count;
+    out->prims_skipped = in->object_count - kept;
     out->prims_degenerate = 0;
     out->nodes = b.node_count;
     uint64_t leaves = 0;
@@ -348,7 +484,8 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
             leaves += b.nodes[i].child[c] != RTK_BVH4_EMPTY && (b.nodes[i].child[c] & RTK_BVH4_LEAF_BIT);
     out->leaves = n && !b.node_count ? 1 : leaves;
     out->depth = b.max_depth;
-    out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.object_count * sizeof(rtk_build_object);
+    out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.object_count * sizeof(rtk_build_object) +
+                 (b.roots ? b.object_count * sizeof *b.roots : 0);
     const double root_area = half_area_d(lo, hi);
     out->sah_cost = root_area > 0.0 ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
     memcpy(out->lower, lo, sizeof lo);
@@ -364,6 +501,7 @@ void RTK_SYM(rtk_objects_release)(rtk_accel *accel)
         return;
     mem_free(&accel->memory, accel->nodes);
     mem_free(&accel->memory, accel->objects);
+    mem_free(&accel->memory, accel->object_roots);
     free(accel);
 }
 
@@ -512,6 +650,22 @@ static void objects_packet(const rtk_accel *accel, const int32_t *active, void *
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
+    if (accel->object_roots) {
+        /* trees opened into the top level (so no user primitive that takes
+         * packets whole): each lane through the merged traversal */
+        for (uint32_t i = 0; i < k; i++) {
+            if (!active[i])
+                continue;
+            rtk_rayhit rh;
+            lane_get(packet, k, i, &rh, occluded ? RAY_FIELDS : RAYHIT_FIELDS);
+            if (occluded)
+                accel->objects_occluded1(accel, &rh.ray, q);
+            else
+                accel->objects_intersect1(accel, &rh, q);
+            lane_put(packet, k, i, &rh, occluded ? RAY_FIELDS : RAYHIT_FIELDS);
+        }
+        return;
+    }
     obj_ray pr[16];
     unsigned live = 0;
     for (uint32_t i = 0; i < k; i++) {

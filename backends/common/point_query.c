@@ -50,6 +50,7 @@ typedef struct pq_level {
     int transformed;      /* o2w holds level -> scene */
     double o2w[12];       /* row-major 3x4 */
     uint32_t inst_id;     /* the outermost instance entered, else the query's */
+    uint32_t start;       /* the node the next walk starts at, RTK_BVH4_EMPTY: the tree's root */
 } pq_level;
 
 /* The next float up from a finite x >= 0 (nextafterf, without the call). */
@@ -370,7 +371,8 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
     uint32_t stack[PQ_STACK];
     float sd[PQ_STACK];
     int sp = 0;
-    uint32_t cur = a->root;
+    uint32_t cur = l->start != RTK_BVH4_EMPTY ? l->start : a->root;
+    l->start = RTK_BVH4_EMPTY; /* (the levels below start at their roots) */
     float bound = level_bound(l);
     for (;;) {
         if (cur & RTK_BVH4_LEAF_BIT) {
@@ -506,6 +508,9 @@ static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
         if (o->intersect_packet)
             continue; /* a user primitive: the core refuses those scenes */
         pq_level in = *l;
+        /* an object opened into the top level (objects.c, open_objects)
+         * is walked from the node its reference names */
+        in.start = a->object_roots && a->object_roots[i] != o->accel->root ? a->object_roots[i] : RTK_BVH4_EMPTY;
         if (in.inst_id == RTK_INVALID_GEOMETRY_ID)
             in.inst_id = o->inst_id;
         if (!(o->flags & RTK_BUILD_OBJECT_IDENTITY)) {
@@ -551,7 +556,7 @@ static void closest_in(const rtk_accel *a, pq_level *l)
 
 void RTK_SYM(rtk_closest_point)(const rtk_accel *accel, rtk_point_state *st, const rtk_query *q)
 {
-    pq_level l = {.st = st, .scale2 = 1.0, .inst_id = q->inst_id};
+    pq_level l = {.st = st, .scale2 = 1.0, .inst_id = q->inst_id, .start = RTK_BVH4_EMPTY};
     memcpy(l.p, st->p, sizeof l.p);
     level_point(&l);
     closest_in(accel, &l);

@@ -13,17 +13,22 @@
  * intersect1) is walked inline with closest_from_ / any_from_, from the
  * same ray_pre for every world-space object (the set-up of the fast
  * layouts depends on the ray alone; a robust tree's pads by its own extent,
- * and an instance's ray is its own, so those get a set-up each), and the
- * closest hit is only written once the walk ends.  Objects of any other
- * kind (user primitives, instances of two-level scenes, trees of another
- * layout) and rays that need an object's masks, culling or filters go
- * through the object's own kernel as objects.c calls it.
+ * and an instance's ray is its own, so those get a set-up each), from the
+ * node the top level names (its root, or a node of it where the builder
+ * opened the tree into the top level: objects.c, open_objects), and the
+ * closest hit is only written once the walk ends.  A ray that needs the
+ * tree's masks, culling or filters takes the features' traversal from the
+ * same node.  Objects of other kinds (user primitives, instances of
+ * two-level scenes, trees of another layout) go through their own kernel
+ * as objects.c calls them.
  *
- * Every answer is the one objects.c's traversal gives, bit for bit: the
- * same top-level tests in the same order (objects_ray.h), and below them
- * the kernel's own traversal with the ray_pre its entry point would have
- * made, so the same triangles are met in the same order and ties go the
- * same way (tests/test_instance.c compares them).
+ * Without opened trees every answer is the one objects.c's traversal
+ * gives, bit for bit: the same top-level tests in the same order
+ * (objects_ray.h), and below them the kernel's own traversal with the
+ * ray_pre its entry point would have made.  With them, the same nearest
+ * distance and a hit at it (two triangles at the same distance may be met
+ * in another order).  tests/test_instance.c, merged_vs_each_object, holds
+ * every answer to the nearest of each object's alone.
  *
  * A template included after traverse_bvhn.h (not for motion blur).
  */
@@ -40,41 +45,56 @@
 #define BVHN_OBJECTS_OCCLUDED1 RTK_SYM(BVHN_NAME(BVHN_TAG, objects_occluded1))
 
 /* Whether object o's tree is walked here: a tree of this layout with a
- * root, and a ray that needs none of its features (masks it does not
- * pass, culling, a filter; qfeat: the query's). */
-static inline int objects_inline(const rtk_build_object *o, const rtk_ray *r, unsigned qfeat)
+ * root. */
+static inline int objects_inline(const rtk_build_object *o)
 {
-    return o->intersect1 == BVHN_INTERSECT1 && !o->intersect_packet && o->accel->root != RTK_BVH4_EMPTY &&
-           !(ray_feat(o->accel, r) | qfeat);
+    return o->intersect1 == BVHN_INTERSECT1 && !o->intersect_packet && o->accel->root != RTK_BVH4_EMPTY;
 }
 
-/* An object's tree as its entry point walks it for the usual ray. */
-static inline __attribute__((always_inline)) void objects_closest(const rtk_accel *a, const ray_pre *p, float tnear,
-                                                                  float *tfar, closest_hit *found)
+/* Where object i's walk starts: its tree's root, or the node the builder
+ * opened it at (rtk_accel.object_roots). */
+static inline uint32_t objects_root(const rtk_accel *top, uint32_t i, const rtk_build_object *o)
 {
+    return top->object_roots ? top->object_roots[i] : o->accel->root;
+}
+
+/* An object's tree from `root` as its entry point walks it: for the usual
+ * ray inline; for a ray that needs the tree's masks, culling or filters
+ * (f), through the features' traversal. */
+static inline __attribute__((always_inline)) void objects_closest(const rtk_accel *a, uint32_t root, const ray_pre *p,
+                                                                  float tnear, float *tfar, closest_hit *found,
+                                                                  const feat_ctx *f)
+{
+    if (__builtin_expect(f != NULL, 0)) {
+        closest_from_feat(a, root, p, tnear, tfar, found, f);
+        return;
+    }
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(!p->fma, 0)) {
-        closest_from_plain(a, a->root, p, tnear, tfar, found);
+        closest_from_plain(a, root, p, tnear, tfar, found);
         return;
     }
 #endif
-    closest_from_(a, a->root, p, tnear, tfar, found, BVHN_FUSED, NULL, 0);
+    closest_from_(a, root, p, tnear, tfar, found, BVHN_FUSED, NULL, 0);
 }
 
-static inline __attribute__((always_inline)) int objects_any(const rtk_accel *a, const ray_pre *p, float tnear,
-                                                             float tfar)
+static inline __attribute__((always_inline)) int objects_any(const rtk_accel *a, uint32_t root, const ray_pre *p,
+                                                             float tnear, float tfar, const feat_ctx *f)
 {
+    if (__builtin_expect(f != NULL, 0))
+        return any_from_feat(a, root, p, tnear, tfar, f);
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(!p->fma, 0))
-        return any_from_plain(a, a->root, p, tnear, tfar);
+        return any_from_plain(a, root, p, tnear, tfar);
 #endif
-    return any_from_usual_(a, a->root, p, tnear, tfar, BVHN_FUSED, NULL);
+    return any_from_usual_(a, root, p, tnear, tfar, BVHN_FUSED, NULL);
 }
 
-/* The ray of object o: the world's (set up at its first use) or its own. */
+/* The ray of object o: the world's (set up at its first use) or its own
+ * (in *local, with its set-up in own). */
 static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rtk_build_object *o, const rtk_ray *r,
                                                                         ray_pre *world, ray_mem *world_m, int *ready,
-                                                                        ray_pre *own, ray_mem *own_m)
+                                                                        rtk_ray *local, ray_pre *own, ray_mem *own_m)
 {
     if (!RTK_ROBUST && (o->flags & RTK_BUILD_OBJECT_IDENTITY)) {
         if (!*ready) {
@@ -83,11 +103,21 @@ static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rt
         }
         return world;
     }
-    rtk_ray local;
-    if (!to_object(o, r, &local))
+    if (!to_object(o, r, local))
         return NULL;
-    ray_pre_init(own, own_m, &local, o->accel);
+    ray_pre_init(own, own_m, local, o->accel);
     return own;
+}
+
+/* The features (masks, culling, filters) ray r needs in object o's tree,
+ * in fc; NULL for none.  (cq: the object's query, object_query.) */
+static inline const feat_ctx *objects_feat(feat_ctx *fc, const rtk_build_object *o, const rtk_ray *r,
+                                           const rtk_query *q, rtk_query *cq, unsigned qfeat)
+{
+    if (__builtin_expect(!(ray_feat(o->accel, r) | qfeat), 1))
+        return NULL;
+    *cq = object_query(o, q);
+    return feat_init(fc, r, o->accel, cq);
 }
 
 /* The closest hit so far (of object tree `leaves`, instance inst) written
@@ -178,12 +208,16 @@ void BVHN_OBJECTS_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rh, const rtk_q
             const rtk_build_object *o = &accel->objects[i];
             if (!(o->mask & rh->ray.mask))
                 continue;
-            if (__builtin_expect(objects_inline(o, &rh->ray, qfeat), 1)) {
-                const ray_pre *p = objects_ray(o, &rh->ray, &world, &world_m, &ready, &own, &own_m);
+            if (__builtin_expect(objects_inline(o), 1)) {
+                rtk_ray local;
+                const ray_pre *p = objects_ray(o, &rh->ray, &world, &world_m, &ready, &local, &own, &own_m);
                 if (!p)
                     continue;
+                feat_ctx fc;
+                rtk_query cq;
+                const feat_ctx *f = objects_feat(&fc, o, p == &world ? &rh->ray : &local, q, &cq, qfeat);
                 closest_hit found = CLOSEST_HIT_NONE;
-                objects_closest(o->accel, p, tnear, &tfar, &found);
+                objects_closest(o->accel, objects_root(accel, i, o), p, tnear, &tfar, &found, f);
                 if (found.lane >= 0) {
                     best = found;
                     best_leaves = o->accel;
@@ -235,9 +269,15 @@ void BVHN_OBJECTS_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_quer
             if (!(o->mask & ray->mask))
                 continue;
             int hit;
-            if (__builtin_expect(objects_inline(o, ray, qfeat), 1)) {
-                const ray_pre *p = objects_ray(o, ray, &world, &world_m, &ready, &own, &own_m);
-                hit = p && objects_any(o->accel, p, ray->tnear, ray->tfar);
+            if (__builtin_expect(objects_inline(o), 1)) {
+                rtk_ray local;
+                const ray_pre *p = objects_ray(o, ray, &world, &world_m, &ready, &local, &own, &own_m);
+                if (!p)
+                    continue;
+                feat_ctx fc;
+                rtk_query cq;
+                const feat_ctx *f = objects_feat(&fc, o, p == &world ? ray : &local, q, &cq, qfeat);
+                hit = objects_any(o->accel, objects_root(accel, i, o), p, ray->tnear, ray->tfar, f);
             } else {
                 hit = objects_other_occluded(o, ray, q);
             }
