@@ -23,8 +23,17 @@ Embree's default library runs the avx2 kernels under valgrind (which has no AVX-
 counts are averaged in.  Not a speed benchmark (rtktool bench measures speed beside Embree):
 this shows whether the two libraries do the same work per ray.
 
+With --section twolevel it counts the two-level section instead (rtktool bench --only twolevel):
+the path tracer's rays through the 16 instances and through the dynamic scene of 16 pieces,
+each render its own callgrind dump (--dump-before=render_image), per call of the four functions
+(rays counted by the calls themselves: the executions of their first instruction).  Node tests
+are the 8-wide ones (256-bit `vmovmskps`): Embree's whole two-level tree, rtk's objects' trees;
+rtk's top level tests 4-wide boxes with the same 128-bit instruction as its triangle tests,
+inlined into one function, so they are not counted apart.
+
 usage: bench/work_per_ray.py [--rtktool build/bin/rtktool] [--size 256x192]
                              [--sets primary,diffuse,shadow,incoherent,sun] MESH
+       bench/work_per_ray.py --section twolevel [--render 128x96x1] MESH
 """
 import argparse
 import collections
@@ -58,9 +67,10 @@ def ray_counts(log):
     return dict(zip(("primary", "diffuse", "shadow", "incoherent", "sun"), (int(g) for g in m.groups())))
 
 
-def parse(path):
-    """{object: {address: [event counts]}} of self cost, and the event names."""
-    names = {"ob": {}}  # (object names only: costs are kept per object and address)
+def parse(path, names=None):
+    """{object: {address: [event counts]}} of self cost, and the event names.  names: the object
+    names of earlier dumps of the same run (callgrind names each object once per run)."""
+    names = names if names is not None else {"ob": {}}  # (object names only: costs are per object and address)
     costs = collections.defaultdict(lambda: collections.defaultdict(lambda: None))
     events, positions = [], ["line"]
     obj = None
@@ -124,14 +134,92 @@ def disassemble(path, addrs):
     return text
 
 
+def entry_addresses(path, names):
+    """The addresses of the exported functions `names` in a shared object."""
+    out = subprocess.run(["nm", "-D", "--defined-only", path], capture_output=True, text=True, check=True).stdout
+    found = {}
+    for line in out.splitlines():
+        t = line.split()
+        if len(t) == 3 and t[2] in names:
+            found[t[2]] = int(t[0], 16)
+    return found
+
+
+def twolevel(a):
+    """Work per ray of the two-level section's path tracer, per scene and library."""
+    tmp = a.reuse or tempfile.mkdtemp(prefix="work_per_ray.")
+    out, log = os.path.join(tmp, "twolevel.out"), os.path.join(tmp, "twolevel.log")
+    if not a.reuse:
+        print("callgrind: the two-level section of %s ..." % a.mesh, file=sys.stderr)
+        cmd = ["valgrind", "--tool=callgrind", "--dump-instr=yes", "--cache-sim=yes", "--D1=32768,8,64",
+               "--LL=1048576,16,64", "--callgrind-out-file=" + out, "--dump-before=render_image"]
+        cmd += ["--toggle-collect=" + f for f in API]
+        cmd += [a.rtktool, "bench", a.mesh, "--only", "twolevel", "--isa", "avx2", "--threads", "1", "--builds", "1",
+                "--repeat", "1", "--render", a.render, "-o", out + ".bench"]
+        with open(log, "w") as f:
+            subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, check=True)
+    # the dumps: out.1 before the first render, then one per render (the last at exit, in `out`
+    # or out.N), in the bench's order: each library's instances, then its dynamic scene
+    parts = sorted((p for p in os.listdir(tmp) if re.match(r"twolevel\.out(\.\d+)?(-\d+)?$", p)),
+                   key=lambda p: [int(x) for x in re.findall(r"\d+", p[len("twolevel.out"):])] or [1 << 30])
+    names = {"ob": {}}
+    dumps = [parse(os.path.join(tmp, p), names) for p in parts]
+    dumps = [d for d in dumps if any("librtk" in o or "libembree3" in o for o in d[0])]
+    libs = [("embree isa=avx2", "libembree3", ("rtcIntersect1", "rtcOccluded1")),
+            ("embree default", "libembree3", ("rtcIntersect1", "rtcOccluded1")),
+            ("rtk avx2", "librtk", ("rtk_intersect1", "rtk_occluded1"))]
+    if len(dumps) != 2 * len(libs):
+        sys.exit("expected %d renders in %s, found %d" % (2 * len(libs), tmp, len(dumps)))
+    print("%s, the two-level section's path tracer (%s); per ray (a call of intersect1 or occluded1)"
+          % (os.path.basename(a.mesh), a.render))
+    print("  %-10s %-16s %9s %8s %8s %7s %8s %8s" % ("scene", "library", "rays", "instr", "loads", "nodes",
+                                                  "L1 miss", "L2 miss"))
+    for k, (costs, events) in enumerate(dumps):
+        lib, key, entries = libs[k // 2]
+        col = {e: i for i, e in enumerate(events)}
+        total = collections.Counter()
+        rays = 0
+        per_addr = collections.defaultdict(dict)
+        for obj, table in costs.items():
+            if key not in os.path.basename(obj):
+                continue
+            if "librtk.so" in os.path.basename(obj) or "libembree3" in os.path.basename(obj):
+                for addr in entry_addresses(obj, entries).values():
+                    if table.get(addr) is not None:
+                        rays += table[addr][col["Ir"]]
+            for addr, vals in table.items():
+                for e, i in col.items():
+                    total[e] += vals[i]
+                per_addr[obj][addr] = vals[col["Ir"]]
+        nodes = 0
+        for obj, table in per_addr.items():
+            hot = [addr for addr, ir in table.items() if ir > 0]
+            if not hot:
+                continue
+            text = disassemble(obj, hot)
+            nodes += sum(table[addr] for addr in hot if text.get(addr, "").startswith("vmovmskps %ymm"))
+        n = float(rays or 1)
+        print("  %-10s %-16s %9d %8.1f %8.1f %7.2f %8.2f %8.2f" % (
+            ("instances", "dynamic")[k % 2], lib, rays, total["Ir"] / n, total["Dr"] / n, nodes / n,
+            total["D1mr"] / n, total["DLmr"] / n))
+    print("(nodes: 8-wide node tests; Embree's top level is made of them, rtk's 4-wide one is not counted)")
+    print("raw callgrind output and logs:", tmp)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("mesh")
     ap.add_argument("--rtktool", default="build/bin/rtktool")
     ap.add_argument("--size", default="256x192")
     ap.add_argument("--sets", default="primary,diffuse,shadow")
-    ap.add_argument("--from", dest="reuse", help="read the callgrind output of an earlier run in this directory")
+    ap.add_argument("--from", dest="reuse", help="read the callgrind output of an earlier run in this directory "
+                    "(of the same build: the counts are placed by the libraries' addresses)")
+    ap.add_argument("--section", default="trace", choices=("trace", "twolevel"))
+    ap.add_argument("--render", default="128x96x1", help="twolevel: the path tracer's image and samples")
     a = ap.parse_args()
+    if a.section == "twolevel":
+        twolevel(a)
+        return
     sets = a.sets.split(",")
     if "primary" not in sets:
         sets.insert(0, "primary")  # (needed to take out the making of the other sets)
