@@ -207,13 +207,14 @@ struct rtk_accel {
     struct rtk_build_object *objects;
     uint64_t object_count;
     /* bvh4.object: the merged traversal (traverse_objects.h) of the layout
-     * most of its objects' trees have, else NULL (objects.c's own) */
+     * most of its objects' trees have (bvh4.triangle4's if none) */
     rtk_intersect1_fn objects_intersect1;
     rtk_occluded1_fn objects_occluded1;
-    /* bvh4.object: parallel to objects, the node of each one's tree its
-     * walk starts at, where the builder opened trees into the top level
-     * (objects.c, open_objects); NULL: every walk starts at the root */
-    uint32_t *object_roots;
+    /* bvh4.object: parallel to objects, what the merged traversal reads of
+     * each (rtk_object_item); objects_opened: some tree was opened into
+     * the top level (objects.c, open_objects) */
+    struct rtk_object_item *object_items;
+    uint32_t objects_opened;
     /* bvh4.triangle4mb: the trees of the time segments, else NULL.  Each
      * is an accel of its own (root, nodes: rtk_bvh4mb_node, trisi, and
      * mb_geoms, segment its time segment), sharing the top accel's
@@ -252,6 +253,26 @@ struct rtk_accel {
      * The order refit walks the tree in (refit.c, walk_order). */
     uint32_t leaves_first;
 };
+
+/* What the merged two-level traversal (traverse_objects.h) reads of an
+ * object of a top level's leaves: 32 bytes, where rtk_build_object is 112
+ * (on a dynamic scene of 16 overlapping pieces of the bunny, rays entered
+ * 12 objects each, and reading their rtk_build_object missed the first
+ * level cache about every other time: callgrind, bench/work_per_ray.py
+ * --section twolevel). */
+typedef struct rtk_object_item {
+    const struct rtk_accel *accel; /* the object's tree */
+    uint32_t root;     /* the node its walk starts at: its root, or where open_objects opened it */
+    uint32_t mask;     /* rtk_build_object.mask */
+    uint32_t pass_all; /* RTK_OBJECT_ITEM_INLINE: the tree's mask_pass_all */
+    uint32_t flags;    /* RTK_OBJECT_ITEM_* */
+    uint32_t inst_id;  /* rtk_build_object.inst_id */
+    uint32_t unused;
+} rtk_object_item;
+/* a tree of the merged traversal's layout with a root: walked inline */
+#define RTK_OBJECT_ITEM_INLINE 1u
+/* rtk_build_object.flags has RTK_BUILD_OBJECT_IDENTITY */
+#define RTK_OBJECT_ITEM_WORLD 2u
 
 /* What a node's prefetch[] slot should hold for child reference ref (see
  * rtk_bvh4_node): the distance from the node at address `node` to the

@@ -7,6 +7,7 @@
  */
 #ifndef RTK_OBJECTS_RAY_H
 #define RTK_OBJECTS_RAY_H
+#include <math.h>
 #include <stddef.h>
 
 #include "backend_common.h"
@@ -136,6 +137,43 @@ static inline rtk_query object_query(const rtk_build_object *o, const rtk_query 
     if (cq.inst_id == RTK_INVALID_GEOMETRY_ID)
         cq.inst_id = o->inst_id;
     return cq;
+}
+
+/* Object o's closest hit through its own kernel (the ray taken into its
+ * space, or as it is where in_place), written into rh if nearer. */
+static inline void object_intersect1(const rtk_build_object *o, rtk_rayhit *rh, const rtk_query *q)
+{
+    if (in_place(o)) {
+        o->intersect1(o->accel, rh, q);
+        return;
+    }
+    rtk_rayhit local;
+    if (!to_object(o, &rh->ray, &local.ray))
+        return;
+    local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+    const rtk_query cq = object_query(o, q);
+    o->intersect1(o->accel, &local, &cq);
+    if (local.hit.geomID == RTK_INVALID_GEOMETRY_ID)
+        return;
+    rh->ray.tfar = local.ray.tfar;
+    rh->hit = local.hit;
+    if (o->inst_id != RTK_INVALID_GEOMETRY_ID)
+        rh->hit.instID = o->inst_id;
+}
+
+/* 1 when object o finds the ray occluded, through its own kernel. */
+static inline int object_occluded1(const rtk_build_object *o, rtk_ray *ray, const rtk_query *q)
+{
+    if (in_place(o)) {
+        o->occluded1(o->accel, ray, q);
+        return ray->tfar == -INFINITY;
+    }
+    rtk_ray local;
+    if (!to_object(o, ray, &local))
+        return 0;
+    const rtk_query cq = object_query(o, q);
+    o->occluded1(o->accel, &local, &cq);
+    return local.tfar == -INFINITY;
 }
 
 #endif

@@ -510,7 +510,8 @@ static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
         pq_level in = *l;
         /* an object opened into the top level (objects.c, open_objects)
          * is walked from the node its reference names */
-        in.start = a->object_roots && a->object_roots[i] != o->accel->root ? a->object_roots[i] : RTK_BVH4_EMPTY;
+        in.start = a->objects_opened && a->object_items[i].root != o->accel->root ? a->object_items[i].root
+                                                                                    : RTK_BVH4_EMPTY;
         if (in.inst_id == RTK_INVALID_GEOMETRY_ID)
             in.inst_id = o->inst_id;
         if (!(o->flags & RTK_BUILD_OBJECT_IDENTITY)) {

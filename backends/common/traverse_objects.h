@@ -14,8 +14,9 @@
  * same ray_pre for every world-space object (the set-up of the fast
  * layouts depends on the ray alone; a robust tree's pads by its own extent,
  * and an instance's ray is its own, so those get a set-up each), from the
- * node the top level names (its root, or a node of it where the builder
- * opened the tree into the top level: objects.c, open_objects), and the
+ * node the top level names (rtk_object_item: its root, or a node of it
+ * where the builder opened the tree into the top level: objects.c,
+ * open_objects), and the
  * closest hit is only written once the walk ends.  A ray that needs the
  * tree's masks, culling or filters takes the features' traversal from the
  * same node.  Objects of other kinds (user primitives, instances of
@@ -43,20 +44,6 @@
 
 #define BVHN_OBJECTS_INTERSECT1 RTK_SYM(BVHN_NAME(BVHN_TAG, objects_intersect1))
 #define BVHN_OBJECTS_OCCLUDED1 RTK_SYM(BVHN_NAME(BVHN_TAG, objects_occluded1))
-
-/* Whether object o's tree is walked here: a tree of this layout with a
- * root. */
-static inline int objects_inline(const rtk_build_object *o)
-{
-    return o->intersect1 == BVHN_INTERSECT1 && !o->intersect_packet && o->accel->root != RTK_BVH4_EMPTY;
-}
-
-/* Where object i's walk starts: its tree's root, or the node the builder
- * opened it at (rtk_accel.object_roots). */
-static inline uint32_t objects_root(const rtk_accel *top, uint32_t i, const rtk_build_object *o)
-{
-    return top->object_roots ? top->object_roots[i] : o->accel->root;
-}
 
 /* An object's tree from `root` as its entry point walks it: for the usual
  * ray inline; for a ray that needs the tree's masks, culling or filters
@@ -90,34 +77,38 @@ static inline __attribute__((always_inline)) int objects_any(const rtk_accel *a,
     return any_from_usual_(a, root, p, tnear, tfar, BVHN_FUSED, NULL);
 }
 
-/* The ray of object o: the world's (set up at its first use) or its own
- * (in *local, with its set-up in own). */
-static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rtk_build_object *o, const rtk_ray *r,
+/* The ray of item it (object o): the world's (set up at its first use) or
+ * its own (in *local, with its set-up in own). */
+static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rtk_object_item *it,
+                                                                        const rtk_build_object *o, const rtk_ray *r,
                                                                         ray_pre *world, ray_mem *world_m, int *ready,
                                                                         rtk_ray *local, ray_pre *own, ray_mem *own_m)
 {
-    if (!RTK_ROBUST && (o->flags & RTK_BUILD_OBJECT_IDENTITY)) {
+    if (!RTK_ROBUST && (it->flags & RTK_OBJECT_ITEM_WORLD)) {
         if (!*ready) {
-            ray_pre_init(world, world_m, r, o->accel);
+            ray_pre_init(world, world_m, r, it->accel);
             *ready = 1;
         }
         return world;
     }
     if (!to_object(o, r, local))
         return NULL;
-    ray_pre_init(own, own_m, local, o->accel);
+    ray_pre_init(own, own_m, local, it->accel);
     return own;
 }
 
-/* The features (masks, culling, filters) ray r needs in object o's tree,
- * in fc; NULL for none.  (cq: the object's query, object_query.) */
-static inline const feat_ctx *objects_feat(feat_ctx *fc, const rtk_build_object *o, const rtk_ray *r,
-                                           const rtk_query *q, rtk_query *cq, unsigned qfeat)
+/* The features (masks, culling, filters) ray r needs in item it's tree,
+ * in fc; NULL for none (ray_feat and query_feat, with the tree's
+ * mask_pass_all from the item).  cq: the object's query (object_query). */
+static inline const feat_ctx *objects_feat(feat_ctx *fc, const rtk_object_item *it, const rtk_build_object *o,
+                                           const rtk_ray *r, const rtk_query *q, rtk_query *cq, unsigned qfeat)
 {
-    if (__builtin_expect(!(ray_feat(o->accel, r) | qfeat), 1))
+    const unsigned feat =
+        (r->flags & RTK_FEAT_CULL) | (mask_needs_attrs(it->pass_all, r->mask) ? RTK_FEAT_ATTRS : 0u) | qfeat;
+    if (__builtin_expect(!feat, 1))
         return NULL;
     *cq = object_query(o, q);
-    return feat_init(fc, r, o->accel, cq);
+    return feat_init(fc, r, it->accel, cq);
 }
 
 /* The closest hit so far (of object tree `leaves`, instance inst) written
@@ -130,41 +121,17 @@ static inline void objects_hit_write(const rtk_accel *leaves, uint32_t inst, con
         rh->hit.instID = inst;
 }
 
-/* An object of another kind, through its own kernel, as objects.c calls it. */
+/* An object of another kind: through its own kernel (objects_ray.h), out
+ * of the inlined loop. */
 static __attribute__((noinline)) void objects_other1(const rtk_build_object *o, rtk_rayhit *rh, const rtk_query *q)
 {
-    if (in_place(o)) {
-        o->intersect1(o->accel, rh, q);
-        return;
-    }
-    rtk_rayhit local;
-    if (!to_object(o, &rh->ray, &local.ray))
-        return;
-    local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
-    const rtk_query cq = object_query(o, q);
-    o->intersect1(o->accel, &local, &cq);
-    if (local.hit.geomID == RTK_INVALID_GEOMETRY_ID)
-        return;
-    rh->ray.tfar = local.ray.tfar;
-    rh->hit = local.hit;
-    if (o->inst_id != RTK_INVALID_GEOMETRY_ID)
-        rh->hit.instID = o->inst_id;
+    object_intersect1(o, rh, q);
 }
 
-/* 1 when object o (of another kind) finds the ray occluded. */
 static __attribute__((noinline)) int objects_other_occluded(const rtk_build_object *o, rtk_ray *ray,
                                                             const rtk_query *q)
 {
-    if (in_place(o)) {
-        o->occluded1(o->accel, ray, q);
-        return ray->tfar == -INFINITY;
-    }
-    rtk_ray local;
-    if (!to_object(o, ray, &local))
-        return 0;
-    const rtk_query cq = object_query(o, q);
-    o->occluded1(o->accel, &local, &cq);
-    return local.tfar == -INFINITY;
+    return object_occluded1(o, ray, q);
 }
 
 void BVHN_OBJECTS_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rh, const rtk_query *q)
@@ -205,23 +172,24 @@ void BVHN_OBJECTS_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rh, const rtk_q
         }
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t i = first; i < end; i++) {
-            const rtk_build_object *o = &accel->objects[i];
-            if (!(o->mask & rh->ray.mask))
+            const rtk_object_item *it = &accel->object_items[i];
+            const rtk_build_object *o = &accel->objects[i]; /* (read only when needed) */
+            if (!(it->mask & rh->ray.mask))
                 continue;
-            if (__builtin_expect(objects_inline(o), 1)) {
+            if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
                 rtk_ray local;
-                const ray_pre *p = objects_ray(o, &rh->ray, &world, &world_m, &ready, &local, &own, &own_m);
+                const ray_pre *p = objects_ray(it, o, &rh->ray, &world, &world_m, &ready, &local, &own, &own_m);
                 if (!p)
                     continue;
                 feat_ctx fc;
                 rtk_query cq;
-                const feat_ctx *f = objects_feat(&fc, o, p == &world ? &rh->ray : &local, q, &cq, qfeat);
+                const feat_ctx *f = objects_feat(&fc, it, o, p == &world ? &rh->ray : &local, q, &cq, qfeat);
                 closest_hit found = CLOSEST_HIT_NONE;
-                objects_closest(o->accel, objects_root(accel, i, o), p, tnear, &tfar, &found, f);
+                objects_closest(it->accel, it->root, p, tnear, &tfar, &found, f);
                 if (found.lane >= 0) {
                     best = found;
-                    best_leaves = o->accel;
-                    best_inst = o->inst_id;
+                    best_leaves = it->accel;
+                    best_inst = it->inst_id;
                 }
                 continue;
             }
@@ -265,19 +233,20 @@ void BVHN_OBJECTS_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_quer
         }
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t i = first; i < end; i++) {
+            const rtk_object_item *it = &accel->object_items[i];
             const rtk_build_object *o = &accel->objects[i];
-            if (!(o->mask & ray->mask))
+            if (!(it->mask & ray->mask))
                 continue;
             int hit;
-            if (__builtin_expect(objects_inline(o), 1)) {
+            if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
                 rtk_ray local;
-                const ray_pre *p = objects_ray(o, ray, &world, &world_m, &ready, &local, &own, &own_m);
+                const ray_pre *p = objects_ray(it, o, ray, &world, &world_m, &ready, &local, &own, &own_m);
                 if (!p)
                     continue;
                 feat_ctx fc;
                 rtk_query cq;
-                const feat_ctx *f = objects_feat(&fc, o, p == &world ? ray : &local, q, &cq, qfeat);
-                hit = objects_any(o->accel, objects_root(accel, i, o), p, ray->tnear, ray->tfar, f);
+                const feat_ctx *f = objects_feat(&fc, it, o, p == &world ? ray : &local, q, &cq, qfeat);
+                hit = objects_any(it->accel, it->root, p, ray->tnear, ray->tfar, f);
             } else {
                 hit = objects_other_occluded(o, ray, q);
             }
