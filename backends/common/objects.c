@@ -659,28 +659,15 @@ static void objects_packet(const rtk_accel *accel, const int32_t *active, void *
                 for (uint32_t i = 0; i < k; i++) {
                     if (!lanes[i])
                         continue;
+                    /* as the single-ray traversal calls it (objects_ray.h) */
                     rtk_rayhit rh = {0};
                     lane_get(packet, k, i, &rh, occluded ? RAY_FIELDS : RAYHIT_FIELDS);
                     if (occluded) {
-                        rtk_ray local;
-                        if (!to_object(o, &rh.ray, &local))
-                            continue;
-                        o->occluded1(o->accel, &local, &cq);
-                        if (local.tfar == -INFINITY)
+                        if (object_occluded1(o, &rh.ray, q))
                             *lane_f(packet, k, F_TFAR, i) = -INFINITY;
                         continue;
                     }
-                    rtk_rayhit local;
-                    if (!to_object(o, &rh.ray, &local.ray))
-                        continue;
-                    local.hit.geomID = RTK_INVALID_GEOMETRY_ID;
-                    o->intersect1(o->accel, &local, &cq);
-                    if (local.hit.geomID == RTK_INVALID_GEOMETRY_ID)
-                        continue;
-                    rh.ray.tfar = local.ray.tfar;
-                    rh.hit = local.hit;
-                    if (o->inst_id != RTK_INVALID_GEOMETRY_ID)
-                        rh.hit.instID = o->inst_id;
+                    object_intersect1(o, &rh, q);
                     lane_put(packet, k, i, &rh, RAYHIT_FIELDS);
                 }
             }
