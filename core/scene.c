@@ -234,20 +234,27 @@ rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_
         g->owners = o;
         g->owner_cap = cap;
     }
-    uint32_t id = 0;
+    /* the lowest free geomID, as before: slots below geom_free are taken */
+    uint32_t id = s->geom_free;
     while (id < s->geom_count && s->geoms[id])
         id++;
     if (id == s->geom_count) {
         if (s->geom_count == RTK_INVALID_GEOMETRY_ID - 1)
             return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "rtk_scene_attach_geometry: too many geometries");
-        rtk_geometry *n = realloc(s->geoms, (s->geom_count + 1) * sizeof *n);
-        if (!n)
-            return rtk_fail(s->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_attach_geometry: out of memory");
-        s->geoms = n;
+        if (s->geom_count == s->geom_cap) {
+            const uint32_t most = RTK_INVALID_GEOMETRY_ID - 1;
+            const uint32_t cap = s->geom_cap < 8 ? 8 : s->geom_cap > most / 2 ? most : 2 * s->geom_cap;
+            rtk_geometry *n = realloc(s->geoms, (size_t)cap * sizeof *n);
+            if (!n)
+                return rtk_fail(s->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_attach_geometry: out of memory");
+            s->geoms = n;
+            s->geom_cap = cap;
+        }
         s->geoms[s->geom_count++] = NULL;
     }
     rtk_geometry_retain(g);
     s->geoms[id] = g;
+    s->geom_free = id + 1;
     g->owners[g->owner_count++] = s;
     if (geom_id)
         *geom_id = id;
@@ -264,6 +271,8 @@ rtk_error rtk_scene_detach_geometry(rtk_scene s, uint32_t id)
     owner_remove(s->geoms[id], s);
     rtk_geometry_release(s->geoms[id]);
     s->geoms[id] = NULL;
+    if (id < s->geom_free)
+        s->geom_free = id;
     return RTK_OK;
 }
 

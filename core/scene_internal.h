@@ -125,6 +125,10 @@ struct rtk_scene_s {
     rtk_build_quality quality;
     rtk_geometry *geoms; /* by geomID; NULL for free slots */
     uint32_t geom_count;
+    /* geoms has room for geom_cap; every slot below geom_free is taken, so
+     * that attaching a million instances one by one does not search the
+     * table a million times over */
+    uint32_t geom_cap, geom_free;
 
     /* After a successful commit: the tree (ref), and ref->accel and
      * ref->layout at hand. */

@@ -320,6 +320,44 @@ static void test_geometry_lifecycle(void **state)
     rtk_device_release(dev);
 }
 
+/* A new geometry takes the lowest free geomID: ids freed by detach are
+ * taken again lowest first, then the table grows; over many attachments
+ * (rtk_scene_attach_geometry keeps where the lowest free slot may be). */
+static void test_geometry_ids(void **state)
+{
+    (void)state;
+    rtk_device dev = NULL;
+    assert_int_equal(rtk_device_new(NULL, &dev), RTK_OK);
+    rtk_scene scene = NULL;
+    assert_int_equal(rtk_scene_new(dev, &scene), RTK_OK);
+    enum { MANY = 20000 };
+    rtk_geometry g = NULL;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+    for (uint32_t i = 0; i < MANY; i++) {
+        uint32_t id = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_scene_attach_geometry(scene, g, &id), RTK_OK);
+        assert_int_equal(id, i);
+    }
+    static const uint32_t freed[] = {7, 3, 19999, 12000, 0};
+    for (size_t k = 0; k < sizeof freed / sizeof freed[0]; k++)
+        assert_int_equal(rtk_scene_detach_geometry(scene, freed[k]), RTK_OK);
+    static const uint32_t want[] = {0, 3, 7, 12000, 19999, MANY, MANY + 1};
+    for (size_t k = 0; k < sizeof want / sizeof want[0]; k++) {
+        uint32_t id = RTK_INVALID_GEOMETRY_ID;
+        assert_int_equal(rtk_scene_attach_geometry(scene, g, &id), RTK_OK);
+        assert_int_equal(id, want[k]);
+        assert_ptr_equal(rtk_scene_get_geometry(scene, id), g);
+    }
+    /* the last one detached and attached again: the same id */
+    assert_int_equal(rtk_scene_detach_geometry(scene, MANY + 1), RTK_OK);
+    uint32_t id = RTK_INVALID_GEOMETRY_ID;
+    assert_int_equal(rtk_scene_attach_geometry(scene, g, &id), RTK_OK);
+    assert_int_equal(id, MANY + 1);
+    rtk_geometry_release(g);
+    rtk_scene_release(scene);
+    rtk_device_release(dev);
+}
+
 static void test_flags_reported(void **state)
 {
     (void)state;
@@ -503,6 +541,7 @@ int main(void)
         cmocka_unit_test(test_null_arguments),
         cmocka_unit_test(test_bad_config),
         cmocka_unit_test(test_error_callback),
+        cmocka_unit_test(test_geometry_ids),
         cmocka_unit_test(test_index_out_of_range),
         cmocka_unit_test(test_nonfinite_vertices),
         cmocka_unit_test(test_empty_scene),
