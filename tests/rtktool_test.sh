@@ -166,10 +166,12 @@ if "$tool" bench --help >/dev/null 2>&1; then
                 "build,rtk avx2,low:morton,diffuse,single,1," "build,rtk avx2,medium:sah-binned,sah cost,,1," \
                 "accuracy,embree isa=avx2,robust,edge,single,1," \
                 "accuracy,rtk scalar,compact,diffuse,single,1," "accuracy,rtk avx2,robust,edge,single,1," \
-                "memory,rtk avx2,bvh8.triangle4,"; do
+                "memory,rtk avx2,bvh8.triangle4," "twolevel,rtk scalar,forest 1000,diffuse path tracer,single,1," \
+                "twolevel,embree isa=avx2,forest 1000,memory monitor,,1,"; do
         grep -qF "bunny.ply,$want" "$csv" || fail "bench.csv lacks a row '$want'"
     done
     ! grep -q "packet16" "$csv" || fail "bench.csv has packet16 rows though --api left them out"
+    expect 2 "--forest wants a list" -- "$tool" bench "$data/bunny.ply" --forest 0
     grep -qE '^[^,]*bunny.ply,trace,rtk avx2,default,diffuse,single,1,[0-9.]+,Mrays/s,[0-9.]+$' "$csv" ||
         fail "bench.csv: no rate with its ratio for rtk avx2 diffuse rays"
     # the accuracy harness (closed meshes, once per run): rtk's robust mode

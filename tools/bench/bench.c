@@ -20,6 +20,9 @@
  *             beside a tree built afresh over the same shape.
  *   twolevel  instances of the mesh and a dynamic scene of its pieces:
  *             commit times and the path tracer's speed through them.
+ *   forest    10^4 and 10^6 instances of the mesh, a bush and a rock over
+ *             a ground plane: scene time, memory per instance, the path
+ *             tracer's speed.
  *   motion    linear motion blur (the mesh turning and moving, at 2 and 5
  *             time steps): start time, memory, and rays at random times.
  *   accuracy  rays aimed at points on edges shared by two triangles, from
@@ -66,7 +69,8 @@ static void bench_usage(FILE *f)
             "  threads), render (the diffuse path tracer of rtktool trace, as in the Embree paper's Tables 2\n"
             "  and 3), build (start time at every quality, as in its Table 4, against the time to trace the\n"
             "  tree), refit (a deforming mesh: refit time, and the trace speed of the refitted tree), two\n"
-            "  levels (instances and a dynamic scene: commit times and trace speed), motion blur (2 and 5\n"
+            "  levels (instances and a dynamic scene: commit times and trace speed), forest (many instances of\n"
+            "  the mesh, a bush and a rock: scene time, memory per instance, trace speed), motion blur (2 and 5\n"
             "  time steps: start time, memory, trace speed at random ray times), accuracy (rays aimed at\n"
             "  shared edges that leak through, beside speed), points (closest points near the surface and\n"
             "  all through the box, against rtcPointQuery) and, once per run, closed (the accuracy\n"
@@ -84,19 +88,22 @@ static void bench_usage(FILE *f)
             "  --rays LIST       the trace section's ray sets: primary,diffuse,shadow,incoherent (bounces from\n"
             "                    random points of the whole mesh),sun (shadow rays along one direction from\n"
             "                    random points of the whole mesh) (default: all)\n"
-            "  --only LIST       trace,render,build,refit,twolevel,motion,accuracy,features,closed,points\n"
+            "  --only LIST       trace,render,build,refit,twolevel,forest,motion,accuracy,features,closed,\n"
+            "                    points\n"
             "                    (default: all)\n"
             "  --size WxH        camera rays for the trace sets (default: 1024x768)\n"
             "  --repeat N        passes per measurement (default: 3); trace: every pass cut into 8 pieces\n"
             "                    traced by each library in turn, the ratio the median over the pieces\n"
             "  --builds N        best of N builds per start time (default: 3)\n"
+            "  --forest LIST     the forest's instance counts (default: 10000,1000000; --quick: 1000)\n"
             "  --edge-rays N     rays aimed at edges per mesh (default: 200000)\n"
             "  --render WxHxS    path tracer image and samples per pixel (default: 512x384x1)\n"
             "  --alt DIR         one more library, \"rtk ISA alt\": the last --isa (default avx2) loaded from\n"
             "                    the backends in DIR (another build's lib/rtk), to compare two builds\n"
             "  --robust          trace and render with every library's scene in robust mode (watertight)\n"
             "  --quick           a smoke run: 256x192 rays, 1 pass, 1 build, 1 thread, 20000 edge rays,\n"
-            "                    128x96x1 render, closed meshes of a quarter of the triangles\n"
+            "                    128x96x1 render, closed meshes of a quarter of the triangles, a forest of\n"
+            "                    1000 instances\n"
             "examples:\n"
             "  rtktool bench ../shared/meshes/dragon.ply ../shared/meshes/sanmiguel_building.ply -o bench-out\n"
             "  rtktool bench dragon.ply --only trace --isa avx2 --api single,packet8 --threads 1\n"
@@ -109,10 +116,10 @@ int cmd_bench(int argc, char **argv)
     bench_opts o = {.outdir = "bench-out", .w = 1024, .h = 768, .repeat = 3, .builds = 3, .edge_rays = 200000,
                     .threads = {1, 2}, .nthreads = 2, .api_on = {1, 1, 1, 1, 1}, .set_on = {1, 1, 1, 1, 1},
                     .do_trace = 1, .do_render = 1, .do_build = 1, .do_refit = 1, .do_twolevel = 1, .do_motion = 1,
-                    .do_accuracy = 1, .do_features = 1, .do_closed = 1, .do_points = 1, .render_w = 512, .render_h = 384,
-                    .render_spp = 1};
+                    .do_accuracy = 1, .do_features = 1, .do_closed = 1, .do_points = 1, .do_forest = 1,
+                    .forest = {10000, 1000000}, .nforest = 2, .render_w = 512, .render_h = 384, .render_spp = 1};
     const char *meshes[64];
-    int nmeshes = 0;
+    int nmeshes = 0, forest_given = 0;
     for (int i = 0; i < argc; i++) {
         const char *a = argv[i];
         const int more = i + 1 < argc;
@@ -182,13 +189,14 @@ int cmd_bench(int argc, char **argv)
         } else if (!strcmp(a, "--only") && more) {
             n = parse_list(argv[++i], items, 8);
             o.do_trace = o.do_render = o.do_build = o.do_refit = o.do_twolevel = o.do_motion = o.do_accuracy =
-                o.do_features = o.do_closed = o.do_points = 0;
+                o.do_features = o.do_closed = o.do_points = o.do_forest = 0;
             for (int k = 0; k < n; k++) {
                 int *flag = !strcmp(items[k], "trace")      ? &o.do_trace
                             : !strcmp(items[k], "render")   ? &o.do_render
                             : !strcmp(items[k], "build")    ? &o.do_build
                             : !strcmp(items[k], "refit")    ? &o.do_refit
                             : !strcmp(items[k], "twolevel") ? &o.do_twolevel
+                            : !strcmp(items[k], "forest")   ? &o.do_forest
                             : !strcmp(items[k], "motion")   ? &o.do_motion
                             : !strcmp(items[k], "accuracy") ? &o.do_accuracy
                             : !strcmp(items[k], "features") ? &o.do_features
@@ -202,9 +210,27 @@ int cmd_bench(int argc, char **argv)
             }
             if (n < 1) {
                 fprintf(stderr,
-                        "rtktool bench: --only wants a list of trace, render, build, refit, twolevel, motion, "
+                        "rtktool bench: --only wants a list of trace, render, build, refit, twolevel, forest, motion, "
                         "accuracy, features, closed, points (got '%s')\n",
                         argv[i]);
+                return 2;
+            }
+        } else if (!strcmp(a, "--forest") && more) {
+            n = parse_list(argv[++i], items, 4);
+            o.nforest = n > 0 ? n : 0;
+            forest_given = 1;
+            for (int k = 0; k < o.nforest; k++) {
+                char *end;
+                errno = 0;
+                const double v = strtod(items[k], &end);
+                if (end == items[k] || *end || errno || !(v >= 1 && v <= 1e7) || v != (double)(size_t)v)
+                    n = -1;
+                else
+                    o.forest[k] = (size_t)v;
+            }
+            if (n < 1) {
+                fprintf(stderr, "rtktool bench: --forest wants a list of up to 4 instance counts from 1 to 10^7, "
+                                "as 10000 or 1e6 (got '%s')\n", argv[i]);
                 return 2;
             }
         } else if (!strcmp(a, "--size") && more) {
@@ -245,7 +271,9 @@ int cmd_bench(int argc, char **argv)
             return 2;
         }
     }
-    const int mesh_sections = o.do_trace || o.do_render || o.do_build || o.do_refit || o.do_twolevel ||
+    if (o.quick && !forest_given)
+        o.forest[0] = 1000, o.nforest = 1;
+    const int mesh_sections = o.do_trace || o.do_render || o.do_build || o.do_refit || o.do_twolevel || o.do_forest ||
                               o.do_motion || o.do_accuracy || o.do_features || o.do_points;
     if (!nmeshes && mesh_sections) {
         bench_usage(stderr);
@@ -369,6 +397,7 @@ int cmd_bench(int argc, char **argv)
                   (o.do_build && section_build(&c, err, sizeof err)) ||
                   (o.do_refit && section_refit(&c, err, sizeof err)) ||
                   (o.do_twolevel && section_twolevel(&c, err, sizeof err)) ||
+                  (o.do_forest && section_forest(&c, err, sizeof err)) ||
                   (o.do_motion && section_motion(&c, err, sizeof err)) ||
                   (o.do_accuracy && section_accuracy(&c, err, sizeof err)) ||
                   (o.do_features && section_features(&c, err, sizeof err)) ||

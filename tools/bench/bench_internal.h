@@ -1,7 +1,7 @@
 /* What the sections of rtktool bench share: the libraries under test and
  * their scenes, the ray sets, tracing them, the output, the settings and
  * the context a section runs in.  Each section is a file of its own
- * (trace.c, render.c, build.c, refit.c, twolevel.c, motion.c, accuracy.c,
+ * (trace.c, render.c, build.c, refit.c, twolevel.c, forest.c, motion.c, accuracy.c,
  * features.c, closed.c, points.c); common.c defines what is declared here, edges.c
  * the rays aimed at shared edges, bench.c the command line. */
 #ifndef RTK_TOOLS_BENCH_INTERNAL_H
@@ -102,7 +102,10 @@ typedef struct bench_opts {
     int nisa;
     int api_on[NAPIS];
     int set_on[NSETS]; /* --rays: the trace section's ray sets */
-    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed, do_points;
+    int do_trace, do_render, do_build, do_refit, do_twolevel, do_motion, do_accuracy, do_features, do_closed, do_points,
+        do_forest;
+    size_t forest[4]; /* --forest: the forest section's instance counts */
+    int nforest;
     int render_w, render_h, render_spp;
     int trace_mode; /* MODE_DEFAULT, or MODE_ROBUST with --robust (trace and render) */
     int quick;      /* --quick: the closed section's meshes coarser and fewer grazing rays */
@@ -182,6 +185,9 @@ int section_refit(ctx *c, char *err, size_t err_size);
 
 /* twolevel.c */
 int section_twolevel(ctx *c, char *err, size_t err_size);
+
+/* forest.c: many instances of a few meshes */
+int section_forest(ctx *c, char *err, size_t err_size);
 
 /* motion.c */
 int section_motion(ctx *c, char *err, size_t err_size);
