@@ -203,17 +203,24 @@ struct rtk_accel {
     uint64_t node_count, leaf_count;
     size_t nodes_mapped, tris_mapped; /* bytes mapped for the node and leaf arrays (page-rounded) */
     size_t nodes_offset; /* the node array starts this many bytes into its mapping (build_common.c) */
-    /* bvh4.object (objects.c): the objects in leaf order, else NULL */
-    struct rtk_build_object *objects;
+    /* bvh4.object (objects.c): what the top level's leaves name, in leaf
+     * order (rtk_object_item: object_count of them); the full records of
+     * the objects not walked inline (rtk_build_object), and the transforms
+     * of the instances that are (each object once, however many items
+     * opening gave it); else NULL */
+    struct rtk_object_item *object_items;
     uint64_t object_count;
+    struct rtk_build_object *objects;
+    float (*object_xfms)[12];
     /* bvh4.object: the merged traversal (traverse_objects.h) of the layout
-     * most of its objects' trees have (bvh4.triangle4's if none) */
+     * most of its objects' trees have (bvh4.triangle4's if none), and that
+     * layout's own kernels, which the inline objects have */
     rtk_intersect1_fn objects_intersect1;
     rtk_occluded1_fn objects_occluded1;
-    /* bvh4.object: parallel to objects, what the merged traversal reads of
-     * each (rtk_object_item); objects_opened: some tree was opened into
-     * the top level (objects.c, open_objects) */
-    struct rtk_object_item *object_items;
+    rtk_intersect1_fn inline_intersect1;
+    rtk_occluded1_fn inline_occluded1;
+    /* bvh4.object: some tree was opened into the top level (objects.c,
+     * open_objects) */
     uint32_t objects_opened;
     /* bvh4.triangle4mb: the trees of the time segments, else NULL.  Each
      * is an accel of its own (root, nodes: rtk_bvh4mb_node, trisi, and
@@ -255,11 +262,14 @@ struct rtk_accel {
 };
 
 /* What the merged two-level traversal (traverse_objects.h) reads of an
- * object of a top level's leaves: 32 bytes, where rtk_build_object is 112
+ * object of a top level's leaves: 32 bytes, where rtk_build_object is 128
  * (on a dynamic scene of 16 overlapping pieces of the bunny, rays entered
  * 12 objects each, and reading their rtk_build_object missed the first
  * level cache about every other time: callgrind, bench/work_per_ray.py
- * --section twolevel). */
+ * --section twolevel).  The top level keeps no rtk_build_object for the
+ * objects walked inline: an instance's is 32 bytes of item and 48 of
+ * transform instead of 160 (rtktool bench --only forest: 202 bytes per
+ * instance, where Embree's memory monitor saw 91). */
 typedef struct rtk_object_item {
     const struct rtk_accel *accel; /* the object's tree */
     uint32_t root;     /* the node its walk starts at: its root, or where open_objects opened it */
@@ -267,7 +277,9 @@ typedef struct rtk_object_item {
     uint32_t pass_all; /* RTK_OBJECT_ITEM_INLINE: the tree's mask_pass_all */
     uint32_t flags;    /* RTK_OBJECT_ITEM_* */
     uint32_t inst_id;  /* rtk_build_object.inst_id */
-    uint32_t unused;
+    /* INLINE: its transform, object_xfms[object] (unless WORLD); otherwise
+     * its record, objects[object] */
+    uint32_t object;
 } rtk_object_item;
 /* a tree of the merged traversal's layout with a root: walked inline */
 #define RTK_OBJECT_ITEM_INLINE 1u

@@ -44,10 +44,18 @@ typedef struct obj_build {
     obj_ref *refs;
     rtk_bvh4_node *nodes;
     uint64_t node_count, node_cap;
-    rtk_build_object *objects; /* in leaf order */
-    rtk_object_item *items;    /* parallel to objects */
-    rtk_intersect1_fn inline_kernel; /* the objects with this kernel are walked inline (pick_merged) */
+    rtk_object_item *items;    /* in leaf order, object_count of them */
     uint64_t object_count;
+    /* each object once, in the order the leaves first name it: the records
+     * of those not walked inline, the transforms of the instances that are;
+     * slot[i]: where in->objects[i] went (UINT32_MAX: not yet) */
+    rtk_build_object *objects;
+    float (*xfms)[12];
+    uint32_t *slot;
+    uint32_t record_count, xfm_count;
+    /* the objects with these kernels are walked inline (pick_merged) */
+    rtk_intersect1_fn inline_kernel;
+    rtk_occluded1_fn inline_occluded;
     const rtk_build_input *in;
     const rtk_memory *mem; /* the top level's memory accounting */
     uint32_t max_depth;
@@ -193,6 +201,14 @@ static int64_t new_node(obj_build *b)
     return (int64_t)b->node_count++;
 }
 
+/* Whether object o is walked inline by the merged traversal: a tree of its
+ * layout, with a root. */
+static int is_inline(const obj_build *b, const rtk_build_object *o)
+{
+    return b->inline_kernel && o->intersect1 == b->inline_kernel && o->occluded1 == b->inline_occluded &&
+           !o->intersect_packet && o->accel->root != RTK_BVH4_EMPTY;
+}
+
 /* The subtree over r[0, n) (n >= 1); its reference in *ref, its box in
  * lo/hi.  0 when out of memory. */
 static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint32_t *ref, float lo[3], float hi[3])
@@ -205,14 +221,27 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
         const uint64_t first = b->object_count;
         for (size_t i = 0; i < n; i++) {
             const rtk_build_object *o = &b->in->objects[r[i].index];
-            rtk_object_item *it = &b->items[b->object_count];
+            rtk_object_item *it = &b->items[b->object_count++];
             *it = (rtk_object_item){.accel = o->accel, .root = r[i].root, .mask = o->mask, .inst_id = o->inst_id};
             it->flags = o->flags & RTK_BUILD_OBJECT_IDENTITY ? RTK_OBJECT_ITEM_WORLD : 0;
-            if (o->intersect1 == b->inline_kernel && !o->intersect_packet && r[i].root != RTK_BVH4_EMPTY) {
+            const int walked_inline = is_inline(b, o);
+            if (walked_inline) {
                 it->flags |= RTK_OBJECT_ITEM_INLINE;
                 it->pass_all = o->accel->mask_pass_all;
             }
-            b->objects[b->object_count++] = *o;
+            uint32_t *slot = &b->slot[r[i].index];
+            if (*slot == UINT32_MAX) {
+                if (!walked_inline) {
+                    b->objects[b->record_count] = *o;
+                    *slot = b->record_count++;
+                } else if (!(it->flags & RTK_OBJECT_ITEM_WORLD)) {
+                    memcpy(b->xfms[b->xfm_count], o->world_to_object, sizeof b->xfms[0]);
+                    *slot = b->xfm_count++;
+                } else {
+                    *slot = 0; /* (nothing kept) */
+                }
+            }
+            it->object = *slot;
         }
         *ref = rtk_leaf_ref((uint32_t)first, (uint32_t)n);
         return 1;
@@ -432,57 +461,88 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
         accel->memory = *build_input_memory(in);
     b.mem = accel ? &accel->memory : NULL;
     b.refs = accel ? mem_alloc(b.mem, (cap ? cap : 1) * sizeof *b.refs, 0) : NULL;
-    b.objects = accel ? mem_alloc(b.mem, (cap ? cap : 1) * sizeof *b.objects, 0) : NULL;
     b.items = accel ? mem_alloc(b.mem, (cap ? cap : 1) * sizeof *b.items, 0) : NULL;
-    if (!accel || !b.refs || !b.objects || !b.items) {
+    b.slot = accel ? mem_alloc(b.mem, (in->object_count ? in->object_count : 1) * sizeof *b.slot, 0) : NULL;
+    size_t n = 0;
+    if (b.refs)
+        for (uint32_t i = 0; i < in->object_count; i++) {
+            const rtk_build_object *o = &in->objects[i];
+            if (!finite_box(o) || !o->accel || !o->intersect1 || !o->occluded1)
+                continue;
+            obj_ref *r = &b.refs[n++];
+            for (int k = 0; k < 3; k++) {
+                r->lo[k] = o->lower[k];
+                r->hi[k] = o->upper[k];
+                r->c[k] = 0.5f * o->lower[k] + 0.5f * o->upper[k]; /* finite for any finite box */
+            }
+            r->index = i;
+            r->root = o->accel->root;
+        }
+    const int merged = b.refs ? pick_merged(in, b.refs, n) : -1;
+    if (merged >= 0) {
+        b.inline_kernel = merged_layouts[merged].kernel;
+        for (size_t i = 0; i < n && !b.inline_occluded; i++)
+            if (in->objects[b.refs[i].index].intersect1 == b.inline_kernel)
+                b.inline_occluded = in->objects[b.refs[i].index].occluded1;
+    }
+    /* what is kept of each object: a record, a transform or nothing */
+    size_t records = 0, xfms = 0;
+    for (size_t i = 0; i < n; i++) {
+        const rtk_build_object *o = &in->objects[b.refs[i].index];
+        if (!is_inline(&b, o))
+            records++;
+        else if (!(o->flags & RTK_BUILD_OBJECT_IDENTITY))
+            xfms++;
+    }
+    b.objects = b.refs ? mem_alloc(b.mem, (records ? records : 1) * sizeof *b.objects, 0) : NULL;
+    b.xfms = b.refs ? mem_alloc(b.mem, (xfms ? xfms : 1) * sizeof *b.xfms, 0) : NULL;
+    if (!accel || !b.refs || !b.items || !b.slot || !b.objects || !b.xfms) {
         if (accel) {
             mem_free(b.mem, b.refs);
-            mem_free(b.mem, b.objects);
             mem_free(b.mem, b.items);
+            mem_free(b.mem, b.slot);
+            mem_free(b.mem, b.objects);
+            mem_free(b.mem, b.xfms);
         }
         free(accel);
         build_set_message(out, "out of memory");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
-    size_t n = 0;
-    for (uint32_t i = 0; i < in->object_count; i++) {
-        const rtk_build_object *o = &in->objects[i];
-        if (!finite_box(o) || !o->accel || !o->intersect1 || !o->occluded1)
-            continue;
-        obj_ref *r = &b.refs[n++];
-        for (int k = 0; k < 3; k++) {
-            r->lo[k] = o->lower[k];
-            r->hi[k] = o->upper[k];
-            r->c[k] = 0.5f * o->lower[k] + 0.5f * o->upper[k]; /* finite for any finite box */
-        }
-        r->index = i;
-        r->root = o->accel->root;
-    }
-    const int merged = pick_merged(in, b.refs, n);
-    b.inline_kernel = merged >= 0 ? merged_layouts[merged].kernel : NULL;
+    memset(b.slot, 0xff, (in->object_count ? in->object_count : 1) * sizeof *b.slot);
     if (merged >= 0 && merged_layouts[merged].open_width && opened_room)
         n = open_objects(in, b.refs, n, cap, merged);
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     accel->layout = RTK_LAYOUT_BVH4_OBJECT;
     accel->root = RTK_BVH4_EMPTY;
-    if (n && !build_range(&b, b.refs, n, 0, &accel->root, lo, hi)) {
+    int built = !n || build_range(&b, b.refs, n, 0, &accel->root, lo, hi);
+    if (built && b.node_count && b.node_count < b.node_cap) {
+        /* (the doubling's room given back) */
+        void *fit = mem_realloc(b.mem, b.nodes, b.node_count * sizeof *b.nodes);
+        if (fit)
+            b.nodes = fit;
+    }
+    mem_free(b.mem, b.refs);
+    mem_free(b.mem, b.slot);
+    if (!built) {
         mem_free(b.mem, b.nodes);
-        mem_free(b.mem, b.refs);
-        mem_free(b.mem, b.objects);
         mem_free(b.mem, b.items);
+        mem_free(b.mem, b.objects);
+        mem_free(b.mem, b.xfms);
         free(accel);
         build_set_message(out, "out of memory");
         return RTK_ERROR_OUT_OF_MEMORY;
     }
-    mem_free(b.mem, b.refs);
     accel->nodes = b.nodes;
     accel->node_count = b.node_count;
-    accel->objects = b.objects;
-    accel->object_count = b.object_count;
     accel->object_items = b.items;
+    accel->object_count = b.object_count;
+    accel->objects = b.objects;
+    accel->object_xfms = b.xfms;
     accel->objects_opened = n > kept;
     accel->objects_intersect1 = merged_layouts[merged >= 0 ? merged : 0].merged;
     accel->objects_occluded1 = merged_layouts[merged >= 0 ? merged : 0].merged_occluded;
+    accel->inline_intersect1 = b.inline_kernel;
+    accel->inline_occluded1 = b.inline_occluded;
     accel->leaf_count = 0;
     out->accel = accel;
     out->prims = kept;
@@ -496,8 +556,8 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
             leaves += b.nodes[i].child[c] != RTK_BVH4_EMPTY && (b.nodes[i].child[c] & RTK_BVH4_LEAF_BIT);
     out->leaves = n && !b.node_count ? 1 : leaves;
     out->depth = b.max_depth;
-    out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.object_count * sizeof(rtk_build_object) +
-                 b.object_count * sizeof *b.items;
+    out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.object_count * sizeof *b.items +
+                 b.record_count * sizeof *b.objects + b.xfm_count * sizeof *b.xfms;
     const double root_area = half_area_d(lo, hi);
     out->sah_cost = root_area > 0.0 ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
     memcpy(out->lower, lo, sizeof lo);
@@ -512,8 +572,9 @@ void RTK_SYM(rtk_objects_release)(rtk_accel *accel)
     if (!accel)
         return;
     mem_free(&accel->memory, accel->nodes);
-    mem_free(&accel->memory, accel->objects);
     mem_free(&accel->memory, accel->object_items);
+    mem_free(&accel->memory, accel->objects);
+    mem_free(&accel->memory, accel->object_xfms);
     free(accel);
 }
 
@@ -623,7 +684,8 @@ static void objects_packet(const rtk_accel *accel, const int32_t *active, void *
          * tfar the leaf's objects can shorten; each object re-tests */
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t o_i = first; o_i < end; o_i++) {
-            const rtk_build_object *o = &accel->objects[o_i];
+            rtk_build_object tmp;
+            const rtk_build_object *o = object_at(accel, o_i, &tmp);
             _Alignas(64) int32_t lanes[16];
             unsigned any = 0;
             for (uint32_t i = 0; i < k; i++) {

@@ -9,6 +9,7 @@
 #define RTK_OBJECTS_RAY_H
 #include <math.h>
 #include <stddef.h>
+#include <string.h>
 
 #include "backend_common.h"
 #include "bvh4_triangle4.h"
@@ -92,14 +93,12 @@ static inline int node_children(const rtk_bvh4_node *n, const obj_ray *p, float 
     return count;
 }
 
-/* The ray in the object's space, in `local`; 0 when it is not finite there
- * (a transform that overflows it): the object is then missed. */
-static inline int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local)
+/* The ray taken by the world-to-object transform m, in `local`; 0 when
+ * it is not finite there (a transform that overflows it): the object is
+ * then missed. */
+static inline int to_object_m(const float *m, const rtk_ray *r, rtk_ray *local)
 {
     *local = *r;
-    if (o->flags & RTK_BUILD_OBJECT_IDENTITY)
-        return 1;
-    const float *m = o->world_to_object;
     const float ox = m[0] * r->org_x + m[1] * r->org_y + m[2] * r->org_z + m[3];
     const float oy = m[4] * r->org_x + m[5] * r->org_y + m[6] * r->org_z + m[7];
     const float oz = m[8] * r->org_x + m[9] * r->org_y + m[10] * r->org_z + m[11];
@@ -113,6 +112,38 @@ static inline int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray
     vf4_storeu(&local->dir_x, vf4_set(dx, dy, dz, r->time));
     const float f = 0.0f * ox + 0.0f * oy + 0.0f * oz + 0.0f * dx + 0.0f * dy + 0.0f * dz;
     return f == 0.0f;
+}
+
+/* The ray in object o's space (to_object_m). */
+static inline int to_object(const rtk_build_object *o, const rtk_ray *r, rtk_ray *local)
+{
+    if (o->flags & RTK_BUILD_OBJECT_IDENTITY) {
+        *local = *r;
+        return 1;
+    }
+    return to_object_m(o->world_to_object, r, local);
+}
+
+/* Object i of top level `top` (in leaf order) as an rtk_build_object: the
+ * record kept for an object not walked inline, or one made in *tmp from
+ * the item and its transform for one that is (its box then infinite: the
+ * top level's nodes bound it). */
+static inline const rtk_build_object *object_at(const rtk_accel *top, uint64_t i, rtk_build_object *tmp)
+{
+    const rtk_object_item *it = &top->object_items[i];
+    if (!(it->flags & RTK_OBJECT_ITEM_INLINE))
+        return &top->objects[it->object];
+    *tmp = (rtk_build_object){.accel = it->accel, .intersect1 = top->inline_intersect1,
+                              .occluded1 = top->inline_occluded1, .inst_id = it->inst_id, .mask = it->mask,
+                              .lower = {-INFINITY, -INFINITY, -INFINITY}, .upper = {INFINITY, INFINITY, INFINITY}};
+    if (it->flags & RTK_OBJECT_ITEM_WORLD) {
+        tmp->flags = RTK_BUILD_OBJECT_IDENTITY;
+        static const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+        memcpy(tmp->world_to_object, identity, sizeof identity);
+    } else {
+        memcpy(tmp->world_to_object, top->object_xfms[it->object], sizeof tmp->world_to_object);
+    }
+    return tmp;
 }
 
 #define OBJ_STACK (3 * RTK_BVH4_MAX_DEPTH + 4)
@@ -130,13 +161,19 @@ static inline int in_place(const rtk_build_object *o)
     return (o->flags & RTK_BUILD_OBJECT_IDENTITY) && o->inst_id == RTK_INVALID_GEOMETRY_ID && !o->intersect_packet;
 }
 
-/* The query an object's tree gets: the outermost instance's id. */
-static inline rtk_query object_query(const rtk_build_object *o, const rtk_query *q)
+/* The query the tree of an object with instance id inst_id gets: the
+ * outermost instance's id. */
+static inline rtk_query inst_query(uint32_t inst_id, const rtk_query *q)
 {
     rtk_query cq = *q;
     if (cq.inst_id == RTK_INVALID_GEOMETRY_ID)
-        cq.inst_id = o->inst_id;
+        cq.inst_id = inst_id;
     return cq;
+}
+
+static inline rtk_query object_query(const rtk_build_object *o, const rtk_query *q)
+{
+    return inst_query(o->inst_id, q);
 }
 
 /* Object o's closest hit through its own kernel (the ray taken into its

@@ -38,6 +38,7 @@
 #include "geometry/affine.h"
 #include "geometry/closest_point.h"
 #include "kernels.h"
+#include "objects_ray.h"
 #include "simd/simd.h"
 
 /* The query as one level of the scene sees it. */
@@ -504,7 +505,8 @@ static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
 {
     const uint32_t first = rtk_leaf_first(ref), end = first + rtk_leaf_blocks(ref);
     for (uint32_t i = first; i < end; i++) {
-        const rtk_build_object *o = &a->objects[i];
+        rtk_build_object tmp;
+        const rtk_build_object *o = object_at(a, i, &tmp);
         if (o->intersect_packet)
             continue; /* a user primitive: the core refuses those scenes */
         pq_level in = *l;

@@ -81,10 +81,10 @@ static inline __attribute__((always_inline)) int objects_any(const rtk_accel *a,
     return any_from_usual_(a, root, p, tnear, tfar, BVHN_FUSED, NULL);
 }
 
-/* The ray of item it (object o): the world's (set up at its first use) or
- * its own (in *local, with its set-up in own). */
+/* The ray of item it (of top level `top`): the world's (set up at its
+ * first use) or its own (in *local, with its set-up in own). */
 static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rtk_object_item *it,
-                                                                        const rtk_build_object *o, const rtk_ray *r,
+                                                                        const rtk_accel *top, const rtk_ray *r,
                                                                         ray_pre *world, ray_mem *world_m, int *ready,
                                                                         rtk_ray *local, ray_pre *own, ray_mem *own_m)
 {
@@ -95,7 +95,9 @@ static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rt
         }
         return world;
     }
-    if (!to_object(o, r, local))
+    if (it->flags & RTK_OBJECT_ITEM_WORLD)
+        *local = *r; /* (a robust tree's own set-up) */
+    else if (!to_object_m(top->object_xfms[it->object], r, local))
         return NULL;
     ray_pre_init(own, own_m, local, it->accel);
     return own;
@@ -104,14 +106,14 @@ static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rt
 /* The features (masks, culling, filters) ray r needs in item it's tree,
  * in fc; NULL for none (ray_feat and query_feat, with the tree's
  * mask_pass_all from the item).  cq: the object's query (object_query). */
-static inline const feat_ctx *objects_feat(feat_ctx *fc, const rtk_object_item *it, const rtk_build_object *o,
-                                           const rtk_ray *r, const rtk_query *q, rtk_query *cq, unsigned qfeat)
+static inline const feat_ctx *objects_feat(feat_ctx *fc, const rtk_object_item *it, const rtk_ray *r,
+                                           const rtk_query *q, rtk_query *cq, unsigned qfeat)
 {
     const unsigned feat =
         (r->flags & RTK_FEAT_CULL) | (mask_needs_attrs(it->pass_all, r->mask) ? RTK_FEAT_ATTRS : 0u) | qfeat;
     if (__builtin_expect(!feat, 1))
         return NULL;
-    *cq = object_query(o, q);
+    *cq = inst_query(it->inst_id, q);
     return feat_init(fc, r, it->accel, cq);
 }
 
@@ -177,17 +179,16 @@ void BVHN_OBJECTS_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rh, const rtk_q
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t i = first; i < end; i++) {
             const rtk_object_item *it = &accel->object_items[i];
-            const rtk_build_object *o = &accel->objects[i]; /* (read only when needed) */
             if (!(it->mask & rh->ray.mask))
                 continue;
             if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
                 rtk_ray local;
-                const ray_pre *p = objects_ray(it, o, &rh->ray, &world, &world_m, &ready, &local, &own, &own_m);
+                const ray_pre *p = objects_ray(it, accel, &rh->ray, &world, &world_m, &ready, &local, &own, &own_m);
                 if (!p)
                     continue;
                 feat_ctx fc;
                 rtk_query cq;
-                const feat_ctx *f = objects_feat(&fc, it, o, p == &world ? &rh->ray : &local, q, &cq, qfeat);
+                const feat_ctx *f = objects_feat(&fc, it, p == &world ? &rh->ray : &local, q, &cq, qfeat);
                 closest_hit found = CLOSEST_HIT_NONE;
                 objects_closest(it->accel, it->root, p, tnear, &tfar, &found, f);
                 if (found.lane >= 0) {
@@ -203,7 +204,7 @@ void BVHN_OBJECTS_INTERSECT1(const rtk_accel *accel, rtk_rayhit *rh, const rtk_q
                 objects_hit_write(best_leaves, best_inst, &best, tfar, rh);
                 best_leaves = NULL;
             }
-            objects_other1(o, rh, q);
+            objects_other1(&accel->objects[it->object], rh, q);
             tfar = rh->ray.tfar;
         }
     }
@@ -238,21 +239,20 @@ void BVHN_OBJECTS_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_quer
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t i = first; i < end; i++) {
             const rtk_object_item *it = &accel->object_items[i];
-            const rtk_build_object *o = &accel->objects[i];
             if (!(it->mask & ray->mask))
                 continue;
             int hit;
             if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
                 rtk_ray local;
-                const ray_pre *p = objects_ray(it, o, ray, &world, &world_m, &ready, &local, &own, &own_m);
+                const ray_pre *p = objects_ray(it, accel, ray, &world, &world_m, &ready, &local, &own, &own_m);
                 if (!p)
                     continue;
                 feat_ctx fc;
                 rtk_query cq;
-                const feat_ctx *f = objects_feat(&fc, it, o, p == &world ? ray : &local, q, &cq, qfeat);
+                const feat_ctx *f = objects_feat(&fc, it, p == &world ? ray : &local, q, &cq, qfeat);
                 hit = objects_any(it->accel, it->root, p, ray->tnear, ray->tfar, f);
             } else {
-                hit = objects_other_occluded(o, ray, q);
+                hit = objects_other_occluded(&accel->objects[it->object], ray, q);
             }
             if (hit) {
                 ray->tfar = -INFINITY;
