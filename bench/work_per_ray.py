@@ -29,11 +29,13 @@ each render its own callgrind dump (--dump-before=render_image), per call of the
 (rays counted by the calls themselves: the executions of their first instruction).  Node tests
 are the 8-wide ones (256-bit `vmovmskps`): Embree's whole two-level tree, rtk's objects' trees;
 rtk's top level tests 4-wide boxes with the same 128-bit instruction as its triangle tests,
-inlined into one function, so they are not counted apart.
+inlined into one function, so they are not counted apart.  With --section forest, the forest
+section's (rtktool bench --only forest --forest N): one render per library.
 
 usage: bench/work_per_ray.py [--rtktool build/bin/rtktool] [--size 256x192]
                              [--sets primary,diffuse,shadow,incoherent,sun] MESH
        bench/work_per_ray.py --section twolevel [--render 128x96x1] MESH
+       bench/work_per_ray.py --section forest [--forest 10000] [--render 128x96x1] MESH
 """
 import argparse
 import collections
@@ -146,20 +148,23 @@ def entry_addresses(path, names):
 
 
 def twolevel(a):
-    """Work per ray of the two-level section's path tracer, per scene and library."""
+    """Work per ray of the two-level (or forest) section's path tracer, per scene and library."""
     tmp = a.reuse or tempfile.mkdtemp(prefix="work_per_ray.")
     out, log = os.path.join(tmp, "twolevel.out"), os.path.join(tmp, "twolevel.log")
+    # the renders in the bench's order: the two-level section's passes in turns (every library's
+    # instances, then every library's dynamic scene), the forest's one library after another
+    scenes = ("forest %s" % a.forest,) if a.section == "forest" else ("instances", "dynamic")
     if not a.reuse:
-        print("callgrind: the two-level section of %s ..." % a.mesh, file=sys.stderr)
+        print("callgrind: the %s section of %s ..." % (a.section, a.mesh), file=sys.stderr)
         cmd = ["valgrind", "--tool=callgrind", "--dump-instr=yes", "--cache-sim=yes", "--D1=32768,8,64",
                "--LL=1048576,16,64", "--callgrind-out-file=" + out, "--dump-before=render_image"]
         cmd += ["--toggle-collect=" + f for f in API]
-        cmd += [a.rtktool, "bench", a.mesh, "--only", "twolevel", "--isa", "avx2", "--threads", "1", "--builds", "1",
-                "--repeat", "1", "--render", a.render, "-o", out + ".bench"]
+        cmd += [a.rtktool, "bench", a.mesh, "--only", a.section, "--isa", "avx2", "--threads", "1", "--builds", "1",
+                "--repeat", "1", "--render", a.render, "--forest", a.forest, "-o", out + ".bench"]
         with open(log, "w") as f:
             subprocess.run(cmd, stdout=f, stderr=subprocess.STDOUT, check=True)
     # the dumps: out.1 before the first render, then one per render (the last at exit, in `out`
-    # or out.N), in the bench's order: each library's instances, then its dynamic scene
+    # or out.N), in the bench's order
     parts = sorted((p for p in os.listdir(tmp) if re.match(r"twolevel\.out(\.\d+)?(-\d+)?$", p)),
                    key=lambda p: [int(x) for x in re.findall(r"\d+", p[len("twolevel.out"):])] or [1 << 30])
     names = {"ob": {}}
@@ -168,14 +173,14 @@ def twolevel(a):
     libs = [("embree isa=avx2", "libembree3", ("rtcIntersect1", "rtcOccluded1")),
             ("embree default", "libembree3", ("rtcIntersect1", "rtcOccluded1")),
             ("rtk avx2", "librtk", ("rtk_intersect1", "rtk_occluded1"))]
-    if len(dumps) != 2 * len(libs):
-        sys.exit("expected %d renders in %s, found %d" % (2 * len(libs), tmp, len(dumps)))
-    print("%s, the two-level section's path tracer (%s); per ray (a call of intersect1 or occluded1)"
-          % (os.path.basename(a.mesh), a.render))
-    print("  %-10s %-16s %9s %8s %8s %7s %8s %8s" % ("scene", "library", "rays", "instr", "loads", "nodes",
+    if len(dumps) != len(scenes) * len(libs):
+        sys.exit("expected %d renders in %s, found %d" % (len(scenes) * len(libs), tmp, len(dumps)))
+    print("%s, the %s section's path tracer (%s); per ray (a call of intersect1 or occluded1)"
+          % (os.path.basename(a.mesh), a.section, a.render))
+    print("  %-12s %-16s %9s %8s %8s %7s %8s %8s" % ("scene", "library", "rays", "instr", "loads", "nodes",
                                                   "L1 miss", "L2 miss"))
     for k, (costs, events) in enumerate(dumps):
-        lib, key, entries = libs[k // 2]
+        lib, key, entries = libs[k % len(libs)]
         col = {e: i for i, e in enumerate(events)}
         total = collections.Counter()
         rays = 0
@@ -199,8 +204,8 @@ def twolevel(a):
             text = disassemble(obj, hot)
             nodes += sum(table[addr] for addr in hot if text.get(addr, "").startswith("vmovmskps %ymm"))
         n = float(rays or 1)
-        print("  %-10s %-16s %9d %8.1f %8.1f %7.2f %8.2f %8.2f" % (
-            ("instances", "dynamic")[k % 2], lib, rays, total["Ir"] / n, total["Dr"] / n, nodes / n,
+        print("  %-12s %-16s %9d %8.1f %8.1f %7.2f %8.2f %8.2f" % (
+            scenes[k // len(libs)], lib, rays, total["Ir"] / n, total["Dr"] / n, nodes / n,
             total["D1mr"] / n, total["DLmr"] / n))
     print("(nodes: 8-wide node tests; Embree's top level is made of them, rtk's 4-wide one is not counted)")
     print("raw callgrind output and logs:", tmp)
@@ -214,10 +219,11 @@ def main():
     ap.add_argument("--sets", default="primary,diffuse,shadow")
     ap.add_argument("--from", dest="reuse", help="read the callgrind output of an earlier run in this directory "
                     "(of the same build: the counts are placed by the libraries' addresses)")
-    ap.add_argument("--section", default="trace", choices=("trace", "twolevel"))
+    ap.add_argument("--section", default="trace", choices=("trace", "twolevel", "forest"))
+    ap.add_argument("--forest", default="10000", help="forest: the instance count")
     ap.add_argument("--render", default="128x96x1", help="twolevel: the path tracer's image and samples")
     a = ap.parse_args()
-    if a.section == "twolevel":
+    if a.section in ("twolevel", "forest"):
         twolevel(a)
         return
     sets = a.sets.split(",")
