@@ -844,6 +844,152 @@ static void merged_vs_each_object(void **state)
     free(tie_ok);
 }
 
+/* ---- a large top level ----
+ * From 4,096 references on, the top level of a scene whose trees are
+ * bvh8.triangle4 (avx2) has 8-wide nodes walked with that layout's node
+ * test (objects.c, OBJ_WIDE_REFS; traverse_objects.h); a top level that
+ * holds a user primitive keeps 4-wide nodes.  The same 5,000 turned and
+ * scaled instances of the ball both ways, every backend: each ray's
+ * closest hit and occlusion the same, bit for bit; and closest points in
+ * the large top level against each instance's alone (the point taken into
+ * the ball's space by hand). */
+#define MANY_X 100
+#define MANY_Z 50
+#define MANY_RAYS 3000
+
+static void far_bounds(const rtk_bounds_args *a)
+{
+    for (int k = 0; k < 3; k++)
+        a->lower[k] = 1e6f, a->upper[k] = 1e6f + 1.0f;
+}
+
+static void no_hit(const rtk_user_query_args *a)
+{
+    (void)a;
+}
+
+static rtk_scene many_instances_scene(rtk_device dev, rtk_scene child, int with_user, double (*xf)[13])
+{
+    rtk_scene s = NULL;
+    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+    rng g = {91};
+    for (int i = 0; i < MANY_X * MANY_Z; i++) {
+        const double sc = 0.5 + 0.5 * rng_float(&g), sv[3] = {sc, sc, sc};
+        const double t[3] = {3.0 * (i % MANY_X), 0.0, 3.0 * (i / MANY_X)};
+        double m[12];
+        xfm_make(m, rng_float(&g) - 0.5, 1.0, rng_float(&g) - 0.5, 6.28 * rng_float(&g), sv, 0.0, t);
+        /* (rounded to floats, as the instance holds it) */
+        float f[12];
+        xfm_to_float(m, f);
+        xfm_from_float(f, xf[i]);
+        xf[i][12] = sc;
+        attach(s, instance_of(dev, child, m));
+    }
+    if (with_user) {
+        rtk_geometry u = NULL;
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &u), RTK_OK);
+        assert_int_equal(rtk_geometry_set_user_primitive_count(u, 1), RTK_OK);
+        assert_int_equal(rtk_geometry_set_bounds_function(u, far_bounds), RTK_OK);
+        assert_int_equal(rtk_geometry_set_intersect_function(u, no_hit), RTK_OK);
+        assert_int_equal(rtk_geometry_set_occluded_function(u, no_hit), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(u), RTK_OK);
+        attach(s, u);
+    }
+    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    return s;
+}
+
+static void many_instances(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    rtk_rayhit *h[2];
+    int *occ[2];
+    double (*xf)[13] = malloc(MANY_X * MANY_Z * sizeof *xf);
+    for (int k = 0; k < 2; k++) {
+        h[k] = malloc(MANY_RAYS * sizeof *h[k]);
+        occ[k] = malloc(MANY_RAYS * sizeof *occ[k]);
+    }
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene child = NULL;
+        assert_int_equal(rtk_scene_new(dev, &child), RTK_OK);
+        attach_mesh(dev, child, &ball);
+        assert_int_equal(rtk_scene_commit(child), RTK_OK);
+        rtk_point_hit ph[100];
+        rtk_point_query pq[100];
+        int hits = 0;
+        for (int k = 0; k < 2; k++) {
+            rtk_scene s = many_instances_scene(dev, child, k, xf);
+            rng g = {92};
+            for (int i = 0; i < MANY_RAYS; i++) {
+                /* low over the field and nearly level: across many
+                 * instances' boxes */
+                const float o[3] = {3.0f * MANY_X * rng_float(&g), 0.2f + 1.3f * rng_float(&g),
+                                    3.0f * MANY_Z * rng_float(&g)};
+                const float d[3] = {rng_float(&g) - 0.5f, -0.1f * rng_float(&g), rng_float(&g) - 0.5f};
+                rtk_ray r = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+                h[k][i] = (rtk_rayhit){.ray = r};
+                h[k][i].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                assert_int_equal(rtk_intersect1(s, &h[k][i]), RTK_OK);
+                assert_int_equal(rtk_occluded1(s, &r), RTK_OK);
+                occ[k][i] = r.tfar == -INFINITY;
+                hits += k == 0 && h[k][i].hit.geomID != RTK_INVALID_GEOMETRY_ID;
+            }
+            for (int i = 0; k == 0 && i < 100; i++) {
+                pq[i] = (rtk_point_query){.x = 3.0 * MANY_X * rng_float(&g), .y = 2.0 * rng_float(&g) - 1.0,
+                                          .z = 3.0 * MANY_Z * rng_float(&g), .radius = 4.0};
+                assert_int_equal(rtk_closest_point(s, &pq[i], &ph[i]), RTK_OK);
+            }
+            rtk_scene_release(s);
+        }
+        /* most rays hit a ball: the comparison means something */
+        if (hits <= MANY_RAYS / 2)
+            fail_msg("%s: %d of %d rays hit", names[b], hits, MANY_RAYS);
+        for (int i = 0; i < MANY_RAYS; i++) {
+            if (!same_hit(&h[0][i], &h[1][i]))
+                fail_msg("%s: ray %d: %.9g geom %u inst %u (8 wide) against %.9g geom %u inst %u (4 wide)", names[b], i,
+                         (double)h[0][i].ray.tfar, h[0][i].hit.geomID, h[0][i].hit.instID, (double)h[1][i].ray.tfar,
+                         h[1][i].hit.geomID, h[1][i].hit.instID);
+            assert_int_equal(occ[0][i], h[0][i].hit.geomID != RTK_INVALID_GEOMETRY_ID);
+            assert_int_equal(occ[1][i], occ[0][i]);
+        }
+        for (int i = 0; i < 100; i++) {
+            /* each instance near enough alone: the point into the ball's
+             * space (the transform is a rotation times a uniform scale sc,
+             * so its inverse is its transpose over sc^2) */
+            double best = INFINITY;
+            const double p[3] = {pq[i].x, pq[i].y, pq[i].z};
+            for (int j = 0; j < MANY_X * MANY_Z; j++) {
+                const double *m = xf[j], sc = xf[j][12];
+                const double d[3] = {p[0] - m[3], p[1] - m[7], p[2] - m[11]};
+                if (sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]) > pq[i].radius + 1.2 * sc)
+                    continue;
+                rtk_point_query lq = {.radius = pq[i].radius / sc};
+                lq.x = (m[0] * d[0] + m[4] * d[1] + m[8] * d[2]) / (sc * sc);
+                lq.y = (m[1] * d[0] + m[5] * d[1] + m[9] * d[2]) / (sc * sc);
+                lq.z = (m[2] * d[0] + m[6] * d[1] + m[10] * d[2]) / (sc * sc);
+                rtk_point_hit lh;
+                assert_int_equal(rtk_closest_point(child, &lq, &lh), RTK_OK);
+                if (lh.distance * sc < best)
+                    best = lh.distance * sc;
+            }
+            /* (to within the rounding of the instances' float transforms
+             * and inverses at coordinates up to 300: a few 1e-5) */
+            if (!(isinf(best) ? isinf(ph[i].distance) : fabs(ph[i].distance - best) <= 2e-4))
+                fail_msg("%s: point %d: %.9g, each instance alone %.9g", names[b], i, ph[i].distance, best);
+        }
+        rtk_scene_release(child);
+        rtk_device_release(dev);
+    }
+    for (int k = 0; k < 2; k++) {
+        free(h[k]);
+        free(occ[k]);
+    }
+    free(xf);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -853,6 +999,7 @@ int main(void)
         cmocka_unit_test(instance_errors),
         cmocka_unit_test(dynamic_scene),
         cmocka_unit_test(merged_vs_each_object),
+        cmocka_unit_test(many_instances),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

@@ -220,8 +220,9 @@ struct rtk_accel {
     rtk_intersect1_fn inline_intersect1;
     rtk_occluded1_fn inline_occluded1;
     /* bvh4.object: some tree was opened into the top level (objects.c,
-     * open_objects) */
-    uint32_t objects_opened;
+     * open_objects); the width of its nodes: 4 (rtk_bvh4_node) or 8
+     * (rtk_bvh8_node, for the merged traversal of bvh8.triangle4) */
+    uint32_t objects_opened, objects_width;
     /* bvh4.triangle4mb: the trees of the time segments, else NULL.  Each
      * is an accel of its own (root, nodes: rtk_bvh4mb_node, trisi, and
      * mb_geoms, segment its time segment), sharing the top accel's

@@ -42,7 +42,9 @@ typedef struct obj_ref {
 
 typedef struct obj_build {
     obj_ref *refs;
-    rtk_bvh4_node *nodes;
+    void *nodes;      /* rtk_bvh4_node, or rtk_bvh8_node for width 8 */
+    size_t node_size;
+    int width;        /* 4, or 8 (top_width) */
     uint64_t node_count, node_cap;
     rtk_object_item *items;    /* in leaf order, object_count of them */
     uint64_t object_count;
@@ -192,7 +194,7 @@ static int64_t new_node(obj_build *b)
 {
     if (b->node_count == b->node_cap) {
         const uint64_t cap = b->node_cap ? 2 * b->node_cap : 16;
-        void *p = mem_realloc(b->mem, b->nodes, cap * sizeof *b->nodes);
+        void *p = mem_realloc(b->mem, b->nodes, cap * b->node_size);
         if (!p)
             return -1;
         b->nodes = p;
@@ -246,10 +248,10 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
         *ref = rtk_leaf_ref((uint32_t)first, (uint32_t)n);
         return 1;
     }
-    /* up to four children: split the range, then its largest parts */
-    size_t start[4] = {0}, size[4] = {n};
+    /* up to `width` children: split the range, then its largest parts */
+    size_t start[8] = {0}, size[8] = {n};
     int nc = 1;
-    while (nc < 4) {
+    while (nc < b->width) {
         int widest = -1;
         for (int c = 0; c < nc; c++)
             if (size[c] > OBJ_LEAF_MAX && (widest < 0 || size[c] > size[widest]))
@@ -266,8 +268,8 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
     if (index < 0)
         return 0;
     b->sah += half_area_d(lo, hi);
-    box4 box[4];
-    uint32_t child[4];
+    box4 box[8];
+    uint32_t child[8];
     for (int c = 0; c < nc; c++) {
         float clo4[3], chi4[3];
         if (!build_range(b, r + start[c], size[c], depth + 1, &child[c], clo4, chi4))
@@ -275,7 +277,7 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
         box[c].lo = vf4_load((const float[4]){clo4[0], clo4[1], clo4[2], 0.0f});
         box[c].hi = vf4_load((const float[4]){chi4[0], chi4[1], chi4[2], 0.0f});
     }
-    const build bd = {.width = 4, .node_size = sizeof(rtk_bvh4_node)};
+    const build bd = {.width = b->width, .node_size = b->node_size};
     build_store_node(&bd, b->nodes, (uint64_t)index, box, child, nc);
     *ref = (uint32_t)index;
     return 1;
@@ -292,21 +294,24 @@ static int finite_box(const rtk_build_object *o)
 /* The layouts with a merged two-level traversal (traverse_objects.h), by
  * their single-ray kernel; the width of their nodes where the top level
  * may open their trees (open_objects: not the robust layouts, whose
- * traversal pads every box by the tree's extent). */
+ * traversal pads every box by the tree's extent); the width of the top
+ * level's own nodes that their merged traversal walks with the layout's
+ * node test (8: rtk_bvh8_node, traverse_objects.h), else 4. */
 static const struct {
     rtk_intersect1_fn kernel, merged;
     rtk_occluded1_fn merged_occluded;
-    int open_width;
+    int open_width, top_width;
 } merged_layouts[] = {
-    {RTK_SYM(rtk_bvh4_intersect1), RTK_SYM(rtk_bvh4_objects_intersect1), RTK_SYM(rtk_bvh4_objects_occluded1), 4},
+    {RTK_SYM(rtk_bvh4_intersect1), RTK_SYM(rtk_bvh4_objects_intersect1), RTK_SYM(rtk_bvh4_objects_occluded1), 4, 4},
 #ifdef RTK_SIMD_HAS_8
-    {RTK_SYM(rtk_bvh8_intersect1), RTK_SYM(rtk_bvh8_objects_intersect1), RTK_SYM(rtk_bvh8_objects_occluded1), 8},
-    {RTK_SYM(rtk_bvh8v_intersect1), RTK_SYM(rtk_bvh8v_objects_intersect1), RTK_SYM(rtk_bvh8v_objects_occluded1), 0},
+    {RTK_SYM(rtk_bvh8_intersect1), RTK_SYM(rtk_bvh8_objects_intersect1), RTK_SYM(rtk_bvh8_objects_occluded1), 8, 8},
+    {RTK_SYM(rtk_bvh8v_intersect1), RTK_SYM(rtk_bvh8v_objects_intersect1), RTK_SYM(rtk_bvh8v_objects_occluded1), 0,
+     4},
 #endif
-    {RTK_SYM(rtk_bvh4i_intersect1), RTK_SYM(rtk_bvh4i_objects_intersect1), RTK_SYM(rtk_bvh4i_objects_occluded1), 4},
-    {RTK_SYM(rtk_bvh4v_intersect1), RTK_SYM(rtk_bvh4v_objects_intersect1), RTK_SYM(rtk_bvh4v_objects_occluded1), 0},
+    {RTK_SYM(rtk_bvh4i_intersect1), RTK_SYM(rtk_bvh4i_objects_intersect1), RTK_SYM(rtk_bvh4i_objects_occluded1), 4, 4},
+    {RTK_SYM(rtk_bvh4v_intersect1), RTK_SYM(rtk_bvh4v_objects_intersect1), RTK_SYM(rtk_bvh4v_objects_occluded1), 0, 4},
     {RTK_SYM(rtk_bvh4ir_intersect1), RTK_SYM(rtk_bvh4ir_objects_intersect1), RTK_SYM(rtk_bvh4ir_objects_occluded1),
-     0},
+     0, 4},
 };
 #define MERGED_LAYOUTS ((int)(sizeof merged_layouts / sizeof merged_layouts[0]))
 
@@ -349,6 +354,16 @@ static int pick_merged(const rtk_build_input *in, const obj_ref *r, size_t n)
  * about 0.35 ms of each frame's commit. */
 #define OBJ_OPEN_PER_OBJECT 64
 #define OBJ_OPEN_MAX 4096
+
+/* From this many references on, the top level's nodes are 8 wide where
+ * the merged traversal has an 8-wide node test (merged_layouts.top_width,
+ * traverse_objects.h).  rtktool bench, avx2, 1 thread, passes in turns
+ * against the 4-wide top level: the forest of 10,000 instances 6% faster,
+ * of 10^6 9%; but 16 instances of San Miguel 8% slower and its dynamic
+ * scene (about 1,000 references once opened) 9%, where the top level is
+ * two levels deep either way and the wider node test costs more than it
+ * saves (callgrind: +134 instructions a ray through the instances). */
+#define OBJ_WIDE_REFS 4096
 
 static int openable(const rtk_build_input *in, const obj_ref *r, int layout)
 {
@@ -511,13 +526,18 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     memset(b.slot, 0xff, (in->object_count ? in->object_count : 1) * sizeof *b.slot);
     if (merged >= 0 && merged_layouts[merged].open_width && opened_room)
         n = open_objects(in, b.refs, n, cap, merged);
+    /* 8-wide nodes for a large top level whose merged traversal walks them
+     * (OBJ_WIDE_REFS); 4-wide where packets of user primitives
+     * (objects_packet) or another layout's traversal read them */
+    b.width = merged >= 0 && !packets && n >= OBJ_WIDE_REFS ? merged_layouts[merged].top_width : 4;
+    b.node_size = b.width == 8 ? sizeof(rtk_bvh8_node) : sizeof(rtk_bvh4_node);
     float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     accel->layout = RTK_LAYOUT_BVH4_OBJECT;
     accel->root = RTK_BVH4_EMPTY;
     int built = !n || build_range(&b, b.refs, n, 0, &accel->root, lo, hi);
     if (built && b.node_count && b.node_count < b.node_cap) {
         /* (the doubling's room given back) */
-        void *fit = mem_realloc(b.mem, b.nodes, b.node_count * sizeof *b.nodes);
+        void *fit = mem_realloc(b.mem, b.nodes, b.node_count * b.node_size);
         if (fit)
             b.nodes = fit;
     }
@@ -550,13 +570,27 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     out->prims_skipped = in->object_count - kept;
     out->prims_degenerate = 0;
     out->nodes = b.node_count;
+    accel->objects_width = (uint32_t)b.width;
+    const build view = {.width = b.width, .node_size = b.node_size};
     uint64_t leaves = 0;
-    for (uint64_t i = 0; i < b.node_count; i++)
-        for (int c = 0; c < 4; c++)
-            leaves += b.nodes[i].child[c] != RTK_BVH4_EMPTY && (b.nodes[i].child[c] & RTK_BVH4_LEAF_BIT);
+    for (uint64_t i = 0; i < b.node_count; i++) {
+        const node_view v = view_node(&view, b.nodes, i);
+        for (int c = 0; c < b.width; c++) {
+            leaves += v.child[c] != RTK_BVH4_EMPTY && (v.child[c] & RTK_BVH4_LEAF_BIT);
+            /* what the traversal prefetches of each child: its node, or its
+             * leaf's items (where the distance fits) */
+            const uintptr_t at = (uintptr_t)b.nodes + i * b.node_size;
+            const uintptr_t to = v.child[c] == RTK_BVH4_EMPTY ? at
+                                 : v.child[c] & RTK_BVH4_LEAF_BIT
+                                     ? (uintptr_t)(b.items + rtk_leaf_first(v.child[c]))
+                                     : (uintptr_t)b.nodes + (uintptr_t)v.child[c] * b.node_size;
+            const intptr_t d = (intptr_t)(to - at) / 16;
+            v.prefetch[c] = d == (int32_t)d ? (int32_t)d : 0;
+        }
+    }
     out->leaves = n && !b.node_count ? 1 : leaves;
     out->depth = b.max_depth;
-    out->bytes = b.node_count * sizeof(rtk_bvh4_node) + b.object_count * sizeof *b.items +
+    out->bytes = b.node_count * b.node_size + b.object_count * sizeof *b.items +
                  b.record_count * sizeof *b.objects + b.xfm_count * sizeof *b.xfms;
     const double root_area = half_area_d(lo, hi);
     out->sah_cost = root_area > 0.0 ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
@@ -632,9 +666,10 @@ static void objects_packet(const rtk_accel *accel, const int32_t *active, void *
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
-    if (accel->objects_opened) {
-        /* trees opened into the top level (so no user primitive that takes
-         * packets whole): each lane through the merged traversal */
+    if (accel->objects_opened || accel->objects_width != 4) {
+        /* trees opened into the top level, or 8-wide nodes (so no user
+         * primitive that takes packets whole): each lane through the merged
+         * traversal */
         for (uint32_t i = 0; i < k; i++) {
             if (!active[i])
                 continue;

@@ -443,7 +443,16 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
 static void walk_tri4(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 0, LEAF_TRI4, NULL); }
 static void walk_tri4v(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 0, LEAF_TRI4V, NULL); }
 static void walk_tri4i(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 0, LEAF_TRI4I, NULL); }
-static void walk_objects(const rtk_accel *a, pq_level *l) { walk(a, a, l, 4, 1, LEAF_TRI4, NULL); }
+static void walk_objects(const rtk_accel *a, pq_level *l)
+{
+#ifdef RTK_SIMD_HAS_8
+    if (a->objects_width == 8) {
+        walk(a, a, l, 8, 1, LEAF_TRI4, NULL);
+        return;
+    }
+#endif
+    walk(a, a, l, 4, 1, LEAF_TRI4, NULL);
+}
 #ifdef RTK_SIMD_HAS_8
 static void walk8_tri4(const rtk_accel *a, pq_level *l) { walk(a, a, l, 8, 0, LEAF_TRI4, NULL); }
 static void walk8_tri4v(const rtk_accel *a, pq_level *l) { walk(a, a, l, 8, 0, LEAF_TRI4V, NULL); }
