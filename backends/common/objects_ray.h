@@ -29,21 +29,29 @@ typedef struct obj_ray {
 /* x, y and z at once in lanes 0..2 (lane 3 holds tnear or time and is not
  * used): one division for the three reciprocals instead of three, as the
  * triangle kernels' ray_pre_init does. */
+/* What both top-level set-ups broadcast: the origin, the reciprocals and
+ * the far planes' reciprocals in o, in and inf (lanes 0..2); returns the
+ * direction's sign bits (x, y, z in bits 0..2). */
+static inline unsigned obj_ray_scalars(const rtk_ray *r, float o[4], float in[4], float inf[4])
+{
+    const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);
+    /* as the triangle kernels do: no 0 * inf NaN in a slab test, and the
+     * reciprocals with the direction's signs (-0.0 included) */
+    const vfloat4 inv = vf4_rcp_clamped(dir, 1e-18f);
+    vf4_storeu(o, org);
+    vf4_storeu(in, inv);
+    vf4_storeu(inf, vf4_mul(inv, vf4_set1(OBJ_FAR_SCALE)));
+    return (unsigned)vf4_signs(dir) & 7;
+}
+
 static inline void obj_ray_init(obj_ray *p, const rtk_ray *r)
 {
     static const size_t lower[3] = {offsetof(rtk_bvh4_node, lower_x), offsetof(rtk_bvh4_node, lower_y),
                                     offsetof(rtk_bvh4_node, lower_z)};
     static const size_t upper[3] = {offsetof(rtk_bvh4_node, upper_x), offsetof(rtk_bvh4_node, upper_y),
                                     offsetof(rtk_bvh4_node, upper_z)};
-    const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);
-    /* as the triangle kernels do: no 0 * inf NaN in a slab test, and the
-     * reciprocals with the direction's signs (-0.0 included) */
-    const vfloat4 inv = vf4_rcp_clamped(dir, 1e-18f);
     _Alignas(16) float o[4], in[4], inf[4];
-    vf4_store(o, org);
-    vf4_store(in, inv);
-    vf4_store(inf, vf4_mul(inv, vf4_set1(OBJ_FAR_SCALE)));
-    const unsigned neg = (unsigned)vf4_signs(dir);
+    const unsigned neg = obj_ray_scalars(r, o, in, inf);
     for (int k = 0; k < 3; k++) {
         p->org[k] = vf4_set1(o[k]);
         p->inv[k] = vf4_set1(in[k]);

@@ -242,13 +242,8 @@ typedef struct top_ray {
 
 static inline __attribute__((always_inline)) void top_ray_init(top_ray *t, const rtk_ray *r)
 {
-    const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);
-    const vfloat4 inv = vf4_rcp_clamped(dir, 1e-18f);
     _Alignas(16) float o[4], in[4], inf[4];
-    vf4_store(o, org);
-    vf4_store(in, inv);
-    vf4_store(inf, vf4_mul(inv, vf4_set1(OBJ_FAR_SCALE)));
-    const unsigned neg = (unsigned)vf4_signs(dir) & 7;
+    const unsigned neg = obj_ray_scalars(r, o, in, inf);
     for (int k = 0; k < 3; k++) {
         t->org[k] = vn_set1(o[k]);
         t->inv[k] = vn_set1(in[k]);

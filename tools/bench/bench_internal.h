@@ -160,6 +160,14 @@ void print_row_label(const char *label);
 void print_cell(double v, double ref, int is_ref);
 void print_header(const ctx *c);
 void twist(const rtk_mesh *m, float t, float *dst);
+/* The path tracer of the two-level and forest sections: diffuse, the
+ * bench's --render size and samples, single rays, on `threads` threads,
+ * the framing camera of lo/hi; and one pass of it through t: its rate in
+ * Mrays/s (-1 with a message when it cannot render), with the share of
+ * camera rays that hit in *hit_share (unless NULL). */
+void diffuse_settings(render_settings *rs, const bench_opts *o, const float lo[3], const float hi[3], int threads);
+double diffuse_pass(const render_tracer *t, const render_settings *rs, float *rgb, double *hit_share, char *err,
+                    size_t err_size);
 void vertices_commit(scene *sc);
 int cmp_double(const void *x, const void *y);
 

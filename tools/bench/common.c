@@ -798,3 +798,23 @@ int cmp_double(const void *x, const void *y)
     const double a = *(const double *)x, b = *(const double *)y;
     return a < b ? -1 : a > b;
 }
+
+void diffuse_settings(render_settings *rs, const bench_opts *o, const float lo[3], const float hi[3], int threads)
+{
+    render_defaults(rs, lo, hi, o->render_w, o->render_h);
+    rs->mode = RENDER_DIFFUSE;
+    rs->spp = o->render_spp;
+    rs->threads = threads;
+    rs->api = 1;
+}
+
+double diffuse_pass(const render_tracer *t, const render_settings *rs, float *rgb, double *hit_share, char *err,
+                    size_t err_size)
+{
+    render_stats st;
+    if (render_image(t, rs, rgb, &st, err, err_size))
+        return -1;
+    if (hit_share)
+        *hit_share = st.primary ? (double)st.primary_hits / (double)st.primary : 0;
+    return (double)render_stats_rays(&st) / st.seconds * 1e-6;
+}

@@ -237,11 +237,7 @@ static double forest_rate(const bench_opts *o, scene *sc, const forest *f, int t
                           char *err, size_t err_size)
 {
     render_settings rs;
-    render_defaults(&rs, f->lo, f->hi, o->render_w, o->render_h);
-    rs.mode = RENDER_DIFFUSE;
-    rs.spp = o->render_spp;
-    rs.threads = threads;
-    rs.api = 1;
+    diffuse_settings(&rs, o, f->lo, f->hi, threads);
     /* at the forest's south edge, at three times the tallest instance's
      * height, looking across to its middle */
     const float eye[3] = {0.1f * f->half, 3.0f * f->hi[1], f->half}, at[3] = {0, 0, 0}, up[3] = {0, 1, 0};
@@ -249,11 +245,7 @@ static double forest_rate(const bench_opts *o, scene *sc, const forest *f, int t
         return -1;
     forest_tracer ft = {scene_tracer(sc, 0), f};
     const render_tracer t = {.scene = &ft, .intersect1 = forest_intersect1, .occluded1 = forest_occluded1};
-    render_stats st;
-    if (render_image(&t, &rs, rgb, &st, err, err_size))
-        return -1;
-    *hit_share = st.primary ? (double)st.primary_hits / (double)st.primary : 0;
-    return (double)render_stats_rays(&st) / st.seconds * 1e-6;
+    return diffuse_pass(&t, &rs, rgb, hit_share, err, err_size);
 }
 
 int section_forest(ctx *c, char *err, size_t err_size)

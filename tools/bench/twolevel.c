@@ -158,16 +158,9 @@ static double render_pass(const bench_opts *o, scene *sc, const float lo[3], con
                           size_t err_size)
 {
     render_settings rs;
-    render_defaults(&rs, lo, hi, o->render_w, o->render_h);
-    rs.mode = RENDER_DIFFUSE;
-    rs.spp = o->render_spp;
-    rs.threads = 1;
-    rs.api = 1;
+    diffuse_settings(&rs, o, lo, hi, 1);
     const render_tracer t = scene_tracer(sc, 0);
-    render_stats st;
-    if (render_image(&t, &rs, rgb, &st, err, err_size))
-        return -1;
-    return (double)render_stats_rays(&st) / st.seconds * 1e-6;
+    return diffuse_pass(&t, &rs, rgb, NULL, err, err_size);
 }
 
 int section_twolevel(ctx *c, char *err, size_t err_size)
