@@ -291,6 +291,12 @@ static int finite_box(const rtk_build_object *o)
     return 1;
 }
 
+/* Whether the top level keeps object o: a finite box, a tree and its kernels. */
+static int kept_object(const rtk_build_object *o)
+{
+    return finite_box(o) && o->accel && o->intersect1 && o->occluded1;
+}
+
 /* The layouts with a merged two-level traversal (traverse_objects.h), by
  * their single-ray kernel; the width of their nodes where the top level
  * may open their trees (open_objects: not the robust layouts, whose
@@ -461,7 +467,7 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     int packets = 0;
     for (uint32_t i = 0; i < in->object_count; i++) {
         const rtk_build_object *o = &in->objects[i];
-        if (finite_box(o) && o->accel && o->intersect1 && o->occluded1) {
+        if (kept_object(o)) {
             kept++;
             packets |= o->intersect_packet != NULL;
             opened_room += (o->flags & RTK_BUILD_OBJECT_IDENTITY) ? OBJ_OPEN_PER_OBJECT : 0;
@@ -482,7 +488,7 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     if (b.refs)
         for (uint32_t i = 0; i < in->object_count; i++) {
             const rtk_build_object *o = &in->objects[i];
-            if (!finite_box(o) || !o->accel || !o->intersect1 || !o->occluded1)
+            if (!kept_object(o))
                 continue;
             obj_ref *r = &b.refs[n++];
             for (int k = 0; k < 3; k++) {
@@ -578,14 +584,10 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
         for (int c = 0; c < b.width; c++) {
             leaves += v.child[c] != RTK_BVH4_EMPTY && (v.child[c] & RTK_BVH4_LEAF_BIT);
             /* what the traversal prefetches of each child: its node, or its
-             * leaf's items (where the distance fits) */
-            const uintptr_t at = (uintptr_t)b.nodes + i * b.node_size;
-            const uintptr_t to = v.child[c] == RTK_BVH4_EMPTY ? at
-                                 : v.child[c] & RTK_BVH4_LEAF_BIT
-                                     ? (uintptr_t)(b.items + rtk_leaf_first(v.child[c]))
-                                     : (uintptr_t)b.nodes + (uintptr_t)v.child[c] * b.node_size;
-            const intptr_t d = (intptr_t)(to - at) / 16;
-            v.prefetch[c] = d == (int32_t)d ? (int32_t)d : 0;
+             * leaf's items */
+            v.prefetch[c] = rtk_prefetch_distance((uintptr_t)b.nodes + i * b.node_size, v.child[c],
+                                                  (uintptr_t)b.nodes, b.node_size, (uintptr_t)b.items,
+                                                  sizeof *b.items);
         }
     }
     out->leaves = n && !b.node_count ? 1 : leaves;

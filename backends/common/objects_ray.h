@@ -26,12 +26,12 @@ typedef struct obj_ray {
 /* 1 + 2 * gamma(3): the far distances no smaller than the exact ones. */
 #define OBJ_FAR_SCALE (1.0f + 2.0f * (3.0f * 0x1p-24f) / (1.0f - 3.0f * 0x1p-24f))
 
-/* x, y and z at once in lanes 0..2 (lane 3 holds tnear or time and is not
- * used): one division for the three reciprocals instead of three, as the
- * triangle kernels' ray_pre_init does. */
-/* What both top-level set-ups broadcast: the origin, the reciprocals and
- * the far planes' reciprocals in o, in and inf (lanes 0..2); returns the
- * direction's sign bits (x, y, z in bits 0..2). */
+/* What both top-level set-ups (obj_ray_init here, the 8-wide top_ray_init
+ * of traverse_objects.h) broadcast: the origin, the reciprocals and the far
+ * planes' reciprocals in o, in and inf; returns the direction's sign bits
+ * (x, y, z in bits 0..2).  x, y and z at once in lanes 0..2 (lane 3 holds
+ * tnear or time and is not used): one division for the three reciprocals
+ * instead of three, as the triangle kernels' ray_pre_init does. */
 static inline unsigned obj_ray_scalars(const rtk_ray *r, float o[4], float in[4], float inf[4])
 {
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);

@@ -224,17 +224,17 @@ static inline __attribute__((always_inline)) int objects_leaf_any(const rtk_acce
 
 #if RTK_BVHN == 8 && !RTK_ROBUST
 /* A top level of 8-wide nodes (objects.c builds it so for the trees of
- * this layout, objects_width 8): walked with this layout's own node test,
- * sorting and prefetch, from the world ray's set-up, which is made first
- * (the objects' trees in world space share it), as Embree walks its
- * two-level tree with its ordinary 8-wide kernel.  The 4-wide top level
- * cost a ray in a forest of 10,000 instances a quarter of its time (perf
- * on rtktool bench --only forest: the scalar-sorted 4-wide tests and their
- * node loads). */
-/* The ray for the top level's 8-wide boxes: the 4-wide top level's set-up
- * (obj_ray_init, one division, planes picked by the direction's signs),
- * broadcast 8 wide; the world's full set-up is made only if a world-space
- * tree is entered (an instance's ray has its own). */
+ * this layout from OBJ_WIDE_REFS references on, objects_width 8): walked
+ * with 8-wide box tests and this layout's sorted pushes and prefetch, as
+ * Embree walks its two-level tree with its ordinary 8-wide kernel.  The
+ * 4-wide top level cost a ray in a forest of 10,000 instances a quarter of
+ * its time (perf on rtktool bench --only forest: the scalar-sorted 4-wide
+ * tests and their node loads).
+ *
+ * The ray for those boxes: the 4-wide top level's set-up (obj_ray_scalars:
+ * one division, planes picked by the direction's signs), broadcast 8 wide.
+ * The world's full set-up (ray_pre_init) is made only if a world-space tree
+ * is entered (an instance's ray has its own). */
 typedef struct top_ray {
     vnode org[3], inv[3], inv_far[3];
     size_t near_off[3], far_off[3];
@@ -274,7 +274,7 @@ static void objects_intersect_top8(const rtk_accel *accel, rtk_rayhit *rh, const
     top_ray_init(&tr, &rh->ray);
     const float tnear = rh->ray.tnear;
     float tfar = rh->ray.tfar;
-    const vnode ntnear = vn_set1(tnear + 0.0f); /* -0.0 -> +0.0 for node_intersect */
+    const vnode ntnear = vn_set1(tnear + 0.0f); /* (-0.0 -> +0.0, as the other walks) */
     const node_t *nodes = BVHN_NODES(accel);
     stack_entry stack[RTK_BVHN_STACK_SIZE(8)];
     int sp = 0;
