@@ -141,6 +141,9 @@ int scene_build(scene *sc, lib *l, const rtk_mesh *m, const float *padded, int m
 void scene_release(scene *sc);
 render_tracer scene_tracer(scene *sc, int coherent);
 float rnd(void);
+/* rnd's generator over the caller's own state (a sequence that does not
+ * depend on what other sections drew) */
+float rnd_from(uint64_t *state);
 void make_primary(const rtk_mesh *m, int w, int h, rayset *set);
 void tri_normal(const rtk_mesh *m, uint32_t t, double n[3]);
 double trace_pass(const render_tracer *t, const rayset *set, int api, int occluded, int threads,
@@ -160,6 +163,10 @@ void print_row_label(const char *label);
 void print_cell(double v, double ref, int is_ref);
 void print_header(const ctx *c);
 void twist(const rtk_mesh *m, float t, float *dst);
+/* An instance of child's scene placed by xfm (row-major 3x4), attached to
+ * Embree's scene es or rtk's rs, whichever library l is; non-zero when one
+ * of rtk's calls failed (its device says why). */
+int attach_instance(const lib *l, RTCScene es, rtk_scene rs, const scene *child, const float xfm[12]);
 /* The path tracer of the two-level and forest sections: diffuse, the
  * bench's --render size and samples, single rays, on `threads` threads,
  * the framing camera of lo/hi; and one pass of it through t: its rate in

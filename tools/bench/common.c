@@ -396,12 +396,17 @@ const int apis[NAPIS] = {1, 4, 8, 16, RENDER_API_STREAM};
 
 static uint64_t xs_state = 0x9e3779b97f4a7c15ull;
 
+float rnd_from(uint64_t *state)
+{
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    return (float)(*state >> 40) * 0x1p-24f;
+}
+
 float rnd(void)
 {
-    xs_state ^= xs_state << 13;
-    xs_state ^= xs_state >> 7;
-    xs_state ^= xs_state << 17;
-    return (float)(xs_state >> 40) * 0x1p-24f;
+    return rnd_from(&xs_state);
 }
 
 /* Camera rays in 4x4 pixel blocks, ordered so that every 4 consecutive
@@ -797,6 +802,26 @@ int cmp_double(const void *x, const void *y)
 {
     const double a = *(const double *)x, b = *(const double *)y;
     return a < b ? -1 : a > b;
+}
+
+int attach_instance(const lib *l, RTCScene es, rtk_scene rs, const scene *child, const float xfm[12])
+{
+    if (l->embree) {
+        RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_INSTANCE);
+        rtcSetGeometryInstancedScene(g, child->escene);
+        rtcSetGeometryTransform(g, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, xfm);
+        rtcCommitGeometry(g);
+        rtcAttachGeometry(es, g);
+        rtcReleaseGeometry(g);
+        return 0;
+    }
+    rtk_geometry g = NULL;
+    const int bad = rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_INSTANCE, &g) ||
+                    rtk_geometry_set_instanced_scene(g, child->rscene) ||
+                    rtk_geometry_set_transform(g, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xfm) || rtk_geometry_commit(g) ||
+                    rtk_scene_attach_geometry(rs, g, NULL);
+    rtk_geometry_release(g);
+    return bad;
 }
 
 void diffuse_settings(render_settings *rs, const bench_opts *o, const float lo[3], const float hi[3], int threads)

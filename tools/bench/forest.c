@@ -55,16 +55,6 @@ static void forest_free(forest *f)
     memset(f, 0, sizeof *f);
 }
 
-/* A generator of its own, so that the forest does not depend on what the
- * other sections drew from rnd(). */
-static float frand(uint64_t *s)
-{
-    *s ^= *s << 13;
-    *s ^= *s >> 7;
-    *s ^= *s << 17;
-    return (float)(*s >> 40) * 0x1p-24f;
-}
-
 /* N instances of the kinds whose bounds are klo/khi: each kind scaled to
  * the footprint `foot` (its larger horizontal extent), its bottom centre
  * put at the instance's place. */
@@ -81,14 +71,14 @@ static int forest_make(forest *f, size_t n, const float klo[KINDS][3], const flo
     }
     /* one instance per (1.5 foot)^2 of ground, on average */
     f->half = 0.5f * 1.5f * foot * sqrtf((float)n);
-    uint64_t s = 0x2545f4914f6cdd1dull ^ (uint64_t)n;
+    uint64_t s = 0x2545f4914f6cdd1dull ^ (uint64_t)n; /* (its own sequence: rnd_from) */
     float top = 0;
     for (size_t i = 0; i < n; i++) {
         const int k = (int)(i % KINDS);
         const float ext = fmaxf(khi[k][0] - klo[k][0], khi[k][2] - klo[k][2]);
-        const float scale = (ext > 0 ? foot / ext : 1.0f) * (0.6f + 0.8f * frand(&s));
-        const float a = 6.2831853f * frand(&s), c = cosf(a), sn = sinf(a);
-        const float px = f->half * (2.0f * frand(&s) - 1.0f), pz = f->half * (2.0f * frand(&s) - 1.0f);
+        const float scale = (ext > 0 ? foot / ext : 1.0f) * (0.6f + 0.8f * rnd_from(&s));
+        const float a = 6.2831853f * rnd_from(&s), c = cosf(a), sn = sinf(a);
+        const float px = f->half * (2.0f * rnd_from(&s) - 1.0f), pz = f->half * (2.0f * rnd_from(&s) - 1.0f);
         /* world = p + scale * R (x - b), b the kind's bottom centre */
         const float b[3] = {0.5f * (klo[k][0] + khi[k][0]), klo[k][1], 0.5f * (klo[k][2] + khi[k][2])};
         const float r[9] = {scale * c, 0, scale * sn, 0, scale, 0, -scale * sn, 0, scale * c};
@@ -159,14 +149,8 @@ static int forest_scene_build(forest_scene *fs, lib *l, const forest *f, scene *
     double t1;
     if (l->embree) {
         RTCScene s = rtcNewScene(l->edev);
-        for (size_t i = 0; i < f->n; i++) {
-            RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_INSTANCE);
-            rtcSetGeometryInstancedScene(g, kinds[f->kind[i]].escene);
-            rtcSetGeometryTransform(g, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, f->xfm[i]);
-            rtcCommitGeometry(g);
-            rtcAttachGeometry(s, g);
-            rtcReleaseGeometry(g);
-        }
+        for (size_t i = 0; i < f->n; i++)
+            attach_instance(l, s, NULL, &kinds[f->kind[i]], f->xfm[i]);
         RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_TRIANGLE);
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, f->ground, 0, 12, 4);
         rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, f->ground_idx, 0, 12, 2);
@@ -180,14 +164,8 @@ static int forest_scene_build(forest_scene *fs, lib *l, const forest *f, scene *
     } else {
         rtk_scene s = NULL;
         int bad = rtk_scene_new(l->rdev, &s) != RTK_OK;
-        for (size_t i = 0; i < f->n && !bad; i++) {
-            rtk_geometry g = NULL;
-            bad = rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_INSTANCE, &g) ||
-                  rtk_geometry_set_instanced_scene(g, kinds[f->kind[i]].rscene) ||
-                  rtk_geometry_set_transform(g, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, f->xfm[i]) ||
-                  rtk_geometry_commit(g) || rtk_scene_attach_geometry(s, g, NULL);
-            rtk_geometry_release(g);
-        }
+        for (size_t i = 0; i < f->n && !bad; i++)
+            bad = attach_instance(l, NULL, s, &kinds[f->kind[i]], f->xfm[i]);
         rtk_geometry g = NULL;
         bad = bad || rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_TRIANGLE, &g) ||
               rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, f->ground, 0, 12, 4) ||

@@ -26,12 +26,7 @@ static int grid_scene(scene *sc, lib *l, const scene *child, float spacing, char
         RTCScene s = rtcNewScene(l->edev);
         for (int i = 0; i < GRID * GRID; i++) {
             const float x[12] = {1, 0, 0, spacing * (float)(i % GRID), 0, 1, 0, 0, 0, 0, 1, -spacing * (float)(i / GRID)};
-            RTCGeometry g = rtcNewGeometry(l->edev, RTC_GEOMETRY_TYPE_INSTANCE);
-            rtcSetGeometryInstancedScene(g, child->escene);
-            rtcSetGeometryTransform(g, 0, RTC_FORMAT_FLOAT3X4_ROW_MAJOR, x);
-            rtcCommitGeometry(g);
-            rtcAttachGeometry(s, g);
-            rtcReleaseGeometry(g);
+            attach_instance(l, s, NULL, child, x);
         }
         return embree_commit(sc, s, t0, "the instances", err, err_size);
     }
@@ -39,12 +34,7 @@ static int grid_scene(scene *sc, lib *l, const scene *child, float spacing, char
     int bad = rtk_scene_new(l->rdev, &s) != RTK_OK;
     for (int i = 0; i < GRID * GRID && !bad; i++) {
         const float x[12] = {1, 0, 0, spacing * (float)(i % GRID), 0, 1, 0, 0, 0, 0, 1, -spacing * (float)(i / GRID)};
-        rtk_geometry g = NULL;
-        bad = rtk_geometry_new(l->rdev, RTK_GEOMETRY_TYPE_INSTANCE, &g) ||
-              rtk_geometry_set_instanced_scene(g, child->rscene) ||
-              rtk_geometry_set_transform(g, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, x) || rtk_geometry_commit(g) ||
-              rtk_scene_attach_geometry(s, g, NULL);
-        rtk_geometry_release(g);
+        bad = attach_instance(l, NULL, s, child, x);
     }
     return rtk_commit(sc, s, bad, t0, err, err_size);
 }
