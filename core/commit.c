@@ -495,15 +495,17 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     /* geometries with motion blur come in groups of one time step count */
     const unsigned steps = n ? s->geoms[in_geoms[0].geom_id]->time_steps : 1;
     if (steps > 1) {
-        /* the motion builder of the quality (or the one named builder=;
-         * layout= names layouts of static triangles) */
+        /* the motion builder of the quality (or the one named builder=),
+         * into the layout motion_layout= names (layout= names layouts of
+         * static triangles) */
+        const char *want_mb = dev->config.motion_layout[0] ? dev->config.motion_layout : NULL;
         if (!RTK_DESC_HAS(bk, motion_builders) || !bk->motion_builders[0].name)
             return rtk_fail(dev, RTK_ERROR_INVALID_OPERATION,
                             "%s: backend %s cannot trace motion blur (it predates it)", fn, bk->name);
         /* as for static triangles, by the flags (robust: the watertight
          * test): the named builder or those of the quality, else any */
         for (int any = 0; any < 2 && !builder; any++)
-            builder = pick_builder(bk, bk->motion_builders, any ? NULL : want_builder, NULL, quality, any, s->flags,
+            builder = pick_builder(bk, bk->motion_builders, any ? NULL : want_builder, want_mb, quality, any, s->flags,
                                    &layout);
         if (!builder) {
             builder = bk->motion_builders;
@@ -858,8 +860,13 @@ static void add_output(rtk_build_output *total, uint64_t *motion, const rtk_buil
     total->prims_out_of_range += o->prims_out_of_range;
     total->refs += o->refs ? o->refs : o->prims;
     total->bytes += o->bytes;
-    if (tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB || tree->layout->id == RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST)
-        *motion += o->prims;
+    switch (tree->layout->id) {
+    case RTK_LAYOUT_BVH4_TRIANGLE4MB:
+    case RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST:
+    case RTK_LAYOUT_BVH8_TRIANGLE4MB:
+    case RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST: *motion += o->prims; break;
+    default: break;
+    }
 }
 
 /* How a dynamic scene builds a geometry's own tree: its quality (low: the

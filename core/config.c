@@ -57,7 +57,7 @@ static int valid_table_name(const char *s, size_t n)
     return 1;
 }
 
-#define KNOWN_KEYS "isa, max_isa, threads, verbose, backend_path, builder, layout"
+#define KNOWN_KEYS "isa, max_isa, threads, verbose, backend_path, builder, layout, motion_layout"
 
 static rtk_error parse_items(const char *text, rtk_config *cfg, char *msg, size_t msg_size)
 {
@@ -90,13 +90,14 @@ static rtk_error parse_items(const char *text, rtk_config *cfg, char *msg, size_
             char *dst = KEY("isa") ? cfg->isa : cfg->max_isa;
             memcpy(dst, val, vlen);
             dst[vlen] = '\0';
-        } else if (KEY("builder") || KEY("layout")) {
+        } else if (KEY("builder") || KEY("layout") || KEY("motion_layout")) {
             if (!valid_table_name(val, vlen)) {
                 snprintf(msg, msg_size, "config %.*s='%.*s': expected a name such as %s", (int)klen, p, (int)vlen,
-                         val, KEY("builder") ? "morton, sah-binned, sah-spatial" : "bvh4.triangle4, bvh8.triangle4");
+                         val, KEY("builder") ? "morton, sah-binned, sah-spatial"
+                              : KEY("layout") ? "bvh4.triangle4, bvh8.triangle4" : "bvh4.triangle4mb, bvh8.triangle4mb");
                 return RTK_ERROR_INVALID_CONFIG;
             }
-            char *dst = KEY("builder") ? cfg->builder : cfg->layout;
+            char *dst = KEY("builder") ? cfg->builder : KEY("layout") ? cfg->layout : cfg->motion_layout;
             memcpy(dst, val, vlen);
             dst[vlen] = '\0';
         } else if (KEY("threads")) {

@@ -116,6 +116,27 @@ static int check_builder_layout(const rtk_backend_desc *bk, const rtk_config *cf
     return 0;
 }
 
+/* The config's motion_layout= must name a layout of the backend's motion
+ * builders; else msg lists those. */
+static int check_motion_layout(const rtk_backend_desc *bk, const rtk_config *cfg, char *msg, size_t size)
+{
+    if (!cfg->motion_layout[0])
+        return 1;
+    char list[256] = "";
+    size_t len = 0;
+    for (const rtk_builder_entry *b = RTK_DESC_HAS(bk, motion_builders) ? bk->motion_builders : NULL; b && b->name;
+         b++) {
+        const rtk_layout_entry *l = rtk_backend_find_layout(bk, b->layout);
+        if (l && !strcmp(l->name, cfg->motion_layout))
+            return 1;
+        if (l && !strstr(list, l->name) && len < sizeof list)
+            len += (size_t)snprintf(list + len, sizeof list - len, "%s%s", len ? ", " : "", l->name);
+    }
+    snprintf(msg, size, "config motion_layout='%s': backend %s has no such motion-blur layout (it has: %s)",
+             cfg->motion_layout, bk->name, len ? list : "none");
+    return 0;
+}
+
 rtk_error rtk_device_new(const char *config, rtk_device *out)
 {
     tls_error = RTK_OK;
@@ -160,7 +181,8 @@ rtk_error rtk_device_new(const char *config, rtk_device *out)
     }
     d->backend = d->backends.entries[d->backends.active].desc;
     rtk_log(d, 1, "active backend: %s", d->backends.entries[d->backends.active].name);
-    if (!check_builder_layout(d->backend, &d->config, msg, sizeof msg)) {
+    if (!check_builder_layout(d->backend, &d->config, msg, sizeof msg) ||
+        !check_motion_layout(d->backend, &d->config, msg, sizeof msg)) {
         rtk_backends_unload(&d->backends);
         rtk_config_free(&d->config);
         pthread_mutex_destroy(&d->lock);
@@ -170,6 +192,8 @@ rtk_error rtk_device_new(const char *config, rtk_device *out)
     if (d->config.builder[0] || d->config.layout[0])
         rtk_log(d, 1, "every scene is built%s%s%s%s (device config)", d->config.builder[0] ? " by " : "",
                 d->config.builder, d->config.layout[0] ? " into " : "", d->config.layout);
+    if (d->config.motion_layout[0])
+        rtk_log(d, 1, "every motion-blurred tree is built into %s (device config)", d->config.motion_layout);
     pthread_mutex_init(&d->pool_lock, NULL);
     d->thread_count = d->config.threads ? d->config.threads : rtk_cpu_count();
     rtk_log(d, 1, "builds on %u thread%s%s", d->thread_count, d->thread_count == 1 ? "" : "s",

@@ -24,6 +24,7 @@ typedef struct rtk_config {
     char *backend_path; /* NULL = default search order; else ':'-separated dirs (owned) */
     char builder[RTK_BACKEND_NAME_MAX]; /* "" = the scene's quality picks it */
     char layout[RTK_BACKEND_NAME_MAX];  /* "" = the scene's flags pick it */
+    char motion_layout[RTK_BACKEND_NAME_MAX]; /* the same for motion-blurred triangles */
 } rtk_config;
 
 /* Parses "key=value,..." into cfg; on failure returns RTK_ERROR_INVALID_CONFIG

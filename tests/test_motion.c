@@ -115,6 +115,45 @@ static rtk_device best_device(void)
     return dev;
 }
 
+/* The configurations the tests run on: every backend with its motion
+ * layout (bvh8.triangle4mb where vectors are 8 wide, else
+ * bvh4.triangle4mb), and the backends with 8-wide nodes once more with
+ * motion_layout=bvh4.triangle4mb; layout[k] names the layout expected. */
+#define MOTION_MAX_CONFIGS (2 * TEST_MAX_BACKENDS)
+typedef struct motion_configs {
+    size_t n;
+    char config[MOTION_MAX_CONFIGS][96];
+    const char *layout[MOTION_MAX_CONFIGS];
+} motion_configs;
+
+static void motion_configs_get(motion_configs *c)
+{
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    c->n = 0;
+    for (size_t b = 0; b < nb; b++) {
+        char cfg[96];
+        snprintf(cfg, sizeof cfg, "isa=%s,motion_layout=bvh8.triangle4mb", names[b]);
+        rtk_device dev = NULL;
+        const int wide = rtk_device_new(cfg, &dev) == RTK_OK;
+        rtk_device_release(dev);
+        snprintf(c->config[c->n], sizeof c->config[c->n], "isa=%s", names[b]);
+        c->layout[c->n++] = wide ? "bvh8.triangle4mb" : "bvh4.triangle4mb";
+        if (wide) {
+            snprintf(c->config[c->n], sizeof c->config[c->n], "isa=%s,motion_layout=bvh4.triangle4mb", names[b]);
+            c->layout[c->n++] = "bvh4.triangle4mb";
+        }
+    }
+}
+
+static rtk_device config_device(const char *config)
+{
+    rtk_device dev = NULL;
+    if (rtk_device_new(config, &dev) != RTK_OK)
+        fail_msg("device %s: %s", config, rtk_device_get_error_message(NULL));
+    return dev;
+}
+
 static void commit_ok(rtk_device dev, rtk_scene s)
 {
     if (rtk_scene_commit(s) != RTK_OK)
@@ -225,8 +264,9 @@ static void check_moving(rtk_scene s, const moving *m, int with_floor, uint32_t 
 static void motion_vs_reference(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    motion_configs mc;
+    motion_configs_get(&mc);
+    const size_t nb = mc.n;
     static const int step_counts[2] = {2, 5};
     /* scale, offset: around the origin, and huge coordinates */
     static const double places[2][2] = {{1.0, 0.0}, {1e4, 3e6}};
@@ -240,7 +280,7 @@ static void motion_vs_reference(void **state)
                     if (pl && kind != PLAIN)
                         continue;
                     moving m = make_moving(step_counts[sc], places[pl][0], places[pl][1]);
-                    rtk_device dev = test_device(names[b]);
+                    rtk_device dev = config_device(mc.config[b]);
                     rtk_scene s = NULL;
                     assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
                     if (kind == DYNAMIC)
@@ -276,7 +316,7 @@ static void motion_vs_reference(void **state)
                     check_moving(traced, &m, with_floor, floor_id, ball_id, kind == INSTANCED ? fx : NULL, inst,
                                  nrays, 100 * (uint32_t)b + 10 * (uint32_t)sc + (uint32_t)kind, &hits, &excused);
                     if (hits < nrays / 5 || excused > nrays / 50)
-                        fail_msg("%s, %d steps, %s%s: %d hits, %d excused of %d rays", names[b], m.steps,
+                        fail_msg("%s, %d steps, %s%s: %d hits, %d excused of %d rays", mc.config[b], m.steps,
                                  kind_name[kind], pl ? ", huge coordinates" : "", hits, excused, nrays);
                     if (traced != s)
                         rtk_scene_release(traced);
@@ -292,19 +332,20 @@ static void motion_vs_reference(void **state)
 static void motion_steps_exact(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    motion_configs mc;
+    motion_configs_get(&mc);
+    const size_t nb = mc.n;
     moving m = make_moving(3, 1.0, 0.0);
     static const float times[3] = {0.0f, 0.5f, 1.0f};
     for (size_t b = 0; b < nb; b++) {
-        rtk_device dev = test_device(names[b]);
+        rtk_device dev = config_device(mc.config[b]);
         rtk_scene s = NULL;
         assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
         attach(s, moving_geometry(dev, &m, ball.idx, ball.nt));
         commit_ok(dev, s);
         rtk_scene_info info = {.struct_size = sizeof info};
         assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
-        assert_string_equal(info.layout, "bvh4.triangle4mb");
+        assert_string_equal(info.layout, mc.layout[b]);
         for (int k = 0; k < 3; k++) {
             ref_mesh ref = ref_prepare(m.v[k], ball.idx, ball.nt);
             double lo[3], hi[3];
@@ -336,12 +377,13 @@ static void motion_steps_exact(void **state)
 static void motion_time_outside(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    motion_configs mc;
+    motion_configs_get(&mc);
+    const size_t nb = mc.n;
     moving m = make_moving(2, 1.0, 0.0);
     for (size_t b = 0; b < nb; b++)
         for (int with_floor = 0; with_floor < 2; with_floor++) {
-            rtk_device dev = test_device(names[b]);
+            rtk_device dev = config_device(mc.config[b]);
             rtk_scene s = NULL;
             assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
             const uint32_t floor_id = with_floor ? attach_static(dev, s, floor_v, 4, floor_idx, 2) : 0;
@@ -363,7 +405,7 @@ static void motion_time_outside(void **state)
                 assert_int_equal(rtk_occluded1(s, &oc), RTK_OK);
                 const uint32_t want = inside ? ball_id : with_floor ? floor_id : RTK_INVALID_GEOMETRY_ID;
                 if (rh.hit.geomID != want)
-                    fail_msg("%s, time %g: geometry %u hit, expected %u", names[b], t, rh.hit.geomID, want);
+                    fail_msg("%s, time %g: geometry %u hit, expected %u", mc.config[b], t, rh.hit.geomID, want);
                 assert_int_equal(oc.tfar == -INFINITY, want != RTK_INVALID_GEOMETRY_ID);
             }
             rtk_scene_release(s);
@@ -378,8 +420,9 @@ static void motion_time_outside(void **state)
 static void motion_bad_vertices(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    motion_configs mc;
+    motion_configs_get(&mc);
+    const size_t nb = mc.n;
     /* triangle 0: collinear at step 0, a right triangle at step 1 (in the
      * plane z = 0); triangle 1: its vertex 5 is NaN at step 1; triangle 2:
      * fine, away from both */
@@ -387,7 +430,7 @@ static void motion_bad_vertices(void **state)
     float v1[] = {0, 0, 0, 2, 0, 0, 0, 2, 0, 5, 0, 0, 6, 0, 0, NAN, 1, 0, 10, 0, 0, 11, 0, 0, 10, 1, 0};
     const uint32_t idx[] = {0, 1, 2, 3, 4, 5, 6, 7, 8};
     for (size_t b = 0; b < nb; b++) {
-        rtk_device dev = test_device(names[b]);
+        rtk_device dev = config_device(mc.config[b]);
         rtk_scene s = NULL;
         assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
         rtk_geometry g = NULL;
@@ -418,7 +461,7 @@ static void motion_bad_vertices(void **state)
             rh.hit.geomID = rh.hit.primID = RTK_INVALID_GEOMETRY_ID;
             assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
             if (rh.hit.primID != cases[k].prim)
-                fail_msg("%s, case %zu: triangle %u hit, expected %u", names[b], k, rh.hit.primID, cases[k].prim);
+                fail_msg("%s, case %zu: triangle %u hit, expected %u", mc.config[b], k, rh.hit.primID, cases[k].prim);
             if (rh.hit.primID != RTK_INVALID_GEOMETRY_ID)
                 assert_true(rh.ray.tfar == 5.0f);
         }
@@ -432,11 +475,12 @@ static void motion_bad_vertices(void **state)
 static void motion_packets(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    motion_configs mc;
+    motion_configs_get(&mc);
+    const size_t nb = mc.n;
     moving m = make_moving(4, 1.0, 0.0);
     for (size_t b = 0; b < nb; b++) {
-        rtk_device dev = test_device(names[b]);
+        rtk_device dev = config_device(mc.config[b]);
         rtk_scene s = NULL;
         assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
         attach_static(dev, s, floor_v, 4, floor_idx, 2);
@@ -489,6 +533,11 @@ static void motion_scene_info(void **state)
 {
     (void)state;
     moving m2 = make_moving(2, 1.0, 0.0), m3 = make_moving(3, 1.0, 0.0);
+    motion_configs mc;
+    motion_configs_get(&mc);
+    /* the best backend's own layout: the last configuration's, or the one
+     * before it when the last names the 4-wide layout */
+    const char *layout = mc.layout[strstr(mc.config[mc.n - 1], "motion_layout") ? mc.n - 2 : mc.n - 1];
     rtk_device dev = best_device();
     rtk_scene s = NULL;
     assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
@@ -498,7 +547,7 @@ static void motion_scene_info(void **state)
     commit_ok(dev, s);
     rtk_scene_info info = {.struct_size = sizeof info};
     assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
-    assert_string_equal(info.layout, "bvh4.triangle4mb");
+    assert_string_equal(info.layout, layout);
     assert_string_equal(info.builder, "sah-binned");
     assert_int_equal(info.trees_built, 1);
     assert_int_equal(info.triangles_motion, ball.nt);
@@ -672,6 +721,18 @@ static void motion_errors(void **state)
     assert_int_equal(rtk_geometry_set_time_step_count(inst, 2), RTK_ERROR_INVALID_OPERATION);
     rtk_geometry_release(inst);
     rtk_device_release(dev);
+    /* motion_layout= names a motion-blur layout of the backend, else the
+     * device is refused with the list of those it has */
+    static const char *const bad_layouts[] = {"isa=scalar,motion_layout=bvh4.triangle4",
+                                              "isa=scalar,motion_layout=bvh8.triangle4mb", "motion_layout=bvh4mb",
+                                              "motion_layout=BVH4"};
+    for (size_t k = 0; k < sizeof bad_layouts / sizeof *bad_layouts; k++) {
+        rtk_device d = NULL;
+        assert_int_equal(rtk_device_new(bad_layouts[k], &d), RTK_ERROR_INVALID_CONFIG);
+        assert_null(d);
+        if (k < 3)
+            assert_non_null(strstr(rtk_device_get_error_message(NULL), "bvh4.triangle4mb"));
+    }
 }
 
 int main(void)

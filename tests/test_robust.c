@@ -410,7 +410,7 @@ static void attach_mesh(rtk_device dev, rtk_scene scene, const closed_mesh *m, c
 
 /* A robust dynamic scene (a tree per geometry under a top level) is robust
  * in every tree and says so; so is a robust scene with a moving geometry
- * (bvh4.triangle4mb.robust), whose leaves interpolate the vertices to the
+ * (bvh8.triangle4mb.robust, or bvh4 on the scalar backend), whose leaves interpolate the vertices to the
  * ray's time: rays aimed at the cube's vertices and edges as they are at
  * times 0, 0.37 and 1 (the same float interpolation as the traversal's) do
  * not leak either. */

@@ -1,6 +1,7 @@
 /*
- * The motion-blur builder: layout bvh4.triangle4mb (bvh4_triangle4.h) over
- * triangle meshes with time_steps >= 2 vertex buffers.
+ * The motion-blur builder: layouts bvh4.triangle4mb and bvh8.triangle4mb
+ * (bvh4_triangle4.h) over triangle meshes with time_steps >= 2 vertex
+ * buffers.
  *
  * One tree per time segment (between consecutive time steps).  A
  * segment's tree is shaped by the ordinary builders (Morton for low
@@ -33,6 +34,16 @@
 _Static_assert(offsetof(rtk_bvh4mb_node, dlower_x) - offsetof(rtk_bvh4mb_node, lower_x) == RTK_MB_DELTA, "delta");
 _Static_assert(offsetof(rtk_bvh4mb_node, dupper_z) - offsetof(rtk_bvh4mb_node, upper_z) == RTK_MB_DELTA, "delta");
 _Static_assert(sizeof(rtk_bvh4mb_node) == 208, "no padding");
+_Static_assert(offsetof(rtk_bvh8mb_node, dlower_x) - offsetof(rtk_bvh8mb_node, lower_x) == RTK_MB8_DELTA, "delta");
+_Static_assert(offsetof(rtk_bvh8mb_node, dupper_z) - offsetof(rtk_bvh8mb_node, upper_z) == RTK_MB8_DELTA, "delta");
+_Static_assert(sizeof(rtk_bvh8mb_node) == 416, "no padding");
+/* Both node types start with twelve arrays of `width` floats: lower x,
+ * upper x, lower y, upper y, lower z, upper z, then their changes in the
+ * same order (store_slot writes them so). */
+_Static_assert(offsetof(rtk_bvh4mb_node, lower_x) == 0 && offsetof(rtk_bvh4mb_node, dupper_z) == 11 * 4 * sizeof(float),
+               "plane order");
+_Static_assert(offsetof(rtk_bvh8mb_node, lower_x) == 0 && offsetof(rtk_bvh8mb_node, dupper_z) == 11 * 8 * sizeof(float),
+               "plane order");
 
 #define MB_BLOCK_CHUNK 4096u
 
@@ -45,9 +56,10 @@ typedef struct mb {
     const rtk_build_input *in;
     build bd;                  /* for run_parallel */
     uint32_t steps, seg;       /* time steps; the segment being converted */
+    uint32_t width;            /* of the nodes: 4 or 8 */
     const uint32_t *index_of;  /* geometry id -> index in the input */
     uint32_t max_id;
-    const struct rtk_accel *topo; /* the segment's shape (bvh4.triangle4 at the middle time) */
+    const struct rtk_accel *topo; /* the segment's shape (bvhN.triangle4 at the middle time) */
     struct rtk_accel *out;        /* the whole accel (its vertex copies) */
     struct rtk_accel *seg_out;    /* the segment's tree */
     lbox *block_box;
@@ -104,40 +116,42 @@ static void convert_blocks(void *data, uint32_t chunk)
     m->lanes[chunk] = lanes;
 }
 
-/* One child slot: the start box and its change, padded (see the file's
- * comment) by 2^-19 of the largest magnitude involved, about 16 units in
- * the last place, where the interpolations round by a few.  Where the
- * padded values overflow, the slot takes the union of both ends with no
- * change instead. */
-static void store_slot(rtk_bvh4mb_node *n, int c, const lbox *b)
+/* One child slot of a node of `width` children whose planes start at
+ * `planes`: the start box and its change, padded (see the file's comment)
+ * by 2^-19 of the largest magnitude involved, about 16 units in the last
+ * place, where the interpolations round by a few.  Where the padded values
+ * overflow, the slot takes the union of both ends with no change
+ * instead. */
+static void store_slot(float *planes, uint32_t width, int c, const lbox *b)
 {
     _Alignas(16) float lo[2][4], hi[2][4];
     for (int e = 0; e < 2; e++) {
         vf4_store(lo[e], b->b[e].lo);
         vf4_store(hi[e], b->b[e].hi);
     }
-    float *lower[3] = {n->lower_x, n->lower_y, n->lower_z}, *upper[3] = {n->upper_x, n->upper_y, n->upper_z};
-    float *dlower[3] = {n->dlower_x, n->dlower_y, n->dlower_z}, *dupper[3] = {n->dupper_x, n->dupper_y, n->dupper_z};
     for (int a = 0; a < 3; a++) {
+        float *lower = planes + (2 * a) * width, *upper = planes + (2 * a + 1) * width;
+        float *dlower = planes + (6 + 2 * a) * width, *dupper = planes + (7 + 2 * a) * width;
         const float mag = fmaxf(fmaxf(fabsf(lo[0][a]), fabsf(hi[0][a])), fmaxf(fabsf(lo[1][a]), fabsf(hi[1][a])));
         const float pad = mag * 0x1p-19f + 0x1p-126f;
         const float l0 = lo[0][a] - pad, l1 = lo[1][a] - pad, h0 = hi[0][a] + pad, h1 = hi[1][a] + pad;
         const float dl = l1 - l0, dh = h1 - h0;
         if (isfinite(l0) && isfinite(l1) && isfinite(h0) && isfinite(h1) && isfinite(dl) && isfinite(dh)) {
-            lower[a][c] = l0;
-            upper[a][c] = h0;
-            dlower[a][c] = dl;
-            dupper[a][c] = dh;
+            lower[c] = l0;
+            upper[c] = h0;
+            dlower[c] = dl;
+            dupper[c] = dh;
         } else {
-            lower[a][c] = fminf(l0, l1);
-            upper[a][c] = fmaxf(h0, h1);
-            dlower[a][c] = dupper[a][c] = 0.0f;
+            lower[c] = fminf(l0, l1);
+            upper[c] = fmaxf(h0, h1);
+            dlower[c] = dupper[c] = 0.0f;
         }
     }
 }
 
 /* The nodes of the subtree `ref`, written with the boxes of both ends;
- * returns its boxes. */
+ * returns its boxes.  The topology's node `ref` (rtk_bvh4_node or
+ * rtk_bvh8_node) becomes the motion node `ref` of the same width. */
 static lbox convert_subtree(mb *m, uint32_t ref)
 {
     lbox all = {{box_empty(), box_empty()}};
@@ -148,18 +162,32 @@ static lbox convert_subtree(mb *m, uint32_t ref)
                 box_grow(&all.b[e], m->block_box[k].b[e].lo, m->block_box[k].b[e].hi);
         return all;
     }
-    const rtk_bvh4_node *t = &((const rtk_bvh4_node *)m->topo->nodes)[ref];
-    rtk_bvh4mb_node *n = &((rtk_bvh4mb_node *)m->seg_out->nodes)[ref];
-    memset(n, 0, sizeof *n);
-    for (int c = 0; c < 4; c++) {
-        n->child[c] = t->child[c];
-        if (t->child[c] == RTK_BVH4_EMPTY) {
-            n->lower_x[c] = n->lower_y[c] = n->lower_z[c] = INFINITY;
-            n->upper_x[c] = n->upper_y[c] = n->upper_z[c] = -INFINITY;
+    const uint32_t w = m->width;
+    const uint32_t *tchild = w == 8 ? ((const rtk_bvh8_node *)m->topo->nodes)[ref].child
+                                    : ((const rtk_bvh4_node *)m->topo->nodes)[ref].child;
+    float *planes;
+    uint32_t *child;
+    if (w == 8) {
+        rtk_bvh8mb_node *n = &((rtk_bvh8mb_node *)m->seg_out->nodes)[ref];
+        planes = (float *)n;
+        child = n->child;
+    } else {
+        rtk_bvh4mb_node *n = &((rtk_bvh4mb_node *)m->seg_out->nodes)[ref];
+        planes = (float *)n;
+        child = n->child;
+    }
+    memset(planes, 0, 12 * w * sizeof *planes);
+    for (uint32_t c = 0; c < w; c++) {
+        child[c] = tchild[c];
+        if (tchild[c] == RTK_BVH4_EMPTY) {
+            for (int a = 0; a < 3; a++) {
+                planes[(2 * a) * w + c] = INFINITY;
+                planes[(2 * a + 1) * w + c] = -INFINITY;
+            }
             continue;
         }
-        const lbox b = convert_subtree(m, t->child[c]);
-        store_slot(n, c, &b);
+        const lbox b = convert_subtree(m, tchild[c]);
+        store_slot(planes, w, (int)c, &b);
         for (int e = 0; e < 2; e++)
             box_grow(&all.b[e], b.b[e].lo, b.b[e].hi);
     }
@@ -234,10 +262,20 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     if (in->struct_size < offsetof(rtk_build_input, time_vertices) + sizeof in->time_vertices || in->time_steps < 2 ||
         !in->time_vertices)
         return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the motion builder needs at least two time steps");
-    if (in->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB && in->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST)
+    uint32_t width = 4;
+    switch (in->layout) {
+    case RTK_LAYOUT_BVH4_TRIANGLE4MB:
+    case RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST: break;
+#ifdef RTK_SIMD_HAS_8
+    case RTK_LAYOUT_BVH8_TRIANGLE4MB:
+    case RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST: width = 8; break;
+#endif
+    default:
         return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT,
-                       "the motion builder produces bvh4.triangle4mb and bvh4.triangle4mb.robust only");
-    mb m = {.in = in, .steps = in->time_steps};
+                       "the motion builder produces the bvh4 and bvh8 .triangle4mb layouts and their robust ones only");
+    }
+    const size_t node_size = width == 8 ? sizeof(rtk_bvh8mb_node) : sizeof(rtk_bvh4mb_node);
+    mb m = {.in = in, .steps = in->time_steps, .width = width};
     size_t vertex_bytes = 0;
     const uint32_t segments = in->time_steps - 1;
     int rc = RTK_OK;
@@ -297,7 +335,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     rtk_build_input topo_in = *in;
     topo_in.struct_size = sizeof topo_in;
     topo_in.geometries = geoms;
-    topo_in.layout = RTK_LAYOUT_BVH4_TRIANGLE4;
+    topo_in.layout = width == 8 ? RTK_LAYOUT_BVH8_TRIANGLE4 : RTK_LAYOUT_BVH4_TRIANGLE4;
     topo_in.recycle = NULL;
     /* each segment's build reports its share of the whole */
     mb_progress prog = {.in = in, .segments = segments};
@@ -333,7 +371,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
         seg->leaf_count = topo->leaf_count;
         seg->segment = s;
         seg->mb_geoms = accel->mb_geoms;
-        seg->nodes = mem_alloc(&accel->memory, (topo->node_count ? topo->node_count : 1) * sizeof(rtk_bvh4mb_node), 0);
+        seg->nodes = mem_alloc(&accel->memory, (topo->node_count ? topo->node_count : 1) * node_size, 0);
         seg->trisi = mem_alloc(&accel->memory, (topo->leaf_count ? topo->leaf_count : 1) * sizeof(rtk_triangle4i), 0);
         const uint32_t chunks = (uint32_t)((topo->leaf_count + MB_BLOCK_CHUNK - 1) / MB_BLOCK_CHUNK);
         m.block_box = malloc((topo->leaf_count ? topo->leaf_count : 1) * sizeof *m.block_box);
@@ -347,13 +385,11 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
             run_parallel(&m.bd, chunks, convert_blocks, &m);
             if (topo->root != RTK_BVH4_EMPTY) {
                 const lbox b = convert_subtree(&m, topo->root);
-                /* the root's box padded as a slot's is */
-                rtk_bvh4mb_node root = {0};
-                store_slot(&root, 0, &b);
-                const float lo[3] = {root.lower_x[0], root.lower_y[0], root.lower_z[0]};
-                const float hi[3] = {root.upper_x[0], root.upper_y[0], root.upper_z[0]};
-                const float dlo[3] = {root.dlower_x[0], root.dlower_y[0], root.dlower_z[0]};
-                const float dhi[3] = {root.dupper_x[0], root.dupper_y[0], root.dupper_z[0]};
+                /* the root's box padded as a slot's is (a node of width 1) */
+                float root[12] = {0};
+                store_slot(root, 1, 0, &b);
+                const float lo[3] = {root[0], root[2], root[4]}, hi[3] = {root[1], root[3], root[5]};
+                const float dlo[3] = {root[6], root[8], root[10]}, dhi[3] = {root[7], root[9], root[11]};
                 _Alignas(16) float l[4] = {0}, h[4] = {0};
                 for (int e = 0; e < 2; e++) {
                     for (int a = 0; a < 3; a++) {
@@ -392,7 +428,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     build_counts_store(out, &(build_counts){skipped, 0, out_of_range});
     out->nodes = nodes;
     out->leaves = blocks;
-    out->bytes = nodes * sizeof(rtk_bvh4mb_node) + blocks * sizeof(rtk_triangle4i) + vertex_bytes + sizeof *accel +
+    out->bytes = nodes * node_size + blocks * sizeof(rtk_triangle4i) + vertex_bytes + sizeof *accel +
                  segments * sizeof *accel->segments + in->geometry_count * sizeof *accel->mb_geoms;
     out->sah_cost = sah / segments;
     _Alignas(16) float lo[4], hi[4];

@@ -94,6 +94,10 @@ RTK_OBJECTS_MERGED_DECL_(4ir)
 #undef RTK_OBJECTS_MERGED_DECL_
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8mb_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8mbr_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_bvh8mbr_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 /* closest points, every layout (point_query.c) */
 RTK_HIDDEN void RTK_SYM(rtk_closest_point)(const rtk_accel *accel, rtk_point_state *state, const rtk_query *q);
 #endif

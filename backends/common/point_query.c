@@ -211,7 +211,7 @@ static inline vfloat4 tri4_lower(vfloat4 ax, vfloat4 ay, vfloat4 az, vfloat4 e1x
 
 enum leaf_kind { LEAF_TRI4, LEAF_TRI4V, LEAF_TRI4I, LEAF_MB };
 
-/* The motion-blur segment at the query's time (traverse_bvh4mb.h:
+/* The motion-blur segment at the query's time (traverse_motion.h:
  * segment_at, the same floats). */
 typedef struct mb_time {
     float f;
@@ -341,17 +341,35 @@ static inline unsigned node_mb_dist(const rtk_bvh4mb_node *n, const pq_level *l,
 }
 
 #ifdef RTK_SIMD_HAS_8
-static inline unsigned node8_dist(const rtk_bvh8_node *n, const pq_level *l, float bound, float *d)
+static inline unsigned boxes8_dist(vfloat8 lx, vfloat8 ux, vfloat8 ly, vfloat8 uy, vfloat8 lz, vfloat8 uz,
+                                   const pq_level *l, float bound, float *d)
 {
     const vfloat8 zero = vf8_set1(0.0f), dp = vf8_set1(l->dp);
-    const vfloat8 gx = GAP_(vf8, vf8_load(n->lower_x), vf8_load(n->upper_x), vf8_set1(l->pf[0]));
-    const vfloat8 gy = GAP_(vf8, vf8_load(n->lower_y), vf8_load(n->upper_y), vf8_set1(l->pf[1]));
-    const vfloat8 gz = GAP_(vf8, vf8_load(n->lower_z), vf8_load(n->upper_z), vf8_set1(l->pf[2]));
+    const vfloat8 gx = GAP_(vf8, lx, ux, vf8_set1(l->pf[0]));
+    const vfloat8 gy = GAP_(vf8, ly, uy, vf8_set1(l->pf[1]));
+    const vfloat8 gz = GAP_(vf8, lz, uz, vf8_set1(l->pf[2]));
     const vfloat8 d2 = vf8_add(vf8_add(vf8_mul(gx, gx), vf8_mul(gy, gy)), vf8_mul(gz, gz));
     _Alignas(32) float tmp[8];
     vf8_store(tmp, d2);
     memcpy(d, tmp, sizeof tmp);
     return (unsigned)vb8_mask(vf8_le(d2, vf8_set1(bound)));
+}
+
+static inline unsigned node8_dist(const rtk_bvh8_node *n, const pq_level *l, float bound, float *d)
+{
+    return boxes8_dist(vf8_load(n->lower_x), vf8_load(n->upper_x), vf8_load(n->lower_y), vf8_load(n->upper_y),
+                       vf8_load(n->lower_z), vf8_load(n->upper_z), l, bound, d);
+}
+
+/* The same for an 8-wide motion node at the query's time. */
+static inline unsigned node_mb8_dist(const rtk_bvh8mb_node *n, const pq_level *l, float bound, float *d,
+                                     const mb_time *mt)
+{
+    const vfloat8 f = vf8_set1(mt->f);
+#define AT_(plane) vf8_add(vf8_load(n->plane), vf8_mul(f, vf8_load(n->d##plane)))
+    return boxes8_dist(AT_(lower_x), AT_(upper_x), AT_(lower_y), AT_(upper_y), AT_(lower_z), AT_(upper_z), l, bound,
+                       d);
+#undef AT_
 }
 #endif
 #undef GAP_
@@ -386,13 +404,17 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
             float d[8];
             unsigned mask;
             const uint32_t *child;
-            if (kind == LEAF_MB && !objects) {
+            if (kind == LEAF_MB && !objects && width == 4) {
                 const rtk_bvh4mb_node *n = &((const rtk_bvh4mb_node *)a->nodes)[cur];
                 mask = node_mb_dist(n, l, bound, d, mt);
                 child = n->child;
             }
 #ifdef RTK_SIMD_HAS_8
-            else if (width == 8) {
+            else if (kind == LEAF_MB && !objects) {
+                const rtk_bvh8mb_node *n = &((const rtk_bvh8mb_node *)a->nodes)[cur];
+                mask = node_mb8_dist(n, l, bound, d, mt);
+                child = n->child;
+            } else if (width == 8) {
                 const rtk_bvh8_node *n = &((const rtk_bvh8_node *)a->nodes)[cur];
                 mask = node8_dist(n, l, bound, d);
                 child = n->child;
@@ -474,6 +496,12 @@ static void walk_mb(const rtk_accel *a, pq_level *l)
     rtk_accel view = *seg;
     view.attrs = a->attrs;
     view.quads = a->quads;
+#ifdef RTK_SIMD_HAS_8
+    if (a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST) {
+        walk(seg, &view, l, 8, 0, LEAF_MB, &mt);
+        return;
+    }
+#endif
     walk(seg, &view, l, 4, 0, LEAF_MB, &mt);
 }
 
@@ -547,8 +575,9 @@ static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
 
 static void closest_in(const rtk_accel *a, pq_level *l)
 {
-    if (a->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB && a->layout != RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST &&
-        a->root == RTK_BVH4_EMPTY)
+    const int motion = a->layout == RTK_LAYOUT_BVH4_TRIANGLE4MB || a->layout == RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST ||
+                       a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST;
+    if (!motion && a->root == RTK_BVH4_EMPTY) /* (a motion accel's segments have the roots) */
         return;
     switch (a->layout) {
     case RTK_LAYOUT_BVH4_TRIANGLE4: walk_tri4(a, l); break;
@@ -561,7 +590,9 @@ static void closest_in(const rtk_accel *a, pq_level *l)
 #endif
     case RTK_LAYOUT_BVH4_OBJECT: walk_objects(a, l); break;
     case RTK_LAYOUT_BVH4_TRIANGLE4MB:
-    case RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST: walk_mb(a, l); break;
+    case RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST:
+    case RTK_LAYOUT_BVH8_TRIANGLE4MB:
+    case RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST: walk_mb(a, l); break;
     default: break;
     }
 }

@@ -1,3 +1,3 @@
-/* Traversal of bvh4.triangle4mb (motion blur): traverse_bvh4mb.h with the
+/* Traversal of bvh4.triangle4mb (motion blur): traverse_motion.h with the
  * fast intersector. */
-#include "traverse_bvh4mb.h"
+#include "traverse_motion.h"

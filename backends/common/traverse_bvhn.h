@@ -33,20 +33,18 @@
 #include "kernels.h"
 #include "simd/simd.h"
 
-/* RTK_MOTION 1: bvh4.triangle4mb (motion blur): nodes whose planes are
- * interpolated to the ray's time in its segment, and leaves whose vertices
- * are; the entry points are traverse_bvh4mb.c's. */
+/* RTK_MOTION 1: bvh4/bvh8.triangle4mb (motion blur): nodes whose planes
+ * are interpolated to the ray's time in its segment, and leaves whose
+ * vertices are; the entry points are traverse_motion.h's. */
 #ifndef RTK_MOTION
 #define RTK_MOTION 0
 #endif
 
-#if RTK_MOTION && RTK_BVHN != 4
-#error "motion blur nodes are 4 wide"
-#endif
 #if RTK_BVHN == 4
 #if RTK_MOTION
 typedef rtk_bvh4mb_node node_t;
 #define BVHN_NODES(accel) ((const rtk_bvh4mb_node *)(accel)->nodes)
+#define BVHN_MB_DELTA RTK_MB_DELTA
 #else
 typedef rtk_bvh4_node node_t;
 #define BVHN_NODES(accel) ((const rtk_bvh4_node *)(accel)->nodes)
@@ -80,7 +78,12 @@ typedef vfloat4 vnode;
 #define RTK_NODE_INT_ORDER 0
 #endif
 #elif RTK_BVHN == 8
+#if RTK_MOTION
+typedef rtk_bvh8mb_node node_t;
+#define BVHN_MB_DELTA RTK_MB8_DELTA
+#else
 typedef rtk_bvh8_node node_t;
+#endif
 typedef vfloat8 vnode;
 #define vn_load vf8_load
 #define vn_set1 vf8_set1
@@ -101,7 +104,8 @@ typedef vfloat8 vnode;
 #define vn_gti vf8_gti
 #define vn_low4 vf8_low
 #define vn_add_ulps vf8_add_ulps
-#define BVHN_NODES(accel) ((const rtk_bvh8_node *)(accel)->nodes)
+#define vn_madd vf8_madd
+#define BVHN_NODES(accel) ((const node_t *)(accel)->nodes)
 #define RTK_NODE_INT_ORDER RTK_SIMD_INT_ORDER_8
 #else
 #error "define RTK_BVHN to 4 or 8 before including traverse_bvhn.h"
@@ -439,7 +443,7 @@ static inline vnode plane(const node_t *n, size_t off)
 }
 #if RTK_MOTION
 /* a plane at the ray's time: start + f * change */
-#define PLANE(n, off) vn_madd(p->ftime, plane(n, (off) + RTK_MB_DELTA), plane(n, off))
+#define PLANE(n, off) vn_madd(p->ftime, plane(n, (off) + BVHN_MB_DELTA), plane(n, off))
 #else
 #define PLANE(n, off) plane(n, off)
 #endif
@@ -565,6 +569,13 @@ static inline __attribute__((always_inline)) void prefetch_child(const rtk_accel
     __builtin_prefetch(a + 64);
     __builtin_prefetch(a + 128);
     __builtin_prefetch(a + 192);
+#if RTK_MOTION && RTK_BVHN == 8
+    /* an 8-wide motion node's other three lines (for a leaf, the blocks
+     * after its first, or its neighbour's) */
+    __builtin_prefetch(a + 256);
+    __builtin_prefetch(a + 320);
+    __builtin_prefetch(a + 384);
+#endif
 }
 
 typedef struct stack_entry {

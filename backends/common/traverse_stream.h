@@ -26,7 +26,7 @@
  * single-ray entry points, whose traversals for them are their own.
  *
  * A template included after traverse_bvhn.h (not for motion blur, whose
- * entry points are traverse_bvh4mb.h's); it defines
+ * entry points are traverse_motion.h's); it defines
  * rtk_bvh<tag>_intersect_stream and rtk_bvh<tag>_occluded_stream
  * (rtk_backend.h: rtk_intersect_stream_fn), and the inline helpers the
  * packet kernels call for packets whose rays scatter.

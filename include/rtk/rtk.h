@@ -138,6 +138,10 @@ typedef struct rtk_geometry_s *rtk_geometry;
  *   layout=NAME     build every scene into this layout whatever its flags
  *                   (bvh4.triangle4, bvh8.triangle4 where vectors are 8
  *                   wide, bvh4.triangle4i; Embree's tri_accel)
+ *   motion_layout=NAME  the same for motion-blurred triangles (layout=
+ *                   applies to static ones only): bvh4.triangle4mb,
+ *                   bvh8.triangle4mb where vectors are 8 wide, and their
+ *                   .robust ones; Embree's tri_accel_mb
  *                   A builder or layout the active backend lacks fails
  *                   device creation with a message listing what it has.
  * The environment variable RTK_ISA (same values as isa=) narrows the choice
@@ -294,9 +298,9 @@ typedef enum rtk_scene_flags {
      * the origin (tests/test_robust.c).  Costs 2-5% of the default's
      * rate (rtktool trace on the dragon and San Miguel, 1 thread;
      * docs/BENCHMARKS.md, "Shared edges").  Moving geometry gets
-     * bvh4.triangle4mb.robust (the vertices interpolated to the ray's
-     * time, then the same test), and packets the same test ray by ray
-     * within the packet kernels. */
+     * bvh8.triangle4mb.robust (bvh4 on the scalar backend; the vertices
+     * interpolated to the ray's time, then the same test), and packets
+     * the same test ray by ray within the packet kernels. */
     RTK_SCENE_FLAG_ROBUST = 1 << 1,
     /* Geometry changes often: two levels, a tree per triangle geometry
      * (built with the geometry's own quality: low the Morton builder,
@@ -474,7 +478,8 @@ typedef struct rtk_scene_info {
     uint32_t trees_built;
     /* Added after rtk 0.1.0: of triangles, those of geometries with motion
      * blur (more than one time step).  They are built into trees of their
-     * own (layout "bvh4.triangle4mb", one tree per time segment, in bytes),
+     * own (layout "bvh8.triangle4mb", or "bvh4.triangle4mb" on the scalar
+     * backend or with motion_layout=, one tree per time segment),
      * below a top level when the scene has other triangles or instances. */
     uint64_t triangles_motion;
     /* Added in rtk 0.2.0: primitives of user geometry in the top level,

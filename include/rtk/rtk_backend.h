@@ -339,7 +339,9 @@ enum rtk_query_kind {
     X(RTK_LAYOUT_BVH4_TRIANGLE4V, 6, "bvh4.triangle4v")                                                                \
     X(RTK_LAYOUT_BVH8_TRIANGLE4V, 7, "bvh8.triangle4v")                                                                \
     X(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, 8, "bvh4.triangle4i.robust")                                                  \
-    X(RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, 9, "bvh4.triangle4mb.robust")
+    X(RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, 9, "bvh4.triangle4mb.robust")                                                \
+    X(RTK_LAYOUT_BVH8_TRIANGLE4MB, 10, "bvh8.triangle4mb")                                                             \
+    X(RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST, 11, "bvh8.triangle4mb.robust")
 enum rtk_layout_id {
     RTK_LAYOUT_NONE = 0,
 #define RTK_X_(id, value, text) id = value,

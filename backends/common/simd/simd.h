@@ -45,7 +45,7 @@
  *                            order of the pairings, which is not specified
  *   vf4_div / vf4_sqrt       correctly rounded (IEEE), every ISA
  *   vf4_madd / vf4_msub      fused (one rounding) where the ISA has FMA,
- *                            two roundings elsewhere; RTK_SIMD_HAS_FMA says
+ *   (vf8_madd too)           two roundings elsewhere; RTK_SIMD_HAS_FMA says
  *                            which, for kernels whose error bounds depend on
  *                            it (vf8_msub exists only with FMA)
  *   vf4_set1_at / vf8_set1_at *a in every lane, loaded from memory where it

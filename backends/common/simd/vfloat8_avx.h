@@ -22,6 +22,15 @@ RTK_INLINE vfloat8 vf8_set1_at(const float *a)
 RTK_INLINE vfloat8 vf8_add(vfloat8 a, vfloat8 b) { return _mm256_add_ps(a, b); }
 RTK_INLINE vfloat8 vf8_sub(vfloat8 a, vfloat8 b) { return _mm256_sub_ps(a, b); }
 RTK_INLINE vfloat8 vf8_mul(vfloat8 a, vfloat8 b) { return _mm256_mul_ps(a, b); }
+/* a * b + c, fused (one rounding) where the ISA has FMA, as vf4_madd */
+RTK_INLINE vfloat8 vf8_madd(vfloat8 a, vfloat8 b, vfloat8 c)
+{
+#if defined(__FMA__)
+    return _mm256_fmadd_ps(a, b, c);
+#else
+    return _mm256_add_ps(_mm256_mul_ps(a, b), c);
+#endif
+}
 #if defined(__FMA__)
 /* a * b - c with one rounding (only where the ISA has FMA: RTK_SIMD_HAS_FMA) */
 RTK_INLINE vfloat8 vf8_msub(vfloat8 a, vfloat8 b, vfloat8 c) { return _mm256_fmsub_ps(a, b, c); }

@@ -37,6 +37,11 @@ RTK_V8_MAP2(vb8_and, vb4_and)
 RTK_V8_MAP2(vb8_or, vb4_or)
 RTK_V8_MAP2(vb8_andnot, vb4_andnot)
 #undef RTK_V8_MAP2
+/* a * b + c, two roundings (no FMA here) */
+RTK_INLINE vfloat8 vf8_madd(vfloat8 a, vfloat8 b, vfloat8 c)
+{
+    return (vfloat8){vf4_madd(a.lo, b.lo, c.lo), vf4_madd(a.hi, b.hi, c.hi)};
+}
 RTK_INLINE vfloat4 vf8_low(vfloat8 a) { return a.lo; }
 RTK_INLINE vfloat4 vf8_high(vfloat8 a) { return a.hi; }
 RTK_INLINE vfloat8 vf8_from4(vfloat4 lo, vfloat4 hi) { return (vfloat8){lo, hi}; }

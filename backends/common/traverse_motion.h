@@ -1,11 +1,14 @@
-/* Traversal of bvh4.triangle4mb and bvh4.triangle4mb.robust (motion
- * blur, build_motion.c), included by traverse_bvh4mb.c and
- * traverse_bvh4mbr.c: the single-ray template at width 4 with planes and
- * vertices interpolated to the ray's time, through the tree of the time
- * segment the time falls in.  A ray whose time is outside [0, 1] (or NaN)
- * hits nothing here: the motion is defined over that range only.  No
- * packet kernels: the core traces packets ray by ray. */
+/* Traversal of bvhN.triangle4mb and bvhN.triangle4mb.robust (motion
+ * blur, build_motion.c), included by traverse_bvh4mb.c, traverse_bvh4mbr.c
+ * (N = 4) and traverse_bvh8mb.c, traverse_bvh8mbr.c (N = 8, defining
+ * RTK_BVHN first): the single-ray template with planes and vertices
+ * interpolated to the ray's time, through the tree of the time segment the
+ * time falls in.  A ray whose time is outside [0, 1] (or NaN) hits nothing
+ * here: the motion is defined over that range only.  No packet kernels:
+ * the core traces packets ray by ray. */
+#ifndef RTK_BVHN
 #define RTK_BVHN 4
+#endif
 #define RTK_MOTION 1
 #include "traverse_bvhn.h"
 
