@@ -109,6 +109,11 @@ static void test_bad_config(void **state)
         {"builder=sweep", "config builder='sweep': backend "},
         {"layout=bvh16.triangle4", "config layout='bvh16.triangle4': backend "},
         {"isa=scalar,layout=bvh8.triangle4", "backend scalar has no such layout"},
+        {"motion_layout=bvh4 triangle4mb", "config motion_layout='bvh4 triangle4mb': expected a name such as "
+                                           "bvh4.triangle4mb"},
+        {"isa=scalar,motion_layout=bvh8.triangle4mb", "backend scalar has no such motion-blur layout (it has: "
+                                                      "bvh4.triangle4mb, bvh4.triangle4mb.robust)"},
+        {"motion_layout=bvh8.triangle4", "config motion_layout='bvh8.triangle4': backend "},
     };
     for (size_t i = 0; i < sizeof cases / sizeof cases[0]; i++) {
         rtk_device dev = (rtk_device)0x1;
