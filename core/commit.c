@@ -312,6 +312,21 @@ static int refit_serves(rtk_scene s)
     return moved;
 }
 
+/* The vertex buffers of every time step of geoms[0, n), which have `steps`
+ * of them (more than one), as the motion builders and refit take them
+ * (rtk_build_input.time_vertices); NULL when out of memory. */
+static rtk_build_vertices *time_vertices_of(rtk_scene s, const rtk_build_geometry *geoms, size_t n, unsigned steps)
+{
+    rtk_build_vertices *tv = calloc(n * steps + 1, sizeof *tv);
+    for (size_t k = 0; tv && k < n; k++)
+        for (unsigned t = 0; t < steps; t++) {
+            const rtk_geometry g = s->geoms[geoms[k].geom_id];
+            const buffer *b = t ? &g->steps[t - 1] : &g->vertex;
+            tv[k * steps + t] = (rtk_build_vertices){b->data, b->stride};
+        }
+    return tv;
+}
+
 /* What refit_tree did. */
 enum { REFIT_NONE, REFIT_DONE, REFIT_DROP };
 
@@ -343,6 +358,16 @@ static int refit_tree(rtk_scene s, accel_ref *ref, int own_refs, const rtk_build
     rtk_build_input in = build_input(s->quality, geoms, n, ref->layout->id, commit_tasks(s, &task_copy));
     commit_input(s, &in);
     in.progress = NULL; /* (a refit reports once, before it starts: it works in place) */
+    /* a motion-blur tree's refit takes every time step's vertices */
+    const unsigned steps = n ? s->geoms[geoms[0].geom_id]->time_steps : 1;
+    rtk_build_vertices *time_vertices = steps > 1 ? time_vertices_of(s, geoms, n, steps) : NULL;
+    if (steps > 1 && !time_vertices) {
+        unpin_buffers(pinned, pinned_count);
+        *err = rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
+        return REFIT_DONE;
+    }
+    in.time_steps = steps > 1 ? steps : 0;
+    in.time_vertices = time_vertices;
     const unsigned refusals = atomic_load(&dev->refusals);
     rtk_build_output out = *stats;
     out.struct_size = sizeof out;
@@ -350,6 +375,7 @@ static int refit_tree(rtk_scene s, accel_ref *ref, int own_refs, const rtk_build
     const double t0 = now_seconds();
     const int rc = rf->refit(ref->accel, &in, &out);
     const double t1 = now_seconds();
+    free(time_vertices);
     if (rc) {
         unpin_buffers(pinned, pinned_count);
         if (rc == RTK_REFIT_NEEDS_BUILD) {
@@ -561,17 +587,11 @@ static rtk_error build_triangles(rtk_scene s, const rtk_build_geometry *in_geoms
     }
     rtk_build_vertices *time_vertices = NULL;
     if (steps > 1) {
-        time_vertices = calloc(n * steps, sizeof *time_vertices);
+        time_vertices = time_vertices_of(s, in_geoms, n, steps);
         if (!time_vertices) {
             free(attrs);
             return rtk_fail(dev, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory", fn);
         }
-        for (size_t k = 0; k < n; k++)
-            for (unsigned t = 0; t < steps; t++) {
-                const rtk_geometry g = s->geoms[in_geoms[k].geom_id];
-                const buffer *b = t ? &g->steps[t - 1] : &g->vertex;
-                time_vertices[k * steps + t] = (rtk_build_vertices){b->data, b->stride};
-            }
         in.time_steps = steps;
         in.time_vertices = time_vertices;
     }

@@ -670,6 +670,99 @@ static void motion_determinism(void **state)
     free(big.idx);
 }
 
+/* A REFIT geometry with motion blur: new vertices at every step refit
+ * its trees (one-level and dynamic scenes, 2 and 5 steps, both widths),
+ * and the answers are those of the new vertices; a vertex turned NaN at
+ * one step, then fine again, makes the commit build afresh both times; a
+ * new time step count does too. */
+static void motion_refit(void **state)
+{
+    (void)state;
+    motion_configs mc;
+    motion_configs_get(&mc);
+    static const int step_counts[2] = {2, 5};
+    for (size_t b = 0; b < mc.n; b++)
+        for (int sc = 0; sc < 2; sc++)
+            for (int dynamic = 0; dynamic < 2; dynamic++) {
+                moving m = make_moving(step_counts[sc], 1.0, 0.0);
+                rtk_device dev = config_device(mc.config[b]);
+                rtk_scene s = NULL;
+                assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+                if (dynamic)
+                    assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC), RTK_OK);
+                rtk_geometry g = moving_geometry(dev, &m, ball.idx, ball.nt);
+                assert_int_equal(rtk_geometry_set_build_quality(g, RTK_BUILD_QUALITY_REFIT), RTK_OK);
+                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                rtk_geometry_retain(g);
+                const uint32_t id = attach(s, g);
+                commit_ok(dev, s);
+                rtk_scene_info info = {.struct_size = sizeof info};
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                assert_int_equal(info.trees_built, 1);
+                assert_int_equal(info.refits, 0);
+                /* the same ball later along its path: every step moved on
+                 * by one step's motion (translated, turned, grown) */
+                moving later = make_moving(step_counts[sc] + 1, 1.0, 0.0);
+                for (int k = 0; k < m.steps; k++)
+                    memcpy(m.v[k], later.v[k + 1], ball.nv * 3 * sizeof(float));
+                free_moving(&later);
+                assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                commit_ok(dev, s);
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                if (info.refits != 1 || info.trees_built != 0)
+                    fail_msg("%s, %d steps%s: %u refits, %u trees built", mc.config[b], m.steps,
+                             dynamic ? ", dynamic" : "", info.refits, info.trees_built);
+                assert_int_equal(info.triangles_motion, ball.nt);
+                int hits = 0, excused = 0;
+                const int nrays = 1200;
+                check_moving(s, &m, 0, 0, id, NULL, RTK_INVALID_GEOMETRY_ID, nrays, 7 + (uint32_t)b, &hits, &excused);
+                if (hits < nrays / 5 || excused > nrays / 50)
+                    fail_msg("%s, %d steps, refitted: %d hits, %d excused of %d rays", mc.config[b], m.steps, hits,
+                             excused, nrays);
+                /* vertex 0 NaN at the last step: its triangles leave the
+                 * tree, so a build */
+                const float keep = m.v[m.steps - 1][0];
+                m.v[m.steps - 1][0] = NAN;
+                assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                commit_ok(dev, s);
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                assert_int_equal(info.trees_built, 1);
+                assert_int_equal(info.refits, 0);
+                assert_true(info.triangles_skipped > 0);
+                /* and back: a build again, every triangle in */
+                m.v[m.steps - 1][0] = keep;
+                assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                commit_ok(dev, s);
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                assert_int_equal(info.trees_built, 1);
+                assert_int_equal(info.triangles_skipped, 0);
+                check_moving(s, &m, 0, 0, id, NULL, RTK_INVALID_GEOMETRY_ID, nrays / 4, 11 + (uint32_t)b, &hits,
+                             &excused);
+                /* one more time step: a build */
+                moving more = make_moving(m.steps + 1, 1.0, 0.0);
+                assert_int_equal(rtk_geometry_set_time_step_count(g, (unsigned)more.steps), RTK_OK);
+                for (int k = 0; k < more.steps; k++)
+                    assert_int_equal(rtk_geometry_set_shared_buffer_slot(g, RTK_BUFFER_TYPE_VERTEX, (unsigned)k,
+                                                                         more.v[k], 0, 12, ball.nv),
+                                     RTK_OK);
+                assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+                commit_ok(dev, s);
+                assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                assert_int_equal(info.trees_built, 1);
+                assert_int_equal(info.refits, 0);
+                check_moving(s, &more, 0, 0, id, NULL, RTK_INVALID_GEOMETRY_ID, nrays / 4, 13 + (uint32_t)b, &hits,
+                             &excused);
+                rtk_geometry_release(g);
+                rtk_scene_release(s);
+                rtk_device_release(dev);
+                free_moving(&more);
+                free_moving(&m);
+            }
+}
+
 /* Errors: step counts out of range, slots beyond the count, an index
  * slot, a missing or short slot at commit, time steps on an instance. */
 static void motion_errors(void **state)
@@ -741,7 +834,8 @@ int main(void)
         cmocka_unit_test(motion_vs_reference), cmocka_unit_test(motion_steps_exact),
         cmocka_unit_test(motion_time_outside), cmocka_unit_test(motion_bad_vertices),
         cmocka_unit_test(motion_packets),      cmocka_unit_test(motion_scene_info),
-        cmocka_unit_test(motion_determinism), cmocka_unit_test(motion_errors),
+        cmocka_unit_test(motion_determinism), cmocka_unit_test(motion_refit),
+        cmocka_unit_test(motion_errors),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

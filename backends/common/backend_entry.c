@@ -280,7 +280,7 @@ static const rtk_layout_io_entry layout_io[] = {
     {0},
 };
 
-/* Every layout refits the same way (refit.c). */
+/* Every static layout refits the same way (refit.c). */
 #define LAYOUT_REFIT(id) {.layout = id, .refit = RTK_SYM(rtk_bvh_refit)}
 static const rtk_layout_refit_entry layout_refit[] = {
 #ifdef RTK_SIMD_HAS_8
@@ -293,6 +293,13 @@ static const rtk_layout_refit_entry layout_refit[] = {
 #endif
     LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4V),
     LAYOUT_REFIT(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST),
+    /* motion blur: every box of every time segment's tree (build_motion.c) */
+#ifdef RTK_SIMD_HAS_8
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4MB, .refit = RTK_SYM(rtk_motion_refit)},
+    {.layout = RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST, .refit = RTK_SYM(rtk_motion_refit)},
+#endif
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB, .refit = RTK_SYM(rtk_motion_refit)},
+    {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, .refit = RTK_SYM(rtk_motion_refit)},
     {0},
 };
 

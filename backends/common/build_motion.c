@@ -64,6 +64,10 @@ typedef struct mb {
     struct rtk_accel *seg_out;    /* the segment's tree */
     lbox *block_box;
     uint64_t *lanes;              /* per chunk of blocks: triangles in them */
+    /* a refit's: per geometry and vertex, copy_steps' flags; per chunk of
+     * blocks, the triangles in them that must now be left out */
+    const uint8_t *const *bad;
+    uint64_t *dropped;
 } mb;
 
 static inline const float *step_vertex(const mb *m, uint32_t g, uint32_t step, uint32_t v)
@@ -151,7 +155,8 @@ static void store_slot(float *planes, uint32_t width, int c, const lbox *b)
 
 /* The nodes of the subtree `ref`, written with the boxes of both ends;
  * returns its boxes.  The topology's node `ref` (rtk_bvh4_node or
- * rtk_bvh8_node) becomes the motion node `ref` of the same width. */
+ * rtk_bvh8_node) becomes the motion node `ref` of the same width; with no
+ * topology (a refit), the motion node keeps its children. */
 static lbox convert_subtree(mb *m, uint32_t ref)
 {
     lbox all = {{box_empty(), box_empty()}};
@@ -163,8 +168,6 @@ static lbox convert_subtree(mb *m, uint32_t ref)
         return all;
     }
     const uint32_t w = m->width;
-    const uint32_t *tchild = w == 8 ? ((const rtk_bvh8_node *)m->topo->nodes)[ref].child
-                                    : ((const rtk_bvh4_node *)m->topo->nodes)[ref].child;
     float *planes;
     uint32_t *child;
     if (w == 8) {
@@ -176,6 +179,10 @@ static lbox convert_subtree(mb *m, uint32_t ref)
         planes = (float *)n;
         child = n->child;
     }
+    /* a build copies the topology's children; a refit keeps its own */
+    const uint32_t *tchild = !m->topo ? child
+                             : w == 8 ? ((const rtk_bvh8_node *)m->topo->nodes)[ref].child
+                                      : ((const rtk_bvh4_node *)m->topo->nodes)[ref].child;
     memset(planes, 0, 12 * w * sizeof *planes);
     for (uint32_t c = 0; c < w; c++) {
         child[c] = tchild[c];
@@ -257,6 +264,62 @@ static void middle_vertices(const mb *m, uint32_t s, float *const *mid, const ui
         }
 }
 
+/* Geometry g's vertices at every step into the accel's copy, and per
+ * vertex into bad[]: 1 NaN or infinite at some step, 2 beyond rtk's range
+ * (a triangle using either is left out). */
+static void copy_steps(const mb *m, uint32_t g, uint8_t *bad)
+{
+    rtk_mb_geometry *c = &m->out->mb_geoms[g];
+    const size_t nv = c->vertex_count;
+    c->vertices[3 * nv * m->steps] = 0.0f;
+    memset(bad, 0, nv ? nv : 1);
+    for (uint32_t k = 0; k < m->steps; k++)
+        for (size_t v = 0; v < nv; v++) {
+            const float *p = step_vertex(m, g, k, (uint32_t)v);
+            memcpy(&c->vertices[3 * (v * m->steps + k)], p, 3 * sizeof *p);
+            const int finite = 0.0f * p[0] + 0.0f * p[1] + 0.0f * p[2] == 0.0f;
+            const int near = fabsf(p[0]) <= RTK_COORD_LIMIT && fabsf(p[1]) <= RTK_COORD_LIMIT &&
+                             fabsf(p[2]) <= RTK_COORD_LIMIT;
+            bad[v] |= !finite ? 1 : !near ? 2 : 0;
+        }
+}
+
+/* A segment tree's root box b, padded as a slot's is (a node of width 1),
+ * taken into both ends of *total. */
+static void grow_total(lbox *total, const lbox *b)
+{
+    float root[12] = {0};
+    store_slot(root, 1, 0, b);
+    const float lo[3] = {root[0], root[2], root[4]}, hi[3] = {root[1], root[3], root[5]};
+    const float dlo[3] = {root[6], root[8], root[10]}, dhi[3] = {root[7], root[9], root[11]};
+    _Alignas(16) float l[4] = {0}, h[4] = {0};
+    for (int e = 0; e < 2; e++) {
+        for (int a = 0; a < 3; a++) {
+            l[a] = e ? lo[a] + dlo[a] : lo[a];
+            h[a] = e ? hi[a] + dhi[a] : hi[a];
+        }
+        box_grow(&total->b[0], vf4_load(l), vf4_load(h));
+    }
+}
+
+/* The accel's box over all times into out, and the robust traversal's
+ * padding (traverse_bvhn.h) from it. */
+static void finish_bounds(struct rtk_accel *accel, const lbox *total, uint64_t prims, rtk_build_output *out)
+{
+    _Alignas(16) float lo[4], hi[4];
+    vf4_store(lo, total->b[0].lo);
+    vf4_store(hi, total->b[0].hi);
+    accel->extent = 0.0f;
+    for (int a = 0; a < 3; a++) {
+        out->lower[a] = prims ? lo[a] : INFINITY;
+        out->upper[a] = prims ? hi[a] : -INFINITY;
+        const float side = prims ? hi[a] - lo[a] : 0.0f;
+        accel->extent = side > accel->extent ? side : accel->extent;
+    }
+    for (uint32_t s = 0; s < accel->segment_count; s++)
+        accel->segments[s].extent = accel->extent;
+}
+
 int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
 {
     if (in->struct_size < offsetof(rtk_build_input, time_vertices) + sizeof in->time_vertices || in->time_steps < 2 ||
@@ -315,17 +378,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
             rc = mb_fail(out, RTK_ERROR_OUT_OF_MEMORY, "out of memory for the motion build");
             goto done;
         }
-        c->vertices[3 * nv * m.steps] = 0.0f;
-        for (uint32_t k = 0; k < m.steps; k++)
-            for (size_t v = 0; v < nv; v++) {
-                const float *p = step_vertex(&m, g, k, (uint32_t)v);
-                memcpy(&c->vertices[3 * (v * m.steps + k)], p, 3 * sizeof *p);
-                /* 1: NaN or infinite at some step; 2: beyond rtk's range */
-                const int finite = 0.0f * p[0] + 0.0f * p[1] + 0.0f * p[2] == 0.0f;
-                const int near = fabsf(p[0]) <= RTK_COORD_LIMIT && fabsf(p[1]) <= RTK_COORD_LIMIT &&
-                                 fabsf(p[2]) <= RTK_COORD_LIMIT;
-                bad[g][v] |= !finite ? 1 : !near ? 2 : 0;
-            }
+        copy_steps(&m, g, bad[g]);
         geoms[g] = in->geometries[g];
         geoms[g].vertices = mid[g];
         geoms[g].vertex_stride = 3 * sizeof(float);
@@ -385,19 +438,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
             run_parallel(&m.bd, chunks, convert_blocks, &m);
             if (topo->root != RTK_BVH4_EMPTY) {
                 const lbox b = convert_subtree(&m, topo->root);
-                /* the root's box padded as a slot's is (a node of width 1) */
-                float root[12] = {0};
-                store_slot(root, 1, 0, &b);
-                const float lo[3] = {root[0], root[2], root[4]}, hi[3] = {root[1], root[3], root[5]};
-                const float dlo[3] = {root[6], root[8], root[10]}, dhi[3] = {root[7], root[9], root[11]};
-                _Alignas(16) float l[4] = {0}, h[4] = {0};
-                for (int e = 0; e < 2; e++) {
-                    for (int a = 0; a < 3; a++) {
-                        l[a] = e ? lo[a] + dlo[a] : lo[a];
-                        h[a] = e ? hi[a] + dhi[a] : hi[a];
-                    }
-                    box_grow(&total.b[0], vf4_load(l), vf4_load(h));
-                }
+                grow_total(&total, &b);
             }
             uint64_t lanes = 0;
             for (uint32_t c = 0; c < chunks; c++)
@@ -431,18 +472,7 @@ int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out)
     out->bytes = nodes * node_size + blocks * sizeof(rtk_triangle4i) + vertex_bytes + sizeof *accel +
                  segments * sizeof *accel->segments + in->geometry_count * sizeof *accel->mb_geoms;
     out->sah_cost = sah / segments;
-    _Alignas(16) float lo[4], hi[4];
-    vf4_store(lo, total.b[0].lo);
-    vf4_store(hi, total.b[0].hi);
-    for (int a = 0; a < 3; a++) {
-        out->lower[a] = prims ? lo[a] : INFINITY;
-        out->upper[a] = prims ? hi[a] : -INFINITY;
-        /* the robust traversal's padding (traverse_bvhn.h), over all times */
-        const float side = prims ? hi[a] - lo[a] : 0.0f;
-        accel->extent = side > accel->extent ? side : accel->extent;
-    }
-    for (uint32_t s = 0; s < segments; s++)
-        accel->segments[s].extent = accel->extent;
+    finish_bounds(accel, &total, prims, out);
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
         out->threads = threads;
     if (out->struct_size >= offsetof(rtk_build_output, refs) + sizeof out->refs)
@@ -462,5 +492,145 @@ done:
     free(bad);
     free(geoms);
     free(index_of);
+    return rc;
+}
+
+/* ---- refit ---- */
+
+/* Refit, one chunk of a segment's leaf blocks: their boxes at the
+ * segment's two ends from the accel's copy of the new vertices, the
+ * triangles in them, and of those the ones that must now be left out. */
+static void refit_blocks(void *data, uint32_t chunk)
+{
+    mb *m = data;
+    const struct rtk_accel *seg = m->seg_out;
+    const uint64_t begin = (uint64_t)chunk * MB_BLOCK_CHUNK;
+    const uint64_t end = begin + MB_BLOCK_CHUNK < seg->leaf_count ? begin + MB_BLOCK_CHUNK : seg->leaf_count;
+    uint64_t lanes = 0, dropped = 0;
+    for (uint64_t k = begin; k < end; k++) {
+        const rtk_triangle4i *d = &seg->trisi[k];
+        lbox box = {{box_empty(), box_empty()}};
+        for (int lane = 0; lane < 4; lane++) {
+            if (d->prim[lane] == RTK_BVH4_EMPTY)
+                continue;
+            lanes++;
+            const uint32_t gi = d->geom[lane];
+            const uint32_t idx[3] = {d->v0[lane], d->v1[lane], d->v2[lane]};
+            dropped += (m->bad[gi][idx[0]] | m->bad[gi][idx[1]] | m->bad[gi][idx[2]]) != 0;
+            for (int e = 0; e < 2; e++)
+                for (int v = 0; v < 3; v++) {
+                    const float *p = copy_vertex(m, gi, m->seg + (uint32_t)e, idx[v]);
+                    const vfloat4 x = vf4_set(p[0], p[1], p[2], 0.0f);
+                    box_grow(&box.b[e], x, x);
+                }
+        }
+        m->block_box[k] = box;
+    }
+    m->lanes[chunk] = lanes;
+    m->dropped[chunk] = dropped;
+}
+
+/*
+ * Refit (rtk_accel_refit) of a motion accel: the geometries' new vertices
+ * at every time step into the accel's copy, and every box of every
+ * segment's tree recomputed bottom-up from them, exactly as a build
+ * computes the boxes of its tree (the same padding), so the answers are
+ * those of a build of the same trees: only the trees' shapes, shaped by
+ * the old vertices, are kept.  RTK_REFIT_NEEDS_BUILD when the time steps,
+ * the geometries or their vertex counts are not the build's, or the
+ * triangles that go in the trees are not the ones they hold (a vertex
+ * turned NaN, infinite or out of range, or back).  Everything is allocated
+ * before the accel is written, so an error other than that one leaves it
+ * as it was.
+ */
+int RTK_SYM(rtk_motion_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out)
+{
+    if (in->layout != accel->layout)
+        return mb_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the input asks for another layout than the accel's");
+    const uint32_t width =
+        accel->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB || accel->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST ? 8 : 4;
+    if (in->struct_size < offsetof(rtk_build_input, time_vertices) + sizeof in->time_vertices || in->time_steps < 2 ||
+        !in->time_vertices || in->time_steps - 1 != accel->segment_count || in->geometry_count != accel->mb_geom_count)
+        return mb_fail(out, RTK_REFIT_NEEDS_BUILD, "the time steps or the geometries changed");
+    uint64_t leaves = 0;
+    for (uint32_t g = 0; g < in->geometry_count; g++) {
+        const rtk_mb_geometry *c = &accel->mb_geoms[g];
+        if (in->geometries[g].geom_id != c->geom_id || in->geometries[g].vertex_count != c->vertex_count)
+            return mb_fail(out, RTK_REFIT_NEEDS_BUILD, "a geometry or its vertex count changed");
+    }
+    for (uint32_t s = 0; s < accel->segment_count; s++)
+        leaves = accel->segments[s].leaf_count > leaves ? accel->segments[s].leaf_count : leaves;
+    mb m = {.in = in, .steps = in->time_steps, .width = width, .out = accel};
+    m.bd = (build){.in = in, .tasks = in->tasks && in->threads > 1 &&
+                                              in->struct_size >= offsetof(rtk_build_input, tasks) + sizeof in->tasks
+                                          ? in->tasks
+                                          : NULL};
+    const uint32_t max_chunks = (uint32_t)((leaves + MB_BLOCK_CHUNK - 1) / MB_BLOCK_CHUNK);
+    uint8_t **bad = calloc(in->geometry_count + 1, sizeof *bad);
+    m.block_box = malloc((leaves ? leaves : 1) * sizeof *m.block_box);
+    m.lanes = calloc(max_chunks ? max_chunks : 1, sizeof *m.lanes);
+    m.dropped = calloc(max_chunks ? max_chunks : 1, sizeof *m.dropped);
+    int rc = bad && m.block_box && m.lanes && m.dropped ? RTK_OK : RTK_ERROR_OUT_OF_MEMORY;
+    for (uint32_t g = 0; !rc && g < in->geometry_count; g++) {
+        const size_t nv = in->geometries[g].vertex_count;
+        bad[g] = malloc(nv ? nv : 1);
+        rc = bad[g] ? RTK_OK : RTK_ERROR_OUT_OF_MEMORY;
+    }
+    if (rc) {
+        mb_fail(out, rc, "out of memory for the motion refit");
+        goto done;
+    }
+    m.bad = (const uint8_t *const *)bad;
+    /* the new vertices, and the triangles that go in the trees now */
+    build_counts left = {0, 0, 0};
+    uint64_t kept = 0;
+    for (uint32_t g = 0; g < in->geometry_count; g++) {
+        copy_steps(&m, g, bad[g]);
+        const rtk_build_geometry *geo = &in->geometries[g];
+        for (size_t prim = 0; prim < geo->prim_count; prim++) {
+            const uint32_t *tri = triangle_at(geo, prim);
+            const unsigned b = bad[g][tri[0]] | bad[g][tri[1]] | bad[g][tri[2]];
+            kept += !b;
+            left.skipped += (b & 1) != 0;
+            left.out_of_range += b == 2;
+        }
+    }
+    lbox total = {{box_empty(), box_empty()}};
+    for (uint32_t s = 0; s < accel->segment_count && !rc; s++) {
+        struct rtk_accel *seg = &accel->segments[s];
+        uint64_t lanes = 0, dropped = 0;
+        if (seg->root != RTK_BVH4_EMPTY) {
+            const uint32_t chunks = (uint32_t)((seg->leaf_count + MB_BLOCK_CHUNK - 1) / MB_BLOCK_CHUNK);
+            m.seg = s;
+            m.seg_out = seg;
+            m.topo = NULL;
+            run_parallel(&m.bd, chunks, refit_blocks, &m);
+            for (uint32_t c = 0; c < chunks; c++) {
+                lanes += m.lanes[c];
+                dropped += m.dropped[c];
+            }
+        }
+        if (dropped || lanes != kept) {
+            rc = mb_fail(out, RTK_REFIT_NEEDS_BUILD, "the triangles that go in the trees changed");
+            break;
+        }
+        if (seg->root != RTK_BVH4_EMPTY) {
+            const lbox b = convert_subtree(&m, seg->root);
+            grow_total(&total, &b);
+        }
+    }
+    if (!rc) {
+        finish_bounds(accel, &total, kept, out);
+        build_counts_store(out, &left);
+        out->prims = kept;
+    }
+
+done:
+    for (uint32_t g = 0; bad && g < in->geometry_count; g++)
+        free(bad[g]);
+    free(bad);
+    free(m.block_box);
+    free(m.lanes);
+    free(m.dropped);
     return rc;
 }

@@ -44,6 +44,7 @@ RTK_OBJECTS_PACKET_DECL_(16)
 #undef RTK_OBJECTS_PACKET_DECL_
 RTK_HIDDEN int RTK_SYM(rtk_build_motion)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_motion_release)(rtk_accel *accel);
+RTK_HIDDEN int RTK_SYM(rtk_motion_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4mb_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4v_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);

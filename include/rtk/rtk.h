@@ -329,7 +329,9 @@ typedef enum rtk_scene_flags {
  * tree (never hit) for a refit to give them area.  The answers are a
  * rebuild's; the tree's shape, and so its trace speed, stays that of the
  * last build, which suits motion that keeps neighbours together
- * (animation, skinning), not geometry that scatters.  Anything else (a
+ * (animation, skinning), not geometry that scatters.  A motion-blurred
+ * REFIT geometry refits the same way from its vertices at every time step
+ * (the same step count).  Anything else (a
  * vertex that becomes or stops being NaN or infinite, geometry attached,
  * detached, enabled or disabled, other buffers, a geometry's or the
  * scene's quality, the scene's flags) makes the commit build afresh.
