@@ -83,6 +83,18 @@ static inline const float *copy_vertex(const mb *m, uint32_t g, uint32_t step, u
     return c->vertices + 3 * ((size_t)v * c->steps + step);
 }
 
+/* Grows *box, at the segment's two ends, by the triangle of geometry gi
+ * with vertices idx, from the accel's copy. */
+static inline void grow_triangle(const mb *m, lbox *box, uint32_t gi, const uint32_t *idx)
+{
+    for (int e = 0; e < 2; e++)
+        for (int v = 0; v < 3; v++) {
+            const float *p = copy_vertex(m, gi, m->seg + (uint32_t)e, idx[v]);
+            const vfloat4 x = vf4_set(p[0], p[1], p[2], 0.0f);
+            box_grow(&box->b[e], x, x);
+        }
+}
+
 /* Leaf blocks of one chunk: the topology's triangles by vertex index, and
  * their boxes at the segment's two ends. */
 static void convert_blocks(void *data, uint32_t chunk)
@@ -108,12 +120,7 @@ static void convert_blocks(void *data, uint32_t chunk)
             d->v0[lane] = tri[0];
             d->v1[lane] = tri[1];
             d->v2[lane] = tri[2];
-            for (int e = 0; e < 2; e++)
-                for (int v = 0; v < 3; v++) {
-                    const float *p = copy_vertex(m, gi, m->seg + (uint32_t)e, tri[v]);
-                    const vfloat4 x = vf4_set(p[0], p[1], p[2], 0.0f);
-                    box_grow(&box.b[e], x, x);
-                }
+            grow_triangle(m, &box, gi, tri);
         }
         m->block_box[k] = box;
     }
@@ -517,12 +524,7 @@ static void refit_blocks(void *data, uint32_t chunk)
             const uint32_t gi = d->geom[lane];
             const uint32_t idx[3] = {d->v0[lane], d->v1[lane], d->v2[lane]};
             dropped += (m->bad[gi][idx[0]] | m->bad[gi][idx[1]] | m->bad[gi][idx[2]]) != 0;
-            for (int e = 0; e < 2; e++)
-                for (int v = 0; v < 3; v++) {
-                    const float *p = copy_vertex(m, gi, m->seg + (uint32_t)e, idx[v]);
-                    const vfloat4 x = vf4_set(p[0], p[1], p[2], 0.0f);
-                    box_grow(&box.b[e], x, x);
-                }
+            grow_triangle(m, &box, gi, idx);
         }
         m->block_box[k] = box;
     }
