@@ -266,6 +266,15 @@ static int pin_buffers(rtk_scene s, const rtk_layout_entry *layout, const rtk_bu
     return 1;
 }
 
+/* What a tree built now over g holds of it, for a later commit's refit
+ * check (the counts only of meshes: the other types have no buffers). */
+static built_geom built_now(rtk_geometry g)
+{
+    const int mesh = is_mesh(g);
+    return (built_geom){g, g->vertex_version, g->index_version, mesh ? g->index.count : 0, mesh ? g->vertex.count : 0,
+                        g->quality};
+}
+
 /* Records what the tree now holds.  Out of memory only costs the next
  * commit its chance of a refit. */
 static void remember_built(rtk_scene s)
@@ -278,8 +287,7 @@ static void remember_built(rtk_scene s)
     for (uint32_t i = 0; i < s->built_count; i++) {
         rtk_geometry g = s->geoms[i];
         if (g && g->enabled)
-            s->built[i] = (built_geom){g, g->vertex_version, g->index_version, g->index.count, g->vertex.count,
-                                       g->quality};
+            s->built[i] = built_now(g);
     }
 }
 
@@ -301,7 +309,7 @@ static int refit_serves(rtk_scene s)
             return 0;
         if (!g)
             continue;
-        if (g->index_version != b.index_version || g->index.count != b.prim_count || g->quality != b.quality)
+        if (g->index_version != b.index_version || built_now(g).prim_count != b.prim_count || g->quality != b.quality)
             return 0;
         if (g->vertex_version != b.vertex_version) {
             if (g->quality != RTK_BUILD_QUALITY_REFIT)
@@ -923,7 +931,7 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
     for (size_t k = 0; k < n && !err; k++) {
         const uint32_t i = geoms[k].geom_id;
         const rtk_geometry g = s->geoms[i];
-        const built_geom now = {g, g->vertex_version, g->index_version, g->index.count, g->vertex.count, g->quality};
+        const built_geom now = built_now(g);
         const dyn_tree *old = i < s->dyn_count && s->dyn[i].ref && s->dyn[i].b.g == g ? &s->dyn[i] : NULL;
         const int same_tris = old && old->b.index_version == now.index_version &&
                               old->b.prim_count == now.prim_count && old->b.quality == now.quality;

@@ -34,8 +34,12 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     atomic_init(&g->refs, 1);
     g->device = device;
     g->type = type;
-    memcpy(g->xfm, identity_3x4, sizeof g->xfm);
-    memcpy(g->inv, identity_3x4, sizeof g->inv);
+    if (type == RTK_GEOMETRY_TYPE_INSTANCE) {
+        memcpy(g->xfm, identity_3x4, sizeof g->xfm);
+        memcpy(g->inv, identity_3x4, sizeof g->inv);
+    }
+    g->owners = &g->owner_one;
+    g->owner_cap = 1;
     g->quality = RTK_BUILD_QUALITY_MEDIUM;
     g->enabled = 1;
     g->time_steps = 1;
@@ -61,13 +65,17 @@ void rtk_geometry_release(rtk_geometry g)
 {
     if (!g || atomic_fetch_sub(&g->refs, 1) != 1)
         return;
-    buffer_free(&g->vertex);
-    buffer_free(&g->index);
-    for (unsigned k = 1; k < g->time_steps; k++)
-        buffer_free(&g->steps[k - 1]);
-    free(g->steps);
-    rtk_scene_release(g->instanced);
-    free(g->owners);
+    if (is_mesh(g)) {
+        buffer_free(&g->vertex);
+        buffer_free(&g->index);
+        for (unsigned k = 1; k < g->time_steps; k++)
+            buffer_free(&g->steps[k - 1]);
+        free(g->steps);
+    }
+    if (g->type == RTK_GEOMETRY_TYPE_INSTANCE)
+        rtk_scene_release(g->instanced);
+    if (g->owners != &g->owner_one)
+        free(g->owners);
     rtk_device dev = g->device;
     free(g);
     rtk_device_release(dev);
@@ -230,8 +238,11 @@ rtk_error rtk_geometry_update_buffer(rtk_geometry g, rtk_buffer_type type)
     if (type != RTK_BUFFER_TYPE_VERTEX && type != RTK_BUFFER_TYPE_INDEX)
         return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT, "rtk_geometry_update_buffer: unknown buffer type %d",
                         (int)type);
+    if (!is_mesh(g))
+        return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION,
+                        "rtk_geometry_update_buffer: only triangle and quad geometry has buffers");
     const buffer *b = type == RTK_BUFFER_TYPE_VERTEX ? &g->vertex : &g->index;
-    if (!b->stride) /* (an instance has none) */
+    if (!b->stride)
         return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_update_buffer: no %s buffer set",
                         type == RTK_BUFFER_TYPE_VERTEX ? "vertex" : "index");
     buffer_changed(g, type);

@@ -227,8 +227,11 @@ rtk_error rtk_scene_attach_geometry(rtk_scene s, rtk_geometry g, uint32_t *geom_
                         "rtk_scene_attach_geometry: the instance places this scene, or a scene that contains it: a "
                         "cycle");
     if (g->owner_count == g->owner_cap) {
-        const uint32_t cap = g->owner_cap ? 2 * g->owner_cap : 4;
-        rtk_scene *o = cap > g->owner_cap ? realloc(g->owners, cap * sizeof *o) : NULL;
+        const uint32_t cap = 2 * g->owner_cap < 4 ? 4 : 2 * g->owner_cap;
+        rtk_scene *o = cap > g->owner_cap ? realloc(g->owners == &g->owner_one ? NULL : g->owners, cap * sizeof *o)
+                                          : NULL;
+        if (o && g->owners == &g->owner_one)
+            o[0] = g->owner_one;
         if (!o)
             return rtk_fail(s->device, RTK_ERROR_OUT_OF_MEMORY, "rtk_scene_attach_geometry: out of memory");
         g->owners = o;

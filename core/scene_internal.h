@@ -54,11 +54,10 @@ struct rtk_geometry_s {
     atomic_int refs;
     rtk_device device;
     rtk_geometry_type type;
-    buffer vertex, index;
-    /* Motion blur: time_steps vertex buffers, slot 0 in vertex and slots
-     * 1 .. time_steps - 1 in steps[0 ..]. */
+    /* Motion blur: time_steps vertex buffers (1 for every type but meshes
+     * with motion), slot 0 in vertex and slots 1 .. time_steps - 1 in
+     * steps[0 ..]. */
     unsigned time_steps;
-    buffer *steps;
     /* Changed whenever a buffer is set or updated: unique over all
      * geometries, so a scene can tell what changed since its last commit. */
     uint64_t vertex_version, index_version;
@@ -69,20 +68,34 @@ struct rtk_geometry_s {
     /* Read at the scene's commit into its tree (rtk_geometry_attrs). */
     uint32_t mask;
     rtk_filter_fn intersect_filter, occluded_filter;
-    /* RTK_GEOMETRY_TYPE_USER */
-    uint32_t user_count;
-    rtk_bounds_fn bounds;
-    rtk_user_query_fn user_intersect, user_occluded;
-    /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained), the
-     * transform from its space (row-major 3x4) and, once committed, the
-     * inverse. */
-    rtk_scene instanced;
-    float xfm[12], inv[12];
+    /* What only one type has, in the space of the largest (an instance's):
+     * read a member only for its type (is_mesh, g->type).  A forest's
+     * million instances each saved 72 bytes of mesh buffers and 32 of user
+     * callbacks. */
+    union {
+        struct { /* triangles and quads (is_mesh) */
+            buffer vertex, index;
+            buffer *steps;
+        };
+        struct { /* RTK_GEOMETRY_TYPE_USER */
+            uint32_t user_count;
+            rtk_bounds_fn bounds;
+            rtk_user_query_fn user_intersect, user_occluded;
+        };
+        struct { /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained),
+                  * the transform from its space (row-major 3x4) and, once
+                  * committed, the inverse */
+            rtk_scene instanced;
+            float xfm[12], inv[12];
+        };
+    };
     /* The scenes the geometry is attached to (not retained; one entry per
      * attachment), so that setting an instance's scene can refuse a cycle
-     * of references, which would never be freed. */
+     * of references, which would never be freed: owner_one until a second
+     * attachment, then an array of owner_cap. */
     rtk_scene *owners;
     uint32_t owner_count, owner_cap;
+    rtk_scene owner_one;
 };
 
 static const float identity_3x4[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};

@@ -328,6 +328,74 @@ static void test_geometry_lifecycle(void **state)
 /* A new geometry takes the lowest free geomID: ids freed by detach are
  * taken again lowest first, then the table grows; over many attachments
  * (rtk_scene_attach_geometry keeps where the lowest free slot may be). */
+/* A geometry keeps only its own type's state (rtk_geometry_s lays the
+ * types' members over one another): another type's calls are refused and
+ * change nothing it traces with, and each type releases what it holds
+ * (ASan and valgrind runs check the release). */
+static void test_geometry_types_apart(void **state)
+{
+    (void)state;
+    rtk_device dev = NULL;
+    assert_int_equal(rtk_device_new(NULL, &dev), RTK_OK);
+    static const float v[] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+    static const uint32_t idx[] = {0, 1, 2};
+    const float xfm[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 3}; /* moved up by 3 */
+    rtk_scene child = test_scene(dev, v, 3, idx, 1);
+    rtk_geometry inst = NULL, mesh = NULL, user = NULL;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &mesh), RTK_OK);
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &user), RTK_OK);
+    assert_int_equal(rtk_geometry_set_instanced_scene(inst, child), RTK_OK);
+    assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xfm), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(mesh, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, 3), RTK_OK);
+    assert_int_equal(rtk_geometry_set_shared_buffer(mesh, RTK_BUFFER_TYPE_INDEX, idx, 0, 12, 1), RTK_OK);
+    /* the others' calls */
+    rtk_geometry not_mesh[2] = {inst, user};
+    for (int k = 0; k < 2; k++) {
+        rtk_geometry g = not_mesh[k];
+        assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, 3),
+                         RTK_ERROR_INVALID_OPERATION);
+        assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_ERROR_INVALID_OPERATION);
+        assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_INDEX), RTK_ERROR_INVALID_OPERATION);
+        assert_int_equal(rtk_geometry_set_time_step_count(g, 2), RTK_ERROR_INVALID_OPERATION);
+    }
+    rtk_geometry not_user[2] = {inst, mesh}, not_inst[2] = {mesh, user};
+    for (int k = 0; k < 2; k++) {
+        assert_int_equal(rtk_geometry_set_user_primitive_count(not_user[k], 7), RTK_ERROR_INVALID_OPERATION);
+        assert_int_equal(rtk_geometry_set_transform(not_inst[k], RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xfm),
+                         RTK_ERROR_INVALID_OPERATION);
+        assert_int_equal(rtk_geometry_set_instanced_scene(not_inst[k], child), RTK_ERROR_INVALID_OPERATION);
+    }
+    assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(mesh), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(user), RTK_ERROR_INVALID_OPERATION); /* no callbacks set */
+    /* the instance places the child 3 up, the mesh lies at 0 */
+    rtk_scene top = NULL;
+    assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
+    uint32_t inst_id = 0, mesh_id = 0;
+    assert_int_equal(rtk_scene_attach_geometry(top, inst, &inst_id), RTK_OK);
+    assert_int_equal(rtk_scene_attach_geometry(top, mesh, &mesh_id), RTK_OK);
+    assert_int_equal(rtk_scene_commit(top), RTK_OK);
+    rtk_rayhit rh = down_at(0.25f, 0.25f);
+    assert_int_equal(rtk_intersect1(top, &rh), RTK_OK);
+    assert_float_equal(rh.ray.tfar, 2.0f, 1e-6f);
+    assert_int_equal(rh.hit.instID, inst_id);
+    assert_int_equal(rh.hit.geomID, 0);
+    assert_int_equal(rtk_scene_detach_geometry(top, inst_id), RTK_OK);
+    assert_int_equal(rtk_scene_commit(top), RTK_OK);
+    rh = down_at(0.25f, 0.25f);
+    assert_int_equal(rtk_intersect1(top, &rh), RTK_OK);
+    assert_float_equal(rh.ray.tfar, 5.0f, 1e-6f);
+    assert_int_equal(rh.hit.geomID, mesh_id);
+    assert_int_equal(rh.hit.instID, RTK_INVALID_GEOMETRY_ID);
+    rtk_scene_release(top);
+    rtk_geometry_release(inst);
+    rtk_geometry_release(mesh);
+    rtk_geometry_release(user);
+    rtk_scene_release(child);
+    rtk_device_release(dev);
+}
+
 static void test_geometry_ids(void **state)
 {
     (void)state;
@@ -547,6 +615,7 @@ int main(void)
         cmocka_unit_test(test_bad_config),
         cmocka_unit_test(test_error_callback),
         cmocka_unit_test(test_geometry_ids),
+        cmocka_unit_test(test_geometry_types_apart),
         cmocka_unit_test(test_index_out_of_range),
         cmocka_unit_test(test_nonfinite_vertices),
         cmocka_unit_test(test_empty_scene),
