@@ -788,7 +788,7 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         atomic_fetch_add(&c->refs, 1);
         objs[k] = (rtk_build_object){.accel = c->accel, .intersect1 = c->intersect1, .occluded1 = c->occluded1,
                                      .inst_id = i, .mask = g->mask};
-        memcpy(objs[k].world_to_object, g->inv, sizeof g->inv);
+        rtk_invert_3x4(g->xfm, objs[k].world_to_object); /* (rtk_geometry_commit checked it) */
         world_box(g->xfm, c->lower, c->upper, objs[k].lower, objs[k].upper);
         children[k++] = c;
         depth = c->depth + 1 > depth ? c->depth + 1 : depth;

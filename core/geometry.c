@@ -36,7 +36,6 @@ rtk_error rtk_geometry_new(rtk_device device, rtk_geometry_type type, rtk_geomet
     g->type = type;
     if (type == RTK_GEOMETRY_TYPE_INSTANCE) {
         memcpy(g->xfm, identity_3x4, sizeof g->xfm);
-        memcpy(g->inv, identity_3x4, sizeof g->inv);
     }
     g->owners = &g->owner_one;
     g->owner_cap = 1;
@@ -504,10 +503,8 @@ rtk_error rtk_geometry_set_transform(rtk_geometry g, rtk_format format, const fl
     return RTK_OK;
 }
 
-/* inv = the inverse of the affine map m (row-major 3x4), in double
- * precision (geometry/affine.h) and rounded; 0 when m is singular or the
- * inverse is not finite. */
-static int invert_3x4(const float *m, float *inv)
+/* (scene_internal.h) */
+int rtk_invert_3x4(const float *m, float *inv)
 {
     double md[12], id[12];
     for (int k = 0; k < 12; k++)
@@ -528,7 +525,8 @@ rtk_error rtk_geometry_commit(rtk_geometry g)
     if (g->type == RTK_GEOMETRY_TYPE_INSTANCE) {
         if (!g->instanced)
             return rtk_fail(g->device, RTK_ERROR_INVALID_OPERATION, "rtk_geometry_commit: the instance has no scene");
-        if (!invert_3x4(g->xfm, g->inv))
+        float inv[12]; /* (the scene's commit computes it again, the same floats, for its top level) */
+        if (!rtk_invert_3x4(g->xfm, inv))
             return rtk_fail(g->device, RTK_ERROR_INVALID_ARGUMENT,
                             "rtk_geometry_commit: the instance's transform is singular (no inverse in floats)");
         g->committed = 1;

@@ -71,7 +71,7 @@ struct rtk_geometry_s {
     /* What only one type has, in the space of the largest (an instance's):
      * read a member only for its type (is_mesh, g->type).  A forest's
      * million instances each saved 72 bytes of mesh buffers and 32 of user
-     * callbacks. */
+     * callbacks, and 48 more of an inverse no longer kept. */
     union {
         struct { /* triangles and quads (is_mesh) */
             buffer vertex, index;
@@ -82,11 +82,12 @@ struct rtk_geometry_s {
             rtk_bounds_fn bounds;
             rtk_user_query_fn user_intersect, user_occluded;
         };
-        struct { /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained),
-                  * the transform from its space (row-major 3x4) and, once
-                  * committed, the inverse */
+        struct { /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained)
+                  * and the transform from its space (row-major 3x4), whose
+                  * inverse the geometry's commit checks and the scene's
+                  * commit computes (rtk_invert_3x4) */
             rtk_scene instanced;
-            float xfm[12], inv[12];
+            float xfm[12];
         };
     };
     /* The scenes the geometry is attached to (not retained; one entry per
@@ -99,6 +100,11 @@ struct rtk_geometry_s {
 };
 
 static const float identity_3x4[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+
+/* inv = the inverse of the affine map m (row-major 3x4), in double
+ * precision (geometry/affine.h) and rounded; 0 when m is singular or the
+ * inverse is not finite (geometry.c). */
+int rtk_invert_3x4(const float *m, float *inv);
 
 /* Triangles and quads: a mesh of vertex and index buffers (a quad is two
  * triangles to the builders, rtk.h). */
