@@ -262,7 +262,7 @@ static inline int ray_check(const rtk_ray *r)
     const ray_floats4 ad = (ray_floats4)((ray_ints4)d & 0x7fffffff);
     const float mo = ao[0] > ao[1] ? ao[0] : ao[1], md = ad[0] > ad[1] ? ad[0] : ad[1];
     const float mo3 = mo > ao[2] ? mo : ao[2], md3 = md > ad[2] ? md : ad[2];
-    return (mo3 > RAY_ORG_MAX) | (md3 < RAY_DIR_MIN) | (md3 > RAY_DIR_MAX) ? RAY_RANGE : RAY_PLAIN;
+    return ((mo3 > RAY_ORG_MAX) | (md3 < RAY_DIR_MIN) | (md3 > RAY_DIR_MAX)) ? RAY_RANGE : RAY_PLAIN;
 }
 
 /* stream.c: the checks of an array of `count` structs of `size` bytes,
