@@ -609,6 +609,62 @@ static void test_motion(void **state)
     rtk_device_release(dev);
 }
 
+/* ---- a refitted tree ---- */
+
+/* The walk keeps each leaf block's oriented box from the tree's first
+ * query (block_bounds.h); a refit moves the blocks, so it must drop them:
+ * queries before and after the ball turns inside out and moves, every
+ * backend, the layouts of leaf blocks (default, robust). */
+static void test_refit(void **state)
+{
+    (void)state;
+    char names[8][32];
+    const size_t nb = test_backend_names(names, 8);
+    float *v = malloc(ball.nv * 3 * sizeof *v);
+    assert_non_null(v);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        for (unsigned robust = 0; robust < 2; robust++) {
+            memcpy(v, ball.v, ball.nv * 3 * sizeof *v);
+            rtk_scene s;
+            assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+            assert_int_equal(rtk_scene_set_flags(s, robust ? RTK_SCENE_FLAG_ROBUST : 0), RTK_OK);
+            rtk_geometry g;
+            assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g), RTK_OK);
+            assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, ball.nv), RTK_OK);
+            assert_int_equal(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, ball.idx, 0, 12, ball.nt),
+                             RTK_OK);
+            assert_int_equal(rtk_geometry_set_build_quality(g, RTK_BUILD_QUALITY_REFIT), RTK_OK);
+            assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+            assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
+            rtk_geometry_release(g);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            snprintf(where_buf, sizeof where_buf, "%s, refit, robust %u", names[b], robust);
+            where = where_buf;
+            for (int step = 0; step < 3; step++) {
+                if (step) {
+                    /* every vertex through the centre and out, moved by step */
+                    for (size_t i = 0; i < ball.nv; i++) {
+                        v[3 * i] = -0.5f * v[3 * i] + (float)step;
+                        v[3 * i + 1] = -0.5f * v[3 * i + 1];
+                        v[3 * i + 2] = -0.5f * v[3 * i + 2] - (float)step;
+                    }
+                    test_commit_moved(s, g);
+                    rtk_scene_info info = {.struct_size = sizeof info};
+                    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+                    assert_int_equal(info.refits, step);
+                }
+                tri_d *t = mesh_tris(v, ball.idx, ball.nt);
+                check_points(s, t, ball.nt, robust, 1.0, 31 + step, test_sanitized() ? 60 : 300);
+                free(t);
+            }
+            rtk_scene_release(s);
+        }
+        rtk_device_release(dev);
+    }
+    free(v);
+}
+
 /* ---- batches ---- */
 
 static void test_batch(void **state)
@@ -722,7 +778,8 @@ int main(void)
         cmocka_unit_test(test_soup),             cmocka_unit_test(test_scales),
         cmocka_unit_test(test_double_precision), cmocka_unit_test(test_degenerate),
         cmocka_unit_test(test_quads),            cmocka_unit_test(test_instances),
-        cmocka_unit_test(test_motion),           cmocka_unit_test(test_batch),
+        cmocka_unit_test(test_motion),           cmocka_unit_test(test_refit),
+        cmocka_unit_test(test_batch),
         cmocka_unit_test(test_errors),
     };
     return cmocka_run_group_tests(tests, setup, teardown);

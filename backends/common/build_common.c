@@ -6,6 +6,7 @@
 #include <string.h>
 #include <sys/mman.h>
 
+#include "block_bounds.h"
 #include "build_common.h"
 #include "kernels.h"
 
@@ -655,6 +656,7 @@ void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
 {
     if (!accel)
         return;
+    rtk_block_obbs_drop(accel);
     tree_array_unreserve(&accel->memory, accel->nodes, accel->nodes_mapped, accel->nodes_offset);
     tree_array_unreserve(&accel->memory, accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped,
                          0);

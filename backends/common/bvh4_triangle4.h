@@ -276,6 +276,11 @@ struct rtk_accel {
      * subtree whole, in slot order (the Morton builder, imported trees).
      * The order refit walks the tree in (refit.c, walk_order). */
     uint32_t leaves_first;
+    /* closest points (point_query.c): each leaf block's oriented box,
+     * made at the first query, else NULL */
+    struct rtk_block_obb *_Atomic block_obbs;
+    /* the squared distance beyond which the walk tests them (set with them) */
+    float obb_from;
 };
 
 /* What the merged two-level traversal (traverse_objects.h) reads of an

@@ -11,7 +11,9 @@
  * in one SIMD step, the survivors' distances bounded from below in float
  * (tri4_lower), and they are measured in double (geometry/closest_point.h,
  * from the vertices the layout keeps), nearest bound first, while that
- * bound is within the best distance.
+ * bound is within the best distance.  Once that distance is a few leaf
+ * blocks' sizes, each block's oriented box (block_bounds.h) is tested
+ * before its triangles, and a leaf of one block's before it is pushed.
  *
  * Boxes are tested in float against the point rounded to float: a box is
  * left out only when even its distance lowered by the rounding (the
@@ -29,11 +31,13 @@
  */
 #include <float.h>
 #include <math.h>
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
 
 #include "backend_common.h"
+#include "block_bounds.h"
 #include "bvh4_triangle4.h"
 #include "geometry/affine.h"
 #include "geometry/closest_point.h"
@@ -222,11 +226,19 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
 {
     const rtk_geometry_attrs *attrs = a->quads ? a->attrs : NULL;
     const uint32_t first = rtk_leaf_first(ref), end = first + rtk_leaf_blocks(ref);
+    /* (made by closest_in before the walk, or NULL) */
+    const rtk_block_obb *obbs =
+        kind == LEAF_TRI4 || kind == LEAF_TRI4V ? atomic_load_explicit(&a->block_obbs, memory_order_relaxed) : NULL;
     for (uint32_t i = first; i < end; i++) {
         double v0[3], v1[3], v2[3];
         if (kind == LEAF_TRI4 || kind == LEAF_TRI4V) {
             const rtk_triangle4 *t = &a->tris[i];
             const rtk_triangle4v *tv = (const rtk_triangle4v *)t;
+            /* the block's oriented box first, once the best distance is a
+             * few blocks' sizes (block_bounds.h) */
+            const float bound = level_bound(l);
+            if (obbs && bound > a->obb_from && rtk_block_obb_lower2(&obbs[i], l->pf, l->dp) > bound)
+                continue;
             /* the four triangles' boxes first, as a node's children: only
              * the lanes whose box is within the best distance go on to the
              * double-precision test (unused lanes are NaN: never) */
@@ -391,6 +403,11 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
     float sd[PQ_STACK];
     int sp = 0;
     uint32_t cur = l->start != RTK_BVH4_EMPTY ? l->start : a->root;
+    /* (made by closest_in before the walk, or NULL) */
+    const rtk_block_obb *obbs = !objects && (kind == LEAF_TRI4 || kind == LEAF_TRI4V)
+                                    ? atomic_load_explicit(&leaves->block_obbs, memory_order_relaxed)
+                                    : NULL;
+    const float obb_from = leaves->obb_from;
     l->start = RTK_BVH4_EMPTY; /* (the levels below start at their roots) */
     float bound = level_bound(l);
     for (;;) {
@@ -432,6 +449,15 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
             for (; mask; mask &= mask - 1) {
                 const int c = __builtin_ctz(mask);
                 if (child[c] == RTK_BVH4_EMPTY)
+                    continue;
+                /* a leaf of one block, once the best distance is finite and
+                 * a few blocks' sizes: left out when its oriented box is
+                 * beyond it (block_bounds.h), before it costs a push.  Only
+                 * left out: what is kept is ordered by the axis-aligned
+                 * boxes whatever the bound, so that a batch's hinted walk
+                 * meets tying triangles in the single call's order */
+                if (obbs && (child[c] & RTK_BVH4_LEAF_BIT) && rtk_leaf_blocks(child[c]) == 1 && bound > obb_from &&
+                    bound < INFINITY && rtk_block_obb_lower2(&obbs[rtk_leaf_first(child[c])], l->pf, l->dp) > bound)
                     continue;
                 int j = m++;
                 for (; j > 0 && rd[j - 1] > d[c]; j--) {
@@ -579,6 +605,7 @@ static void closest_in(const rtk_accel *a, pq_level *l)
                        a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST;
     if (!motion && a->root == RTK_BVH4_EMPTY) /* (a motion accel's segments have the roots) */
         return;
+    rtk_block_obbs(a); /* (made at the tree's first query) */
     switch (a->layout) {
     case RTK_LAYOUT_BVH4_TRIANGLE4: walk_tri4(a, l); break;
     case RTK_LAYOUT_BVH4_TRIANGLE4V: walk_tri4v(a, l); break;

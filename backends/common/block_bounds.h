@@ -1,0 +1,71 @@
+/*
+ * Oriented boxes of the leaf blocks, for closest points (point_query.c).
+ *
+ * A point far from the surface has a large ball of candidates, and a
+ * tilted patch's axis-aligned boxes reach well inside it: on the bunny,
+ * points spread through its box entered 27 leaf blocks each, and 21 of
+ * those got as far as the triangles' float bounds, where only 7 came
+ * within the box of the block's triangles oriented along their normal
+ * (rtktool's scratch counters, docs/BENCHMARKS.md).  So each block of the
+ * triangle4 and triangle4v layouts gets a box along its own axes: the
+ * third its triangles' summed normal, the first its longest edge made
+ * perpendicular to that, the second their cross product.
+ *
+ * The boxes are made at a tree's first closest-point query, not at its
+ * build: a scene that is only traced pays nothing for them (64 bytes per
+ * block, 16 per triangle, through the tree's memory monitor).  Queries
+ * that find none made make them; concurrent first queries each make a
+ * copy and one is kept (a compare-and-swap), so a committed scene stays
+ * free to query from any number of threads.  A refit drops them.
+ */
+#ifndef RTK_BLOCK_BOUNDS_H
+#define RTK_BLOCK_BOUNDS_H
+
+#include "bvh4_triangle4.h"
+
+/* A leaf block's box: every vertex v of its triangles has
+ * |axis[k] . (v - c)| <= h[k], evaluated exactly (in double, from the
+ * floats stored here and the vertices' floats).  The float axes are
+ * within a few ulps of orthonormal. */
+typedef struct rtk_block_obb {
+    float c[3];
+    float h[3];
+    float axis[3][3];
+    float pad;
+} rtk_block_obb;
+
+/* The accel's boxes, one per block of a->tris, made now if they were not
+ * yet; NULL for layouts without triangle4/triangle4v blocks, or when the
+ * memory monitor or the heap refuses them (the walk then goes without). */
+const rtk_block_obb *rtk_block_obbs(const rtk_accel *a);
+
+/* Frees them (a refit's boxes change, and a released tree's go with it). */
+void rtk_block_obbs_drop(rtk_accel *a);
+
+static inline float rtk_pos_part(float g) { return g > 0.0f ? g : 0.0f; }
+
+/* A lower bound of the squared distance from the float point pf, within
+ * dp of the query's on every axis, to anything inside the box.
+ *
+ * Exactly, |axis[k] . (p - x)| >= |axis[k] . (p - c)| - h[k] for every x
+ * of the box, and the sum of those squares is at most |p - x|^2 times the
+ * axes' largest singular value squared (under 1 + 2^-20).  In float, the
+ * projections are off by a few ulps of |pf - c|_1 (2^-20 of it is taken
+ * off each gap), and pf by at most 2 dp along a unit axis; the sum is
+ * lowered by 2^-18 for its own rounding and the axes, and below 2^-100
+ * (squares of gaps under 2^-50, near float's subnormals) taken as 0. */
+static inline float rtk_block_obb_lower2(const rtk_block_obb *o, const float *pf, float dp)
+{
+    const float dx = pf[0] - o->c[0], dy = pf[1] - o->c[1], dz = pf[2] - o->c[2];
+    const float slack = (__builtin_fabsf(dx) + __builtin_fabsf(dy) + __builtin_fabsf(dz)) * 0x1p-20f + 2.0f * dp;
+    float s = 0.0f;
+    for (int k = 0; k < 3; k++) {
+        const float q = o->axis[k][0] * dx + o->axis[k][1] * dy + o->axis[k][2] * dz;
+        const float g = rtk_pos_part(__builtin_fabsf(q) - o->h[k] - slack);
+        s += g * g;
+    }
+    /* (squares down where floats lose their bits: no bound) */
+    return s < 0x1p-100f ? 0.0f : s * (1.0f - 0x1p-18f);
+}
+
+#endif
