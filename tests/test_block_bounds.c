@@ -34,7 +34,10 @@ static double rnd(void) /* [0, 1) */
 }
 
 typedef struct block {
-    rtk_triangle4 t; /* (rtk_triangle4v when vertices) */
+    union {
+        rtk_triangle4 t;   /* v0, e1, e2 */
+        rtk_triangle4v tv; /* when vertices */
+    };
     int vertices;
     int count;
 } block;
@@ -42,7 +45,7 @@ typedef struct block {
 /* Triangle k of the block as the kernels see it. */
 static void corners(const block *b, int k, double v[3][3])
 {
-    const rtk_triangle4v *tv = (const rtk_triangle4v *)&b->t;
+    const rtk_triangle4v *tv = &b->tv;
     v[0][0] = b->t.v0x[k], v[0][1] = b->t.v0y[k], v[0][2] = b->t.v0z[k];
     if (b->vertices) {
         v[1][0] = tv->v1x[k], v[1][1] = tv->v1y[k], v[1][2] = tv->v1z[k];
@@ -55,7 +58,7 @@ static void corners(const block *b, int k, double v[3][3])
 
 static void set_lane(block *b, int k, const double v[3][3])
 {
-    rtk_triangle4v *tv = (rtk_triangle4v *)&b->t;
+    rtk_triangle4v *tv = &b->tv;
     float f[3][3];
     for (int i = 0; i < 3; i++)
         for (int a = 0; a < 3; a++)
@@ -140,9 +143,9 @@ static const rtk_block_obb *box_of(rtk_accel *a, block *b)
     a->layout = b->vertices ? RTK_LAYOUT_BVH8_TRIANGLE4V : RTK_LAYOUT_BVH4_TRIANGLE4;
     a->tris = &b->t;
     a->leaf_count = 1;
-    const rtk_block_obb *o = rtk_block_obbs(a);
-    assert_non_null(o);
-    return o;
+    const rtk_block_bounds *bb = rtk_block_bounds_of(a);
+    assert_non_null(bb);
+    return &bb->obb[0];
 }
 
 static void test_never_above(void **state)
@@ -196,8 +199,8 @@ static void test_never_above(void **state)
                         checked++;
                     }
                 }
-                rtk_block_obbs_drop(&a);
-                assert_null(a.block_obbs);
+                rtk_block_bounds_drop(&a);
+                assert_null(a.block_bounds);
             }
     assert_true(checked == 5L * 3 * 400 * 40 * 2);
 }
@@ -243,7 +246,7 @@ static void test_tight(void **state)
         const double r = rtk_block_obb_lower2(o, pf, dp) / want;
         worst = r < worst ? r : worst;
         aabb_best = g2 / want > aabb_best ? g2 / want : aabb_best;
-        rtk_block_obbs_drop(&a);
+        rtk_block_bounds_drop(&a);
     }
     /* the oriented box: within 1% of the distance squared; the axis-aligned
      * one short of it for some tilted block */
@@ -252,11 +255,52 @@ static void test_tight(void **state)
     assert_true(aabb_best > 0.0);
 }
 
+/* Which boxes the walk tests: a tilted flat block's, not an axis-aligned
+ * one's (its axis-aligned box is as thin). */
+static void test_worth(void **state)
+{
+    (void)state;
+    int tilted = 0, tilted_worth = 0;
+    for (int trial = 0; trial < 100; trial++) {
+        const double c[3] = {rnd(), rnd(), rnd()};
+        block b;
+        make_block(&b, c, 1.0, 1, trial % 2);
+        rtk_accel a;
+        memset(&a, 0, sizeof a);
+        a.layout = b.vertices ? RTK_LAYOUT_BVH8_TRIANGLE4V : RTK_LAYOUT_BVH4_TRIANGLE4;
+        a.tris = &b.t;
+        a.leaf_count = 1;
+        const rtk_block_bounds *bb = rtk_block_bounds_of(&a);
+        assert_non_null(bb);
+        tilted++;
+        tilted_worth += rtk_block_worth(bb, 0);
+        rtk_block_bounds_drop(&a);
+        /* the same block flattened onto z = c[2]: nothing to gain */
+        for (int k = 0; k < 4; k++)
+            if (b.t.prim[k] != RTK_BVH4_EMPTY) {
+                b.t.v0z[k] = (float)c[2];
+                if (b.vertices) {
+                    b.tv.v1z[k] = (float)c[2];
+                    b.tv.v2z[k] = (float)c[2];
+                } else
+                    b.t.e1z[k] = b.t.e2z[k] = 0.0f;
+            }
+        bb = rtk_block_bounds_of(&a);
+        assert_non_null(bb);
+        assert_false(rtk_block_worth(bb, 0));
+        rtk_block_bounds_drop(&a);
+    }
+    /* (a block of needles or points has no normal to lean on) */
+    if (!(tilted_worth * 10 >= tilted * 8))
+        fail_msg("%d of %d tilted flat blocks worth their box", tilted_worth, tilted);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_never_above),
         cmocka_unit_test(test_tight),
+        cmocka_unit_test(test_worth),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

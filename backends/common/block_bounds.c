@@ -13,7 +13,8 @@
 /* The float just above a finite x >= 0. */
 static float up(float x) { return nextafterf(x, INFINITY); }
 
-static void obb_make(rtk_block_obb *o, const rtk_triangle4 *t, int vertices)
+/* The box of block t; returns whether it is worth a test (rtk_block_bounds). */
+static int obb_make(rtk_block_obb *o, const rtk_triangle4 *t, int vertices)
 {
     const rtk_triangle4v *tv = (const rtk_triangle4v *)t;
     double v[12][3];
@@ -106,14 +107,23 @@ static void obb_make(rtk_block_obb *o, const rtk_triangle4 *t, int vertices)
         o->h[r] = nv && h == h ? hf : INFINITY;
     }
     o->pad = 0.0f;
+    /* the axis-aligned box's thinnest side, against the box's thickness */
+    double thin = INFINITY;
+    for (int k = 0; k < 3; k++) {
+        double lo = INFINITY, hi = -INFINITY;
+        for (int i = 0; i < nv; i++)
+            lo = v[i][k] < lo ? v[i][k] : lo, hi = v[i][k] > hi ? v[i][k] : hi;
+        thin = hi - lo < thin ? hi - lo : thin;
+    }
+    return (double)o->h[2] < 0.25 * thin;
 }
 
-const rtk_block_obb *rtk_block_obbs(const rtk_accel *ac)
+const rtk_block_bounds *rtk_block_bounds_of(const rtk_accel *ac)
 {
     rtk_accel *a = (rtk_accel *)ac; /* the boxes are the one thing a query adds to a tree */
-    rtk_block_obb *o = atomic_load_explicit(&a->block_obbs, memory_order_acquire);
-    if (o || !a->tris || !a->leaf_count)
-        return o;
+    rtk_block_bounds *b = atomic_load_explicit(&a->block_bounds, memory_order_acquire);
+    if (b || !a->tris || !a->leaf_count)
+        return b;
     int vertices;
     switch (a->layout) {
     case RTK_LAYOUT_BVH4_TRIANGLE4:
@@ -122,30 +132,37 @@ const rtk_block_obb *rtk_block_obbs(const rtk_accel *ac)
     case RTK_LAYOUT_BVH8_TRIANGLE4V: vertices = 1; break;
     default: return NULL;
     }
-    o = mem_alloc(&a->memory, a->leaf_count * sizeof *o, 0);
-    if (!o)
+    /* the header, the boxes, the bits: one allocation */
+    const size_t words = (a->leaf_count + 63) / 64;
+    unsigned char *mem =
+        mem_alloc(&a->memory, sizeof(rtk_block_obb) + a->leaf_count * sizeof(rtk_block_obb) + words * 8, 1);
+    if (!mem)
         return NULL;
+    b = (rtk_block_bounds *)mem;
+    rtk_block_obb *o = (rtk_block_obb *)(mem + sizeof(rtk_block_obb));
+    uint64_t *worth = (uint64_t *)(o + a->leaf_count);
     double sum = 0.0;
     for (uint64_t i = 0; i < a->leaf_count; i++) {
-        obb_make(&o[i], &a->tris[i], vertices);
+        if (obb_make(&o[i], &a->tris[i], vertices))
+            worth[i >> 6] |= (uint64_t)1 << (i & 63);
         const double r2 = (double)o[i].h[0] * o[i].h[0] + (double)o[i].h[1] * o[i].h[1] + (double)o[i].h[2] * o[i].h[2];
         sum += r2 < INFINITY ? r2 : 0.0;
     }
-    /* a query nearer than a few blocks' sizes finds most of its blocks'
-     * boxes in reach, and would mostly pay for reading them: the walk tests
-     * them beyond RTK_OBB_FROM times the blocks' mean squared
-     * half-diagonal (4 half-diagonals) */
-    a->obb_from = (float)(RTK_OBB_FROM * sum / (double)a->leaf_count);
-    rtk_block_obb *seen = NULL;
-    if (!atomic_compare_exchange_strong_explicit(&a->block_obbs, &seen, o, memory_order_acq_rel,
+    b->obb = o;
+    b->worth = worth;
+    /* RTK_OBB_FROM times the blocks' mean squared half-diagonal: 4
+     * half-diagonals */
+    b->from = (float)(RTK_OBB_FROM * sum / (double)a->leaf_count);
+    rtk_block_bounds *seen = NULL;
+    if (!atomic_compare_exchange_strong_explicit(&a->block_bounds, &seen, b, memory_order_acq_rel,
                                                  memory_order_acquire)) {
-        mem_free(&a->memory, o); /* another query's came first */
+        mem_free(&a->memory, b); /* another query's came first */
         return seen;
     }
-    return o;
+    return b;
 }
 
-void rtk_block_obbs_drop(rtk_accel *a)
+void rtk_block_bounds_drop(rtk_accel *a)
 {
-    mem_free(&a->memory, atomic_exchange_explicit(&a->block_obbs, NULL, memory_order_acq_rel));
+    mem_free(&a->memory, atomic_exchange_explicit(&a->block_bounds, NULL, memory_order_acq_rel));
 }

@@ -34,13 +34,32 @@ typedef struct rtk_block_obb {
     float pad;
 } rtk_block_obb;
 
-/* The accel's boxes, one per block of a->tris, made now if they were not
- * yet; NULL for layouts without triangle4/triangle4v blocks, or when the
- * memory monitor or the heap refuses them (the walk then goes without). */
-const rtk_block_obb *rtk_block_obbs(const rtk_accel *a);
+/* What a tree's first closest-point query makes (one allocation): */
+typedef struct rtk_block_bounds {
+    const rtk_block_obb *obb; /* one per block of a->tris */
+    /* bit i of worth[i / 64]: block i's box is worth a test, being less than
+     * half as thick as its axis-aligned box's thinnest side (a tilted or
+     * curved patch; an axis-aligned one, as most of San Miguel's walls,
+     * has nothing to gain and would only pay for reading it) */
+    const uint64_t *worth;
+    /* the squared best distance beyond which the walk tests them: a query
+     * nearer than a few blocks' sizes finds most of its blocks' boxes in
+     * reach, and would mostly pay for reading them */
+    float from;
+} rtk_block_bounds;
+
+/* The accel's boxes, made now if they were not yet; NULL for layouts
+ * without triangle4/triangle4v blocks, or when the memory monitor or the
+ * heap refuses them (the walk then goes without). */
+const rtk_block_bounds *rtk_block_bounds_of(const rtk_accel *a);
 
 /* Frees them (a refit's boxes change, and a released tree's go with it). */
-void rtk_block_obbs_drop(rtk_accel *a);
+void rtk_block_bounds_drop(rtk_accel *a);
+
+static inline int rtk_block_worth(const rtk_block_bounds *b, uint32_t block)
+{
+    return (int)(b->worth[block >> 6] >> (block & 63) & 1u);
+}
 
 static inline float rtk_pos_part(float g) { return g > 0.0f ? g : 0.0f; }
 

@@ -656,7 +656,7 @@ void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel)
 {
     if (!accel)
         return;
-    rtk_block_obbs_drop(accel);
+    rtk_block_bounds_drop(accel);
     tree_array_unreserve(&accel->memory, accel->nodes, accel->nodes_mapped, accel->nodes_offset);
     tree_array_unreserve(&accel->memory, accel->tris ? (void *)accel->tris : (void *)accel->trisi, accel->tris_mapped,
                          0);

@@ -278,9 +278,7 @@ struct rtk_accel {
     uint32_t leaves_first;
     /* closest points (point_query.c): each leaf block's oriented box,
      * made at the first query, else NULL */
-    struct rtk_block_obb *_Atomic block_obbs;
-    /* the squared distance beyond which the walk tests them (set with them) */
-    float obb_from;
+    struct rtk_block_bounds *_Atomic block_bounds;
 };
 
 /* What the merged two-level traversal (traverse_objects.h) reads of an

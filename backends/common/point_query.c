@@ -227,8 +227,8 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
     const rtk_geometry_attrs *attrs = a->quads ? a->attrs : NULL;
     const uint32_t first = rtk_leaf_first(ref), end = first + rtk_leaf_blocks(ref);
     /* (made by closest_in before the walk, or NULL) */
-    const rtk_block_obb *obbs =
-        kind == LEAF_TRI4 || kind == LEAF_TRI4V ? atomic_load_explicit(&a->block_obbs, memory_order_relaxed) : NULL;
+    const rtk_block_bounds *bb =
+        kind == LEAF_TRI4 || kind == LEAF_TRI4V ? atomic_load_explicit(&a->block_bounds, memory_order_relaxed) : NULL;
     for (uint32_t i = first; i < end; i++) {
         double v0[3], v1[3], v2[3];
         if (kind == LEAF_TRI4 || kind == LEAF_TRI4V) {
@@ -237,7 +237,7 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
             /* the block's oriented box first, once the best distance is a
              * few blocks' sizes (block_bounds.h) */
             const float bound = level_bound(l);
-            if (obbs && bound > a->obb_from && rtk_block_obb_lower2(&obbs[i], l->pf, l->dp) > bound)
+            if (bb && bound > bb->from && rtk_block_worth(bb, i) && rtk_block_obb_lower2(&bb->obb[i], l->pf, l->dp) > bound)
                 continue;
             /* the four triangles' boxes first, as a node's children: only
              * the lanes whose box is within the best distance go on to the
@@ -404,10 +404,10 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
     int sp = 0;
     uint32_t cur = l->start != RTK_BVH4_EMPTY ? l->start : a->root;
     /* (made by closest_in before the walk, or NULL) */
-    const rtk_block_obb *obbs = !objects && (kind == LEAF_TRI4 || kind == LEAF_TRI4V)
-                                    ? atomic_load_explicit(&leaves->block_obbs, memory_order_relaxed)
-                                    : NULL;
-    const float obb_from = leaves->obb_from;
+    const rtk_block_bounds *bb = !objects && (kind == LEAF_TRI4 || kind == LEAF_TRI4V)
+                                     ? atomic_load_explicit(&leaves->block_bounds, memory_order_relaxed)
+                                     : NULL;
+    const float obb_from = bb ? bb->from : INFINITY;
     l->start = RTK_BVH4_EMPTY; /* (the levels below start at their roots) */
     float bound = level_bound(l);
     for (;;) {
@@ -456,8 +456,9 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                  * left out: what is kept is ordered by the axis-aligned
                  * boxes whatever the bound, so that a batch's hinted walk
                  * meets tying triangles in the single call's order */
-                if (obbs && (child[c] & RTK_BVH4_LEAF_BIT) && rtk_leaf_blocks(child[c]) == 1 && bound > obb_from &&
-                    bound < INFINITY && rtk_block_obb_lower2(&obbs[rtk_leaf_first(child[c])], l->pf, l->dp) > bound)
+                if ((child[c] & RTK_BVH4_LEAF_BIT) && bound > obb_from && bound < INFINITY &&
+                    rtk_leaf_blocks(child[c]) == 1 && rtk_block_worth(bb, rtk_leaf_first(child[c])) &&
+                    rtk_block_obb_lower2(&bb->obb[rtk_leaf_first(child[c])], l->pf, l->dp) > bound)
                     continue;
                 int j = m++;
                 for (; j > 0 && rd[j - 1] > d[c]; j--) {
@@ -605,7 +606,7 @@ static void closest_in(const rtk_accel *a, pq_level *l)
                        a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST;
     if (!motion && a->root == RTK_BVH4_EMPTY) /* (a motion accel's segments have the roots) */
         return;
-    rtk_block_obbs(a); /* (made at the tree's first query) */
+    rtk_block_bounds_of(a); /* (made at the tree's first query) */
     switch (a->layout) {
     case RTK_LAYOUT_BVH4_TRIANGLE4: walk_tri4(a, l); break;
     case RTK_LAYOUT_BVH4_TRIANGLE4V: walk_tri4v(a, l); break;

@@ -303,7 +303,7 @@ int RTK_SYM(rtk_bvh_refit)(rtk_accel *accel_, const rtk_build_input *in, rtk_bui
         return rc;
     if (in->layout != accel->layout)
         return refit_fail(out, RTK_ERROR_INVALID_ARGUMENT, "the input asks for another layout than the accel's");
-    rtk_block_obbs_drop(accel); /* the blocks move: the next closest-point query makes new boxes */
+    rtk_block_bounds_drop(accel); /* the blocks move: the next closest-point query makes new boxes */
     bd.nodes = accel->nodes;
     bd.leaves = bd.indexed ? (void *)accel->trisi : (void *)accel->tris;
     bd.ids_kept = 1; /* unwritten, so a task may read the ids of blocks ahead in another task's subtree */

@@ -971,7 +971,11 @@ RTK_API rtk_error rtk_occluded_arrays(rtk_scene scene, const rtk_ray_arrays *arr
  * radius: for the geometry tools that ask for distances rather than hits.
  * The traversal visits the boxes nearest to the point first and leaves out
  * every box farther than the best triangle so far, so a query costs a few
- * dozen box and triangle steps wherever the point lies.
+ * dozen box and triangle steps wherever the point lies.  Far from the
+ * surface it also tests each leaf's box oriented along its triangles: a
+ * tree makes those at its first closest-point query (64 bytes per leaf of
+ * up to four triangles, about 16 per triangle, through the device's memory
+ * monitor; a tree only traced never does, and a refit drops them).
  *
  * The surface is the scene's triangles as rays see them: triangle and quad
  * meshes, through instances (instances of instances too: the distance is
