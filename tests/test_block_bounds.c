@@ -137,7 +137,8 @@ static void float_point(const double *p, float *pf, float *dp)
     *dp = d > 0.0f ? nextafterf(d, INFINITY) : 0.0f;
 }
 
-static const rtk_block_obb *box_of(rtk_accel *a, block *b)
+/* A tree of one block, and its bounds made. */
+static const rtk_block_bounds *bounds_of(rtk_accel *a, block *b)
 {
     memset(a, 0, sizeof *a);
     a->layout = b->vertices ? RTK_LAYOUT_BVH8_TRIANGLE4V : RTK_LAYOUT_BVH4_TRIANGLE4;
@@ -145,8 +146,10 @@ static const rtk_block_obb *box_of(rtk_accel *a, block *b)
     a->leaf_count = 1;
     const rtk_block_bounds *bb = rtk_block_bounds_of(a);
     assert_non_null(bb);
-    return &bb->obb[0];
+    return bb;
 }
+
+static const rtk_block_obb *box_of(rtk_accel *a, block *b) { return &bounds_of(a, b)->obb[0]; }
 
 static void test_never_above(void **state)
 {
@@ -266,12 +269,7 @@ static void test_worth(void **state)
         block b;
         make_block(&b, c, 1.0, 1, trial % 2);
         rtk_accel a;
-        memset(&a, 0, sizeof a);
-        a.layout = b.vertices ? RTK_LAYOUT_BVH8_TRIANGLE4V : RTK_LAYOUT_BVH4_TRIANGLE4;
-        a.tris = &b.t;
-        a.leaf_count = 1;
-        const rtk_block_bounds *bb = rtk_block_bounds_of(&a);
-        assert_non_null(bb);
+        const rtk_block_bounds *bb = bounds_of(&a, &b);
         tilted++;
         tilted_worth += rtk_block_worth(bb, 0);
         rtk_block_bounds_drop(&a);
@@ -285,8 +283,7 @@ static void test_worth(void **state)
                 } else
                     b.t.e1z[k] = b.t.e2z[k] = 0.0f;
             }
-        bb = rtk_block_bounds_of(&a);
-        assert_non_null(bb);
+        bb = bounds_of(&a, &b);
         assert_false(rtk_block_worth(bb, 0));
         rtk_block_bounds_drop(&a);
     }
