@@ -255,7 +255,7 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
                 e1[ax] = kind == LEAF_TRI4V ? vf4_sub(y1, x0) : y1;
                 e2[ax] = kind == LEAF_TRI4V ? vf4_sub(y2, x0) : y2;
             }
-            unsigned live = (unsigned)vb4_mask(vf4_le(d2, vf4_set1(level_bound(l))));
+            unsigned live = (unsigned)vb4_mask(vf4_le(d2, vf4_set1(bound)));
             if (!live)
                 continue;
             /* the boxes' survivors nearest first by their float bound, each
