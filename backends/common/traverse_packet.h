@@ -66,6 +66,7 @@
 #define PK_NAME_(n, k, what) rtk_bvh##n##_##what##k
 #define PK_NAME(n, k, what) PK_NAME_(n, k, what)
 #define PK_INTERSECT RTK_SYM(PK_NAME(BVHN_TAG, RTK_PACKET, intersect))
+#define PK_INTERSECT_EXACT RTK_SYM(RTK_CAT(PK_NAME(BVHN_TAG, RTK_PACKET, intersect), _exact))
 #define PK_OCCLUDED RTK_SYM(PK_NAME(BVHN_TAG, RTK_PACKET, occluded))
 /* static helpers, one set per packet width */
 #define PK_(name) RTK_CAT(RTK_CAT(name, _k), RTK_PACKET)
@@ -575,10 +576,29 @@ static inline void PK_(record_triangle)(PK_(hits) *h, vkb ok, const block_t *t, 
 /* The packet traversal both queries share; `closest` selects the query and
  * is a constant in each kernel (the function is inlined there).  The
  * results go to *h (for the occluded query only t and hit). */
+/* The near ties of the closest-hit query for the stream kernel
+ * (PK_INTERSECT_EXACT): a ray whose hit so far and another triangle lie
+ * within this much of each other (relative to the distance) may get a
+ * different one of the two in a packet than alone, where the order of the
+ * tests decides; much more than the few ulps by which the two distances,
+ * the clamp of t and the tests of T against tfar * |det| can disagree. */
+#define PK_TIE_REL 0x1p-16f
+
+/* tfar widened by the tie band (exact: a constant), or tfar as it is. */
+static inline vk PK_(loose)(vk tfar, int exact)
+{
+    return exact ? VK(add)(tfar, VK(mul)(VK(abs)(tfar), VK(set1)(PK_TIE_REL))) : tfar;
+}
+
+/* ties: NULL, or (closest hit only) where the rays whose answer the packet
+ * order may have changed go (see PK_INTERSECT_EXACT); the traversal then
+ * descends by tfar widened by the tie band, so that it meets every
+ * triangle a ray alone could have taken in place of its answer. */
 static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel *accel, const int32_t *valid,
                                                                 const rayK *ray, int closest, PK_(hits) *h,
-                                                                const rtk_query *q)
+                                                                const rtk_query *q, unsigned *ties)
 {
+    const int exact = closest && ties != NULL;
     const vkb active = VKB(load)(valid);
     /* masks, culling, filters (feat_init): some ray asks for culling, or
      * for the tree's attributes (a loop of ands and ors over the lanes,
@@ -595,11 +615,21 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
     PK_(packet_pre) p;
     PK_(packet_pre_init)(&p, ray, active, accel);
     vk tfar = VK(select)(active, VK(load)(ray->tfar), VK(set1)(-INFINITY));
+    vk tfar_n = PK_(loose)(tfar, exact); /* the node tests' */
     PK_(frustum_init)(&p, active);
-    vnode fr_tfar = vn_set1(p.frustum ? VK(reduce_max)(tfar) : 0.0f);
+    vnode fr_tfar = vn_set1(p.frustum ? VK(reduce_max)(tfar_n) : 0.0f);
     vk hu = VK(set1)(0.0f), hv = hu;
     const unsigned all = VKB(mask)(active);
     unsigned done = 0; /* occluded: rays that found a hit; closest: rays with a hit */
+    if (exact) {
+        /* rays whose origin and direction put org / dir near the float
+         * range take the subtract-then-multiply node test alone
+         * (ray_pre.fma), not the fused one the packet takes: alone */
+        unsigned fits = all;
+        for (int k = 0; k < 3; k++)
+            fits &= (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org[k], p.rinv_exact[k])), VK(set1)(0x1p125f)));
+        *ties = all & ~fits;
+    }
     if (closest) { /* defined lanes throughout, for the blends (and memory checkers) */
         const vk zero = VK(set1)(0.0f);
         for (int c = 0; c < 3; c++)
@@ -615,7 +645,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         sp--;
         uint32_t cur = stack[sp].ref;
         vk cur_dist = stack[sp].dist;
-        const unsigned want = (unsigned)VKB(mask)(VK(le)(cur_dist, tfar));
+        const unsigned want = (unsigned)VKB(mask)(VK(le)(cur_dist, tfar_n));
         if (!want)
             continue;
         if (__builtin_popcount(want) <= (p.frustum ? PK_SWITCH_FRUSTUM : PK_SWITCH)) {
@@ -634,10 +664,14 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 const feat_ctx *f = PK_(lane_ray_pre)(&rp, &rpm, &one, &fc, ray, i, accel, q);
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
-                    float ti = tf[i];
+                    const int had = exact && (done >> i & 1);
+                    /* a ray with a hit looks into the tie band too */
+                    float ti = had ? tf[i] + fabsf(tf[i]) * PK_TIE_REL : tf[i];
                     closest_from(accel, cur, &rp, ray->tnear[i], &ti, &best, f);
                     if (best.lane >= 0) {
                         block_t scratch;
+                        if (had && ti >= tf[i] - fabsf(tf[i]) * PK_TIE_REL)
+                            *ties |= 1u << i;
                         tfar = VK(select)(lane, VK(set1)(ti), tfar);
                         hu = VK(select)(lane, VK(set1)(best.u), hu);
                         hv = VK(select)(lane, VK(set1)(best.v), hv);
@@ -651,8 +685,9 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             }
             if (!closest && done == all)
                 break;
+            tfar_n = PK_(loose)(tfar, exact);
             if (p.frustum)
-                fr_tfar = vn_set1(VK(reduce_max)(tfar));
+                fr_tfar = vn_set1(VK(reduce_max)(tfar_n));
             continue;
         }
         /* descend together, the others pushed: for the closest hit the
@@ -672,8 +707,8 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             for (; cand; cand &= cand - 1) {
                 const int i = __builtin_ctz(cand);
                 vk dist;
-                if (!(p.frustum ? PK_(box_intersect_octant)(n, i, &p, tfar, &dist)
-                                : PK_(box_intersect)(n, i, &p, tfar, &dist)))
+                if (!(p.frustum ? PK_(box_intersect_octant)(n, i, &p, tfar_n, &dist)
+                                : PK_(box_intersect)(n, i, &p, tfar_n, &dist)))
                     continue;
                 if (next == RTK_BVH4_EMPTY) {
                     next = n->child[i];
@@ -698,6 +733,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
          * rounded position lies outside the triangle's box, and it must not
          * get it here when it would not alone. */
         const vkb entered = VK(le)(cur_dist, tfar);
+        const vkb entered_n = VK(le)(cur_dist, tfar_n); /* (exact) */
         int any = 0;
         const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
         for (uint32_t leaf = first; leaf < end; leaf++) {
@@ -705,7 +741,18 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             const block_t *t = leaf_block(accel, leaf, &scratch);
             for (int j = 0; j < 4 && t->prim[j] != RTK_BVH4_EMPTY; j++) {
                 vk U, V, T, absdet;
-                vkb ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);
+                vkb ok;
+                if (exact) {
+                    /* tested up to the loose tfar; hit by the single-ray
+                     * kernel's test against tfar; a near tie where a ray
+                     * with a hit meets another triangle within the band */
+                    const vkb okl = PK_(triangle_intersect)(t, j, &p, tfar_n, &U, &V, &T, &absdet);
+                    ok = VKB(and)(VKB(and)(okl, entered), VK(le)(T, VK(mul)(tfar, absdet)));
+                    const vk low = VK(sub)(tfar, VK(mul)(VK(abs)(tfar), VK(set1)(PK_TIE_REL)));
+                    const vkb near = VKB(and)(VKB(and)(okl, entered_n), VK(ge)(T, VK(mul)(low, absdet)));
+                    *ties |= (unsigned)VKB(mask)(near) & done;
+                } else
+                    ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);
                 unsigned hit = (unsigned)VKB(mask)(ok);
                 if (hit && __builtin_expect(feat != 0, 0)) {
                     const unsigned acc = PK_(accept)(accel, t, j, ray, hit, U, V, T, absdet, p.tnear, tfar, !closest, q);
@@ -732,8 +779,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 done |= hit;
             }
         }
+        if (any)
+            tfar_n = PK_(loose)(tfar, exact);
         if (any && p.frustum)
-            fr_tfar = vn_set1(VK(reduce_max)(tfar));
+            fr_tfar = vn_set1(VK(reduce_max)(tfar_n));
         if (!closest && done == all)
             break;
     }
@@ -789,6 +838,36 @@ static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_
 #define PK_SLOTS (RTK_PACKET < RTK_STREAM_K ? RTK_PACKET : RTK_STREAM_K)
 #endif
 
+/* The rays of h.hit take their closest hits from h. */
+static inline __attribute__((always_inline)) void PK_(store_hits)(const rtk_accel *accel, PK_(hits) *h, rayhitK *rh)
+{
+    if (!h->hit)
+        return;
+    if (__builtin_expect(accel->quads != 0, 0))
+        for (unsigned m = h->hit; m; m &= m - 1) {
+            const int i = __builtin_ctz(m);
+            uint32_t prim, geom;
+            memcpy(&prim, &h->prim[i], sizeof prim);
+            memcpy(&geom, &h->geom[i], sizeof geom);
+            closest_hit_quad(accel, geom, &prim, &h->u[i], &h->v[i]);
+            h->prim[i] = PK_(bits_float)(prim);
+        }
+    /* whole rows, the rays without a hit blended back as they were */
+    const vkb m = PK_(lanes_mask)(h->hit);
+    VK(store)(rh->ray.tfar, VK(select)(m, VK(load)(h->t), VK(load)(rh->ray.tfar)));
+    VK(store)(rh->hit.Ng_x, VK(select)(m, VK(load)(h->ng[0]), VK(load)(rh->hit.Ng_x)));
+    VK(store)(rh->hit.Ng_y, VK(select)(m, VK(load)(h->ng[1]), VK(load)(rh->hit.Ng_y)));
+    VK(store)(rh->hit.Ng_z, VK(select)(m, VK(load)(h->ng[2]), VK(load)(rh->hit.Ng_z)));
+    VK(store)(rh->hit.u, VK(select)(m, VK(load)(h->u), VK(load)(rh->hit.u)));
+    VK(store)(rh->hit.v, VK(select)(m, VK(load)(h->v), VK(load)(rh->hit.v)));
+    /* the ids as the bits of floats (h->prim, h->geom hold them so): blends
+     * move bits unchanged, and a row at a time, not a lane */
+    VK(store)((float *)rh->hit.primID, VK(select)(m, VK(load)(h->prim), VK(load)((const float *)rh->hit.primID)));
+    VK(store)((float *)rh->hit.geomID, VK(select)(m, VK(load)(h->geom), VK(load)((const float *)rh->hit.geomID)));
+    VK(store)((float *)rh->hit.instID,
+              VK(select)(m, VK(set1)(PK_(bits_float)(RTK_INVALID_GEOMETRY_ID)), VK(load)((const float *)rh->hit.instID)));
+}
+
 void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
@@ -828,33 +907,32 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
     }
 #endif
     PK_(hits) h;
-    PK_(traverse)(accel, valid, &rh->ray, 1, &h, q);
-    if (!h.hit)
-        return;
-    if (__builtin_expect(accel->quads != 0, 0))
-        for (unsigned m = h.hit; m; m &= m - 1) {
-            const int i = __builtin_ctz(m);
-            uint32_t prim, geom;
-            memcpy(&prim, &h.prim[i], sizeof prim);
-            memcpy(&geom, &h.geom[i], sizeof geom);
-            closest_hit_quad(accel, geom, &prim, &h.u[i], &h.v[i]);
-            h.prim[i] = PK_(bits_float)(prim);
-        }
-    /* whole rows, the rays without a hit blended back as they were */
-    const vkb m = PK_(lanes_mask)(h.hit);
-    VK(store)(rh->ray.tfar, VK(select)(m, VK(load)(h.t), VK(load)(rh->ray.tfar)));
-    VK(store)(rh->hit.Ng_x, VK(select)(m, VK(load)(h.ng[0]), VK(load)(rh->hit.Ng_x)));
-    VK(store)(rh->hit.Ng_y, VK(select)(m, VK(load)(h.ng[1]), VK(load)(rh->hit.Ng_y)));
-    VK(store)(rh->hit.Ng_z, VK(select)(m, VK(load)(h.ng[2]), VK(load)(rh->hit.Ng_z)));
-    VK(store)(rh->hit.u, VK(select)(m, VK(load)(h.u), VK(load)(rh->hit.u)));
-    VK(store)(rh->hit.v, VK(select)(m, VK(load)(h.v), VK(load)(rh->hit.v)));
-    /* the ids as the bits of floats (h.prim, h.geom hold them so): blends
-     * move bits unchanged, and a row at a time, not a lane */
-    VK(store)((float *)rh->hit.primID, VK(select)(m, VK(load)(h.prim), VK(load)((const float *)rh->hit.primID)));
-    VK(store)((float *)rh->hit.geomID, VK(select)(m, VK(load)(h.geom), VK(load)((const float *)rh->hit.geomID)));
-    VK(store)((float *)rh->hit.instID,
-              VK(select)(m, VK(set1)(PK_(bits_float)(RTK_INVALID_GEOMETRY_ID)), VK(load)((const float *)rh->hit.instID)));
+    PK_(traverse)(accel, valid, &rh->ray, 1, &h, q, NULL);
+    PK_(store_hits)(accel, &h, rh);
 }
+
+#if !RTK_ROBUST && !RTK_MOTION
+/* The closest hits of a coherent group of a stream (traverse_stream.h),
+ * whose rays must each get rtk_intersect1's answer bit for bit.  The packet
+ * traversal's tests are the single-ray kernel's lane by lane, so a ray's
+ * answer can differ only where two triangles tie within rounding and the
+ * order of the tests picks one (the packet's order is not the ray's
+ * alone), or where the ray takes another node test alone (ray_pre.fma).
+ * Returns those rays' lanes, left as they were, for the caller to trace
+ * alone; the others' hits are written as by PK_INTERSECT. */
+unsigned PK_INTERSECT_EXACT(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
+{
+    if (accel->root == RTK_BVH4_EMPTY)
+        return 0;
+    rayhitK *rh = packet;
+    PK_(hits) h;
+    unsigned ties = 0;
+    PK_(traverse)(accel, valid, &rh->ray, 1, &h, q, &ties);
+    h.hit &= ~ties;
+    PK_(store_hits)(accel, &h, rh);
+    return ties;
+}
+#endif
 
 void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
 {
@@ -881,7 +959,7 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
     }
 #endif
     PK_(hits) h;
-    PK_(traverse)(accel, valid, r, 0, &h, q);
+    PK_(traverse)(accel, valid, r, 0, &h, q, NULL);
     if (h.hit) /* a row, not lane by lane (see PK_INTERSECT) */
         VK(store)(r->tfar, VK(select)(PK_(lanes_mask)(h.hit), VK(set1)(-INFINITY), VK(load)(r->tfar)));
 }
@@ -900,6 +978,7 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
 #undef PK_NAME_
 #undef PK_NAME
 #undef PK_INTERSECT
+#undef PK_INTERSECT_EXACT
 #undef PK_OCCLUDED
 #undef PK_
 #undef RTK_PACKET

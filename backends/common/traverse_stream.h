@@ -233,12 +233,14 @@ static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel
 /* Where the interleaved traversal takes its rays from: the stream, in
  * groups of RTK_STREAM_GROUP consecutive rays.  A group whose rays are
  * coherent (stream_coherent) is traced on the spot, the way such rays go
- * fastest: any hit as a packet (RTK_STREAM_PACKET: the packet kernel of
- * that width, whose any-hit answers are the single-ray kernel's), closest
- * hit ray by ray through the single-ray entry point (a packet could report
- * the other of two triangles hit at the same distance); so are the rays
- * the interleaved traversal does not take (stream_start).  The others go
- * into its slots one at a time. */
+ * fastest: as a packet (RTK_STREAM_PACKET: the packet kernels of that
+ * width), any hit through the usual kernel (whose any-hit answers are the
+ * single-ray kernel's), closest hit through its exact form, which hands
+ * back the rays whose answer the packet's order of tests may have changed
+ * (two triangles tied within rounding) to be traced alone; in the robust
+ * layouts (no exact form) closest hits ray by ray through the single-ray
+ * entry point.  So are the rays the interleaved traversal does not take
+ * (stream_start).  The others go into its slots one at a time. */
 #define RTK_STREAM_GROUP 8
 /* Whether the rays that are not coherent go faster interleaved or one
  * after the other depends on how often their memory is in the caches
@@ -364,6 +366,43 @@ static void stream_occluded_group(const rtk_accel *accel, void *const *rays, uin
         if (f[8 * RTK_STREAM_PACKET + i] == -INFINITY)
             ((rtk_ray *)rays[i])->tfar = -INFINITY;
 }
+
+#if !RTK_ROBUST
+#define STREAM_EXACT_NAME_(n, k) rtk_bvh##n##_intersect##k##_exact
+#define STREAM_EXACT_NAME(n, k) STREAM_EXACT_NAME_(n, k)
+#define STREAM_INTERSECT_PACKET RTK_SYM(STREAM_EXACT_NAME(BVHN_TAG, RTK_STREAM_PACKET))
+/* A coherent group's closest hits as one packet, through the packet
+ * kernel's exact form: the rays where the packet's order of tests may
+ * have picked another of two triangles tied within rounding (rare: a ray
+ * through a shared edge) it leaves alone, and they are traced here alone,
+ * so every ray gets rtk_intersect1's answer. */
+static void stream_intersect_group(const rtk_accel *accel, void *const *rays, uint32_t n, const rtk_query *q)
+{
+    enum { K = RTK_STREAM_PACKET, WORDS = sizeof(rtk_rayhit) / 4 };
+    _Alignas(64) rtk_rayhit8 pk; /* (rtk_rayhit4's rows are a prefix of each: K words a row) */
+    _Alignas(64) int32_t active[8] = {0};
+    uint32_t *w = (uint32_t *)&pk;
+    const size_t geom_row = offsetof(rtk_rayhit, hit.geomID) / 4;
+    for (uint32_t i = 0; i < K; i++) {
+        const uint32_t *r = rays[i < n ? i : 0];
+        for (int k = 0; k < 12; k++)
+            w[k * K + i] = r[k];
+        w[geom_row * K + i] = RTK_INVALID_GEOMETRY_ID;
+        active[i] = i < n ? -1 : 0;
+    }
+    const unsigned alone = STREAM_INTERSECT_PACKET(accel, active, &pk, q);
+    for (uint32_t i = 0; i < n; i++) {
+        uint32_t *r = rays[i];
+        if (alone >> i & 1)
+            BVHN_INTERSECT1(accel, (rtk_rayhit *)r, q);
+        else if (w[geom_row * K + i] != RTK_INVALID_GEOMETRY_ID) {
+            r[offsetof(rtk_ray, tfar) / 4] = w[offsetof(rtk_ray, tfar) / 4 * K + i];
+            for (size_t k = sizeof(rtk_ray) / 4; k < WORDS; k++)
+                r[k] = w[k * K + i];
+        }
+    }
+}
+#endif
 #endif
 
 /* The next ray for the interleaved traversal, set up in slot s; 0 when the
@@ -387,6 +426,12 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
                 if (!closest)
                     stream_occluded_group(accel, g, n, q);
                 else
+#if !RTK_ROBUST
+                if (closest)
+                    for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
+                        stream_intersect_group(accel, g + k, n - k < RTK_STREAM_PACKET ? n - k : RTK_STREAM_PACKET, q);
+                else
+#endif
 #endif
                     for (uint32_t i = 0; i < n; i++) {
                         if (closest)

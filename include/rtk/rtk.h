@@ -894,9 +894,14 @@ RTK_API rtk_error rtk_occluded1_ctx(rtk_scene scene, rtk_ray *ray, const rtk_que
  * (each node of its path depends on the last), while rays of a stream do
  * not depend on each other, so the stream kernels keep several of them in
  * flight on the one thread and switch between them while their memory
- * arrives (docs/BENCHMARKS.md measures it on incoherent rays).  Scenes
- * whose layout has no stream kernel (two levels, motion blur) are traced
- * ray by ray, with the same answers.
+ * arrives (docs/BENCHMARKS.md measures it on incoherent rays).  Runs of
+ * eight consecutive rays that are coherent (direction signs alike, origins
+ * close: camera rays of neighbouring pixels, shadow rays to one light) go
+ * through the packet kernels instead, with the same answers (a ray whose
+ * hit in a packet could be the other of two triangles tied within rounding
+ * is traced alone), so a stream is in rays' order best handed over tile by
+ * tile.  Scenes whose layout has no stream kernel (two levels, motion
+ * blur) are traced ray by ray, with the same answers.
  *
  * RTK_ERROR_INVALID_ARGUMENT, with nothing written, for a NULL scene, NULL
  * rays with a count above 0, rays not aligned to 4 bytes, a byte_stride
