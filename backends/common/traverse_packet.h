@@ -771,6 +771,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                     vk tt = VK(mul)(T, rcp);
                     tt = VK(min)(VK(max)(tt, p.tnear), tfar); /* the clamp of the single-ray kernel */
                     tfar = VK(select)(ok, tt, tfar);
+                    tfar_n = PK_(loose)(tfar, exact);
                     hu = VK(select)(ok, VK(mul)(U, rcp), hu);
                     hv = VK(select)(ok, VK(mul)(V, rcp), hv);
                     PK_(record_triangle)(h, ok, t, j);

@@ -376,29 +376,59 @@ static void stream_occluded_group(const rtk_accel *accel, void *const *rays, uin
  * have picked another of two triangles tied within rounding (rare: a ray
  * through a shared edge) it leaves alone, and they are traced here alone,
  * so every ray gets rtk_intersect1's answer. */
-static void stream_intersect_group(const rtk_accel *accel, void *const *rays, uint32_t n, const rtk_query *q)
+static void stream_intersect_group(const rtk_accel *accel, void *const *rays, const rtk_query *q)
 {
-    enum { K = RTK_STREAM_PACKET, WORDS = sizeof(rtk_rayhit) / 4 };
+    enum { K = RTK_STREAM_PACKET, HIT = sizeof(rtk_ray) / 4 };
     _Alignas(64) rtk_rayhit8 pk; /* (rtk_rayhit4's rows are a prefix of each: K words a row) */
-    _Alignas(64) int32_t active[8] = {0};
-    uint32_t *w = (uint32_t *)&pk;
-    const size_t geom_row = offsetof(rtk_rayhit, hit.geomID) / 4;
-    for (uint32_t i = 0; i < K; i++) {
-        const uint32_t *r = rays[i < n ? i : 0];
-        for (int k = 0; k < 12; k++)
-            w[k * K + i] = r[k];
-        w[geom_row * K + i] = RTK_INVALID_GEOMETRY_ID;
-        active[i] = i < n ? -1 : 0;
+    _Alignas(64) static const int32_t active[8] = {-1, -1, -1, -1, -1, -1, -1, -1};
+    float *w = (float *)&pk;
+    const float *r[K];
+    for (int i = 0; i < K; i++)
+        r[i] = rays[i];
+    /* the rays' 12 words into rows of the packet: four words of four rays
+     * at a time, transposed (lane stores would stall the kernel's row
+     * loads on store forwarding) */
+    for (int b = 0; b < 3; b++) {
+        vfloat4 x[K];
+        for (int i = 0; i < K; i += 4) {
+            for (int c = 0; c < 4; c++)
+                x[i + c] = vf4_loadu(r[i + c] + 4 * b);
+            vf4_transpose(&x[i], &x[i + 1], &x[i + 2], &x[i + 3]);
+        }
+        for (int c = 0; c < 4; c++)
+#if RTK_STREAM_PACKET == 8
+            vf8_store(w + (4 * b + c) * K, vf8_from4(x[c], x[4 + c]));
+#else
+            vf4_store(w + (4 * b + c) * K, x[c]);
+#endif
     }
+    /* the hit rows defined (the kernel blends them), geomID invalid */
+    for (int k = HIT; k < HIT + 8; k++)
+        for (int i = 0; i < K; i += 4)
+            vf4_store(w + k * K + i, vf4_set1(0.0f));
+    const size_t geom_row = offsetof(rtk_rayhit, hit.geomID) / 4;
+    uint32_t *geom = (uint32_t *)(w + geom_row * K);
+    for (int i = 0; i < K; i++)
+        geom[i] = RTK_INVALID_GEOMETRY_ID;
     const unsigned alone = STREAM_INTERSECT_PACKET(accel, active, &pk, q);
-    for (uint32_t i = 0; i < n; i++) {
-        uint32_t *r = rays[i];
-        if (alone >> i & 1)
-            BVHN_INTERSECT1(accel, (rtk_rayhit *)r, q);
-        else if (w[geom_row * K + i] != RTK_INVALID_GEOMETRY_ID) {
-            r[offsetof(rtk_ray, tfar) / 4] = w[offsetof(rtk_ray, tfar) / 4 * K + i];
-            for (size_t k = sizeof(rtk_ray) / 4; k < WORDS; k++)
-                r[k] = w[k * K + i];
+    /* the hits back: the 8 hit words of four rays at a time, transposed */
+    for (int i = 0; i < K; i += 4) {
+        vfloat4 a[4], b[4];
+        for (int c = 0; c < 4; c++) {
+            a[c] = vf4_load(w + (HIT + c) * K + i);
+            b[c] = vf4_load(w + (HIT + 4 + c) * K + i);
+        }
+        vf4_transpose(&a[0], &a[1], &a[2], &a[3]);
+        vf4_transpose(&b[0], &b[1], &b[2], &b[3]);
+        for (int c = 0; c < 4; c++) {
+            float *out = (float *)rays[i + c];
+            if (alone >> (i + c) & 1)
+                BVHN_INTERSECT1(accel, (rtk_rayhit *)out, q);
+            else if (geom[i + c] != RTK_INVALID_GEOMETRY_ID) {
+                out[offsetof(rtk_ray, tfar) / 4] = w[offsetof(rtk_ray, tfar) / 4 * K + i + c];
+                vf4_storeu(out + HIT, a[c]);
+                vf4_storeu(out + HIT + 4, b[c]);
+            }
         }
     }
 }
@@ -427,9 +457,9 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
                     stream_occluded_group(accel, g, n, q);
                 else
 #if !RTK_ROBUST
-                if (closest)
+                if (closest) /* (n is RTK_STREAM_GROUP, a multiple of RTK_STREAM_PACKET) */
                     for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
-                        stream_intersect_group(accel, g + k, n - k < RTK_STREAM_PACKET ? n - k : RTK_STREAM_PACKET, q);
+                        stream_intersect_group(accel, g + k, q);
                 else
 #endif
 #endif
