@@ -349,20 +349,39 @@ static inline int stream_coherent(const rtk_accel *accel, void *const *rays, uin
 #define STREAM_PK_NAME_(n, k) rtk_bvh##n##_occluded##k
 #define STREAM_PK_NAME(n, k) STREAM_PK_NAME_(n, k)
 #define STREAM_OCCLUDED_PACKET RTK_SYM(STREAM_PK_NAME(BVHN_TAG, RTK_STREAM_PACKET))
-/* A coherent group's any hits as one packet. */
-static void stream_occluded_group(const rtk_accel *accel, void *const *rays, uint32_t n, const rtk_query *q)
+/* The rays' first 12 words (their rtk_ray) into the rows of a packet of
+ * RTK_STREAM_PACKET rays at w: four words of four rays at a time,
+ * transposed (lane stores would stall the kernel's row loads on store
+ * forwarding). */
+static inline void stream_gather(void *const *rays, float *w)
 {
-    _Alignas(64) rtk_ray8 pk; /* (rtk_ray4's fields are a prefix of each row: see below) */
-    _Alignas(64) int32_t active[8] = {0};
-    float *f = (float *)&pk;
-    for (uint32_t i = 0; i < RTK_STREAM_PACKET; i++) {
-        const float *r = rays[i < n ? i : 0];
-        for (int k = 0; k < 12; k++)
-            f[k * RTK_STREAM_PACKET + i] = r[k];
-        active[i] = i < n ? -1 : 0;
+    enum { K = RTK_STREAM_PACKET };
+    for (int b = 0; b < 3; b++) {
+        vfloat4 x[K];
+        for (int i = 0; i < K; i += 4) {
+            for (int c = 0; c < 4; c++)
+                x[i + c] = vf4_loadu((const float *)rays[i + c] + 4 * b);
+            vf4_transpose(&x[i], &x[i + 1], &x[i + 2], &x[i + 3]);
+        }
+        for (int c = 0; c < 4; c++)
+#if RTK_STREAM_PACKET == 8
+            vf8_store(w + (4 * b + c) * K, vf8_from4(x[c], x[4 + c]));
+#else
+            vf4_store(w + (4 * b + c) * K, x[c]);
+#endif
     }
-    STREAM_OCCLUDED_PACKET(accel, active, &pk, q);
-    for (uint32_t i = 0; i < n; i++)
+}
+
+static _Alignas(64) const int32_t stream_all[8] = {-1, -1, -1, -1, -1, -1, -1, -1};
+
+/* A coherent group's any hits as one packet (rays: RTK_STREAM_PACKET of them). */
+static void stream_occluded_group(const rtk_accel *accel, void *const *rays, const rtk_query *q)
+{
+    _Alignas(64) rtk_ray8 pk; /* (rtk_ray4's fields are a prefix of each row) */
+    float *f = (float *)&pk;
+    stream_gather(rays, f);
+    STREAM_OCCLUDED_PACKET(accel, stream_all, &pk, q);
+    for (int i = 0; i < RTK_STREAM_PACKET; i++)
         if (f[8 * RTK_STREAM_PACKET + i] == -INFINITY)
             ((rtk_ray *)rays[i])->tfar = -INFINITY;
 }
@@ -380,37 +399,19 @@ static void stream_intersect_group(const rtk_accel *accel, void *const *rays, co
 {
     enum { K = RTK_STREAM_PACKET, HIT = sizeof(rtk_ray) / 4 };
     _Alignas(64) rtk_rayhit8 pk; /* (rtk_rayhit4's rows are a prefix of each: K words a row) */
-    _Alignas(64) static const int32_t active[8] = {-1, -1, -1, -1, -1, -1, -1, -1};
     float *w = (float *)&pk;
-    const float *r[K];
-    for (int i = 0; i < K; i++)
-        r[i] = rays[i];
-    /* the rays' 12 words into rows of the packet: four words of four rays
-     * at a time, transposed (lane stores would stall the kernel's row
-     * loads on store forwarding) */
-    for (int b = 0; b < 3; b++) {
-        vfloat4 x[K];
-        for (int i = 0; i < K; i += 4) {
-            for (int c = 0; c < 4; c++)
-                x[i + c] = vf4_loadu(r[i + c] + 4 * b);
-            vf4_transpose(&x[i], &x[i + 1], &x[i + 2], &x[i + 3]);
-        }
-        for (int c = 0; c < 4; c++)
-#if RTK_STREAM_PACKET == 8
-            vf8_store(w + (4 * b + c) * K, vf8_from4(x[c], x[4 + c]));
-#else
-            vf4_store(w + (4 * b + c) * K, x[c]);
-#endif
-    }
-    /* the hit rows defined (the kernel blends them), geomID invalid */
-    for (int k = HIT; k < HIT + 8; k++)
-        for (int i = 0; i < K; i += 4)
-            vf4_store(w + k * K + i, vf4_set1(0.0f));
+    stream_gather(rays, w);
+    /* the hit rows defined (the kernel blends them), geomID invalid (by
+     * rows, as the rays) */
     const size_t geom_row = offsetof(rtk_rayhit, hit.geomID) / 4;
-    uint32_t *geom = (uint32_t *)(w + geom_row * K);
-    for (int i = 0; i < K; i++)
-        geom[i] = RTK_INVALID_GEOMETRY_ID;
-    const unsigned alone = STREAM_INTERSECT_PACKET(accel, active, &pk, q);
+    const uint32_t invalid_bits = RTK_INVALID_GEOMETRY_ID;
+    float invalid;
+    memcpy(&invalid, &invalid_bits, sizeof invalid);
+    for (size_t k = HIT; k < HIT + 8; k++)
+        for (int i = 0; i < K; i += 4)
+            vf4_store(w + k * K + i, vf4_set1(k == geom_row ? invalid : 0.0f));
+    const uint32_t *geom = (const uint32_t *)(w + geom_row * K);
+    const unsigned alone = STREAM_INTERSECT_PACKET(accel, stream_all, &pk, q);
     /* the hits back: the 8 hit words of four rays at a time, transposed */
     for (int i = 0; i < K; i += 4) {
         vfloat4 a[4], b[4];
@@ -453,11 +454,12 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
             src->group_end = src->next + n;
             if (n == RTK_STREAM_GROUP && stream_coherent(accel, g, n)) {
 #ifdef RTK_STREAM_PACKET
-                if (!closest)
-                    stream_occluded_group(accel, g, n, q);
+                if (!closest) /* (n is RTK_STREAM_GROUP, a multiple of RTK_STREAM_PACKET) */
+                    for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
+                        stream_occluded_group(accel, g + k, q);
                 else
 #if !RTK_ROBUST
-                if (closest) /* (n is RTK_STREAM_GROUP, a multiple of RTK_STREAM_PACKET) */
+                if (closest)
                     for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
                         stream_intersect_group(accel, g + k, q);
                 else
