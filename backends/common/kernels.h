@@ -64,7 +64,7 @@ RTK_PACKET_DECL_(4ir, 4)
 RTK_PACKET_DECL_(4ir, 8)
 #undef RTK_PACKET_DECL_
 /* the closest hits of a stream's coherent groups (traverse_packet.h:
- * PK_INTERSECT_EXACT), in the layouts that are not robust */
+ * PK_INTERSECT_EXACT) */
 #define RTK_EXACT_DECL_(tag, k)                                                                                        \
     RTK_HIDDEN unsigned RTK_SYM(rtk_bvh##tag##_intersect##k##_exact)(const rtk_accel *accel, const int32_t *active,    \
                                                                      void *packet, const rtk_query *q);
@@ -74,6 +74,12 @@ RTK_EXACT_DECL_(8, 4)
 RTK_EXACT_DECL_(8, 8)
 RTK_EXACT_DECL_(4i, 4)
 RTK_EXACT_DECL_(4i, 8)
+RTK_EXACT_DECL_(4v, 4)
+RTK_EXACT_DECL_(4v, 8)
+RTK_EXACT_DECL_(8v, 4)
+RTK_EXACT_DECL_(8v, 8)
+RTK_EXACT_DECL_(4ir, 4)
+RTK_EXACT_DECL_(4ir, 8)
 #undef RTK_EXACT_DECL_
 /* streams (traverse_stream.h), RTK_STREAM_K rays in flight per thread
  * (backend_config.h may set it) */

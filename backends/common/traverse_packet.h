@@ -372,7 +372,7 @@ static inline vk PK_(permuted)(const PK_(packet_pre) *p, int axis, float x, floa
 }
 
 static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(packet_pre) *p, vk tfar, vk *U_out,
-                                          vk *V_out, vk *T_out, vk *absdet_out)
+                                          vk *V_out, vk *T_out, vk *absdet_out, unsigned *in_double)
 {
     vk tx[3], ty[3], tz[3]; /* per vertex: permuted x and y sheared, and z, relative to the origin */
     const float *f = (const float *)t;
@@ -403,6 +403,7 @@ static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(pac
     /* a zero among U, V, W (or a product that underflows), as the single-ray test */
     unsigned zeros = (unsigned)VKB(mask)(
         VKB(or)(VK(eq)(VK(mul)(VK(mul)(U, V), W), zero), VK(lt)(absdet, VK(set1)(FLT_MIN))));
+    *in_double = zeros;
     if (__builtin_expect(zeros == 0, 1))
         return ok;
     _Alignas(64) float lx[3][RTK_PACKET], ly[3][RTK_PACKET], lz[3][RTK_PACKET];
@@ -443,8 +444,9 @@ static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(pac
 /* Lane j of a leaf block against the packet, the arithmetic of
  * triangle4_intersect with the ray and triangle roles of the lanes swapped. */
 static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(packet_pre) *p, vk tfar, vk *U_out,
-                                          vk *V_out, vk *T_out, vk *absdet_out)
+                                          vk *V_out, vk *T_out, vk *absdet_out, unsigned *in_double)
 {
+    *in_double = 0;
     const vk e1x = VK(set1)(t->e1x[j]), e1y = VK(set1)(t->e1y[j]), e1z = VK(set1)(t->e1z[j]);
     const vk e2x = VK(set1)(t->e2x[j]), e2y = VK(set1)(t->e2y[j]), e2z = VK(set1)(t->e2z[j]);
     const vk dx = p->dir[0], dy = p->dir[1], dz = p->dir[2];
@@ -626,8 +628,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
          * range take the subtract-then-multiply node test alone
          * (ray_pre.fma), not the fused one the packet takes: alone */
         unsigned fits = all;
-        for (int k = 0; k < 3; k++)
-            fits &= (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org[k], p.rinv_exact[k])), VK(set1)(0x1p125f)));
+        const vk limit = VK(set1)(0x1p125f);
+        for (int k = 0; k < 3; k++) /* (the origins of both planes: robust layouts pad them) */
+            fits &= (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org_lo[k], p.rinv_exact[k])), limit)) &
+                    (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org_hi[k], p.rinv_exact[k])), limit));
         *ties = all & ~fits;
     }
     if (closest) { /* defined lanes throughout, for the blends (and memory checkers) */
@@ -742,17 +746,22 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             for (int j = 0; j < 4 && t->prim[j] != RTK_BVH4_EMPTY; j++) {
                 vk U, V, T, absdet;
                 vkb ok;
+                unsigned in_double;
                 if (exact) {
                     /* tested up to the loose tfar; hit by the single-ray
                      * kernel's test against tfar; a near tie where a ray
-                     * with a hit meets another triangle within the band */
-                    const vkb okl = PK_(triangle_intersect)(t, j, &p, tfar_n, &U, &V, &T, &absdet);
+                     * with a hit meets another triangle within the band.
+                     * (A lane the watertight test decided in double, hit
+                     * within the loose tfar, is traced alone as well: its
+                     * distance was compared with tfar in double.) */
+                    const vkb okl = PK_(triangle_intersect)(t, j, &p, tfar_n, &U, &V, &T, &absdet, &in_double);
                     ok = VKB(and)(VKB(and)(okl, entered), VK(le)(T, VK(mul)(tfar, absdet)));
                     const vk low = VK(sub)(tfar, VK(mul)(VK(abs)(tfar), VK(set1)(PK_TIE_REL)));
                     const vkb near = VKB(and)(VKB(and)(okl, entered_n), VK(ge)(T, VK(mul)(low, absdet)));
-                    *ties |= (unsigned)VKB(mask)(near) & done;
+                    *ties |= ((unsigned)VKB(mask)(near) & done) |
+                             (in_double & (unsigned)VKB(mask)(VKB(and)(okl, entered_n)));
                 } else
-                    ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet), entered);
+                    ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet, &in_double), entered);
                 unsigned hit = (unsigned)VKB(mask)(ok);
                 if (hit && __builtin_expect(feat != 0, 0)) {
                     const unsigned acc = PK_(accept)(accel, t, j, ray, hit, U, V, T, absdet, p.tnear, tfar, !closest, q);
@@ -912,14 +921,15 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
     PK_(store_hits)(accel, &h, rh);
 }
 
-#if !RTK_ROBUST && !RTK_MOTION
+#if !RTK_MOTION
 /* The closest hits of a coherent group of a stream (traverse_stream.h),
  * whose rays must each get rtk_intersect1's answer bit for bit.  The packet
  * traversal's tests are the single-ray kernel's lane by lane, so a ray's
  * answer can differ only where two triangles tie within rounding and the
  * order of the tests picks one (the packet's order is not the ray's
- * alone), or where the ray takes another node test alone (ray_pre.fma).
- * Returns those rays' lanes, left as they were, for the caller to trace
+ * alone), where the watertight test decided a lane in double precision
+ * (it compares that distance with tfar in double), or where the ray takes
+ * another node test alone (ray_pre.fma).  Returns those rays' lanes, left as they were, for the caller to trace
  * alone; the others' hits are written as by PK_INTERSECT. */
 unsigned PK_INTERSECT_EXACT(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
 {

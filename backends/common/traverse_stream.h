@@ -237,10 +237,8 @@ static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel
  * width), any hit through the usual kernel (whose any-hit answers are the
  * single-ray kernel's), closest hit through its exact form, which hands
  * back the rays whose answer the packet's order of tests may have changed
- * (two triangles tied within rounding) to be traced alone; in the robust
- * layouts (no exact form) closest hits ray by ray through the single-ray
- * entry point.  So are the rays the interleaved traversal does not take
- * (stream_start).  The others go into its slots one at a time. */
+ * (two triangles tied within rounding) to be traced alone.  So are the
+ * rays the interleaved traversal does not take (stream_start).  The others go into its slots one at a time. */
 #define RTK_STREAM_GROUP 8
 /* Whether the rays that are not coherent go faster interleaved or one
  * after the other depends on how often their memory is in the caches
@@ -386,7 +384,6 @@ static void stream_occluded_group(const rtk_accel *accel, void *const *rays, con
             ((rtk_ray *)rays[i])->tfar = -INFINITY;
 }
 
-#if !RTK_ROBUST
 #define STREAM_EXACT_NAME_(n, k) rtk_bvh##n##_intersect##k##_exact
 #define STREAM_EXACT_NAME(n, k) STREAM_EXACT_NAME_(n, k)
 #define STREAM_INTERSECT_PACKET RTK_SYM(STREAM_EXACT_NAME(BVHN_TAG, RTK_STREAM_PACKET))
@@ -434,7 +431,6 @@ static void stream_intersect_group(const rtk_accel *accel, void *const *rays, co
     }
 }
 #endif
-#endif
 
 /* The next ray for the interleaved traversal, set up in slot s; 0 when the
  * stream has run out.  Coherent groups and the rays the slots do not take
@@ -458,19 +454,16 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
                     for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
                         stream_occluded_group(accel, g + k, q);
                 else
-#if !RTK_ROBUST
-                if (closest)
                     for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
                         stream_intersect_group(accel, g + k, q);
-                else
+#else
+                for (uint32_t i = 0; i < n; i++) {
+                    if (closest)
+                        BVHN_INTERSECT1(accel, g[i], q);
+                    else
+                        BVHN_OCCLUDED1(accel, g[i], q);
+                }
 #endif
-#endif
-                    for (uint32_t i = 0; i < n; i++) {
-                        if (closest)
-                            BVHN_INTERSECT1(accel, g[i], q);
-                        else
-                            BVHN_OCCLUDED1(accel, g[i], q);
-                    }
                 src->next = src->group_end;
                 continue;
             }
