@@ -31,6 +31,8 @@
  * (rtk_backend.h: rtk_intersect_stream_fn), and the inline helpers the
  * packet kernels call for packets whose rays scatter.
  */
+#include <stdlib.h>
+
 #if !defined(RTK_BVHN)
 #error "include traverse_bvhn.h first"
 #endif
@@ -520,18 +522,39 @@ static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *
     }
 }
 
+/* The slots of a stream call, from the heap: RTK_STREAM_K of them are
+ * 4-9 KB each (their stacks), more than a task system's small thread
+ * stacks should give one frame.  NULL when memory runs out: the call then
+ * traces ray by ray. */
+static stream_slot *stream_slots(void)
+{
+    return aligned_alloc(64, (sizeof(stream_slot) * RTK_STREAM_K + 63) / 64 * 64);
+}
+
 void BVHN_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY || !count)
         return;
-    stream_slot slots[RTK_STREAM_K];
+    stream_slot *slots = stream_slots();
+    if (__builtin_expect(!slots, 0)) {
+        for (uint32_t i = 0; i < count; i++)
+            BVHN_INTERSECT1(accel, rays[i], q);
+        return;
+    }
     stream_trace(accel, (void *const *)rays, count, q, 1, slots, RTK_STREAM_K);
+    free(slots);
 }
 
 void BVHN_OCCLUDED_STREAM(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY || !count)
         return;
-    stream_slot slots[RTK_STREAM_K];
+    stream_slot *slots = stream_slots();
+    if (__builtin_expect(!slots, 0)) {
+        for (uint32_t i = 0; i < count; i++)
+            BVHN_OCCLUDED1(accel, rays[i], q);
+        return;
+    }
     stream_trace(accel, (void *const *)rays, count, q, 0, slots, RTK_STREAM_K);
+    free(slots);
 }
