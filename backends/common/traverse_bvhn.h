@@ -225,6 +225,7 @@ typedef struct ray_mem {
 typedef struct ray_pre {
     const ray_mem *m; /* (see ray_mem) */
     _Alignas(16) float os[4], ds[4]; /* the origin and direction (lanes 0..2), for the triangle tests' leaf_ray */
+    _Alignas(16) float rs[4]; /* 1 / dir, tiny components raised (lanes 0..2), for block_hit_floor */
     vnode norg[3], ninv[3], ninv_far[3]; /* for the node tests */
 #if RTK_ROBUST
     vnode norg_far[3];        /* the origin for the far planes (norg: for the near ones) */
@@ -396,6 +397,7 @@ static inline __attribute__((always_inline)) void ray_pre_init(ray_pre *p, ray_m
     _Alignas(16) float on[4], in[4], inf[4];
     vf4_store(p->os, org);
     vf4_store(p->ds, dir);
+    vf4_store(p->rs, inv_exact);
     vf4_store(on, org_near);
     vf4_store(in, inv);
     vf4_store(inf, inv_far);
@@ -851,6 +853,121 @@ static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, c
 }
 #endif
 
+/* The hit floor.  A hit's distance is T / |det| rounded; where the ray
+ * grazes the triangle's plane (|det| tiny: a needle, or a ray nearly in the
+ * plane) it can come out far nearer than any point of the triangle, a
+ * point outside the triangle's box and its leaf's.  Which such hit a ray
+ * gets would then depend on the order of the boxes it visits (the leaf is
+ * tested only if no hit beyond that distance has pruned it first), so the
+ * packet and stream kernels, which visit in other orders, could not give
+ * rtk_intersect1's answer (conformance: the stream gave 0x1.fffa58p-1
+ * where the single call gave 0x1.ffff7ep-1 on the sphere and soup; a
+ * ray along a pole triangle of a ball got t = 32768 from 54000 units
+ * away).  So every closest-hit kernel raises a hit's distance to where the
+ * ray enters the triangle's bounding box, less 2^-20 of it: a hit that
+ * is not that far off keeps its distance to the bit (a well-conditioned
+ * hit is a few ulps from the true one, which lies in the box), one that is
+ * comes out at the box, nearer the truth; and then a hit never lies
+ * nearer than its leaf's entry distance by more than the near-tie band of
+ * the packet kernels (PK_TIE_REL, 2^-16), so the nearest one does not
+ * depend on the order of the visits.  A hit whose floor lies beyond tfar
+ * is no hit.  The floor is computed with the exact reciprocal of the
+ * direction and the vertices as the triangle tests see them, by
+ * operations no compiler contracts (subtract, then multiply), the same in
+ * the single-ray, stream and packet kernels (PK_(hit_floor)). */
+#if RTK_ROBUST
+static inline void block_axis(const block_t *t, int k, vfloat4 *a, vfloat4 *b, vfloat4 *c)
+{
+    const float *f = (const float *)t; /* vertex v's coordinate along axis k: f[12 * v + 4 * k] */
+    *a = vf4_load(f + 4 * k);
+    *b = vf4_load(f + 12 + 4 * k);
+    *c = vf4_load(f + 24 + 4 * k);
+}
+#else
+static inline void block_axis(const block_t *t, int k, vfloat4 *a, vfloat4 *b, vfloat4 *c)
+{
+    const float *v0 = k == 0 ? t->v0x : k == 1 ? t->v0y : t->v0z;
+    const float *e1 = k == 0 ? t->e1x : k == 1 ? t->e1y : t->e1z;
+    const float *e2 = k == 0 ? t->e2x : k == 1 ? t->e2y : t->e2z;
+    *a = vf4_load(v0);
+    *b = vf4_add(*a, vf4_load(e1));
+    *c = vf4_add(*a, vf4_load(e2));
+}
+#endif
+
+/* Lane j's three coordinates along axis k, as block_axis has them. */
+static inline void lane_axis(const block_t *t, int j, int k, float *a, float *b, float *c)
+{
+#if RTK_ROBUST
+    const float *f = (const float *)t;
+    *a = f[4 * k + j];
+    *b = f[12 + 4 * k + j];
+    *c = f[24 + 4 * k + j];
+#else
+    const float *v0 = k == 0 ? t->v0x : k == 1 ? t->v0y : t->v0z;
+    const float *e1 = k == 0 ? t->e1x : k == 1 ? t->e1y : t->e1z;
+    const float *e2 = k == 0 ? t->e2x : k == 1 ? t->e2y : t->e2z;
+    *a = v0[j];
+    *b = *a + e1[j];
+    *c = *a + e2[j];
+#endif
+}
+
+/* The floors of a block's four triangles for ray p (see above). */
+static inline __attribute__((always_inline)) vfloat4 block_hit_floor(const block_t *t, const ray_pre *p)
+{
+    vfloat4 entry = vf4_set1(0.0f);
+    for (int k = 0; k < 3; k++) {
+        vfloat4 a, b, c;
+        block_axis(t, k, &a, &b, &c);
+        const vfloat4 near = p->rs[k] < 0.0f ? vf4_max(vf4_max(a, b), c) : vf4_min(vf4_min(a, b), c);
+        const vfloat4 tk = vf4_mul(vf4_sub(near, vf4_set1(p->os[k])), vf4_set1(p->rs[k]));
+        entry = k ? vf4_max(entry, tk) : tk;
+    }
+    entry = vf4_add(entry, vf4_set1(0.0f)); /* (-0.0 -> +0.0) */
+    return vf4_sub(entry, vf4_mul(vf4_abs(entry), vf4_set1(0x1p-20f)));
+}
+
+/* The nearest of a block's lanes hit within [tnear, tfar] (mask, from
+ * triangle4_intersect), each distance raised to its floor: the lane, or -1
+ * when every floor lies beyond tfar; its distance clamped to [tnear, tfar]
+ * (the product may round past an end of the interval the unscaled test
+ * accepted; ties go to the interval's end, so -0.0 becomes tnear's +0.0,
+ * as max/min do in the packet kernels) in *t_out, and u, v. */
+static inline __attribute__((always_inline)) int block_nearest(const block_t *t, const ray_pre *p, const tri4_hit *h,
+                                                               unsigned mask, float tnear_s, float tfar_s,
+                                                               float *t_out, float *u_out, float *v_out)
+{
+    /* the reciprocals of |det| in one division for the four lanes (the
+     * same quotients) */
+    _Alignas(16) float T[4], rcp[4], fl[4];
+    vf4_store(T, h->T);
+    vf4_store(rcp, vf4_div(vf4_set1(1.0f), h->absdet));
+    vf4_store(fl, block_hit_floor(t, p));
+    int lane = -1;
+    float t_lane = 0.0f;
+    for (; mask; mask &= mask - 1) {
+        const int i = __builtin_ctz(mask);
+        if (fl[i] > tfar_s)
+            continue;
+        float ti = T[i] * rcp[i];
+        ti = ti < fl[i] ? fl[i] : ti;
+        if (lane < 0 || ti < t_lane) {
+            lane = i;
+            t_lane = ti;
+        }
+    }
+    if (lane < 0)
+        return -1;
+    *t_out = t_lane <= tnear_s ? tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
+    _Alignas(16) float U[4], V[4];
+    vf4_store(U, h->U);
+    vf4_store(V, h->V);
+    *u_out = U[lane] * rcp[lane];
+    *v_out = V[lane] * rcp[lane];
+    return lane;
+}
+
 #if RTK_ROBUST
 /* v0 and the edges as the triangle4 builder computes them, so the normal
  * is the default layouts' to the bit */
@@ -925,19 +1042,24 @@ static __attribute__((noinline)) int accept_lane(const block_t *t, int lane, con
  * within [tnear, tfar]) through accept_lane, nearest first: the mask of
  * the nearest accepted, or 0. */
 static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const feat_ctx *p, const tri4_hit *h,
-                                                         unsigned mask, float tnear_s, float tfar_s)
+                                                         vfloat4 floor, unsigned mask, float tnear_s, float tfar_s)
 {
-    _Alignas(16) float T[4], rcp[4], U[4], V[4];
+    _Alignas(16) float T[4], rcp[4], U[4], V[4], fl[4];
     vf4_store(T, h->T);
     vf4_store(rcp, vf4_div(vf4_set1(1.0f), h->absdet));
     vf4_store(U, h->U);
     vf4_store(V, h->V);
+    vf4_store(fl, floor);
+    for (unsigned m = mask; m; m &= m - 1) /* (as block_nearest) */
+        if (fl[__builtin_ctz(m)] > tfar_s)
+            mask &= ~(1u << __builtin_ctz(m));
     while (mask) {
         int lane = -1;
         float tl = 0.0f;
         for (unsigned m = mask; m; m &= m - 1) {
             const int i = __builtin_ctz(m);
-            const float ti = T[i] * rcp[i];
+            float ti = T[i] * rcp[i];
+            ti = ti < fl[i] ? fl[i] : ti;
             if (lane < 0 || ti < tl) {
                 lane = i;
                 tl = ti;
@@ -1114,32 +1236,10 @@ static inline __attribute__((always_inline)) void closest_from_(const rtk_accel 
             tri4_hit h;
             unsigned mask = triangle4_intersect(t, p, &lr, tnear, tfar, &h);
             if (f && mask)
-                mask = masks_only ? mask_lanes(t, mask, f) : accept_closest(t, f, &h, mask, tnear_s, tfar_s);
-            if (mask) {
-                /* the nearest of the lanes hit; the reciprocals of |det|
-                 * in one division for the four lanes (the same quotients) */
-                _Alignas(16) float T[4], rcp[4], U[4], V[4];
-                vf4_store(T, h.T);
-                vf4_store(rcp, vf4_div(vf4_set1(1.0f), h.absdet));
-                int lane = -1;
-                float t_lane = 0.0f;
-                for (; mask; mask &= mask - 1) {
-                    const int i = __builtin_ctz(mask);
-                    float ti = T[i] * rcp[i];
-                    if (lane < 0 || ti < t_lane) {
-                        lane = i;
-                        t_lane = ti;
-                    }
-                }
-                /* The product may round past an end of the interval the unscaled
-                 * test accepted; clamp so tnear <= t <= tfar always holds.  Ties
-                 * go to the interval's end (so -0.0 becomes tnear's +0.0), as
-                 * max/min do in the packet kernels. */
-                t_lane = t_lane <= tnear_s ? tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
-                vf4_store(U, h.U);
-                vf4_store(V, h.V);
-                best->u = U[lane] * rcp[lane];
-                best->v = V[lane] * rcp[lane];
+                mask = masks_only ? mask_lanes(t, mask, f) : accept_closest(t, f, &h, block_hit_floor(t, p), mask, tnear_s, tfar_s);
+            float t_lane;
+            int lane;
+            if (mask && (lane = block_nearest(t, p, &h, mask, tnear_s, tfar_s, &t_lane, &best->u, &best->v)) >= 0) {
                 best->leaf = block;
                 best->lane = lane;
                 tfar_s = t_lane;

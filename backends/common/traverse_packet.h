@@ -150,6 +150,16 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 #if RTK_SIMD_HAS_FMA
         p->cn[k] = n ? p->c_hi[k] : p->c_lo[k];
         p->cf[k] = n ? p->c_lo[k] : p->c_hi[k];
+#if RTK_FUSED_FAR_ULPS
+        /* the single-ray kernel's fused far distances: the near planes'
+         * reciprocal and c moved down by the padding (ray_pre_init), the
+         * comparison then RTK_FAR_ULPS up (box_intersect_octant) */
+        {
+            const vk c = VK(mul)(p->org[k], p->rinv_exact[k]);
+            p->rf[k] = p->rinv_exact[k];
+            p->cf[k] = VK(sub)(c, VK(add)(VK(mul)(VK(abs)(c), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f)));
+        }
+#endif
         /* out of range products: the single-ray kernel would not use FMA */
         const vk big = VK(set1)(0x1p126f);
         const unsigned ok = (unsigned)VKB(mask)(VKB(and)(VK(le)(VK(abs)(p->cn[k]), big), VK(le)(VK(abs)(p->cf[k]), big)));
@@ -201,8 +211,14 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
          * reciprocal's times the scales */
         p->fr_rn_min[k] = vn_set1(lo[k] * PK_NEAR_SCALE);
         p->fr_rn_max[k] = vn_set1(hi[k] * PK_NEAR_SCALE);
+#if RTK_SIMD_HAS_FMA && RTK_FUSED_FAR_ULPS
+        /* (the far planes take the near planes' reciprocals, see frustum_init's rf) */
+        p->fr_rf_min[k] = vn_set1(lo[k]);
+        p->fr_rf_max[k] = vn_set1(hi[k]);
+#else
         p->fr_rf_min[k] = vn_set1(lo[k] * PK_FAR_SCALE);
         p->fr_rf_max[k] = vn_set1(hi[k] * PK_FAR_SCALE);
+#endif
 #if RTK_SIMD_HAS_FMA
         p->fr_cn_max[k] = vn_set1(hi[3 + k]);
         p->fr_cf_min[k] = vn_set1(lo[3 + k]);
@@ -239,7 +255,14 @@ static inline unsigned PK_(frustum_intersect)(const node_t *n, const PK_(packet_
         tmin = vn_max(tmin, tn);
         tmax = vn_min(tmax, tf);
     }
+#if RTK_SIMD_HAS_FMA
+    /* the rays' far ends are compared RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1
+     * ulps up, as integers (box_intersect_octant: +inf and those ulps are a
+     * NaN's bits, above every distance) */
+    return (unsigned)vn_mask(vn_gti(vn_add_ulps(tmax, RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1), tmin));
+#else
     return (unsigned)vn_mask(vn_le(tmin, tmax));
+#endif
 }
 
 /* Child box i against the packet with the single-ray kernel's arithmetic
@@ -259,9 +282,19 @@ static inline int PK_(box_intersect_octant)(const node_t *n, int i, const PK_(pa
         t1[k] = VK(mul)(VK(sub)(pf, p->of[k]), p->rf[k]);
 #endif
     }
+#if RTK_SIMD_HAS_FMA
+    /* node_intersect's fused comparison: the distances' bits as integers,
+     * tnear and tfar + 0.0 (no -0.0), the far end RTK_FUSED_FAR_ULPS *
+     * RTK_FAR_ULPS + 1 up, so that a ray enters the boxes it enters alone */
+    const vk zero = VK(set1)(0.0f);
+    const vk tmin = VK(maxi)(VK(maxi)(t0[0], t0[1]), VK(maxi)(t0[2], VK(add)(p->tnear, zero)));
+    const vk tmax = VK(mini)(VK(mini)(t1[0], t1[1]), VK(mini)(t1[2], VK(add)(tfar, zero)));
+    const vkb hit = VK(gti)(VK(add_ulps)(tmax, RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1), tmin);
+#else
     const vk tmin = VK(max)(VK(max)(t0[0], t0[1]), VK(max)(t0[2], p->tnear));
     const vk tmax = VK(min)(VK(min)(t1[0], t1[1]), VK(min)(t1[2], tfar));
     const vkb hit = VK(le)(tmin, tmax);
+#endif
     *dist = VK(select)(hit, tmin, VK(set1)(NAN));
     return VKB(mask)(hit);
 }
@@ -478,6 +511,25 @@ static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(pac
 }
 #endif
 
+/* Triangle j of block t's hit floor (block_hit_floor) for each ray of the
+ * packet: lane by lane the same operations on the same values. */
+static inline vk PK_(hit_floor)(const block_t *t, int j, const PK_(packet_pre) *p)
+{
+    vk entry = VK(set1)(0.0f);
+    for (int k = 0; k < 3; k++) {
+        float a, b, c;
+        lane_axis(t, j, k, &a, &b, &c);
+        const float ab_lo = a < b ? a : b, ab_hi = a > b ? a : b; /* as minps / maxps */
+        const float lo = ab_lo < c ? ab_lo : c, hi = ab_hi > c ? ab_hi : c;
+        const vk inv = p->rinv_exact[k];
+        const vk near = VK(select)(VK(lt)(inv, VK(set1)(0.0f)), VK(set1)(hi), VK(set1)(lo));
+        const vk tk = VK(mul)(VK(sub)(near, p->org[k]), inv);
+        entry = k ? VK(max)(entry, tk) : tk;
+    }
+    entry = VK(add)(entry, VK(set1)(0.0f));
+    return VK(sub)(entry, VK(mul)(VK(abs)(entry), VK(set1)(0x1p-20f)));
+}
+
 typedef struct PK_(pstack_entry) {
     vk dist; /* per ray: entry distance, NaN for rays that do not enter */
     uint32_t ref;
@@ -515,14 +567,15 @@ static inline const feat_ctx *PK_(lane_ray_pre)(ray_pre *p, ray_mem *pm, rtk_ray
 /* The candidates `hit` (lanes: rays) of triangle j of block t through
  * accept_lane (masks, culling, filters); the lanes accepted. */
 static __attribute__((noinline)) unsigned PK_(accept)(const rtk_accel *accel, const block_t *t, int j, const rayK *r,
-                                                      unsigned hit, vk U, vk V, vk T, vk absdet, vk tnear, vk tfar,
-                                                      int occluded, const rtk_query *q)
+                                                      unsigned hit, vk U, vk V, vk T, vk absdet, vk floor, vk tnear,
+                                                      vk tfar, int occluded, const rtk_query *q)
 {
     _Alignas(64) float u[RTK_PACKET], v[RTK_PACKET], tt[RTK_PACKET], tf[RTK_PACKET];
     const vk rcp = VK(div)(VK(set1)(1.0f), absdet);
     VK(store)(u, VK(mul)(U, rcp));
     VK(store)(v, VK(mul)(V, rcp));
-    VK(store)(tt, VK(min)(VK(max)(VK(mul)(T, rcp), tnear), tfar));
+    const vk tr = VK(mul)(T, rcp);
+    VK(store)(tt, VK(min)(VK(max)(VK(select)(VK(lt)(tr, floor), floor, tr), tnear), tfar));
     VK(store)(tf, tfar);
     unsigned accepted = 0;
     for (unsigned m = hit; m; m &= m - 1) {
@@ -652,7 +705,9 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         const unsigned want = (unsigned)VKB(mask)(VK(le)(cur_dist, tfar_n));
         if (!want)
             continue;
-        if (__builtin_popcount(want) <= (p.frustum ? PK_SWITCH_FRUSTUM : PK_SWITCH)) {
+        /* (exact: never; the packet goes on with one ray, where the leaf
+         * test below sees each hit and the box it was found in) */
+        if (!exact && __builtin_popcount(want) <= (p.frustum ? PK_SWITCH_FRUSTUM : PK_SWITCH)) {
             /* few rays want this subtree: each finishes it alone.  Its
              * results go back into the vectors by blends: lane stores and a
              * vector load of them would stall on store forwarding */
@@ -744,7 +799,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             block_t scratch;
             const block_t *t = leaf_block(accel, leaf, &scratch);
             for (int j = 0; j < 4 && t->prim[j] != RTK_BVH4_EMPTY; j++) {
-                vk U, V, T, absdet;
+                vk U, V, T, absdet, floor = VK(set1)(-INFINITY);
                 vkb ok;
                 unsigned in_double;
                 if (exact) {
@@ -755,16 +810,29 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                      * within the loose tfar, is traced alone as well: its
                      * distance was compared with tfar in double.) */
                     const vkb okl = PK_(triangle_intersect)(t, j, &p, tfar_n, &U, &V, &T, &absdet, &in_double);
+                    if (!VKB(mask)(okl))
+                        continue;
+                    /* (distances raised to the hit floor, as alone) */
+                    floor = PK_(hit_floor)(t, j, &p);
+                    const vk tr = VK(mul)(T, VK(div)(VK(set1)(1.0f), absdet));
+                    const vk te = VK(select)(VK(lt)(tr, floor), floor, tr);
                     ok = VKB(and)(VKB(and)(okl, entered), VK(le)(T, VK(mul)(tfar, absdet)));
+                    ok = VKB(andnot)(ok, VK(gt)(floor, tfar));
                     const vk low = VK(sub)(tfar, VK(mul)(VK(abs)(tfar), VK(set1)(PK_TIE_REL)));
-                    const vkb near = VKB(and)(VKB(and)(okl, entered_n), VK(ge)(T, VK(mul)(low, absdet)));
+                    const vkb near = VKB(andnot)(VKB(and)(VKB(and)(okl, entered_n), VK(ge)(te, low)), VK(gt)(floor, tfar_n));
                     *ties |= ((unsigned)VKB(mask)(near) & done) |
                              (in_double & (unsigned)VKB(mask)(VKB(and)(okl, entered_n)));
-                } else
+                } else {
                     ok = VKB(and)(PK_(triangle_intersect)(t, j, &p, tfar, &U, &V, &T, &absdet, &in_double), entered);
+                    if (closest && VKB(mask)(ok)) {
+                        floor = PK_(hit_floor)(t, j, &p);
+                        ok = VKB(andnot)(ok, VK(gt)(floor, tfar));
+                    }
+                }
                 unsigned hit = (unsigned)VKB(mask)(ok);
                 if (hit && __builtin_expect(feat != 0, 0)) {
-                    const unsigned acc = PK_(accept)(accel, t, j, ray, hit, U, V, T, absdet, p.tnear, tfar, !closest, q);
+                    const unsigned acc =
+                        PK_(accept)(accel, t, j, ray, hit, U, V, T, absdet, floor, p.tnear, tfar, !closest, q);
                     if (acc != hit) {
                         hit = acc;
                         ok = VKB(and)(ok, PK_(lanes_mask)(acc));
@@ -778,7 +846,17 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                 if (closest) {
                     const vk rcp = VK(div)(VK(set1)(1.0f), absdet);
                     vk tt = VK(mul)(T, rcp);
+                    tt = VK(select)(VK(lt)(tt, floor), floor, tt); /* the hit floor */
                     tt = VK(min)(VK(max)(tt, p.tnear), tfar); /* the clamp of the single-ray kernel */
+                    /* A hit nearer than its leaf's entry distance (a ray
+                     * grazing a triangle's plane: the rounded hit lies
+                     * outside the box; with the hit floor by no more than
+                     * about 2^-20 of it, unless the vertices lie much
+                     * farther from the world's origin than from the ray's)
+                     * is found only where the leaf is visited before a hit
+                     * beyond that hit prunes it: alone. */
+                    if (exact)
+                        *ties |= (unsigned)VKB(mask)(VKB(and)(ok, VK(lt)(tt, cur_dist)));
                     tfar = VK(select)(ok, tt, tfar);
                     tfar_n = PK_(loose)(tfar, exact);
                     hu = VK(select)(ok, VK(mul)(U, rcp), hu);

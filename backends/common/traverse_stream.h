@@ -178,26 +178,10 @@ static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_a
         const block_t *t = LEAF_BLOCK(accel, block, &scratch);
         tri4_hit h;
         unsigned mask = triangle4_intersect(t, &s->p, stream_leaf_ray(s), tnear, tfar, &h);
-        if (!mask)
+        float t_lane;
+        int lane;
+        if (!mask || (lane = block_nearest(t, &s->p, &h, mask, s->tnear_s, tfar_s, &t_lane, &s->best.u, &s->best.v)) < 0)
             continue;
-        _Alignas(16) float T[4], rcp[4], U[4], V[4];
-        vf4_store(T, h.T);
-        vf4_store(rcp, vf4_div(vf4_set1(1.0f), h.absdet));
-        int lane = -1;
-        float t_lane = 0.0f;
-        for (; mask; mask &= mask - 1) {
-            const int i = __builtin_ctz(mask);
-            const float ti = T[i] * rcp[i];
-            if (lane < 0 || ti < t_lane) {
-                lane = i;
-                t_lane = ti;
-            }
-        }
-        t_lane = t_lane <= s->tnear_s ? s->tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
-        vf4_store(U, h.U);
-        vf4_store(V, h.V);
-        s->best.u = U[lane] * rcp[lane];
-        s->best.v = V[lane] * rcp[lane];
         s->best.leaf = block;
         s->best.lane = lane;
         tfar_s = t_lane;

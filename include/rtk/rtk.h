@@ -871,7 +871,13 @@ RTK_API rtk_error rtk_geometry_set_intersect_function(rtk_geometry geometry, rtk
 RTK_API rtk_error rtk_geometry_set_occluded_function(rtk_geometry geometry, rtk_user_query_fn occluded);
 
 /* Closest hit.  RTK_ERROR_INVALID_ARGUMENT for NULL arguments,
- * RTK_ERROR_INVALID_OPERATION for a scene that was never committed. */
+ * RTK_ERROR_INVALID_OPERATION for a scene that was never committed.
+ * A triangle's hit distance is never less than where the ray enters the
+ * triangle's bounding box, less 2^-20 of that distance: a ray grazing a
+ * triangle's plane, whose rounded distance can come out far from the
+ * triangle, gets that floor instead (and no hit where the floor lies
+ * beyond tfar), so that which triangle is nearest never depends on the
+ * order in which the boxes were visited. */
 RTK_API rtk_error rtk_intersect1(rtk_scene scene, rtk_rayhit *rayhit);
 /* Any hit. */
 RTK_API rtk_error rtk_occluded1(rtk_scene scene, rtk_ray *ray);
