@@ -928,37 +928,71 @@ static inline __attribute__((always_inline)) vfloat4 block_hit_floor(const block
     return vf4_sub(entry, vf4_mul(vf4_abs(entry), vf4_set1(0x1p-20f)));
 }
 
+/* Lane j's floor, block_hit_floor's operations on the same values one by
+ * one (minps / maxps spelled as their comparisons; the product by 2^-20
+ * is exact, so a fused multiply-subtract rounds the same). */
+static inline float lane_hit_floor(const block_t *t, int j, const ray_pre *p)
+{
+    float entry = 0.0f;
+    for (int k = 0; k < 3; k++) {
+        float a, b, c;
+        lane_axis(t, j, k, &a, &b, &c);
+        const float ab_lo = a < b ? a : b, ab_hi = a > b ? a : b;
+        const float lo = ab_lo < c ? ab_lo : c, hi = ab_hi > c ? ab_hi : c;
+        const float tk = ((p->rs[k] < 0.0f ? hi : lo) - p->os[k]) * p->rs[k];
+        entry = k ? (entry > tk ? entry : tk) : tk;
+    }
+    entry = entry + 0.0f; /* (-0.0 -> +0.0) */
+    return entry - fabsf(entry) * 0x1p-20f;
+}
+
 /* The nearest of a block's lanes hit within [tnear, tfar] (mask, from
  * triangle4_intersect), each distance raised to its floor: the lane, or -1
  * when every floor lies beyond tfar; its distance clamped to [tnear, tfar]
  * (the product may round past an end of the interval the unscaled test
  * accepted; ties go to the interval's end, so -0.0 becomes tnear's +0.0,
- * as max/min do in the packet kernels) in *t_out, and u, v. */
+ * as max/min do in the packet kernels) in *t_out, and u, v.  The floors
+ * only raise distances, so when the nearest lane as rounded lies at or
+ * above its own floor (nearly always) it is the answer, the first of
+ * equals as below, and the other lanes' floors are not needed. */
 static inline __attribute__((always_inline)) int block_nearest(const block_t *t, const ray_pre *p, const tri4_hit *h,
                                                                unsigned mask, float tnear_s, float tfar_s,
                                                                float *t_out, float *u_out, float *v_out)
 {
     /* the reciprocals of |det| in one division for the four lanes (the
      * same quotients) */
-    _Alignas(16) float T[4], rcp[4], fl[4];
+    _Alignas(16) float T[4], rcp[4];
     vf4_store(T, h->T);
     vf4_store(rcp, vf4_div(vf4_set1(1.0f), h->absdet));
-    vf4_store(fl, block_hit_floor(t, p));
     int lane = -1;
     float t_lane = 0.0f;
-    for (; mask; mask &= mask - 1) {
-        const int i = __builtin_ctz(mask);
-        if (fl[i] > tfar_s)
-            continue;
-        float ti = T[i] * rcp[i];
-        ti = ti < fl[i] ? fl[i] : ti;
+    for (unsigned m = mask; m; m &= m - 1) {
+        const int i = __builtin_ctz(m);
+        const float ti = T[i] * rcp[i];
         if (lane < 0 || ti < t_lane) {
             lane = i;
             t_lane = ti;
         }
     }
-    if (lane < 0)
-        return -1;
+    const float fl_lane = lane_hit_floor(t, lane, p);
+    if (__builtin_expect(!(t_lane >= fl_lane && fl_lane <= tfar_s), 0)) {
+        _Alignas(16) float fl[4];
+        vf4_store(fl, block_hit_floor(t, p));
+        lane = -1;
+        for (; mask; mask &= mask - 1) {
+            const int i = __builtin_ctz(mask);
+            if (fl[i] > tfar_s)
+                continue;
+            float ti = T[i] * rcp[i];
+            ti = ti < fl[i] ? fl[i] : ti;
+            if (lane < 0 || ti < t_lane) {
+                lane = i;
+                t_lane = ti;
+            }
+        }
+        if (lane < 0)
+            return -1;
+    }
     *t_out = t_lane <= tnear_s ? tnear_s : (t_lane >= tfar_s ? tfar_s : t_lane);
     _Alignas(16) float U[4], V[4];
     vf4_store(U, h->U);
