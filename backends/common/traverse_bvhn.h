@@ -913,6 +913,17 @@ static inline void lane_axis(const block_t *t, int j, int k, float *a, float *b,
 #endif
 }
 
+/* Lane j's lowest and highest coordinate along axis k, as minps / maxps
+ * give them over block_axis's three (spelled as their comparisons). */
+static inline void lane_axis_range(const block_t *t, int j, int k, float *lo, float *hi)
+{
+    float a, b, c;
+    lane_axis(t, j, k, &a, &b, &c);
+    const float ab_lo = a < b ? a : b, ab_hi = a > b ? a : b;
+    *lo = ab_lo < c ? ab_lo : c;
+    *hi = ab_hi > c ? ab_hi : c;
+}
+
 /* The floors of a block's four triangles for ray p (see above). */
 static inline __attribute__((always_inline)) vfloat4 block_hit_floor(const block_t *t, const ray_pre *p)
 {
@@ -929,16 +940,14 @@ static inline __attribute__((always_inline)) vfloat4 block_hit_floor(const block
 }
 
 /* Lane j's floor, block_hit_floor's operations on the same values one by
- * one (minps / maxps spelled as their comparisons; the product by 2^-20
+ * one (the product by 2^-20
  * is exact, so a fused multiply-subtract rounds the same). */
 static inline float lane_hit_floor(const block_t *t, int j, const ray_pre *p)
 {
     float entry = 0.0f;
     for (int k = 0; k < 3; k++) {
-        float a, b, c;
-        lane_axis(t, j, k, &a, &b, &c);
-        const float ab_lo = a < b ? a : b, ab_hi = a > b ? a : b;
-        const float lo = ab_lo < c ? ab_lo : c, hi = ab_hi > c ? ab_hi : c;
+        float lo, hi;
+        lane_axis_range(t, j, k, &lo, &hi);
         const float tk = ((p->rs[k] < 0.0f ? hi : lo) - p->os[k]) * p->rs[k];
         entry = k ? (entry > tk ? entry : tk) : tk;
     }

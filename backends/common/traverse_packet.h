@@ -517,10 +517,8 @@ static inline vk PK_(hit_floor)(const block_t *t, int j, const PK_(packet_pre) *
 {
     vk entry = VK(set1)(0.0f);
     for (int k = 0; k < 3; k++) {
-        float a, b, c;
-        lane_axis(t, j, k, &a, &b, &c);
-        const float ab_lo = a < b ? a : b, ab_hi = a > b ? a : b; /* as minps / maxps */
-        const float lo = ab_lo < c ? ab_lo : c, hi = ab_hi > c ? ab_hi : c;
+        float lo, hi;
+        lane_axis_range(t, j, k, &lo, &hi);
         const vk inv = p->rinv_exact[k];
         const vk near = VK(select)(VK(lt)(inv, VK(set1)(0.0f)), VK(set1)(hi), VK(set1)(lo));
         const vk tk = VK(mul)(VK(sub)(near, p->org[k]), inv);
