@@ -277,6 +277,35 @@ static inline float lane_hit_floor(const block_t *t, int j, const ray_pre *p)
     return entry - fabsf(entry) * 0x1p-20f;
 }
 
+/* The lanes of mask whose floor fl[] does not lie beyond tfar. */
+static inline unsigned floors_within(const float *fl, unsigned mask, float tfar_s)
+{
+    for (unsigned m = mask; m; m &= m - 1)
+        if (fl[__builtin_ctz(m)] > tfar_s)
+            mask &= ~(1u << __builtin_ctz(m));
+    return mask;
+}
+
+/* The nearest of the lanes of mask, each lane's distance T / |det| (T[i]
+ * * rcp[i]) raised to its floor fl[i], the first of equals: the lane
+ * (-1 when mask is empty) and its distance in *t_out. */
+static inline int floored_nearest(const float *T, const float *rcp, const float *fl, unsigned mask, float *t_out)
+{
+    int lane = -1;
+    float t_lane = 0.0f;
+    for (; mask; mask &= mask - 1) {
+        const int i = __builtin_ctz(mask);
+        float ti = T[i] * rcp[i];
+        ti = ti < fl[i] ? fl[i] : ti;
+        if (lane < 0 || ti < t_lane) {
+            lane = i;
+            t_lane = ti;
+        }
+    }
+    *t_out = t_lane;
+    return lane;
+}
+
 /* The nearest of a block's lanes hit within [tnear, tfar] (mask, from
  * triangle4_intersect), each distance raised to its floor: the lane, or -1
  * when every floor lies beyond tfar; its distance clamped to [tnear, tfar]
@@ -309,18 +338,7 @@ static inline __attribute__((always_inline)) int block_nearest(const block_t *t,
     if (__builtin_expect(!(t_lane >= fl_lane && fl_lane <= tfar_s), 0)) {
         _Alignas(16) float fl[4];
         vf4_store(fl, block_hit_floor(t, p));
-        lane = -1;
-        for (; mask; mask &= mask - 1) {
-            const int i = __builtin_ctz(mask);
-            if (fl[i] > tfar_s)
-                continue;
-            float ti = T[i] * rcp[i];
-            ti = ti < fl[i] ? fl[i] : ti;
-            if (lane < 0 || ti < t_lane) {
-                lane = i;
-                t_lane = ti;
-            }
-        }
+        lane = floored_nearest(T, rcp, fl, floors_within(fl, mask, tfar_s), &t_lane);
         if (lane < 0)
             return -1;
     }
@@ -415,21 +433,10 @@ static __attribute__((noinline)) unsigned accept_closest(const block_t *t, const
     vf4_store(U, h->U);
     vf4_store(V, h->V);
     vf4_store(fl, floor);
-    for (unsigned m = mask; m; m &= m - 1) /* (as block_nearest) */
-        if (fl[__builtin_ctz(m)] > tfar_s)
-            mask &= ~(1u << __builtin_ctz(m));
+    mask = floors_within(fl, mask, tfar_s);
     while (mask) {
-        int lane = -1;
-        float tl = 0.0f;
-        for (unsigned m = mask; m; m &= m - 1) {
-            const int i = __builtin_ctz(m);
-            float ti = T[i] * rcp[i];
-            ti = ti < fl[i] ? fl[i] : ti;
-            if (lane < 0 || ti < tl) {
-                lane = i;
-                tl = ti;
-            }
-        }
+        float tl;
+        const int lane = floored_nearest(T, rcp, fl, mask, &tl);
         tl = tl <= tnear_s ? tnear_s : (tl >= tfar_s ? tfar_s : tl); /* as closest_from_ clamps */
         if (accept_lane(t, lane, p, tl, U[lane] * rcp[lane], V[lane] * rcp[lane], tfar_s, 0))
             return 1u << lane;
