@@ -215,6 +215,26 @@ static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s,
         trace_split(s, active, packet, n, 4, fields, k, &query);
     } else if (k->width > 1) {
         trace_split(s, active, packet, n, k->width, fields, k, &query);
+    } else if (s->intersect_stream && s->occluded_stream) {
+        /* no packet kernel (motion blur; the scalar backend): the active
+         * lanes as one stream, whose kernel interleaves the rays that
+         * scatter and gives each rtk_intersect1's answer */
+        rtk_rayhit one[16];
+        void *list[16];
+        uint32_t lane[16], m = 0;
+        for (uint32_t i = 0; i < n; i++) {
+            if (!active[i])
+                continue;
+            copy_lanes(&one[m], 1, 0, packet, n, i, 1, fields);
+            list[m] = &one[m];
+            lane[m++] = i;
+        }
+        if (occluded)
+            s->occluded_stream(s->accel, (rtk_ray *const *)list, m, &query);
+        else
+            s->intersect_stream(s->accel, (rtk_rayhit *const *)list, m, &query);
+        for (uint32_t k = 0; k < m; k++)
+            copy_lanes(packet, n, lane[k], &one[k], 1, 0, 1, fields);
     } else { /* ray by ray */
         for (uint32_t i = 0; i < n; i++) {
             if (!active[i])

@@ -526,6 +526,94 @@ static void motion_packets(void **state)
     free_moving(&m);
 }
 
+/* Streams and packets through the motion layouts alone (no static
+ * geometry beside them, so no top level): rtk_intersect1M /
+ * rtk_occluded1M, whose kernel interleaves the rays, each in its time
+ * segment's tree, and packets of 8, which the core hands to that kernel
+ * (no packet kernels for motion blur), give every ray rtk_intersect1's and
+ * rtk_occluded1's record to the bit: scattered rays and coherent groups,
+ * times in every segment, at the time steps, outside [0, 1] and NaN
+ * (no hit), default and robust layouts, every configuration. */
+static void motion_streams(void **state)
+{
+    (void)state;
+    motion_configs mc;
+    motion_configs_get(&mc);
+    moving m = make_moving(4, 1.0, 0.0);
+    enum { N = 2400 };
+    rtk_rayhit *rays = malloc(N * sizeof *rays), *one = malloc(N * sizeof *one), *many = malloc(N * sizeof *many);
+    assert_true(rays && one && many);
+    rng g = {11};
+    static const float odd_times[5] = {-0.25f, 1.5f, NAN, 0.0f, 1.0f};
+    float o[3];
+    for (size_t i = 0; i < N; i++) {
+        float d[3];
+        const int group = (i / 8) % 2; /* every other eight: one origin, nearby directions */
+        for (int k = 0; k < 3; k++) {
+            if (!group || i % 8 == 0)
+                o[k] = -10.0f + 20.0f * rng_float(&g);
+            d[k] = (group ? 0.2f : 4.0f) * rng_float(&g) - (group ? 0.1f : 2.0f) - o[k];
+        }
+        rays[i] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY)};
+        rays[i].ray.time = i % 50 < 5 ? odd_times[i % 50] : rng_float(&g);
+        rays[i].hit.geomID = rays[i].hit.primID = rays[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
+    }
+    for (size_t b = 0; b < mc.n; b++)
+        for (int robust = 0; robust < 2; robust++) {
+            rtk_device dev = config_device(mc.config[b]);
+            rtk_scene s = NULL;
+            assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+            assert_int_equal(rtk_scene_set_flags(s, robust ? RTK_SCENE_FLAG_ROBUST : RTK_SCENE_FLAG_NONE), RTK_OK);
+            attach(s, moving_geometry(dev, &m, ball.idx, ball.nt));
+            commit_ok(dev, s);
+            rtk_scene_info info = {.struct_size = sizeof info};
+            assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+            if (info.stream_in_flight < 4)
+                fail_msg("%s%s: %s has no stream kernel (%u in flight)", mc.config[b], robust ? " robust" : "",
+                         info.layout, info.stream_in_flight);
+            size_t hits = 0;
+            for (int occluded = 0; occluded < 2; occluded++) {
+                memcpy(one, rays, N * sizeof *rays);
+                memcpy(many, rays, N * sizeof *rays);
+                for (size_t i = 0; i < N; i++)
+                    assert_int_equal(occluded ? rtk_occluded1(s, &one[i].ray) : rtk_intersect1(s, &one[i]), RTK_OK);
+                assert_int_equal(occluded ? rtk_occluded1M(s, &many[0].ray, N, sizeof *many)
+                                          : rtk_intersect1M(s, many, N, sizeof *many),
+                                 RTK_OK);
+                for (size_t i = 0; i < N; i++) {
+                    if (memcmp(&many[i], &one[i], sizeof one[i]))
+                        fail_msg("%s%s: stream ray %zu (time %a): t %a / %a, prim %u / %u, occluded %d",
+                                 mc.config[b], robust ? " robust" : "", i, rays[i].ray.time, many[i].ray.tfar,
+                                 one[i].ray.tfar, many[i].hit.primID, one[i].hit.primID, occluded);
+                    hits += one[i].ray.tfar < INFINITY;
+                }
+                for (size_t i = 0; i < N; i += 8) {
+                    _Alignas(64) uint32_t packet[20 * 8];
+                    for (unsigned l = 0; l < 8; l++)
+                        test_packet_put(packet, 8, l, &rays[i + l], occluded);
+                    assert_int_equal(test_trace_packet(s, 8, occluded, NULL, packet), RTK_OK);
+                    for (unsigned l = 0; l < 8; l++) {
+                        rtk_rayhit got = rays[i + l];
+                        test_packet_get(packet, 8, l, &got, occluded);
+                        if (memcmp(&got, &one[i + l], occluded ? sizeof got.ray : sizeof got))
+                            fail_msg("%s%s: packet ray %zu: t %a / %a, occluded %d", mc.config[b],
+                                     robust ? " robust" : "", i + l, got.ray.tfar, one[i + l].ray.tfar, occluded);
+                    }
+                }
+                for (size_t i = 0; i < N; i++) /* outside [0, 1] or NaN: no hit */
+                    if (!(rays[i].ray.time >= 0.0f && rays[i].ray.time <= 1.0f))
+                        assert_true(one[i].ray.tfar == INFINITY);
+            }
+            assert_true(hits > N / 4 && hits < 2 * N - N / 4); /* the rays do hit, and not all of them */
+            rtk_scene_release(s);
+            rtk_device_release(dev);
+        }
+    free_moving(&m);
+    free(rays);
+    free(one);
+    free(many);
+}
+
 /* What the scene reports: the motion layout alone, or a top level over
  * the static tree and one tree per time step count; bytes; trees built;
  * a geometry back to one time step is static again. */
@@ -828,7 +916,8 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(motion_vs_reference), cmocka_unit_test(motion_steps_exact),
         cmocka_unit_test(motion_time_outside), cmocka_unit_test(motion_bad_vertices),
-        cmocka_unit_test(motion_packets),      cmocka_unit_test(motion_scene_info),
+        cmocka_unit_test(motion_packets),      cmocka_unit_test(motion_streams),
+        cmocka_unit_test(motion_scene_info),
         cmocka_unit_test(motion_determinism), cmocka_unit_test(motion_refit),
         cmocka_unit_test(motion_errors),
     };

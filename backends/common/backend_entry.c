@@ -206,6 +206,13 @@ static const rtk_kernel_entry kernels[] = {
     KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4I, 4i),
     KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4V, 4v),
     KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4I_ROBUST, 4ir),
+    /* motion blur: each ray in its time segment's tree (traverse_motion.h) */
+#ifdef RTK_SIMD_HAS_8
+    KERNELM(RTK_LAYOUT_BVH8_TRIANGLE4MB, 8mb),
+    KERNELM(RTK_LAYOUT_BVH8_TRIANGLE4MB_ROBUST, 8mbr),
+#endif
+    KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4MB, 4mb),
+    KERNELM(RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, 4mbr),
 #undef KERNEL1
 #undef KERNELN
 #undef KERNELM

@@ -97,6 +97,10 @@ RTK_STREAM_DECL_(4i)
 RTK_STREAM_DECL_(4v)
 RTK_STREAM_DECL_(8v)
 RTK_STREAM_DECL_(4ir)
+RTK_STREAM_DECL_(4mb)
+RTK_STREAM_DECL_(4mbr)
+RTK_STREAM_DECL_(8mb)
+RTK_STREAM_DECL_(8mbr)
 #undef RTK_STREAM_DECL_
 /* the merged two-level traversals (traverse_objects.h): a top level
  * (bvh4.object) whose objects are mostly trees of the layout named */

@@ -1002,12 +1002,15 @@ static inline void closest_hit_write(const rtk_accel *leaves, const rtk_accel *a
     closest_hit_quad(attrs, rayhit->hit.geomID, &rayhit->hit.primID, &rayhit->hit.u, &rayhit->hit.v);
 }
 
-#if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
+/* Whether the node test is the fused one (ray_pre.fma rays where the
+ * SIMD layer has FMA): the constant of the usual ray's paths. */
 #if RTK_SIMD_HAS_FMA
 #define BVHN_FUSED 1
 #else
 #define BVHN_FUSED 0
 #endif
+
+#if !RTK_MOTION /* (traverse_bvh4mb.c has its own entry points) */
 /* The entry points keep the usual ray (no features, and with FMA an
  * origin the fused node test can take) on a path where the traversal is
  * inlined and the ray's precomputed vectors are the function's own values,

@@ -4,8 +4,10 @@
  * RTK_BVHN first): the single-ray template with planes and vertices
  * interpolated to the ray's time, through the tree of the time segment the
  * time falls in.  A ray whose time is outside [0, 1] (or NaN) hits nothing
- * here: the motion is defined over that range only.  No packet kernels:
- * the core traces packets ray by ray. */
+ * here: the motion is defined over that range only.  Streams interleave
+ * their rays as in the static layouts (traverse_stream.h, each ray in its
+ * segment's tree).  No packet kernels: the core traces a packet's rays as
+ * a stream. */
 #ifndef RTK_BVHN
 #define RTK_BVHN 4
 #endif
@@ -56,3 +58,5 @@ void BVHN_OCCLUDED1(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
     if (seg && any_from(seg, seg->root, &p, ray->tnear, ray->tfar, feat_init(&fc, ray, accel, q)))
         ray->tfar = -INFINITY;
 }
+
+#include "traverse_stream.h"

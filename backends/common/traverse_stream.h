@@ -25,19 +25,22 @@
  * FMA rays the fused node test cannot take (ray_pre.fma), go through the
  * single-ray entry points, whose traversals for them are their own.
  *
- * A template included after traverse_bvhn.h (not for motion blur, whose
- * entry points are traverse_motion.h's); it defines
- * rtk_bvh<tag>_intersect_stream and rtk_bvh<tag>_occluded_stream
- * (rtk_backend.h: rtk_intersect_stream_fn), and the inline helpers the
- * packet kernels call for packets whose rays scatter.
+ * Motion blur (traverse_motion.h, RTK_MOTION) interleaves the same way:
+ * each slot walks the tree of its ray's time segment (segment_at), with
+ * the planes and vertices at the ray's time, as rtk_intersect1 does.
+ * Motion blur has no packet kernels, so its coherent groups go ray by
+ * ray.
+ *
+ * A template included after traverse_bvhn.h (or traverse_motion.h's entry
+ * points); it defines rtk_bvh<tag>_intersect_stream and
+ * rtk_bvh<tag>_occluded_stream (rtk_backend.h: rtk_intersect_stream_fn),
+ * and the inline helpers the packet kernels call for packets whose rays
+ * scatter.
  */
 #include <stdlib.h>
 
 #if !defined(RTK_BVHN)
 #error "include traverse_bvhn.h first"
-#endif
-#if RTK_MOTION
-#error "motion blur has no stream traversal"
 #endif
 
 #define BVHN_INTERSECT_STREAM RTK_SYM(BVHN_NAME(BVHN_TAG, intersect_stream))
@@ -52,6 +55,9 @@ typedef struct stream_slot {
     leaf_ray lr; /* the ray of the unfused and the watertight triangle tests (the fused one reads m) */
 #endif
     void *ray; /* the rtk_rayhit or rtk_ray */
+#if RTK_MOTION
+    const rtk_accel *tree; /* the tree of the ray's time segment */
+#endif
     closest_hit best;
     float tnear_s, tfar_s;
     uint32_t cur;
@@ -59,13 +65,21 @@ typedef struct stream_slot {
     stack_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
 } stream_slot;
 
+/* The tree slot s walks: its time segment's with motion blur, else the
+ * stream's. */
+#if RTK_MOTION
+#define STREAM_TREE(accel, s) ((s)->tree)
+#else
+#define STREAM_TREE(accel, s) (accel)
+#endif
+
 /* The memory of a reference popped from the stack, asked for again (it was
  * when it was pushed, but other rays' steps may have pushed it out since). */
 static inline __attribute__((always_inline)) void stream_prefetch_ref(const rtk_accel *accel, uint32_t ref)
 {
     const char *a;
     if (ref & RTK_BVH4_LEAF_BIT) {
-#if RTK_LEAF_INDEXED
+#if RTK_LEAF_INDEXED || RTK_MOTION
         a = (const char *)&accel->trisi[rtk_leaf_first(ref)];
 #else
         a = (const char *)&accel->tris[rtk_leaf_first(ref)];
@@ -87,6 +101,11 @@ static inline __attribute__((always_inline)) int stream_start(const rtk_accel *a
     if (__builtin_expect(ray_feat(accel, r) != 0, 0))
         return 0;
     ray_pre_init(&s->p, &s->m, r, accel);
+#if RTK_MOTION
+    s->tree = segment_at(accel, r->time, &s->p);
+    if (!s->tree) /* (no hit: the single call says so) */
+        return 0;
+#endif
 #if RTK_SIMD_HAS_FMA
     if (__builtin_expect(!s->p.fma, 0))
         return 0;
@@ -100,7 +119,7 @@ static inline __attribute__((always_inline)) int stream_start(const rtk_accel *a
     s->tfar_s = r->tfar;
     s->ntnear = vn_set1(r->tnear + 0.0f);
     s->ntfar = vn_set1(r->tfar + 0.0f);
-    s->cur = accel->root;
+    s->cur = STREAM_TREE(accel, s)->root;
     s->sp = 0;
     return 1;
 }
@@ -119,6 +138,7 @@ static inline const leaf_ray *stream_leaf_ray(const stream_slot *s)
  * s->cur; 0 when the ray is done (nothing hit and the stack ran out). */
 static inline __attribute__((always_inline)) int stream_node_step(const rtk_accel *accel, stream_slot *s, int anyhit)
 {
+    accel = STREAM_TREE(accel, s);
     const node_t *n = &BVHN_NODES(accel)[s->cur];
     const uint32_t *child = n->child;
     vnode dists;
@@ -169,6 +189,10 @@ static inline __attribute__((always_inline)) int stream_node_step(const rtk_acce
  * at leaf s->cur, then the pop; 0 when the ray is done. */
 static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_accel *accel, stream_slot *s)
 {
+    accel = STREAM_TREE(accel, s);
+#if RTK_MOTION
+    const ray_pre *p = &s->p; /* (LEAF_BLOCK interpolates to its time) */
+#endif
     const vfloat4 tnear = vf4_set1(s->tnear_s + 0.0f);
     float tfar_s = s->tfar_s;
     vfloat4 tfar = vf4_set1(tfar_s + 0.0f);
@@ -201,6 +225,10 @@ static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_a
  * without one, 1 to go on. */
 static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel *accel, stream_slot *s)
 {
+    accel = STREAM_TREE(accel, s);
+#if RTK_MOTION
+    const ray_pre *p = &s->p;
+#endif
     const vfloat4 tnear = vf4_set1(s->tnear_s + 0.0f), tfar = vf4_set1(s->tfar_s + 0.0f);
     const uint32_t first = rtk_leaf_first(s->cur), end = first + rtk_leaf_blocks(s->cur);
     for (uint32_t block = first; block < end; block++) {
@@ -324,7 +352,9 @@ static inline int stream_coherent(const rtk_accel *accel, void *const *rays, uin
 /* The packet kernels the coherent groups' any hits go through: 8 wide
  * where the SIMD layer has 8-wide vectors, 4 with SSE4.1, none in the
  * scalar backend (which has no packet kernels: its groups go ray by ray). */
-#if defined(RTK_SIMD_HAS_8)
+#if RTK_MOTION
+/* (none) */
+#elif defined(RTK_SIMD_HAS_8)
 #define RTK_STREAM_PACKET 8
 #elif defined(__SSE4_1__)
 #define RTK_STREAM_PACKET 4
@@ -418,6 +448,31 @@ static void stream_intersect_group(const rtk_accel *accel, void *const *rays, co
 }
 #endif
 
+/* A coherent group of n = RTK_STREAM_GROUP rays (stream_coherent),
+ * traced on the spot: as packets where there are packet kernels, else ray
+ * by ray.  (Out of line: one call per eight rays; inlined into the packet
+ * kernels, whose lists hold four, GCC warns of reads it cannot see are
+ * never reached.) */
+static __attribute__((noinline)) void stream_group(const rtk_accel *accel, void *const *g, uint32_t n,
+                                                  const rtk_query *q, int closest)
+{
+#ifdef RTK_STREAM_PACKET
+    if (!closest) /* (RTK_STREAM_GROUP is a multiple of RTK_STREAM_PACKET) */
+        for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
+            stream_occluded_group(accel, g + k, q);
+    else
+        for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
+            stream_intersect_group(accel, g + k, q);
+#else
+    for (uint32_t i = 0; i < n; i++) {
+        if (closest)
+            BVHN_INTERSECT1(accel, g[i], q);
+        else
+            BVHN_OCCLUDED1(accel, g[i], q);
+    }
+#endif
+}
+
 /* The next ray for the interleaved traversal, set up in slot s; 0 when the
  * stream has run out.  Coherent groups and the rays the slots do not take
  * are traced here on the way. */
@@ -435,21 +490,7 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
             void *const *g = src->rays + src->next;
             src->group_end = src->next + n;
             if (n == RTK_STREAM_GROUP && stream_coherent(accel, g, n)) {
-#ifdef RTK_STREAM_PACKET
-                if (!closest) /* (n is RTK_STREAM_GROUP, a multiple of RTK_STREAM_PACKET) */
-                    for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
-                        stream_occluded_group(accel, g + k, q);
-                else
-                    for (uint32_t k = 0; k < n; k += RTK_STREAM_PACKET)
-                        stream_intersect_group(accel, g + k, q);
-#else
-                for (uint32_t i = 0; i < n; i++) {
-                    if (closest)
-                        BVHN_INTERSECT1(accel, g[i], q);
-                    else
-                        BVHN_OCCLUDED1(accel, g[i], q);
-                }
-#endif
+                stream_group(accel, g, n, q, closest);
                 src->next = src->group_end;
                 continue;
             }
@@ -497,7 +538,7 @@ static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *
                 continue;
             }
             if (closest)
-                closest_hit_write(accel, accel, &s->best, &s->p, s->tfar_s, s->ray);
+                closest_hit_write(STREAM_TREE(accel, s), accel, &s->best, &s->p, s->tfar_s, s->ray);
             if (stream_next(accel, &src, s, q, closest))
                 j++;
             else
@@ -515,9 +556,21 @@ static stream_slot *stream_slots(void)
     return aligned_alloc(64, (sizeof(stream_slot) * RTK_STREAM_K + 63) / 64 * 64);
 }
 
+/* A stream of one coherent group (a packet of a layout without packet
+ * kernels, which the core hands over as a stream): traced as the group it
+ * is, without the slots' allocation. */
+static inline int stream_one_group(const rtk_accel *accel, void *const *rays, uint32_t count, const rtk_query *q,
+                                   int closest)
+{
+    if (count != RTK_STREAM_GROUP || !stream_coherent(accel, rays, count))
+        return 0;
+    stream_group(accel, rays, count, q, closest);
+    return 1;
+}
+
 void BVHN_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count, const rtk_query *q)
 {
-    if (accel->root == RTK_BVH4_EMPTY || !count)
+    if (accel->root == RTK_BVH4_EMPTY || !count || stream_one_group(accel, (void *const *)rays, count, q, 1))
         return;
     stream_slot *slots = stream_slots();
     if (__builtin_expect(!slots, 0)) {
@@ -531,7 +584,7 @@ void BVHN_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint
 
 void BVHN_OCCLUDED_STREAM(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count, const rtk_query *q)
 {
-    if (accel->root == RTK_BVH4_EMPTY || !count)
+    if (accel->root == RTK_BVH4_EMPTY || !count || stream_one_group(accel, (void *const *)rays, count, q, 0))
         return;
     stream_slot *slots = stream_slots();
     if (__builtin_expect(!slots, 0)) {
