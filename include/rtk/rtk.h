@@ -452,7 +452,8 @@ typedef struct rtk_scene_info {
     float bounds_lower[3], bounds_upper[3];
     /* Rays per packet-kernel call for rtk_intersect4/8/16 (and occluded):
      * N when the backend traces the packet whole, less when it splits it,
-     * 1 when it traces ray by ray. */
+     * 1 when it has no packet kernel (the rays as a stream, or ray by
+     * ray). */
     uint32_t packet_width[3];
     /* Added after rtk 0.1.0: the threads the last build could run on
      * (rtk_device_get_thread_count when the builder is parallel, else 1). */
@@ -906,8 +907,11 @@ RTK_API rtk_error rtk_occluded1_ctx(rtk_scene scene, rtk_ray *ray, const rtk_que
  * through the packet kernels instead, with the same answers (a ray whose
  * hit in a packet could be the other of two triangles tied within rounding
  * is traced alone), so a stream is in rays' order best handed over tile by
- * tile.  Scenes whose layout has no stream kernel (two levels, motion
- * blur) are traced ray by ray, with the same answers.
+ * tile.  Motion-blurred scenes interleave their rays too, each in the
+ * tree of its time segment (their coherent runs go one ray after the
+ * other: there are no motion packet kernels).  Scenes whose layout has no
+ * stream kernel (two levels) are traced ray by ray, with the same
+ * answers.
  *
  * RTK_ERROR_INVALID_ARGUMENT, with nothing written, for a NULL scene, NULL
  * rays with a count above 0, rays not aligned to 4 bytes, a byte_stride
@@ -1109,8 +1113,11 @@ RTK_API rtk_error rtk_occupancy(rtk_scene scene, const rtk_point_query *points, 
  * for the few rays still active once it has spread out (the hybrid scheme
  * of Embree).  Every width works on every
  * backend: a packet wider than the backend's packet kernels is traced as
- * several narrower packets, and a backend without packet kernels traces the
- * rays one by one; rtk_scene_info.packet_width says which. */
+ * several narrower packets, and where there is no packet kernel (the
+ * scalar backend; motion blur on every backend) the packet's rays go
+ * through the layout's stream kernel as a stream of their own (scattered
+ * rays interleaved, see rtk_intersect1M), or one by one where it has none;
+ * rtk_scene_info.packet_width says which (1 for both). */
 #define RTK_PACKET_TYPES_(N)                                                                                           \
     typedef struct __attribute__((aligned(4 * N))) rtk_ray##N {                                                        \
         float org_x[N], org_y[N], org_z[N];                                                                            \
