@@ -233,8 +233,8 @@ static inline __attribute__((always_inline)) rtk_error trace_packet(rtk_scene s,
             s->occluded_stream(s->accel, (rtk_ray *const *)list, m, &query);
         else
             s->intersect_stream(s->accel, (rtk_rayhit *const *)list, m, &query);
-        for (uint32_t k = 0; k < m; k++)
-            copy_lanes(packet, n, lane[k], &one[k], 1, 0, 1, fields);
+        for (uint32_t j = 0; j < m; j++)
+            copy_lanes(packet, n, lane[j], &one[j], 1, 0, 1, fields);
     } else { /* ray by ray */
         for (uint32_t i = 0; i < n; i++) {
             if (!active[i])

@@ -145,7 +145,7 @@ int section_motion(ctx *c, char *err, size_t err_size)
     printf("\nmotion blur, 1 thread: the mesh turning (up to 0.6 radians at the top) and moving sideways (5%% of its "
            "diagonal) over the shutter, at 2 and 5 time steps, medium quality; start time (best of %d), bytes per "
            "triangle, and the primary and diffuse rays at random times, single rays, packets of 8 primary rays and the "
-           "diffuse rays as one stream (rtk_intersect1M / rtcIntersect1M) "
+           "diffuse rays as streams (8 in turn, rtk_intersect1M / rtcIntersect1M) "
            "(Mrays/s, best of %d passes taken by the libraries in turns; static: the diffuse rays through the static "
            "mesh in the same library); "
            "update: the geometry at quality REFIT, every step moved on and committed again (best of %d frames)\n",
@@ -239,12 +239,14 @@ int section_motion(ctx *c, char *err, size_t err_size)
         }
         for (int l = 0; l < c->nlibs && !rc; l++) {
             const lib *lb = &c->libs[l];
-            /* rates: primary, diffuse, primary packets of 8; then static */
-            double rate[5];
-            for (int k = 0; k < 5; k++)
+            /* rates (this library's, and the first library's for the
+             * ratios): primary, diffuse, primary packets of 8, static
+             * diffuse, diffuse streams */
+            double rate[5], r0[5];
+            for (int k = 0; k < 5; k++) {
                 rate[k] = (double)timed[k == 1 || k >= 3].n / el[l][k] * 1e-6;
-            const double r0[5] = {(double)timed[0].n / el[0][0] * 1e-6, (double)timed[1].n / el[0][1] * 1e-6,
-                                  (double)timed[0].n / el[0][2] * 1e-6, 0, (double)timed[1].n / el[0][4] * 1e-6};
+                r0[k] = (double)timed[k == 1 || k >= 3].n / el[0][k] * 1e-6;
+            }
             printf("  %-20s %5d %9.1f %6.2fx %8.1f %10.2f %6.2fx %10.2f %6.2fx %10.2f %6.2fx %10.2f %6.2fx %9.2f %8zu "
                    "%10.1f %6.2fx%s\n",
                    lb->name, steps, best[l] * 1e3, ratio(best[0], best[l]), bytes[l], rate[0], ratio(rate[0], r0[0]),
