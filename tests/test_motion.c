@@ -640,7 +640,10 @@ static void motion_scene_info(void **state)
     assert_int_equal(info.trees_built, 1);
     assert_int_equal(info.triangles_motion, ball.nt);
     const uint64_t one_segment = info.bytes;
-    assert_true(info.bytes_per_triangle > 50.0 && info.bytes_per_triangle < 400.0);
+    /* (the leaves' vertex indices and the copy of both steps alone come to
+     * over 30 bytes a triangle; this ball takes 47 since the SAH prices a
+     * motion node at two blocks of triangles) */
+    assert_true(info.bytes_per_triangle > 30.0 && info.bytes_per_triangle < 400.0);
     /* low quality: the Morton builder shapes the tree */
     assert_int_equal(rtk_scene_set_build_quality(s, RTK_BUILD_QUALITY_LOW), RTK_OK);
     commit_ok(dev, s);

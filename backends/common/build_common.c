@@ -152,7 +152,8 @@ void build_set_message(rtk_build_output *out, const char *text)
 
 int build_layout_setup(build *bd, const rtk_build_input *in, rtk_build_output *out)
 {
-    *bd = (build){.in = in, .leaf_size = sizeof(rtk_triangle4), .width = 4, .node_size = sizeof(rtk_bvh4_node)};
+    *bd = (build){.in = in, .leaf_size = sizeof(rtk_triangle4), .width = 4, .node_size = sizeof(rtk_bvh4_node),
+                  .node_cost = 1.0f};
     switch (in->layout) {
     case RTK_LAYOUT_BVH8_TRIANGLE4V:
         bd->vertex_leaves = 1;

@@ -62,6 +62,10 @@ typedef struct build {
      * half-area); 0 = none. */
     int spatial;
     float spatial_overlap;
+    /* SAH builder: what descending through an inner node costs against a
+     * leaf's blocks of four triangles (build_sah.c, leaf_range): 1, or 2
+     * for the motion builder's trees */
+    float node_cost;
     void *nodes;      /* the final arrays (stage 3) */
     void *leaves;
     const double *node_sah; /* NULL, or each node's build_node_sah (a refit's) */

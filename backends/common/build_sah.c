@@ -1479,7 +1479,21 @@ static int split_children(const build *bd, binpool *pool, bins *scratch, sbins *
  * than one leaf of several blocks (one box test, at the price of one block
  * of triangles, as in Embree: an inner node over a handful of triangles
  * would mostly hold empty slots).  Otherwise *first is that best split
- * when it was computed, else its axis is -1. */
+ * when it was computed, else its axis is -1.
+ *
+ * The motion builder's trees (build_motion.c) price a box test at two
+ * blocks (bd->node_cost).  Their nodes hold each box at a segment's start
+ * and its change (416 bytes 8 wide, 208 four wide: every box twice),
+ * interpolated in every test.  At one block, dragon.ply's tree at 2 time
+ * steps had 55,269 nodes, at two 28,638 (leaves of more blocks, 3.50
+ * triangles a block against 3.44): 48.5 bytes a triangle against 61.6
+ * (Embree's 57.0), 176 against 228 at 5 steps (Embree's 195), San
+ * Miguel's 47.5 and 172 against 56.9 and 208, builds up to a fifth
+ * faster, and the rays traced as fast within this VM's noise (dragon at 5
+ * steps: diffuse 0-20% faster over three runs; rtktool bench --only
+ * motion, the two builds side by side, AMD EPYC).  Three blocks gave about
+ * the same tree as two (26,985 nodes).  Static trees were tried the same
+ * way (docs/BENCHMARKS.md): smaller, no faster. */
 static int leaf_range(part *p, const range *r, uint32_t depth, split *first)
 {
     const uint32_t n = r->end - r->begin;
@@ -1489,7 +1503,7 @@ static int leaf_range(part *p, const range *r, uint32_t depth, split *first)
     if (n <= 4 * RTK_LEAF_MAX_BLOCKS && depth < RTK_SAH_MEDIAN_DEPTH) {
         *first = find_split(p->bd, r);
         const float area = box_half_area(&r->geom);
-        if (first->axis < 0 || (float)((n + 3) / 4) * area <= area + first->cost) {
+        if (first->axis < 0 || (float)((n + 3) / 4) * area <= p->bd->node_cost * area + first->cost) {
             pool_put(&p->pool, r->bn);
             return 1;
         }
@@ -2057,13 +2071,14 @@ static void free_parts(top *t)
         build_queue_free(&t->queue);
 }
 
-static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spatial)
+static int build_sah(const rtk_build_input *in, rtk_build_output *out, int spatial, float node_cost)
 {
     uint64_t total;
     build bd;
     int rc = build_begin(&bd, in, out, &total);
     if (rc)
         return rc;
+    bd.node_cost = node_cost;
     build_progress progress;
     build_progress_init(&bd, &progress, total);
     /* Room for the references spatial splits add, while every leaf block
@@ -2328,10 +2343,15 @@ int RTK_SYM(rtk_bvh_import)(const rtk_build_input *in, const rtk_bvh *t, rtk_bui
 
 int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out)
 {
-    return build_sah(in, out, 0);
+    return build_sah(in, out, 0, 1.0f);
 }
 
 int RTK_SYM(rtk_build_sah_spatial)(const rtk_build_input *in, rtk_build_output *out)
 {
-    return build_sah(in, out, 1);
+    return build_sah(in, out, 1, 1.0f);
+}
+
+int RTK_SYM(rtk_build_sah_motion)(const rtk_build_input *in, rtk_build_output *out)
+{
+    return build_sah(in, out, 0, 2.0f);
 }

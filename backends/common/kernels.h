@@ -6,6 +6,9 @@
 
 RTK_HIDDEN int RTK_SYM(rtk_build_sah)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN int RTK_SYM(rtk_build_sah_spatial)(const rtk_build_input *in, rtk_build_output *out);
+/* rtk_build_sah for the motion builder's segment trees: an inner node
+ * weighed as two blocks of triangles (build_sah.c, leaf_range). */
+RTK_HIDDEN int RTK_SYM(rtk_build_sah_motion)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN int RTK_SYM(rtk_build_morton)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_bvh4_release)(rtk_accel *accel);
 RTK_HIDDEN int RTK_SYM(rtk_bvh_export)(const rtk_accel *accel, rtk_bvh *tree);
