@@ -13,7 +13,7 @@
  * --hubs first turns each triangle's vertices round (keeping the winding)
  * so that neighbours start at the same vertex where a greedy choice can
  * (which the Embree form needs to compute an edge the same way in both
- * triangles).  For docs/BENCHMARKS.md, "Shared edges"; not a speed
+ * triangles).  For docs/benchmarks/accuracy.md, "Shared edges"; not a speed
  * benchmark, and the library's own kernels are measured by rtktool bench.
  */
 #include <math.h>

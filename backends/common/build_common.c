@@ -446,7 +446,7 @@ static void *tree_array(const rtk_memory *m, void *p, size_t *mapped, size_t siz
  * ran 3-6% faster on the dragon and San Miguel than with the nodes at
  * multiples of 256, or of 256 plus 128 or 192; the bench's diffuse rays,
  * whose neighbours find the tree in the caches, within the noise.  Why
- * that CPU prefers it is not known (docs/BENCHMARKS.md).  4-wide nodes
+ * that CPU prefers it is not known (docs/benchmarks/notes.md).  4-wide nodes
  * keep offset 0 (not measured). */
 static size_t node_offset(const build *bd)
 {

@@ -287,7 +287,7 @@ static inline void build_counts_store(rtk_build_output *out, const build_counts 
  * deforms: then both are kept, never hit, and counted in c->degenerate).  Decided in vectors: the exact tests of area run only for a
  * triangle whose float cross product cannot tell (the first pass of the
  * dragon's Morton build, which had spent most of its time in the two
- * scalar tests, took 18% less time; docs/BENCHMARKS.md); a component
+ * scalar tests, took 18% less time; docs/benchmarks/notes.md); a component
  * surely nonzero there is at least 2^-61, far above RTK_CROSS_LIMIT. */
 static inline int build_hittable(const rtk_build_geometry *g, size_t prim, vfloat4 p[3], build_counts *c)
 {

@@ -1493,7 +1493,7 @@ static int split_children(const build *bd, binpool *pool, bins *scratch, sbins *
  * steps: diffuse 0-20% faster over three runs; rtktool bench --only
  * motion, the two builds side by side, AMD EPYC).  Three blocks gave about
  * the same tree as two (26,985 nodes).  Static trees were tried the same
- * way (docs/BENCHMARKS.md): smaller, no faster. */
+ * way (docs/benchmarks/history.md): smaller, no faster. */
 static int leaf_range(part *p, const range *r, uint32_t depth, split *first)
 {
     const uint32_t n = r->end - r->begin;
@@ -1585,7 +1585,7 @@ static uint32_t build_node(part *p, const range *r, uint32_t depth)
  * mesh took 36,000 page faults for them, of the 49,000 it took in all
  * (perf record -e page-faults): now 12,400 in all; medium builds 3-8%
  * faster on the dragon and San Miguel, about 3% on that mesh, with the
- * same peak memory (docs/BENCHMARKS.md, the notes of session 44).  Without
+ * same peak memory (docs/benchmarks/notes.md, session 44).  Without
  * an arena or its memory the subtree reserves its own. */
 static void build_subtree(part *p, arena *a)
 {

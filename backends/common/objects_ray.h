@@ -163,7 +163,7 @@ static inline const rtk_build_object *object_at(const rtk_accel *top, uint64_t i
  * handed).  The triangle kernels write the ray's tfar and the hit only for
  * a hit within tfar, the answer the copy's was taken for.  With this and
  * the vector set-up above, the two-level path tracer of rtktool bench
- * traced a dynamic scene 3-6% faster (docs/BENCHMARKS.md, "Two levels"). */
+ * traced a dynamic scene 3-6% faster (docs/benchmarks/two-levels.md). */
 static inline int in_place(const rtk_build_object *o)
 {
     return (o->flags & RTK_BUILD_OBJECT_IDENTITY) && o->inst_id == RTK_INVALID_GEOMETRY_ID && !o->intersect_packet;

@@ -7,7 +7,7 @@
  * frame and, on a hit, wrote the normal and ids of a hit that a later
  * object could replace: on the dragon's dynamic scene about three objects
  * per ray, 284 instructions of set-up per call (callgrind,
- * docs/BENCHMARKS.md, "Two levels").
+ * docs/benchmarks/two-levels.md).
  *
  * Here an object whose tree has this layout (its kernel is this layout's
  * intersect1) is walked inline with closest_from_ / any_from_, from the

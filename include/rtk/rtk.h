@@ -285,7 +285,7 @@ typedef enum rtk_scene_flags {
      * mesh crosses the ray once (so a filter collecting every hit counts
      * crossings right: inside/outside parity); the default intersector may
      * let it pass between, or hit two (rays aimed at the edges of real
-     * meshes leak there at 0.4-7%, docs/BENCHMARKS.md).  A ray exactly
+     * meshes leak there at 0.4-7%, docs/benchmarks/accuracy.md).  A ray exactly
      * through an edge or vertex is decided as if moved by an infinitesimal
      * step in a fixed direction across the ray (a rasteriser's fill rule),
      * so a lone triangle's boundary is half open: such a ray hits it or
@@ -297,7 +297,7 @@ typedef enum rtk_scene_flags {
      * Tested on closed meshes from 1e-20 to 1e8 in size and up to 1e6 from
      * the origin (tests/test_robust.c).  Costs 2-5% of the default's
      * rate (rtktool trace on the dragon and San Miguel, 1 thread;
-     * docs/BENCHMARKS.md, "Shared edges").  Moving geometry gets
+     * docs/benchmarks/accuracy.md, "Shared edges").  Moving geometry gets
      * bvh8.triangle4mb.robust (bvh4 on the scalar backend; the vertices
      * interpolated to the ray's time, then the same test), and packets
      * the same test ray by ray within the packet kernels. */
@@ -309,7 +309,7 @@ typedef enum rtk_scene_flags {
      * instances), so a commit rebuilds only the trees of the geometries
      * changed since the last one (rtk_scene_info.trees_built, .refits).
      * Tracing is slower than through one tree over everything
-     * (docs/BENCHMARKS.md measures it beside Embree's two-level mode). */
+     * (docs/benchmarks/two-levels.md measures it beside Embree's two-level mode). */
     RTK_SCENE_FLAG_DYNAMIC = 1 << 2,
 } rtk_scene_flags;
 #define RTK_SCENE_FLAGS_ALL (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_DYNAMIC)
@@ -785,8 +785,8 @@ RTK_API void rtk_offset_ray_origin(const float p[3], const float n[3], float out
  * Scenes pay for these only when they use them: a ray without flags, in a
  * scene without filters whose geometries' masks all share a bit with the
  * ray's (the default masks do, and so does a "visible to every ray" bit set
- * in every mask), runs the kernels' usual path (docs/BENCHMARKS.md measures
- * it); otherwise the single-ray kernels take a path of their own that tests
+ * in every mask), runs the kernels' usual path (docs/benchmarks/features.md
+ * measures it); otherwise the single-ray kernels take a path of their own that tests
  * each candidate.
  * A geometry's mask, filters and user data (as the filters see it) are
  * read at the scene's commit: set them, commit the geometry, then the
@@ -901,7 +901,7 @@ RTK_API rtk_error rtk_occluded1_ctx(rtk_scene scene, rtk_ray *ray, const rtk_que
  * (each node of its path depends on the last), while rays of a stream do
  * not depend on each other, so the stream kernels keep several of them in
  * flight on the one thread and switch between them while their memory
- * arrives (docs/BENCHMARKS.md measures it on incoherent rays).  Runs of
+ * arrives (docs/benchmarks/streams.md measures it on incoherent rays).  Runs of
  * eight consecutive rays that are coherent (direction signs alike, origins
  * close: camera rays of neighbouring pixels, shadow rays to one light) go
  * through the packet kernels instead, with the same answers (a ray whose
