@@ -6,10 +6,11 @@
  * points spread through its box entered 27 leaf blocks each, and 21 of
  * those got as far as the triangles' float bounds, where only 7 came
  * within the box of the block's triangles oriented along their normal
- * (rtktool's scratch counters, docs/benchmarks/points-and-python.md).  So each block of the
- * triangle4 and triangle4v layouts gets a box along its own axes: the
- * third its triangles' summed normal, the first its longest edge made
- * perpendicular to that, the second their cross product.
+ * (rtktool's scratch counters, docs/benchmarks/points-and-python.md).
+ * So each block of the triangle4 and triangle4v layouts gets a box along
+ * its own axes: the third its triangles' summed normal, the first its
+ * longest edge made perpendicular to that, the second their cross
+ * product.
  *
  * The boxes are made at a tree's first closest-point query, not at its
  * build: a scene that is only traced pays nothing for them (64 bytes per

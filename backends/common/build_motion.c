@@ -7,11 +7,11 @@
  * segment's tree is shaped by the ordinary builders (Morton for low
  * quality, binned SAH otherwise) run over the triangles at the segment's
  * middle time (the SAH pricing a node test at two blocks of triangles:
- * build_sah.c, leaf_range), and then given linear bounds: every box is recomputed
- * bottom-up from the triangles' vertices at the segment's two ends, and a
- * node stores the start box and its change, so a ray at time f in the
- * segment tests the box interpolated to f.  Since every vertex moves on a
- * straight line, the box of the vertices at f lies inside the
+ * build_sah.c, leaf_range), and then given linear bounds: every box is
+ * recomputed bottom-up from the triangles' vertices at the segment's two
+ * ends, and a node stores the start box and its change, so a ray at time
+ * f in the segment tests the box interpolated to f.  Since every vertex
+ * moves on a straight line, the box of the vertices at f lies inside the
  * interpolated box (the minimum of linear functions is concave); a small
  * pad covers the rounding of the interpolation.  The tree is shaped at
  * the middle time rather than over the boxes the triangles sweep

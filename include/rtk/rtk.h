@@ -309,7 +309,8 @@ typedef enum rtk_scene_flags {
      * instances), so a commit rebuilds only the trees of the geometries
      * changed since the last one (rtk_scene_info.trees_built, .refits).
      * Tracing is slower than through one tree over everything
-     * (docs/benchmarks/two-levels.md measures it beside Embree's two-level mode). */
+     * (docs/benchmarks/two-levels.md measures it beside Embree's
+     * two-level mode). */
     RTK_SCENE_FLAG_DYNAMIC = 1 << 2,
 } rtk_scene_flags;
 #define RTK_SCENE_FLAGS_ALL (RTK_SCENE_FLAG_COMPACT | RTK_SCENE_FLAG_ROBUST | RTK_SCENE_FLAG_DYNAMIC)
@@ -786,8 +787,8 @@ RTK_API void rtk_offset_ray_origin(const float p[3], const float n[3], float out
  * scene without filters whose geometries' masks all share a bit with the
  * ray's (the default masks do, and so does a "visible to every ray" bit set
  * in every mask), runs the kernels' usual path (docs/benchmarks/features.md
- * measures it); otherwise the single-ray kernels take a path of their own that tests
- * each candidate.
+ * measures it); otherwise the single-ray kernels take a path of their own
+ * that tests each candidate.
  * A geometry's mask, filters and user data (as the filters see it) are
  * read at the scene's commit: set them, commit the geometry, then the
  * scene (which then builds its tree afresh). */
