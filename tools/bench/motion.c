@@ -116,14 +116,14 @@ static double motion_update(lib *l, const rtk_mesh *m, float *const *v, int step
  * pushes the tree out of the caches (every library's stream of the
  * dragon's diffuse rays measured a third slower than its single rays that
  * way); an application tracing a wavefront keeps a tile's. */
-static double stream_pass(const render_tracer *t, const rayset *set, unsigned char *hits)
+static double stream_pass(const render_tracer *t, const rayset *set, int threads, unsigned char *hits)
 {
     enum { PIECES = 8 };
     const size_t piece = (set->n / PIECES + 15) / 16 * 16;
     double el = 0.0;
     for (size_t b = 0; b < set->n; b += piece) {
         const rayset part = {.rays = set->rays + b, .n = set->n - b < piece ? set->n - b : piece};
-        const double e = trace_pass(t, &part, RENDER_API_STREAM, 0, 1, hits + b);
+        const double e = trace_pass(t, &part, RENDER_API_STREAM, 0, threads, hits + b);
         if (e < 0.0)
             return e;
         el += e;
@@ -132,26 +132,28 @@ static double stream_pass(const render_tracer *t, const rayset *set, unsigned ch
 }
 
 /* Linear motion blur: the mesh at 2 and at 5 time steps; build (best of
- * the builds), memory, and the primary and diffuse rays at random times
- * (the same times for every library) through it, beside the same rays
- * through the static mesh in the same library, the passes taken in turns;
- * and the update of a REFIT geometry (motion_update). */
+ * the builds, 1 thread), memory, and the primary and diffuse rays at random
+ * times (the same times for every library) through it on each of --threads,
+ * beside the same rays through the static mesh in the same library, the
+ * passes taken in turns; and the update of a REFIT geometry (motion_update,
+ * 1 thread). */
 int section_motion(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
     static const int step_counts[2] = {2, 5};
     float lo[3], hi[3];
     const float diag = rtk_mesh_bounds(c->m, lo, hi);
-    printf("\nmotion blur, 1 thread: the mesh turning (up to 0.6 radians at the top) and moving sideways (5%% of its "
-           "diagonal) over the shutter, at 2 and 5 time steps, medium quality; start time (best of %d), bytes per "
-           "triangle, and the primary and diffuse rays at random times, single rays, packets of 8 primary rays and the "
+    printf("\nmotion blur: the mesh turning (up to 0.6 radians at the top) and moving sideways (5%% of its "
+           "diagonal) over the shutter, at 2 and 5 time steps, medium quality; start time (1 thread, best of %d), "
+           "bytes per triangle, and on each thread count the primary and diffuse rays at random times, single rays, packets of 8 primary rays and the "
            "diffuse rays as streams (8 in turn, rtk_intersect1M / rtcIntersect1M) "
            "(Mrays/s, best of %d passes taken by the libraries in turns; static: the diffuse rays through the static "
            "mesh in the same library); "
-           "update: the geometry at quality REFIT, every step moved on and committed again (best of %d frames)\n",
+           "update: the geometry at quality REFIT, every step moved on and committed again (1 thread, best of %d "
+           "frames)\n",
            o->builds, o->repeat, o->builds + 1);
-    printf("  %-20s %5s %9s %7s %8s %10s %7s %10s %7s %10s %7s %10s %7s %9s %8s %10s %7s\n", "library", "steps",
-           "build ms", "ratio", "B/tri", "primary", "ratio", "diffuse", "ratio", "primary8", "ratio", "diffuse1M",
+    printf("  %-20s %5s %3s %9s %7s %8s %10s %7s %10s %7s %10s %7s %10s %7s %9s %8s %10s %7s\n", "library", "steps",
+           "thr", "build ms", "ratio", "B/tri", "primary", "ratio", "diffuse", "ratio", "primary8", "ratio", "diffuse1M",
            "ratio", "static", "differ", "update ms", "ratio");
     rayset timed[2] = {c->sets[SET_PRIMARY], c->sets[SET_DIFFUSE]};
     float *v[5] = {0};
@@ -180,15 +182,16 @@ int section_motion(ctx *c, char *err, size_t err_size)
          * each kept, so that a slow spell of the machine falls on all
          * libraries alike; then each library's update frames. */
         scene ms[MAXLIBS], st[MAXLIBS];
-        double best[MAXLIBS], bytes[MAXLIBS] = {0}, el[MAXLIBS][5], update[MAXLIBS] = {0};
+        double best[MAXLIBS], bytes[MAXLIBS] = {0}, el[MAXLIBS][4][5], update[MAXLIBS] = {0};
         int built[MAXLIBS] = {0};
         size_t differ[MAXLIBS] = {0};
         memset(ms, 0, sizeof ms);
         memset(st, 0, sizeof st);
         for (int l = 0; l < c->nlibs; l++) {
             best[l] = 1e30;
-            for (int k = 0; k < 5; k++)
-                el[l][k] = 1e30;
+            for (int ti = 0; ti < 4; ti++)
+                for (int k = 0; k < 5; k++)
+                    el[l][ti][k] = 1e30;
         }
         for (int b = 0; b < o->builds && !rc; b++)
             for (int l = 0; l < c->nlibs && !rc; l++) {
@@ -206,27 +209,29 @@ int section_motion(ctx *c, char *err, size_t err_size)
         for (int l = 0; l < c->nlibs && !rc; l++)
             rc = scene_build(&st[l], &c->libs[l], c->m, c->padded, MODE_DEFAULT, 1, err, err_size);
         for (int r = 0; r < o->repeat && !rc; r++)
-            for (int l = 0; l < c->nlibs; l++) {
-                const render_tracer t = scene_tracer(&ms[l], 0), tc = scene_tracer(&ms[l], 1),
-                                    ts = scene_tracer(&st[l], 0);
-                double e[5];
-                e[0] = trace_pass(&t, &timed[0], 1, 0, 1, hits);
-                if (r == 0) {
-                    if (l == 0)
-                        memcpy(ref_hits, hits, timed[0].n);
-                    for (size_t i = 0; i < timed[0].n; i++)
-                        differ[l] += hits[i] != ref_hits[i];
+            for (int ti = 0; ti < o->nthreads; ti++)
+                for (int l = 0; l < c->nlibs; l++) {
+                    const render_tracer t = scene_tracer(&ms[l], 0), tc = scene_tracer(&ms[l], 1),
+                                        ts = scene_tracer(&st[l], 0);
+                    const int th = o->threads[ti], first = r == 0 && ti == 0;
+                    double e[5];
+                    e[0] = trace_pass(&t, &timed[0], 1, 0, th, hits);
+                    if (first) {
+                        if (l == 0)
+                            memcpy(ref_hits, hits, timed[0].n);
+                        for (size_t i = 0; i < timed[0].n; i++)
+                            differ[l] += hits[i] != ref_hits[i];
+                    }
+                    e[1] = trace_pass(&t, &timed[1], 1, 0, th, single_hits);
+                    e[2] = trace_pass(&tc, &timed[0], 8, 0, th, hits);
+                    e[4] = stream_pass(&t, &timed[1], th, hits);
+                    if (first) /* the stream's answers are the single rays' */
+                        for (size_t i = 0; i < timed[1].n; i++)
+                            differ[l] += hits[i] != single_hits[i];
+                    e[3] = trace_pass(&ts, &timed[1], 1, 0, th, hits);
+                    for (int k = 0; k < 5; k++)
+                        el[l][ti][k] = e[k] < el[l][ti][k] ? e[k] : el[l][ti][k];
                 }
-                e[1] = trace_pass(&t, &timed[1], 1, 0, 1, single_hits);
-                e[2] = trace_pass(&tc, &timed[0], 8, 0, 1, hits);
-                e[4] = stream_pass(&t, &timed[1], hits);
-                if (r == 0) /* the stream's answers are the single rays' */
-                    for (size_t i = 0; i < timed[1].n; i++)
-                        differ[l] += hits[i] != single_hits[i];
-                e[3] = trace_pass(&ts, &timed[1], 1, 0, 1, hits);
-                for (int k = 0; k < 5; k++)
-                    el[l][k] = e[k] < el[l][k] ? e[k] : el[l][k];
-            }
         for (int l = 0; l < c->nlibs; l++) {
             if (ms[l].lib)
                 scene_release(&ms[l]);
@@ -237,39 +242,43 @@ int section_motion(ctx *c, char *err, size_t err_size)
             update[l] = motion_update(&c->libs[l], c->m, v, steps, diag, o->builds + 1, &built[l], err, err_size);
             rc = update[l] < 0;
         }
-        for (int l = 0; l < c->nlibs && !rc; l++) {
-            const lib *lb = &c->libs[l];
-            /* rates (this library's, and the first library's for the
-             * ratios): primary, diffuse, primary packets of 8, static
-             * diffuse, diffuse streams */
-            double rate[5], r0[5];
-            for (int k = 0; k < 5; k++) {
-                rate[k] = (double)timed[k == 1 || k >= 3].n / el[l][k] * 1e-6;
-                r0[k] = (double)timed[k == 1 || k >= 3].n / el[0][k] * 1e-6;
+        for (int ti = 0; ti < o->nthreads && !rc; ti++)
+            for (int l = 0; l < c->nlibs; l++) {
+                const lib *lb = &c->libs[l];
+                const int th = o->threads[ti];
+                /* rates (this library's, and the first library's for the
+                 * ratios): primary, diffuse, primary packets of 8, static
+                 * diffuse, diffuse streams */
+                double rate[5], r0[5];
+                for (int k = 0; k < 5; k++) {
+                    rate[k] = (double)timed[k == 1 || k >= 3].n / el[l][ti][k] * 1e-6;
+                    r0[k] = (double)timed[k == 1 || k >= 3].n / el[0][ti][k] * 1e-6;
+                }
+                printf("  %-20s %5d %3d %9.1f %6.2fx %8.1f %10.2f %6.2fx %10.2f %6.2fx %10.2f %6.2fx %10.2f %6.2fx "
+                       "%9.2f %8zu %10.1f %6.2fx%s\n",
+                       lb->name, steps, th, best[l] * 1e3, ratio(best[0], best[l]), bytes[l], rate[0],
+                       ratio(rate[0], r0[0]), rate[1], ratio(rate[1], r0[1]), rate[2], ratio(rate[2], r0[2]), rate[4],
+                       ratio(rate[4], r0[4]), rate[3], differ[l], update[l] * 1e3, ratio(update[0], update[l]),
+                       built[l] ? " (built, no refit)" : "");
+                char variant[32];
+                snprintf(variant, sizeof variant, "%d steps", steps);
+                if (ti == 0) {
+                    csv_row(&c->csv, "motion", lb->name, variant, "start time", "", 1, best[l] * 1e3, "ms",
+                            ratio(best[0], best[l]));
+                    csv_row(&c->csv, "motion", lb->name, variant, "memory", "", 1, bytes[l], "bytes per triangle", 0);
+                    csv_row(&c->csv, "motion", lb->name, variant, "update", "", 1, update[l] * 1e3, "ms",
+                            ratio(update[0], update[l]));
+                }
+                csv_row(&c->csv, "motion", lb->name, variant, "primary", "single", th, rate[0], "Mrays/s",
+                        ratio(rate[0], r0[0]));
+                csv_row(&c->csv, "motion", lb->name, variant, "diffuse", "single", th, rate[1], "Mrays/s",
+                        ratio(rate[1], r0[1]));
+                csv_row(&c->csv, "motion", lb->name, variant, "primary", "packet8", th, rate[2], "Mrays/s",
+                        ratio(rate[2], r0[2]));
+                csv_row(&c->csv, "motion", lb->name, variant, "diffuse", "stream", th, rate[4], "Mrays/s",
+                        ratio(rate[4], r0[4]));
+                csv_row(&c->csv, "motion", lb->name, "static", "diffuse", "single", th, rate[3], "Mrays/s", 0);
             }
-            printf("  %-20s %5d %9.1f %6.2fx %8.1f %10.2f %6.2fx %10.2f %6.2fx %10.2f %6.2fx %10.2f %6.2fx %9.2f %8zu "
-                   "%10.1f %6.2fx%s\n",
-                   lb->name, steps, best[l] * 1e3, ratio(best[0], best[l]), bytes[l], rate[0], ratio(rate[0], r0[0]),
-                   rate[1], ratio(rate[1], r0[1]), rate[2], ratio(rate[2], r0[2]), rate[4], ratio(rate[4], r0[4]),
-                   rate[3], differ[l],
-                   update[l] * 1e3, ratio(update[0], update[l]), built[l] ? " (built, no refit)" : "");
-            char variant[32];
-            snprintf(variant, sizeof variant, "%d steps", steps);
-            csv_row(&c->csv, "motion", lb->name, variant, "start time", "", 1, best[l] * 1e3, "ms",
-                    ratio(best[0], best[l]));
-            csv_row(&c->csv, "motion", lb->name, variant, "memory", "", 1, bytes[l], "bytes per triangle", 0);
-            csv_row(&c->csv, "motion", lb->name, variant, "primary", "single", 1, rate[0], "Mrays/s",
-                    ratio(rate[0], r0[0]));
-            csv_row(&c->csv, "motion", lb->name, variant, "diffuse", "single", 1, rate[1], "Mrays/s",
-                    ratio(rate[1], r0[1]));
-            csv_row(&c->csv, "motion", lb->name, variant, "primary", "packet8", 1, rate[2], "Mrays/s",
-                    ratio(rate[2], r0[2]));
-            csv_row(&c->csv, "motion", lb->name, variant, "diffuse", "stream", 1, rate[4], "Mrays/s",
-                    ratio(rate[4], r0[4]));
-            csv_row(&c->csv, "motion", lb->name, "static", "diffuse", "single", 1, rate[3], "Mrays/s", 0);
-            csv_row(&c->csv, "motion", lb->name, variant, "update", "", 1, update[l] * 1e3, "ms",
-                    ratio(update[0], update[l]));
-        }
     }
     printf("  (differ: primary rays that hit where %s misses or the other way round, and diffuse rays whose stream "
            "answer (hit or miss) is not the library's single-ray one)\n",
