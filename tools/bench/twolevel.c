@@ -142,13 +142,13 @@ static void pieces_move(scene *sc, pieces *p, const float *rest, float dy)
     }
 }
 
-/* One pass of the path tracer through a scene framed by lo/hi, 1 thread:
- * its rate (Mrays/s), or -1. */
-static double render_pass(const bench_opts *o, scene *sc, const float lo[3], const float hi[3], float *rgb, char *err,
-                          size_t err_size)
+/* One pass of the path tracer through a scene framed by lo/hi on
+ * `threads` threads: its rate (Mrays/s), or -1. */
+static double render_pass(const bench_opts *o, scene *sc, const float lo[3], const float hi[3], int threads,
+                          float *rgb, char *err, size_t err_size)
 {
     render_settings rs;
-    diffuse_settings(&rs, o, lo, hi, 1);
+    diffuse_settings(&rs, o, lo, hi, threads);
     const render_tracer t = scene_tracer(sc, 0);
     return diffuse_pass(&t, &rs, rgb, NULL, err, err_size);
 }
@@ -161,15 +161,15 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
                                                                                                     : hi[2] - lo[2]);
     const float glo[3] = {lo[0], lo[1], lo[2] - spacing * (GRID - 1)};
     const float ghi[3] = {hi[0] + spacing * (GRID - 1), hi[1], hi[2]};
-    printf("\ntwo levels, 1 thread: %d instances of the mesh on a %dx%d floor (commit of the top level, best of %d; "
+    printf("\ntwo levels: %d instances of the mesh on a %dx%d floor (commit of the top level, 1 thread, best of %d; "
            "the path tracer's rate through it, %dx%d, %d spp, Mrays/s); the mesh cut in %d geometries of a dynamic "
            "scene, one of them deforming (REFIT) and moved in each of %d frames (first commit, then the commit of a "
-           "frame, best of the frames; the path tracer's rate after the last frame); rates the best of %d passes "
-           "taken by the libraries in turns\n",
+           "frame, 1 thread, best of the frames; the path tracer's rate after the last frame); rates on each thread "
+           "count (thr), the best of %d passes taken by the libraries in turns\n",
            GRID * GRID, GRID, GRID, o->builds, o->render_w, o->render_h, o->render_spp, PIECES, o->builds + 1,
            o->repeat);
-    printf("  %-20s %12s %8s %10s %8s %12s %10s %8s %10s %8s\n", "library", "instances ms", "ratio", "Mrays/s", "ratio",
-           "dynamic ms", "frame ms", "ratio", "Mrays/s", "ratio");
+    printf("  %-20s %3s %12s %8s %10s %8s %12s %10s %8s %10s %8s\n", "library", "thr", "instances ms", "ratio", "Mrays/s",
+           "ratio", "dynamic ms", "frame ms", "ratio", "Mrays/s", "ratio");
     float *rgb = malloc((size_t)o->render_w * (size_t)o->render_h * 3 * sizeof *rgb);
     /* each library's own copy of the pieces: their scenes share the
      * buffers, and all are alive until the passes are done */
@@ -195,8 +195,8 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
      * the machine then falls on all libraries alike, not on whichever ran
      * through it. */
     scene grids[MAXLIBS], dyns[MAXLIBS];
-    double inst_ms[MAXLIBS], frame_ms[MAXLIBS], dyn_first[MAXLIBS], inst_rate[MAXLIBS] = {0},
-        dyn_rate[MAXLIBS] = {0};
+    double inst_ms[MAXLIBS], frame_ms[MAXLIBS], dyn_first[MAXLIBS], inst_rate[MAXLIBS][4] = {{0}},
+        dyn_rate[MAXLIBS][4] = {{0}};
     memset(grids, 0, sizeof grids);
     memset(dyns, 0, sizeof dyns);
     for (int l = 0; l < c->nlibs && !rc; l++) {
@@ -242,36 +242,43 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
         }
     }
     for (int r = 0; r < o->repeat && !rc; r++)
-        for (int k = 0; k < 2 && !rc; k++)
-            for (int l = 0; l < c->nlibs && !rc; l++) {
-                scene *sc = k ? &dyns[l] : &grids[l];
-                const double v = k ? render_pass(o, sc, lo, hi, rgb, err, err_size)
-                                   : render_pass(o, sc, glo, ghi, rgb, err, err_size);
-                rc = v < 0;
-                double *best = k ? &dyn_rate[l] : &inst_rate[l];
-                *best = v > *best ? v : *best;
-            }
+        for (int ti = 0; ti < o->nthreads && !rc; ti++)
+            for (int k = 0; k < 2 && !rc; k++)
+                for (int l = 0; l < c->nlibs && !rc; l++) {
+                    scene *sc = k ? &dyns[l] : &grids[l];
+                    const int th = o->threads[ti];
+                    const double v = k ? render_pass(o, sc, lo, hi, th, rgb, err, err_size)
+                                       : render_pass(o, sc, glo, ghi, th, rgb, err, err_size);
+                    rc = v < 0;
+                    double *best = k ? &dyn_rate[l][ti] : &inst_rate[l][ti];
+                    *best = v > *best ? v : *best;
+                }
     for (int l = 0; l < c->nlibs; l++) {
         if (grids[l].lib)
             scene_release(&grids[l]);
         if (dyns[l].lib)
             scene_release(&dyns[l]);
     }
-    for (int l = 0; l < c->nlibs && !rc; l++) {
-        lib *lb = &c->libs[l];
-        printf("  %-20s %12.3f %7.2fx %10.2f %7.2fx %12.1f %10.3f %7.2fx %10.2f %7.2fx\n", lb->name, inst_ms[l],
-               ratio(inst_ms[0], inst_ms[l]), inst_rate[l], ratio(inst_rate[l], inst_rate[0]), dyn_first[l],
-               frame_ms[l], ratio(frame_ms[0], frame_ms[l]), dyn_rate[l], ratio(dyn_rate[l], dyn_rate[0]));
-        csv_row(&c->csv, "twolevel", lb->name, "instances", "commit", "", 1, inst_ms[l], "ms",
-                ratio(inst_ms[0], inst_ms[l]));
-        csv_row(&c->csv, "twolevel", lb->name, "instances", "diffuse path tracer", "single", 1, inst_rate[l],
-                "Mrays/s", ratio(inst_rate[l], inst_rate[0]));
-        csv_row(&c->csv, "twolevel", lb->name, "dynamic", "first commit", "", 1, dyn_first[l], "ms", 0);
-        csv_row(&c->csv, "twolevel", lb->name, "dynamic", "frame commit", "", 1, frame_ms[l], "ms",
-                ratio(frame_ms[0], frame_ms[l]));
-        csv_row(&c->csv, "twolevel", lb->name, "dynamic", "diffuse path tracer", "single", 1, dyn_rate[l], "Mrays/s",
-                ratio(dyn_rate[l], dyn_rate[0]));
-    }
+    for (int ti = 0; ti < o->nthreads && !rc; ti++)
+        for (int l = 0; l < c->nlibs; l++) {
+            lib *lb = &c->libs[l];
+            const int th = o->threads[ti];
+            const double ir = inst_rate[l][ti], dr = dyn_rate[l][ti];
+            printf("  %-20s %3d %12.3f %7.2fx %10.2f %7.2fx %12.1f %10.3f %7.2fx %10.2f %7.2fx\n", lb->name, th,
+                   inst_ms[l], ratio(inst_ms[0], inst_ms[l]), ir, ratio(ir, inst_rate[0][ti]), dyn_first[l],
+                   frame_ms[l], ratio(frame_ms[0], frame_ms[l]), dr, ratio(dr, dyn_rate[0][ti]));
+            if (ti == 0) {
+                csv_row(&c->csv, "twolevel", lb->name, "instances", "commit", "", 1, inst_ms[l], "ms",
+                        ratio(inst_ms[0], inst_ms[l]));
+                csv_row(&c->csv, "twolevel", lb->name, "dynamic", "first commit", "", 1, dyn_first[l], "ms", 0);
+                csv_row(&c->csv, "twolevel", lb->name, "dynamic", "frame commit", "", 1, frame_ms[l], "ms",
+                        ratio(frame_ms[0], frame_ms[l]));
+            }
+            csv_row(&c->csv, "twolevel", lb->name, "instances", "diffuse path tracer", "single", th, ir, "Mrays/s",
+                    ratio(ir, inst_rate[0][ti]));
+            csv_row(&c->csv, "twolevel", lb->name, "dynamic", "diffuse path tracer", "single", th, dr, "Mrays/s",
+                    ratio(dr, dyn_rate[0][ti]));
+        }
     free(rest);
     for (int l = 0; l < c->nlibs; l++)
         pieces_free(&pl[l]);
