@@ -171,6 +171,14 @@ if "$tool" bench --help >/dev/null 2>&1; then
         grep -qF "bunny.ply,$want" "$csv" || fail "bench.csv lacks a row '$want'"
     done
     ! grep -q "packet16" "$csv" || fail "bench.csv has packet16 rows though --api left them out"
+    # the motion and two-level sections trace on every --threads count
+    expect 0 "csv: $work/bench2/bench.csv" -- "$tool" bench "$data/bunny.ply" --quick --threads 1,2 \
+        --only motion,twolevel --isa avx2 -o "$work/bench2"
+    for want in "motion,rtk avx2,2 steps,primary,packet8,2," "motion,embree isa=avx2,5 steps,diffuse,stream,2," \
+                "motion,rtk avx2,5 steps,update,,1," "twolevel,rtk avx2,dynamic,diffuse path tracer,single,2," \
+                "twolevel,embree isa=avx2,instances,diffuse path tracer,single,1,"; do
+        grep -qF "bunny.ply,$want" "$work/bench2/bench.csv" || fail "bench2/bench.csv lacks a row '$want'"
+    done
     expect 2 "--forest wants a list" -- "$tool" bench "$data/bunny.ply" --forest 0
     grep -qE '^[^,]*bunny.ply,trace,rtk avx2,default,diffuse,single,1,[0-9.]+,Mrays/s,[0-9.]+$' "$csv" ||
         fail "bench.csv: no rate with its ratio for rtk avx2 diffuse rays"
