@@ -87,6 +87,26 @@ static inline int node_children(const rtk_bvh4_node *n, const obj_ray *p, float 
 {
     _Alignas(16) float t[4];
     unsigned mask = node_entered(n, p, tnear, tfar, t);
+    if (!mask)
+        return 0;
+    /* one or two children, the usual cases, without the sorting loop (the
+     * same order: on equal distances the lower slot first).  Callgrind on
+     * the bunny's dynamic scene (bench/work_per_ray.py --section twolevel,
+     * the backend alone): 2,302 instructions a ray against 2,455. */
+    const int c0 = __builtin_ctz(mask);
+    if (!(mask & (mask - 1))) {
+        ref[0] = n->child[c0];
+        dist[0] = t[c0];
+        return 1;
+    }
+    if (__builtin_popcount(mask) == 2) {
+        const int c1 = 31 - __builtin_clz(mask), near = t[c1] < t[c0] ? c1 : c0, far = c0 + c1 - near;
+        ref[0] = n->child[near];
+        dist[0] = t[near];
+        ref[1] = n->child[far];
+        dist[1] = t[far];
+        return 2;
+    }
     int count = 0;
     for (; mask; mask &= mask - 1) {
         const int c = __builtin_ctz(mask);
