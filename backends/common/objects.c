@@ -365,11 +365,17 @@ static int pick_merged(const rtk_build_input *in, const obj_ref *r, size_t n)
  * the merged traversal has an 8-wide node test (merged_layouts.top_width,
  * traverse_objects.h).  rtktool bench, avx2, 1 thread, passes in turns
  * against the 4-wide top level: the forest of 10,000 instances 6% faster,
- * of 10^6 9%; but 16 instances of San Miguel 8% slower and its dynamic
- * scene (about 1,000 references once opened) 9%, where the top level is
- * two levels deep either way and the wider node test costs more than it
- * saves (callgrind: +134 instructions a ray through the instances). */
-#define OBJ_WIDE_REFS 4096
+ * of 10^6 9%; but 16 instances of San Miguel 8% slower, where the top
+ * level is two levels deep either way and the wider node test costs more
+ * than it saves (callgrind: +134 instructions a ray through the
+ * instances).  The dynamic scenes of the two-level section (about 1,000
+ * references once opened) were 9% slower too when the 4-wide walk zeroed
+ * its 1 KB state per ray as the 8-wide one did; once neither did (131a98e),
+ * 8 wide from 512 references on measured (--alt, 1 and 2 threads, passes
+ * in turns): the path tracer through the dragon's dynamic scene 5-6%
+ * faster, the bunny's 8-9%, San Miguel's equal; callgrind on the bunny's,
+ * 2,141 instructions a ray against 2,302.  So 512, not 4096. */
+#define OBJ_WIDE_REFS 512
 
 static int openable(const rtk_build_input *in, const obj_ref *r, int layout)
 {
