@@ -226,7 +226,7 @@ struct rtk_accel {
     struct rtk_object_item *object_items;
     uint64_t object_count;
     struct rtk_build_object *objects;
-    float (*object_xfms)[12];
+    float (*object_xfms)[12]; /* (as columns: xfm_to_columns, objects_ray.h) */
     /* bvh4.object: the merged traversal (traverse_objects.h) of the layout
      * most of its objects' trees have (bvh4.triangle4's if none), and that
      * layout's own kernels, which the inline objects have */

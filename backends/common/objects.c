@@ -237,7 +237,7 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
                     b->objects[b->record_count] = *o;
                     *slot = b->record_count++;
                 } else if (!(it->flags & RTK_OBJECT_ITEM_WORLD)) {
-                    memcpy(b->xfms[b->xfm_count], o->world_to_object, sizeof b->xfms[0]);
+                    xfm_to_columns(o->world_to_object, b->xfms[b->xfm_count]);
                     *slot = b->xfm_count++;
                 } else {
                     *slot = 0; /* (nothing kept) */
@@ -522,7 +522,8 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
             xfms++;
     }
     b.objects = b.refs ? mem_alloc(b.mem, (records ? records : 1) * sizeof *b.objects, 0) : NULL;
-    b.xfms = b.refs ? mem_alloc(b.mem, (xfms ? xfms : 1) * sizeof *b.xfms, 0) : NULL;
+    /* (one more: the walk loads the last column 4 wide, xfm_to_columns) */
+    b.xfms = b.refs ? mem_alloc(b.mem, (xfms + 1) * sizeof *b.xfms, 0) : NULL;
     if (!accel || !b.refs || !b.items || !b.slot || !b.objects || !b.xfms) {
         if (accel) {
             mem_free(b.mem, b.refs);
@@ -536,6 +537,7 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
         return RTK_ERROR_OUT_OF_MEMORY;
     }
     memset(b.slot, 0xff, (in->object_count ? in->object_count : 1) * sizeof *b.slot);
+    memset(b.xfms[xfms], 0, sizeof *b.xfms); /* (the pad past the last, read and not used) */
     if (merged >= 0 && merged_layouts[merged].open_width && opened_room)
         n = open_objects(in, b.refs, n, cap, merged);
     /* 8-wide nodes for a large top level whose merged traversal walks them

@@ -44,21 +44,34 @@ static inline unsigned obj_ray_scalars(const rtk_ray *r, float o[4], float in[4]
     return (unsigned)vf4_signs(dir) & 7;
 }
 
+/* The byte offsets of a 4-wide node's near and far planes along x, y and z
+ * by the direction's sign bits (as traverse_bvhn.h's plane_offsets for its
+ * nodes): a table, not a choice per axis and ray.  Chosen per axis, they
+ * took 40 of a ray's 1,173 instructions in the bunny's 16 instances
+ * (callgrind, the avx2 backend alone). */
+#define OBJ_PLANE_OFF(neg, k, lo, up) (((neg) >> (k) & 1) ? offsetof(rtk_bvh4_node, up) : offsetof(rtk_bvh4_node, lo))
+#define OBJ_PLANE_OFFSETS(neg)                                                                          \
+    {{OBJ_PLANE_OFF(neg, 0, lower_x, upper_x), OBJ_PLANE_OFF(neg, 1, lower_y, upper_y),                 \
+      OBJ_PLANE_OFF(neg, 2, lower_z, upper_z)},                                                         \
+     {OBJ_PLANE_OFF(neg, 0, upper_x, lower_x), OBJ_PLANE_OFF(neg, 1, upper_y, lower_y),                 \
+      OBJ_PLANE_OFF(neg, 2, upper_z, lower_z)}}
+static const size_t obj_plane_offsets[8][2][3] = {OBJ_PLANE_OFFSETS(0), OBJ_PLANE_OFFSETS(1), OBJ_PLANE_OFFSETS(2),
+                                                  OBJ_PLANE_OFFSETS(3), OBJ_PLANE_OFFSETS(4), OBJ_PLANE_OFFSETS(5),
+                                                  OBJ_PLANE_OFFSETS(6), OBJ_PLANE_OFFSETS(7)};
+#undef OBJ_PLANE_OFFSETS
+#undef OBJ_PLANE_OFF
+
 static inline void obj_ray_init(obj_ray *p, const rtk_ray *r)
 {
-    static const size_t lower[3] = {offsetof(rtk_bvh4_node, lower_x), offsetof(rtk_bvh4_node, lower_y),
-                                    offsetof(rtk_bvh4_node, lower_z)};
-    static const size_t upper[3] = {offsetof(rtk_bvh4_node, upper_x), offsetof(rtk_bvh4_node, upper_y),
-                                    offsetof(rtk_bvh4_node, upper_z)};
     _Alignas(16) float o[4], in[4], inf[4];
     const unsigned neg = obj_ray_scalars(r, o, in, inf);
     for (int k = 0; k < 3; k++) {
         p->org[k] = vf4_set1(o[k]);
         p->inv[k] = vf4_set1(in[k]);
         p->inv_far[k] = vf4_set1(inf[k]);
-        p->near_off[k] = neg >> k & 1 ? upper[k] : lower[k];
-        p->far_off[k] = neg >> k & 1 ? lower[k] : upper[k];
     }
+    memcpy(p->near_off, obj_plane_offsets[neg][0], sizeof p->near_off);
+    memcpy(p->far_off, obj_plane_offsets[neg][1], sizeof p->far_off);
 }
 
 static inline vfloat4 obj_plane(const rtk_bvh4_node *n, size_t off)
@@ -121,33 +134,74 @@ static inline int node_children(const rtk_bvh4_node *n, const obj_ray *p, float 
     return count;
 }
 
-/* The ray taken by the world-to-object transform m (3 rows of 4), in
- * `local`; 0 when it is not finite there (a transform that overflows it):
- * the object is then missed.  The three rows at once: m's columns (one
- * transposition), each lane the scalar ((m0 x + m1 y) + m2 z) + m3 of its
- * row in the same order, so the same floats (nothing here is contracted
- * into a fused multiply-add).  Callgrind on the path tracer's rays through
- * the bunny's 16 instances, the avx2 backend alone: 1,173 instructions a
- * ray against 1,246 with the six scalar dot products. */
-static inline int to_object_m(const float *m, const rtk_ray *r, rtk_ray *local)
+/* The ray's origin and direction taken by the transform whose columns are
+ * c0, c1, c2 (the linear part) and c3 (the translation), in lanes 0..2 (lane
+ * 3 is not read), into *org and *dir with the ray's tnear and time in lane
+ * 3, as the kernels load an rtk_ray; 0 when they are not finite (a
+ * transform that overflows the ray): the object is then missed.  Each lane
+ * the scalar ((m0 x + m1 y) + m2 z) + m3 of its row in that order, so the
+ * same floats (nothing here is contracted into a fused multiply-add).
+ * Callgrind on the path tracer's rays through the bunny's 16 instances, the
+ * avx2 backend alone: 1,173 instructions a ray against 1,246 with six
+ * scalar dot products. */
+static inline __attribute__((always_inline)) int xfm_ray(vfloat4 c0, vfloat4 c1, vfloat4 c2, vfloat4 c3,
+                                                          const rtk_ray *r, vfloat4 *org, vfloat4 *dir)
 {
-    *local = *r;
-    vfloat4 c0 = vf4_loadu(m), c1 = vf4_loadu(m + 4), c2 = vf4_loadu(m + 8), c3 = vf4_set1(0.0f);
-    vf4_transpose(&c0, &c1, &c2, &c3); /* now c_j = (m[j], m[4 + j], m[8 + j], 0) */
     const vfloat4 o = vf4_add(
         vf4_add(vf4_add(vf4_mul(c0, vf4_set1(r->org_x)), vf4_mul(c1, vf4_set1(r->org_y))),
                 vf4_mul(c2, vf4_set1(r->org_z))),
         c3);
     const vfloat4 d = vf4_add(vf4_add(vf4_mul(c0, vf4_set1(r->dir_x)), vf4_mul(c1, vf4_set1(r->dir_y))),
                               vf4_mul(c2, vf4_set1(r->dir_z)));
+    const vbool4 w = vb4_from_bits(8);
+    *org = vf4_select(w, vf4_loadu(&r->org_x), o);
+    *dir = vf4_select(w, vf4_loadu(&r->dir_x), d);
+    const vfloat4 zero = vf4_set1(0.0f); /* 0 * x is 0 where x is finite, else NaN */
+    return (vb4_mask(vf4_eq(vf4_add(vf4_mul(zero, o), vf4_mul(zero, d)), zero)) & 7) == 7;
+}
+
+/* The ray taken by the world-to-object transform m (3 rows of 4), in
+ * `local` (xfm_ray, after one transposition of m); 0 when it is not finite
+ * there. */
+static inline int to_object_m(const float *m, const rtk_ray *r, rtk_ray *local)
+{
+    *local = *r;
+    vfloat4 c0 = vf4_loadu(m), c1 = vf4_loadu(m + 4), c2 = vf4_loadu(m + 8), c3 = vf4_set1(0.0f);
+    vf4_transpose(&c0, &c1, &c2, &c3); /* now c_j = (m[j], m[4 + j], m[8 + j], 0) */
+    vfloat4 o, d;
+    const int ok = xfm_ray(c0, c1, c2, c3, r, &o, &d);
     /* org and tnear, dir and time each stored as one vector: the kernels
      * load them so, and a 16-byte load over four 4-byte stores would stall
      * on store forwarding */
-    const vbool4 w = vb4_from_bits(8);
-    vf4_storeu(&local->org_x, vf4_select(w, vf4_loadu(&r->org_x), o));
-    vf4_storeu(&local->dir_x, vf4_select(w, vf4_loadu(&r->dir_x), d));
-    const vfloat4 zero = vf4_set1(0.0f); /* 0 * x is 0 where x is finite, else NaN */
-    return (vb4_mask(vf4_eq(vf4_add(vf4_mul(zero, o), vf4_mul(zero, d)), zero)) & 7) == 7;
+    vf4_storeu(&local->org_x, o);
+    vf4_storeu(&local->dir_x, d);
+    return ok;
+}
+
+/* A world-to-object transform as the merged walk keeps it
+ * (rtk_accel.object_xfms): the columns of m (3 rows of 4), (m[j], m[4 + j],
+ * m[8 + j]) at c + 3 j, so that the walk loads them as they are, with no
+ * transposition per instance entered (callgrind, the bunny's 16 instances:
+ * 22 of a ray's 1,173 instructions).  Each column is loaded 4 wide, so the
+ * array holds one float more than its transforms. */
+static inline void xfm_to_columns(const float m[12], float c[12])
+{
+    for (int j = 0; j < 4; j++)
+        for (int i = 0; i < 3; i++)
+            c[3 * j + i] = m[4 * i + j];
+}
+
+static inline void xfm_from_columns(const float c[12], float m[12])
+{
+    for (int j = 0; j < 4; j++)
+        for (int i = 0; i < 3; i++)
+            m[4 * i + j] = c[3 * j + i];
+}
+
+static inline __attribute__((always_inline)) int to_object_columns(const float *c, const rtk_ray *r, vfloat4 *org,
+                                                                    vfloat4 *dir)
+{
+    return xfm_ray(vf4_loadu(c), vf4_loadu(c + 3), vf4_loadu(c + 6), vf4_loadu(c + 9), r, org, dir);
 }
 
 /* The ray in object o's space (to_object_m). */
@@ -177,7 +231,7 @@ static inline const rtk_build_object *object_at(const rtk_accel *top, uint64_t i
         static const float identity[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
         memcpy(tmp->world_to_object, identity, sizeof identity);
     } else {
-        memcpy(tmp->world_to_object, top->object_xfms[it->object], sizeof tmp->world_to_object);
+        xfm_from_columns(top->object_xfms[it->object], tmp->world_to_object);
     }
     return tmp;
 }

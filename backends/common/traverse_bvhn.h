@@ -361,12 +361,11 @@ static const size_t plane_offsets[8][2][3] = {PLANE_OFFSETS(0), PLANE_OFFSETS(1)
  * ray's instructions on dragon.ply: 176 of 1648, callgrind).  The values
  * are those of per-axis arithmetic bit for bit (the same IEEE operations
  * lane by lane). */
-static inline __attribute__((always_inline)) void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r,
-                                                                const rtk_accel *accel)
+static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray_mem *pm, vfloat4 org, vfloat4 dir,
+                                                                  const rtk_accel *accel)
 {
     (void)accel;
     p->m = pm;
-    const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x); /* lane 3: tnear, time */
     /* a component below 1e-18 in magnitude becomes +-1e-18, its sign kept */
     const vfloat4 inv_exact = vf4_rcp_clamped(dir, 1e-18f);
 #if RTK_ROBUST
@@ -439,6 +438,15 @@ static inline __attribute__((always_inline)) void ray_pre_init(ray_pre *p, ray_m
     }
     memcpy(p->near_off, plane_offsets[neg][0], sizeof p->near_off);
     memcpy(p->far_off, plane_offsets[neg][1], sizeof p->far_off);
+}
+
+/* The ray set up from r's origin and direction as loaded (lane 3: tnear,
+ * time); ray_pre_init_v takes them in vectors, as an instance's ray is made
+ * (traverse_objects.h). */
+static inline __attribute__((always_inline)) void ray_pre_init(ray_pre *p, ray_mem *pm, const rtk_ray *r,
+                                                                const rtk_accel *accel)
+{
+    ray_pre_init_v(p, pm, vf4_loadu(&r->org_x), vf4_loadu(&r->dir_x), accel);
 }
 
 static inline vnode plane(const node_t *n, size_t off)

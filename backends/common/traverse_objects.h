@@ -81,38 +81,54 @@ static inline __attribute__((always_inline)) int objects_any(const rtk_accel *a,
     return any_from_usual_(a, root, p, tnear, tfar, BVHN_FUSED, NULL);
 }
 
-/* The ray of item it (of top level `top`): the world's (set up at its
- * first use) or its own (in *local, with its set-up in own). */
+/* The ray set-up for item it (of top level `top`): the world's (made at
+ * its first use) or its own (in own: an instance's ray taken into its
+ * space, or a robust tree's, padded by its own extent); NULL when the
+ * instance's ray is not finite.  The instance's ray is made in vectors and
+ * set up from them, with no rtk_ray of its own written and read back: one
+ * is made (objects_feat) only for a ray that needs the tree's features. */
 static inline __attribute__((always_inline)) const ray_pre *objects_ray(const rtk_object_item *it,
                                                                         const rtk_accel *top, const rtk_ray *r,
                                                                         ray_pre *world, ray_mem *world_m, int *ready,
-                                                                        rtk_ray *local, ray_pre *own, ray_mem *own_m)
+                                                                        ray_pre *own, ray_mem *own_m)
 {
-    if (!RTK_ROBUST && (it->flags & RTK_OBJECT_ITEM_WORLD)) {
+    if (it->flags & RTK_OBJECT_ITEM_WORLD) {
+        if (RTK_ROBUST) {
+            ray_pre_init(own, own_m, r, it->accel);
+            return own;
+        }
         if (!*ready) {
             ray_pre_init(world, world_m, r, it->accel);
             *ready = 1;
         }
         return world;
     }
-    if (it->flags & RTK_OBJECT_ITEM_WORLD)
-        *local = *r; /* (a robust tree's own set-up) */
-    else if (!to_object_m(top->object_xfms[it->object], r, local))
+    vfloat4 org, dir;
+    if (!to_object_columns(top->object_xfms[it->object], r, &org, &dir))
         return NULL;
-    ray_pre_init(own, own_m, local, it->accel);
+    ray_pre_init_v(own, own_m, org, dir, it->accel);
     return own;
 }
 
 /* The features (masks, culling, filters) ray r needs in item it's tree,
  * in fc; NULL for none (ray_feat and query_feat, with the tree's
- * mask_pass_all from the item).  cq: the object's query (object_query). */
+ * mask_pass_all from the item).  An instance's tree gets r in its space,
+ * made in *local from r and p's origin and direction (objects_ray).  cq:
+ * the object's query (object_query). */
 static inline const feat_ctx *objects_feat(feat_ctx *fc, const rtk_object_item *it, const rtk_ray *r,
-                                           const rtk_query *q, rtk_query *cq, unsigned qfeat)
+                                           const ray_pre *p, rtk_ray *local, const rtk_query *q, rtk_query *cq,
+                                           unsigned qfeat)
 {
     const unsigned feat =
         (r->flags & RTK_FEAT_CULL) | (mask_needs_attrs(it->pass_all, r->mask) ? RTK_FEAT_ATTRS : 0u) | qfeat;
     if (__builtin_expect(!feat, 1))
         return NULL;
+    if (!(it->flags & RTK_OBJECT_ITEM_WORLD)) {
+        *local = *r;
+        memcpy(&local->org_x, p->os, 4 * sizeof(float)); /* (lane 3: tnear, and time, as r's) */
+        memcpy(&local->dir_x, p->ds, 4 * sizeof(float));
+        r = local;
+    }
     *cq = inst_query(it->inst_id, q);
     return feat_init(fc, r, it->accel, cq);
 }
@@ -178,14 +194,14 @@ static inline __attribute__((always_inline)) void objects_leaf_closest(const rtk
         if (!(it->mask & rh->ray.mask))
             continue;
         if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
-            rtk_ray local;
             const ray_pre *p =
-                objects_ray(it, accel, &rh->ray, &w->world, &w->world_m, &w->ready, &local, &w->own, &w->own_m);
+                objects_ray(it, accel, &rh->ray, &w->world, &w->world_m, &w->ready, &w->own, &w->own_m);
             if (!p)
                 continue;
             feat_ctx fc;
             rtk_query cq;
-            const feat_ctx *f = objects_feat(&fc, it, p == &w->world ? &rh->ray : &local, q, &cq, qfeat);
+            rtk_ray local;
+            const feat_ctx *f = objects_feat(&fc, it, &rh->ray, p, &local, q, &cq, qfeat);
             closest_hit found = CLOSEST_HIT_NONE;
             objects_closest(it->accel, it->root, p, tnear, tfar, &found, f);
             if (found.lane >= 0) {
@@ -217,14 +233,13 @@ static inline __attribute__((always_inline)) int objects_leaf_any(const rtk_acce
             continue;
         int hit;
         if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
-            rtk_ray local;
-            const ray_pre *p =
-                objects_ray(it, accel, ray, &w->world, &w->world_m, &w->ready, &local, &w->own, &w->own_m);
+            const ray_pre *p = objects_ray(it, accel, ray, &w->world, &w->world_m, &w->ready, &w->own, &w->own_m);
             if (!p)
                 continue;
             feat_ctx fc;
             rtk_query cq;
-            const feat_ctx *f = objects_feat(&fc, it, p == &w->world ? ray : &local, q, &cq, qfeat);
+            rtk_ray local;
+            const feat_ctx *f = objects_feat(&fc, it, ray, p, &local, q, &cq, qfeat);
             hit = objects_any(it->accel, it->root, p, ray->tnear, ray->tfar, f);
         } else {
             hit = objects_other_occluded(&accel->objects[it->object], ray, q);
