@@ -34,11 +34,25 @@
  * 32 + 29 < RTK_BVH4_MAX_DEPTH levels (fewer than 2^29 objects). */
 #define OBJ_SAH_DEPTH 32
 
+/* A reference of the top level: 32 bytes, its box's corners each loaded 4
+ * wide (lane 3 the field after them, never used).  The centre is computed
+ * where it is needed (ref_c, ref_centre), not kept: with it the references
+ * were 44 bytes, and the build's passes over 10^5 of them (4.4 MB) waited
+ * on memory. */
 typedef struct obj_ref {
-    float lo[3], hi[3], c[3]; /* box and its centre */
-    uint32_t index;           /* into in->objects */
-    uint32_t root;            /* the node of the object's tree the walk starts at (open_objects) */
+    float lo[3];
+    uint32_t index; /* into in->objects */
+    float hi[3];
+    uint32_t root; /* the node of the object's tree the walk starts at (open_objects) */
 } obj_ref;
+
+_Static_assert(sizeof(obj_ref) == 32, "obj_ref: 32 bytes");
+
+/* The centre of r's box along axis k: the same float as ref_c's lane k. */
+static inline float ref_centre(const obj_ref *r, int k)
+{
+    return 0.5f * r->lo[k] + 0.5f * r->hi[k]; /* finite for any finite box */
+}
 
 typedef struct obj_build {
     obj_ref *refs;
@@ -70,6 +84,16 @@ static float half_area(const float lo[3], const float hi[3])
     return d[0] >= 0.0f ? d[0] * d[1] + d[1] * d[2] + d[2] * d[0] : 0.0f;
 }
 
+
+/* half_area of three boxes at once: lane a of lo[k] and hi[k] is box a's
+ * side along axis k (each lane half_area's operations in its order). */
+static inline vfloat4 half_area_axes(const vfloat4 lo[3], const vfloat4 hi[3])
+{
+    const vfloat4 d0 = vf4_sub(hi[0], lo[0]), d1 = vf4_sub(hi[1], lo[1]), d2 = vf4_sub(hi[2], lo[2]);
+    const vfloat4 a = vf4_add(vf4_add(vf4_mul(d0, d1), vf4_mul(d1, d2)), vf4_mul(d2, d0));
+    return vf4_select(vf4_ge(d0, vf4_set1(0.0f)), a, vf4_set1(0.0f));
+}
+
 /* In double, for the reported SAH cost (finite for any finite boxes). */
 static double half_area_d(const float lo[3], const float hi[3])
 {
@@ -77,116 +101,215 @@ static double half_area_d(const float lo[3], const float hi[3])
     return d[0] >= 0.0 ? d[0] * d[1] + d[1] * d[2] + d[2] * d[0] : 0.0;
 }
 
-static void grow(float lo[3], float hi[3], const float blo[3], const float bhi[3])
+/* A reference's box corners and centre 4 wide (lane 3 is the next field,
+ * never used): the scalar grow's comparisons, lane by lane (vf4_min(a, b)
+ * is a < b ? a : b), so the same floats as grow would give. */
+static inline vfloat4 ref_lo(const obj_ref *r) { return vf4_loadu(r->lo); }
+static inline vfloat4 ref_hi(const obj_ref *r) { return vf4_loadu(r->hi); }
+static inline vfloat4 ref_c(const obj_ref *r)
 {
-    for (int k = 0; k < 3; k++) {
-        lo[k] = blo[k] < lo[k] ? blo[k] : lo[k];
-        hi[k] = bhi[k] > hi[k] ? bhi[k] : hi[k];
-    }
+    const vfloat4 half = vf4_set1(0.5f);
+    return vf4_add(vf4_mul(half, ref_lo(r)), vf4_mul(half, ref_hi(r))); /* (nothing contracted: ref_centre) */
 }
 
-static void range_bounds(const obj_ref *r, size_t n, float lo[3], float hi[3], float clo[3], float chi[3])
+/* A range of references' bounds: their boxes' (lo, hi) and their centres'
+ * (clo, chi), 4 wide (lanes 0..2). */
+typedef struct obj_range {
+    vfloat4 lo, hi, clo, chi;
+} obj_range;
+
+static inline void range_empty(obj_range *b)
 {
-    for (int k = 0; k < 3; k++) {
-        lo[k] = clo[k] = INFINITY;
-        hi[k] = chi[k] = -INFINITY;
-    }
-    for (size_t i = 0; i < n; i++) {
-        grow(lo, hi, r[i].lo, r[i].hi);
-        grow(clo, chi, r[i].c, r[i].c);
-    }
+    b->lo = b->clo = vf4_set1(INFINITY);
+    b->hi = b->chi = vf4_set1(-INFINITY);
+}
+
+static inline void range_grow(obj_range *b, const obj_ref *r)
+{
+    b->lo = vf4_min(ref_lo(r), b->lo);
+    b->hi = vf4_max(ref_hi(r), b->hi);
+    const vfloat4 c = ref_c(r);
+    b->clo = vf4_min(c, b->clo);
+    b->chi = vf4_max(c, b->chi);
+}
+
+static void range_bounds(const obj_ref *r, size_t n, obj_range *b)
+{
+    range_empty(b);
+    for (size_t i = 0; i < n; i++)
+        range_grow(b, &r[i]);
 }
 
 static int by_centre(const obj_ref *x, const obj_ref *y, int axis)
 {
-    const float p = x->c[axis], q = y->c[axis];
+    const float p = ref_centre(x, axis), q = ref_centre(y, axis);
     return p < q ? -1 : p > q ? 1 : (x->index > y->index) - (x->index < y->index);
 }
 static int by_centre_x(const void *a, const void *b) { return by_centre(a, b, 0); }
 static int by_centre_y(const void *a, const void *b) { return by_centre(a, b, 1); }
 static int by_centre_z(const void *a, const void *b) { return by_centre(a, b, 2); }
 
-static int obj_bin(const obj_ref *r, int axis, float lo, float scale)
+/* The bins of r's centre along x, y and z (lanes 0..2) for bins from lo
+ * of 1 / scale each: (centre - lo) * scale truncated, at most OBJ_BINS -
+ * 1, NaN and below 0 in bin 0 (vf4_max(NaN, 0) is 0). */
+static inline vint4 ref_bins(const obj_ref *r, vfloat4 lo, vfloat4 scale)
 {
-    const float f = (r->c[axis] - lo) * scale;
-    return f >= (float)OBJ_BINS ? OBJ_BINS - 1 : f > 0.0f ? (int)f : 0; /* (NaN: 0) */
+    const vfloat4 f = vf4_mul(vf4_sub(ref_c(r), lo), scale);
+    /* (OBJ_BINS - 0.5: what truncates to OBJ_BINS - 1, as every f at or
+     * above OBJ_BINS - 1 does) */
+    return vi4_from_vf4_trunc(vf4_min(vf4_max(f, vf4_set1(0.0f)), vf4_set1((float)OBJ_BINS - 0.5f)));
 }
 
-/* Splits r[0, n) in two non-empty parts; returns the size of the first. */
-static size_t split(obj_ref *r, size_t n, uint32_t depth)
+static inline int ref_bin(const obj_ref *r, int axis, vfloat4 lo, vfloat4 scale)
 {
-    float lo[3], hi[3], clo[3], chi[3];
-    range_bounds(r, n, lo, hi, clo, chi);
+    _Alignas(16) int32_t bin[4];
+    vi4_store(bin, ref_bins(r, lo, scale));
+    return bin[axis];
+}
+
+/* Splits r[0, n) (bounds *all) in two non-empty parts; returns the size of
+ * the first, with the parts' bounds in *left and *right.  The partition
+ * grows the parts' bounds as it places each reference (a reference is
+ * placed once), so no pass over a range only to bound it: those passes
+ * and the binning, per axis and scalar, took 60% of the instructions of a
+ * frame's commit of the bunny's dynamic scene, its top level of about
+ * 1,000 references rebuilt (callgrind, rtktool bench --only twolevel). */
+static size_t split(obj_ref *r, size_t n, uint32_t depth, const obj_range *all, obj_range *left, obj_range *right)
+{
+    _Alignas(16) float clo[4], chi[4];
+    vf4_store(clo, all->clo);
+    vf4_store(chi, all->chi);
     int axis = 0;
     for (int k = 1; k < 3; k++)
         if (chi[k] - clo[k] > chi[axis] - clo[axis])
             axis = k;
     const float extent = chi[axis] - clo[axis];
     if (depth < OBJ_SAH_DEPTH && extent > 0.0f) {
-        /* binned SAH along every axis with an extent; the cheapest wins */
+        /* Binned SAH along every axis with an extent; the cheapest wins.
+         * The three axes are binned in one pass, their boxes grown 4 wide:
+         * the same bins and floats as a scalar pass per axis would give. */
         float best_cost = INFINITY;
         int best_axis = -1, best_bin = 0;
+        _Alignas(16) float sc[4] = {0.0f, 0.0f, 0.0f, 0.0f};
+        int binned[3];
         for (int a = 0; a < 3; a++) {
             const float ext = chi[a] - clo[a];
-            if (!(ext > 0.0f) || ext == INFINITY) /* (centres across the whole float range: no bins) */
-                continue;
-            const float scale = (float)OBJ_BINS / ext * 0.99999f;
-            size_t count[OBJ_BINS] = {0};
-            float blo[OBJ_BINS][3], bhi[OBJ_BINS][3];
-            for (int b = 0; b < OBJ_BINS; b++)
-                for (int k = 0; k < 3; k++) {
-                    blo[b][k] = INFINITY;
-                    bhi[b][k] = -INFINITY;
-                }
-            for (size_t i = 0; i < n; i++) {
-                const int b = obj_bin(&r[i], a, clo[a], scale);
-                count[b]++;
-                grow(blo[b], bhi[b], r[i].lo, r[i].hi);
+            /* (centres across the whole float range: no bins) */
+            binned[a] = ext > 0.0f && ext != INFINITY;
+            sc[a] = binned[a] ? (float)OBJ_BINS / ext * 0.99999f : 0.0f;
+        }
+        const vfloat4 scale4 = vf4_load(sc);
+        _Alignas(16) int32_t count[OBJ_BINS][4]; /* count[b][a]: bin b of axis a */
+        memset(count, 0, sizeof count);
+        vfloat4 blo[3][OBJ_BINS], bhi[3][OBJ_BINS];
+        for (int a = 0; a < 3; a++)
+            for (int b = 0; b < OBJ_BINS; b++) {
+                blo[a][b] = vf4_set1(INFINITY);
+                bhi[a][b] = vf4_set1(-INFINITY);
             }
-            float rlo[3] = {INFINITY, INFINITY, INFINITY}, rhi[3] = {-INFINITY, -INFINITY, -INFINITY};
-            float right_area[OBJ_BINS];
-            size_t right_count[OBJ_BINS];
-            size_t acc = 0;
-            for (int b = OBJ_BINS - 1; b > 0; b--) {
-                grow(rlo, rhi, blo[b], bhi[b]);
-                acc += count[b];
-                right_area[b] = half_area(rlo, rhi);
-                right_count[b] = acc;
+        for (size_t i = 0; i < n; i++) {
+            _Alignas(16) int32_t bin[4];
+            vi4_store(bin, ref_bins(&r[i], all->clo, scale4));
+            const vfloat4 rl = ref_lo(&r[i]), rh = ref_hi(&r[i]);
+            for (int a = 0; a < 3; a++) {
+                const int b = bin[a];
+                count[b][a]++;
+                blo[a][b] = vf4_min(rl, blo[a][b]);
+                bhi[a][b] = vf4_max(rh, bhi[a][b]);
             }
-            float llo[3] = {INFINITY, INFINITY, INFINITY}, lhi[3] = {-INFINITY, -INFINITY, -INFINITY};
-            size_t left = 0;
-            for (int b = 1; b < OBJ_BINS; b++) {
-                grow(llo, lhi, blo[b - 1], bhi[b - 1]);
-                left += count[b - 1];
-                if (!left || !right_count[b])
-                    continue;
-                const float cost = half_area(llo, lhi) * (float)left + right_area[b] * (float)right_count[b];
-                if (cost < best_cost) {
-                    best_cost = cost;
+        }
+        /* The sweeps, the three axes at once: lane a of each vector below is
+         * axis a (the bins' boxes transposed), each lane the scalar sweep's
+         * operations in its order, so the same costs.  Most ranges a frame
+         * of the bunny's dynamic scene splits are a few dozen references,
+         * and there the sweeps of the 16 bins, axis by axis and scalar, took
+         * most of a split's instructions. */
+        vfloat4 tlo[OBJ_BINS][3], thi[OBJ_BINS][3];
+        for (int b = 0; b < OBJ_BINS; b++) {
+            vfloat4 x = blo[0][b], y = blo[1][b], z = blo[2][b], w = vf4_set1(0.0f);
+            vf4_transpose(&x, &y, &z, &w);
+            tlo[b][0] = x, tlo[b][1] = y, tlo[b][2] = z;
+            x = bhi[0][b], y = bhi[1][b], z = bhi[2][b], w = vf4_set1(0.0f);
+            vf4_transpose(&x, &y, &z, &w);
+            thi[b][0] = x, thi[b][1] = y, thi[b][2] = z;
+        }
+        vfloat4 rlo[3], rhi[3], right_area[OBJ_BINS];
+        vint4 right_count[OBJ_BINS], acc = vi4_set1(0);
+        for (int k = 0; k < 3; k++) {
+            rlo[k] = vf4_set1(INFINITY);
+            rhi[k] = vf4_set1(-INFINITY);
+        }
+        for (int b = OBJ_BINS - 1; b > 0; b--) {
+            for (int k = 0; k < 3; k++) {
+                rlo[k] = vf4_min(tlo[b][k], rlo[k]);
+                rhi[k] = vf4_max(thi[b][k], rhi[k]);
+            }
+            acc = vi4_add(acc, vi4_load(count[b]));
+            right_area[b] = half_area_axes(rlo, rhi);
+            right_count[b] = acc;
+        }
+        const vbool4 axes = vb4_from_bits(binned[0] | binned[1] << 1 | binned[2] << 2);
+        const vint4 none = vi4_set1(0);
+        vfloat4 llo[3], lhi[3];
+        vint4 nleft = vi4_set1(0);
+        for (int k = 0; k < 3; k++) {
+            llo[k] = vf4_set1(INFINITY);
+            lhi[k] = vf4_set1(-INFINITY);
+        }
+        _Alignas(16) float cost[OBJ_BINS][4];
+        for (int b = 1; b < OBJ_BINS; b++) {
+            for (int k = 0; k < 3; k++) {
+                llo[k] = vf4_min(tlo[b - 1][k], llo[k]);
+                lhi[k] = vf4_max(thi[b - 1][k], lhi[k]);
+            }
+            nleft = vi4_add(nleft, vi4_load(count[b - 1]));
+            const vfloat4 c = vf4_add(vf4_mul(half_area_axes(llo, lhi), vf4_from_vi4(nleft)),
+                                      vf4_mul(right_area[b], vf4_from_vi4(right_count[b])));
+            /* (no split with an empty side, none along an axis not binned) */
+            const vbool4 valid = vb4_andnot(vb4_andnot(axes, vi4_eq(nleft, none)), vi4_eq(right_count[b], none));
+            vf4_store(cost[b], vf4_select(valid, c, vf4_set1(INFINITY)));
+        }
+        for (int a = 0; a < 3; a++) /* (axis by axis, bin by bin: the first of equal costs, as before) */
+            for (int b = 1; b < OBJ_BINS; b++)
+                if (cost[b][a] < best_cost) {
+                    best_cost = cost[b][a];
                     best_axis = a;
                     best_bin = b;
                 }
-            }
-        }
         if (best_axis >= 0) {
             /* the same bin mapping as above decides the side */
-            const float scale = (float)OBJ_BINS / (chi[best_axis] - clo[best_axis]) * 0.99999f;
+            /* (the parts' bounds in locals, kept in registers) */
+            obj_range lb, rb;
+            range_empty(&lb);
+            range_empty(&rb);
+            /* Each reference is read where it lay before the partition
+             * moved anything: a reference read back from where a swap has
+             * just written it was loaded across the copy's stores, and the
+             * loads waited on them. */
             size_t i = 0, j = n;
-            while (i < j) {
-                if (obj_bin(&r[i], best_axis, clo[best_axis], scale) < best_bin) {
-                    i++;
-                } else {
-                    const obj_ref t = r[i];
-                    r[i] = r[--j];
-                    r[j] = t;
-                }
+            for (;;) {
+                while (i < j && ref_bin(&r[i], best_axis, all->clo, scale4) < best_bin)
+                    range_grow(&lb, &r[i++]);
+                while (i < j && ref_bin(&r[j - 1], best_axis, all->clo, scale4) >= best_bin)
+                    range_grow(&rb, &r[--j]);
+                if (i >= j)
+                    break;
+                const obj_ref a = r[i], z = r[j - 1]; /* a goes right, z left */
+                range_grow(&lb, &z);
+                range_grow(&rb, &a);
+                r[i++] = z;
+                r[--j] = a;
             }
+            *left = lb;
+            *right = rb;
             if (i > 0 && i < n)
                 return i;
         }
     }
     /* the median along the widest axis (equal centres: by index) */
     qsort(r, n, sizeof *r, axis == 0 ? by_centre_x : axis == 1 ? by_centre_y : by_centre_z);
+    range_bounds(r, n / 2, left);
+    range_bounds(r + n / 2, n - n / 2, right);
     return n / 2;
 }
 
@@ -211,12 +334,10 @@ static int is_inline(const obj_build *b, const rtk_build_object *o)
            !o->intersect_packet && o->accel->root != RTK_BVH4_EMPTY;
 }
 
-/* The subtree over r[0, n) (n >= 1); its reference in *ref, its box in
- * lo/hi.  0 when out of memory. */
-static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint32_t *ref, float lo[3], float hi[3])
+/* The subtree over r[0, n) (n >= 1, bounds *rb); its reference in *ref.
+ * 0 when out of memory. */
+static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint32_t *ref, const obj_range *rb)
 {
-    float clo[3], chi[3];
-    range_bounds(r, n, lo, hi, clo, chi);
     if (depth + 1 > b->max_depth)
         b->max_depth = depth + 1;
     if (n <= OBJ_LEAF_MAX) {
@@ -250,6 +371,8 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
     }
     /* up to `width` children: split the range, then its largest parts */
     size_t start[8] = {0}, size[8] = {n};
+    obj_range part[8];
+    part[0] = *rb;
     int nc = 1;
     while (nc < b->width) {
         int widest = -1;
@@ -258,7 +381,8 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
                 widest = c;
         if (widest < 0)
             break;
-        const size_t left = split(r + start[widest], size[widest], depth);
+        const obj_range whole = part[widest];
+        const size_t left = split(r + start[widest], size[widest], depth, &whole, &part[widest], &part[nc]);
         start[nc] = start[widest] + left;
         size[nc] = size[widest] - left;
         size[widest] = left;
@@ -267,15 +391,18 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
     const int64_t index = new_node(b);
     if (index < 0)
         return 0;
+    _Alignas(16) float lo[4], hi[4];
+    vf4_store(lo, rb->lo);
+    vf4_store(hi, rb->hi);
     b->sah += half_area_d(lo, hi);
     box4 box[8];
     uint32_t child[8];
+    const vbool4 xyz = vb4_from_bits(7);
     for (int c = 0; c < nc; c++) {
-        float clo4[3], chi4[3];
-        if (!build_range(b, r + start[c], size[c], depth + 1, &child[c], clo4, chi4))
+        if (!build_range(b, r + start[c], size[c], depth + 1, &child[c], &part[c]))
             return 0;
-        box[c].lo = vf4_load((const float[4]){clo4[0], clo4[1], clo4[2], 0.0f});
-        box[c].hi = vf4_load((const float[4]){chi4[0], chi4[1], chi4[2], 0.0f});
+        box[c].lo = vf4_select(xyz, part[c].lo, vf4_set1(0.0f));
+        box[c].hi = vf4_select(xyz, part[c].hi, vf4_set1(0.0f));
     }
     const build bd = {.width = b->width, .node_size = b->node_size};
     build_store_node(&bd, b->nodes, (uint64_t)index, box, child, nc);
@@ -438,10 +565,8 @@ static size_t open_objects(const rtk_build_input *in, obj_ref *r, size_t n, size
         for (int c = 0; c < width; c++) {
             if (v.child[c] == RTK_BVH4_EMPTY)
                 continue;
-            obj_ref child = {.lo = {v.lx[c], v.ly[c], v.lz[c]}, .hi = {v.ux[c], v.uy[c], v.uz[c]},
-                             .index = top.index, .root = v.child[c]};
-            for (int k = 0; k < 3; k++)
-                child.c[k] = 0.5f * child.lo[k] + 0.5f * child.hi[k];
+            const obj_ref child = {.lo = {v.lx[c], v.ly[c], v.lz[c]}, .hi = {v.ux[c], v.uy[c], v.uz[c]},
+                                   .index = top.index, .root = v.child[c]};
             /* sifted up into the heap */
             size_t i = hn++;
             h[i] = child;
@@ -500,7 +625,6 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
             for (int k = 0; k < 3; k++) {
                 r->lo[k] = o->lower[k];
                 r->hi[k] = o->upper[k];
-                r->c[k] = 0.5f * o->lower[k] + 0.5f * o->upper[k]; /* finite for any finite box */
             }
             r->index = i;
             r->root = o->accel->root;
@@ -545,10 +669,14 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
      * (objects_packet) or another layout's traversal read them */
     b.width = merged >= 0 && !packets && n >= OBJ_WIDE_REFS ? merged_layouts[merged].top_width : 4;
     b.node_size = b.width == 8 ? sizeof(rtk_bvh8_node) : sizeof(rtk_bvh4_node);
-    float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    obj_range all;
+    range_bounds(b.refs, n, &all);
+    _Alignas(16) float lo[4], hi[4];
+    vf4_store(lo, all.lo);
+    vf4_store(hi, all.hi);
     accel->layout = RTK_LAYOUT_BVH4_OBJECT;
     accel->root = RTK_BVH4_EMPTY;
-    int built = !n || build_range(&b, b.refs, n, 0, &accel->root, lo, hi);
+    int built = !n || build_range(&b, b.refs, n, 0, &accel->root, &all);
     if (built && b.node_count && b.node_count < b.node_cap) {
         /* (the doubling's room given back) */
         void *fit = mem_realloc(b.mem, b.nodes, b.node_count * b.node_size);
@@ -604,8 +732,8 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
                  b.record_count * sizeof *b.objects + b.xfm_count * sizeof *b.xfms;
     const double root_area = half_area_d(lo, hi);
     out->sah_cost = root_area > 0.0 ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
-    memcpy(out->lower, lo, sizeof lo);
-    memcpy(out->upper, hi, sizeof hi);
+    memcpy(out->lower, lo, sizeof out->lower);
+    memcpy(out->upper, hi, sizeof out->upper);
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
         out->threads = 1;
     return 0;
