@@ -759,11 +759,11 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         return rtk_fail(dev, RTK_ERROR_INVALID_ARGUMENT, "%s: more than 2^32 objects in the top level", fn);
     }
     const uint32_t count = ni + own_count + (uint32_t)nu;
-    rtk_build_object *objs = calloc(count ? count : 1, sizeof *objs);
+    rtk_build_object *objs = rtk_big_calloc(count ? count : 1, sizeof *objs);
     accel_ref **children = calloc(count ? count : 1, sizeof *children);
     user_prim *prims = calloc(nu ? nu : 1, sizeof *prims);
     if (!objs || !children || !prims) {
-        free(objs);
+        rtk_big_free(objs);
         free(children);
         free(prims);
         release_refs(own, own_count);
@@ -834,7 +834,7 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     const rtk_error cancelled = progress_next(s, 0, fn); /* (the top level's one step) */
     const int rc = cancelled ? (int)cancelled : oe->build(&in, &out);
     const double t1 = now_seconds();
-    free(objs);
+    rtk_big_free(objs);
     accel_ref *top = rc ? NULL : make_ref(bk, layout, out.accel, &out);
     if (!top) {
         if (!rc)

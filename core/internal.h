@@ -138,6 +138,12 @@ RTK_INTERNAL rtk_error rtk_fail(rtk_device device, rtk_error code, const char *f
 /* A line on stderr when verbose >= level. */
 RTK_INTERNAL void rtk_log(rtk_device device, int level, const char *fmt, ...) __attribute__((format(printf, 3, 4)));
 
+/* ---- big_array.c ---- */
+/* calloc for large temporary arrays (huge pages from 2 MiB on), freed with
+ * rtk_big_free. */
+RTK_INTERNAL void *rtk_big_calloc(size_t count, size_t size);
+RTK_INTERNAL void rtk_big_free(void *p);
+
 /* ---- bvh.c ---- */
 /* The tree (already through rtk_bvh_check) against the geometries it would
  * be built over: see rtk_scene_commit_bvh.  RTK_ERROR_INVALID_ARGUMENT with
