@@ -115,19 +115,10 @@ void *build_reserve_huge(const rtk_memory *m, size_t size)
         return build_reserve(m, size);
     if (!mem_take(m, size))
         return NULL;
-    char *p = reserve(size + RTK_HUGE_PAGE);
-    if (!p) {
+    void *p = mem_map(size); /* (memory.c) */
+    if (!p)
         mem_give(m, size);
-        return NULL;
-    }
-    const size_t head = (RTK_HUGE_PAGE - (uintptr_t)p % RTK_HUGE_PAGE) % RTK_HUGE_PAGE;
-    if (head)
-        munmap(p, head);
-    munmap(p + head + size, RTK_HUGE_PAGE - head);
-#ifdef MADV_HUGEPAGE
-    madvise(p + head, size, MADV_HUGEPAGE);
-#endif
-    return p + head;
+    return p;
 }
 
 void build_unreserve(const rtk_memory *m, void *p, size_t size)

@@ -474,7 +474,7 @@ RTK_HIDDEN void *build_reserve(const rtk_memory *m, size_t size);
 /* The same, on transparent huge pages where the kernel has them (large
  * arrays: one fault per 2 MiB, and fewer TLB misses).  A reservation of
  * RTK_HUGE_PAGE bytes or more starts on a multiple of RTK_HUGE_PAGE. */
-#define RTK_HUGE_PAGE ((size_t)2 << 20)
+#define RTK_HUGE_PAGE RTK_MEM_MAP /* (2 MiB, memory.h) */
 RTK_HIDDEN void *build_reserve_huge(const rtk_memory *m, size_t size);
 RTK_HIDDEN void build_unreserve(const rtk_memory *m, void *p, size_t size);
 /* Gives the pages wholly inside [p, p + size) of a reservation back to the
