@@ -70,6 +70,23 @@ typedef struct rtk_bvh8_node {
     int32_t prefetch[8]; /* as in rtk_bvh4_node; pads the node to four cache lines */
 } rtk_bvh8_node;
 
+/* The byte offsets of the near and far planes along x, y and z in a node of
+ * type T (rtk_bvh4_node or rtk_bvh8_node), by the signs of a ray's
+ * direction (bit k of the index set: negative along axis k), as the
+ * initializer of a size_t [8][2][3] table: near planes in [neg][0], far in
+ * [neg][1].  A table, not a choice per axis and ray: a load instead of a
+ * dozen instructions (the triangle kernels' plane_offsets, the top
+ * level's obj_plane_offsets). */
+#define RTK_PLANE_OFF(T, neg, k, lo, up) (((neg) >> (k) & 1) ? offsetof(T, up) : offsetof(T, lo))
+#define RTK_PLANE_OFFSETS(T, neg)                                                                                   \
+    {{RTK_PLANE_OFF(T, neg, 0, lower_x, upper_x), RTK_PLANE_OFF(T, neg, 1, lower_y, upper_y),                       \
+      RTK_PLANE_OFF(T, neg, 2, lower_z, upper_z)},                                                                  \
+     {RTK_PLANE_OFF(T, neg, 0, upper_x, lower_x), RTK_PLANE_OFF(T, neg, 1, upper_y, lower_y),                       \
+      RTK_PLANE_OFF(T, neg, 2, upper_z, lower_z)}}
+#define RTK_PLANE_OFFSET_TABLE(T)                                                                                   \
+    {RTK_PLANE_OFFSETS(T, 0), RTK_PLANE_OFFSETS(T, 1), RTK_PLANE_OFFSETS(T, 2), RTK_PLANE_OFFSETS(T, 3),           \
+     RTK_PLANE_OFFSETS(T, 4), RTK_PLANE_OFFSETS(T, 5), RTK_PLANE_OFFSETS(T, 6), RTK_PLANE_OFFSETS(T, 7)}
+
 /* Up to four triangles: v0, e1 = v1 - v0, e2 = v2 - v0.  Unused lanes have
  * prim = RTK_BVH4_EMPTY and NaN vertices, so they never hit. */
 typedef struct rtk_triangle4 {

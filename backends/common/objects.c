@@ -84,7 +84,6 @@ static float half_area(const float lo[3], const float hi[3])
     return d[0] >= 0.0f ? d[0] * d[1] + d[1] * d[2] + d[2] * d[0] : 0.0f;
 }
 
-
 /* half_area of three boxes at once: lane a of lo[k] and hi[k] is box a's
  * side along axis k (each lane half_area's operations in its order). */
 static inline vfloat4 half_area_axes(const vfloat4 lo[3], const vfloat4 hi[3])
@@ -102,8 +101,9 @@ static double half_area_d(const float lo[3], const float hi[3])
 }
 
 /* A reference's box corners and centre 4 wide (lane 3 is the next field,
- * never used): the scalar grow's comparisons, lane by lane (vf4_min(a, b)
- * is a < b ? a : b), so the same floats as grow would give. */
+ * never used).  Boxes grow by vf4_min(new, box) and vf4_max(new, box): a <
+ * b ? a : b lane by lane, the comparisons of the scalar code these
+ * replaced, so the same floats. */
 static inline vfloat4 ref_lo(const obj_ref *r) { return vf4_loadu(r->lo); }
 static inline vfloat4 ref_hi(const obj_ref *r) { return vf4_loadu(r->hi); }
 static inline vfloat4 ref_c(const obj_ref *r)

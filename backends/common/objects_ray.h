@@ -44,22 +44,11 @@ static inline unsigned obj_ray_scalars(const rtk_ray *r, float o[4], float in[4]
     return (unsigned)vf4_signs(dir) & 7;
 }
 
-/* The byte offsets of a 4-wide node's near and far planes along x, y and z
- * by the direction's sign bits (as traverse_bvhn.h's plane_offsets for its
- * nodes): a table, not a choice per axis and ray.  Chosen per axis, they
- * took 40 of a ray's 1,173 instructions in the bunny's 16 instances
- * (callgrind, the avx2 backend alone). */
-#define OBJ_PLANE_OFF(neg, k, lo, up) (((neg) >> (k) & 1) ? offsetof(rtk_bvh4_node, up) : offsetof(rtk_bvh4_node, lo))
-#define OBJ_PLANE_OFFSETS(neg)                                                                          \
-    {{OBJ_PLANE_OFF(neg, 0, lower_x, upper_x), OBJ_PLANE_OFF(neg, 1, lower_y, upper_y),                 \
-      OBJ_PLANE_OFF(neg, 2, lower_z, upper_z)},                                                         \
-     {OBJ_PLANE_OFF(neg, 0, upper_x, lower_x), OBJ_PLANE_OFF(neg, 1, upper_y, lower_y),                 \
-      OBJ_PLANE_OFF(neg, 2, upper_z, lower_z)}}
-static const size_t obj_plane_offsets[8][2][3] = {OBJ_PLANE_OFFSETS(0), OBJ_PLANE_OFFSETS(1), OBJ_PLANE_OFFSETS(2),
-                                                  OBJ_PLANE_OFFSETS(3), OBJ_PLANE_OFFSETS(4), OBJ_PLANE_OFFSETS(5),
-                                                  OBJ_PLANE_OFFSETS(6), OBJ_PLANE_OFFSETS(7)};
-#undef OBJ_PLANE_OFFSETS
-#undef OBJ_PLANE_OFF
+/* The byte offsets of a 4-wide node's near and far planes by the signs of
+ * the direction (RTK_PLANE_OFFSET_TABLE, bvh4_triangle4.h).  Chosen per
+ * axis and ray instead, they took 40 of a ray's 1,173 instructions in the
+ * bunny's 16 instances (callgrind, the avx2 backend alone). */
+static const size_t obj_plane_offsets[8][2][3] = RTK_PLANE_OFFSET_TABLE(rtk_bvh4_node);
 
 static inline void obj_ray_init(obj_ray *p, const rtk_ray *r)
 {

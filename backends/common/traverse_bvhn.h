@@ -342,17 +342,9 @@ static inline const feat_ctx *feat_init(feat_ctx *f, const rtk_ray *r, const rtk
     return f;
 }
 
-/* The byte offsets of a node's near and far planes along x, y and z, by
- * the signs of the direction (bit k set: negative along axis k).  A table,
- * not arithmetic per ray: a load instead of a dozen instructions. */
-#define PLANE_OFF(neg, k, lo, up) (((neg) >> (k) & 1) ? offsetof(node_t, up) : offsetof(node_t, lo))
-#define PLANE_OFFSETS(neg)                                                                                          \
-    {{PLANE_OFF(neg, 0, lower_x, upper_x), PLANE_OFF(neg, 1, lower_y, upper_y), PLANE_OFF(neg, 2, lower_z, upper_z)}, \
-     {PLANE_OFF(neg, 0, upper_x, lower_x), PLANE_OFF(neg, 1, upper_y, lower_y), PLANE_OFF(neg, 2, upper_z, lower_z)}}
-static const size_t plane_offsets[8][2][3] = {PLANE_OFFSETS(0), PLANE_OFFSETS(1), PLANE_OFFSETS(2), PLANE_OFFSETS(3),
-                                              PLANE_OFFSETS(4), PLANE_OFFSETS(5), PLANE_OFFSETS(6), PLANE_OFFSETS(7)};
-#undef PLANE_OFFSETS
-#undef PLANE_OFF
+/* The byte offsets of a node's near and far planes by the signs of the
+ * direction (RTK_PLANE_OFFSET_TABLE, bvh4_triangle4.h). */
+static const size_t plane_offsets[8][2][3] = RTK_PLANE_OFFSET_TABLE(node_t);
 
 /* Everything per axis is computed for x, y, z at once in lanes 0..2 of
  * 4-wide vectors (lane 3 carries tnear or time and is never used), then
