@@ -39,10 +39,13 @@ static inline void mem_give(const rtk_memory *m, size_t bytes)
  * on a 2 MiB boundary and ask for transparent huge pages, as the trees'
  * node and leaf arrays do (build_common.c, build_reserve_huge): written
  * once by a build, they fault in a page per 2 MiB instead of one per
- * 4 KiB.  The top level of 10^6 instances (its references, objects,
- * transforms and nodes, about 140 MB) spent a fifth of its commit in page
- * faults on this VM, where each costs the hypervisor's entry and exit
- * besides the kernel's. */
+ * 4 KiB.  For the top level of 10^6 instances (its references, objects,
+ * transforms and nodes, about 140 MB), page-fault handling was the largest
+ * item of perf's profile of a scratch driver committing it (a quarter of
+ * the run's samples, the instances' creation included; on this VM each
+ * fault also costs the hypervisor an entry and an exit).  Mapped so, that
+ * commit took 1,272-1,284 ms against 1,503-1,534
+ * (docs/benchmarks/two-levels.md). */
 #define RTK_MEM_MAP ((size_t)2 << 20)
 
 /* A mapping of `total` bytes (a multiple of 4 KiB) on a 2 MiB boundary,
