@@ -16,12 +16,24 @@ size_t test_backend_names(char names[][32], size_t max)
         fail_msg("no device: %s", rtk_device_get_error_message(NULL));
         return 0;
     }
+    /* the device lists them in file-name order (avx, avx2, scalar, sse41);
+     * sorted here by the CPU features each needs, which grow from one
+     * backend to the next, so that the best comes last */
     size_t n = 0;
-    for (size_t i = 0; i < rtk_device_get_backend_count(dev) && n < max; i++) {
+    int needs[64];
+    for (size_t i = 0; i < rtk_device_get_backend_count(dev) && n < max && n < 64; i++) {
         rtk_backend_info bi = {.struct_size = sizeof bi};
         assert_int_equal(rtk_device_get_backend_info(dev, i, &bi), RTK_OK);
-        if (bi.status != RTK_BACKEND_STATUS_REJECTED)
-            snprintf(names[n++], 32, "%s", bi.name);
+        if (bi.status == RTK_BACKEND_STATUS_REJECTED)
+            continue;
+        const int k = __builtin_popcountll(bi.cpu_requires);
+        size_t j = n++;
+        for (; j > 0 && needs[j - 1] > k; j--) {
+            needs[j] = needs[j - 1];
+            memcpy(names[j], names[j - 1], 32);
+        }
+        needs[j] = k;
+        snprintf(names[j], 32, "%s", bi.name);
     }
     rtk_device_release(dev);
     return n;

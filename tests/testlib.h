@@ -20,7 +20,8 @@
  * paths, so that CI stays within its time. */
 int test_sanitized(void);
 
-/* Names of the usable backends of this build, best last. */
+/* Names of the usable backends of this build, best last (by the CPU
+ * features each needs). */
 size_t test_backend_names(char names[][32], size_t max);
 /* A device on exactly this backend (fails the test otherwise). */
 rtk_device test_device(const char *isa);
