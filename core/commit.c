@@ -729,13 +729,62 @@ static void release_refs(accel_ref **refs, uint32_t n)
         accel_ref_release(refs[i]);
 }
 
+/* A refitted top level is built afresh once its SAH cost
+ * (rtk_build_output.sah_cost) is this much above its build's. */
+#define TOP_REFIT_SAH_GROWTH 1.1
+
+/* Refits the scene's top level (rtk_objects_refit) over `in`'s objects,
+ * which must be the ones it was built over, with new boxes, and whose trees
+ * children[0, nchildren) must be the ones it holds.  1 when done: its stats
+ * and time set (the time own_seconds and the refit's); 0 when the top level
+ * must be built instead (the scene's is shared, over other trees, not
+ * built for refitting, or its SAH cost grew past TOP_REFIT_SAH_GROWTH of
+ * its build's: the boxes it has then are the refit's, which hold). */
+static int refit_top(rtk_scene s, const rtk_layout_entry *layout, const rtk_build_input *in, accel_ref *const *children,
+                     uint32_t nchildren, double own_seconds)
+{
+    rtk_device dev = s->device;
+    accel_ref *top = s->ref;
+    const rtk_layout_refit_entry *rf = find_layout_refit(dev->backend, layout->id);
+    if (!rf || !top || !s->two_level || top->layout != layout || atomic_load(&top->refs) != 1 ||
+        top->child_count != nchildren || (nchildren && memcmp(top->children, children, nchildren * sizeof *children)))
+        return 0;
+    rtk_build_output out = s->stats;
+    out.struct_size = sizeof out;
+    out.message[0] = '\0';
+    const double t0 = now_seconds();
+    const int rc = rf->refit(top->accel, in, &out);
+    const double t1 = now_seconds();
+    if (rc) {
+        rtk_log(dev, 2, "scene: the top level is built, not refitted: %s",
+                out.message[0] ? out.message : "no reason given");
+        return 0;
+    }
+    if (out.sah_cost > s->top_sah_built * TOP_REFIT_SAH_GROWTH) {
+        rtk_log(dev, 2, "scene: the refitted top level's SAH cost grew from %.2f to %.2f: built afresh",
+                s->top_sah_built, out.sah_cost);
+        return 0;
+    }
+    memcpy(top->lower, out.lower, sizeof out.lower);
+    memcpy(top->upper, out.upper, sizeof out.upper);
+    s->stats = out;
+    s->build_seconds = own_seconds + (t1 - t0);
+    s->top_refits++;
+    remember_built(s);
+    rtk_log(dev, 2, "scene: top level refitted (%u since its build): SAH %.2f (%.2f at its build), %.6f s",
+            s->top_refits, out.sah_cost, s->top_sah_built, t1 - t0);
+    return 1;
+}
+
 /* The top level of a scene with ni instances, or a dynamic one: over the
  * instanced scenes' trees and own[0, own_count) (trees of the scene's own
  * triangles: one, or one per geometry in a dynamic scene; the references
  * are taken over here whatever happens), own_total their builds' output
- * summed. */
+ * summed.  for_refit: a dynamic scene with deforming geometry, whose top
+ * level is built so that it can be refitted, and refitted (refit_top) when
+ * may_refit (no tree of its own was built). */
 static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count, const rtk_build_output *own_total,
-                                double own_seconds, uint32_t ni, const char *fn)
+                                double own_seconds, uint32_t ni, int for_refit, int may_refit, const char *fn)
 {
     rtk_device dev = s->device;
     const rtk_backend_desc *bk = dev->backend;
@@ -823,7 +872,7 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
             k++;
         }
     }
-    rtk_build_input in = build_input(s->quality, NULL, 0, layout->id, NULL);
+    rtk_build_input in = build_input(for_refit ? RTK_BUILD_QUALITY_REFIT : s->quality, NULL, 0, layout->id, NULL);
     in.object_count = k;
     in.objects = objs;
     commit_input(s, &in);
@@ -832,6 +881,15 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     rtk_build_output out = {.struct_size = sizeof out};
     const double t0 = now_seconds();
     const rtk_error cancelled = progress_next(s, 0, fn); /* (the top level's one step) */
+    if (!cancelled && may_refit && !used && refit_top(s, layout, &in, children, nchildren, own_seconds)) {
+        /* (the top level holds the same trees already) */
+        rtk_big_free(objs);
+        release_refs(children, nchildren);
+        free(children);
+        free(prims);
+        s->own_stats = *own_total;
+        return RTK_OK;
+    }
     const int rc = cancelled ? (int)cancelled : oe->build(&in, &out);
     const double t1 = now_seconds();
     rtk_big_free(objs);
@@ -857,6 +915,8 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     for (uint32_t c = 0; c < nchildren; c++)
         top->user_deep += children[c]->user_deep;
     install(s, top, &out, "objects", own_seconds + (t1 - t0));
+    s->top_refits = 0;
+    s->top_sah_built = out.sah_cost;
     if (!used) /* the objects' packet kernels serve user primitives' callbacks; other top levels go ray by ray */
         for (int w = 0; w < 3; w++)
             s->packet[0][w] = s->packet[1][w] = (struct packet_kernel){.width = 1};
@@ -927,6 +987,9 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
     double seconds = 0.0;
     uint32_t built = 0, refitted = 0;
     int touched = 0; /* an old tree refitted, rewritten in place or recycled */
+    int deforming = 0; /* a REFIT geometry: the top level is built for refitting */
+    for (size_t k = 0; k < n; k++)
+        deforming |= s->geoms[geoms[k].geom_id]->quality == RTK_BUILD_QUALITY_REFIT;
     rtk_error err = RTK_OK;
     for (size_t k = 0; k < n && !err; k++) {
         const uint32_t i = geoms[k].geom_id;
@@ -944,7 +1007,8 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
             rtk_build_output out = old->out;
             double t = 0.0;
             const int r = refit_tree(s, old->ref, own_refs, &geoms[k], 1, &out, &t, fn, &err);
-            touched |= r != REFIT_NONE;
+            /* (refit_tree fails before it writes, or writes and drops) */
+            touched |= r == REFIT_DROP || (r == REFIT_DONE && !err);
             if (r == REFIT_DONE && !err) {
                 atomic_fetch_add(&old->ref->refs, 1);
                 nd[i] = (dyn_tree){old->ref, now, out};
@@ -972,7 +1036,7 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
         }
     }
     if (!err)
-        err = commit_objects(s, own, (uint32_t)n, &total, seconds, ni, fn);
+        err = commit_objects(s, own, (uint32_t)n, &total, seconds, ni, deforming, !built, fn);
     else
         release_refs(own, (uint32_t)n);
     free(own);
@@ -984,6 +1048,10 @@ static rtk_error commit_dynamic(rtk_scene s, const rtk_build_geometry *geoms, si
             scene_drop_accel(s);
         return err;
     }
+    /* (the old trees, when the old top level was refitted and kept) */
+    for (uint32_t i = 0; i < s->dyn_count; i++)
+        accel_ref_release(s->dyn[i].ref);
+    free(s->dyn);
     s->dyn = nd;
     s->dyn_count = s->geom_count;
     s->motion_prims = motion;
@@ -1168,7 +1236,7 @@ static rtk_error commit(rtk_scene s, const rtk_bvh *tree, const char *fn)
         return err;
     }
     if (ni || nug || own_count > 1) {
-        err = commit_objects(s, own, own_count, &total, seconds, ni, fn);
+        err = commit_objects(s, own, own_count, &total, seconds, ni, 0, 0, fn);
     } else {
         install(s, own[0], &own_out[0], own_builder[0], seconds);
         s->own_stats = total;

@@ -84,6 +84,7 @@ void scene_drop_accel(rtk_scene s)
     s->built = NULL;
     s->built_count = 0;
     s->refits = 0;
+    s->top_refits = 0;
     s->accel = NULL;
     s->intersect1 = NULL;
     s->occluded1 = NULL;
@@ -351,5 +352,7 @@ rtk_error rtk_scene_get_info(rtk_scene s, rtk_scene_info *info)
         info->stream_in_flight = s->stream_in_flight;
     if (keep >= offsetof(rtk_scene_info, triangles_out_of_range) + sizeof info->triangles_out_of_range)
         info->triangles_out_of_range = tris->prims_out_of_range;
+    if (keep >= offsetof(rtk_scene_info, top_level_refits) + sizeof info->top_level_refits)
+        info->top_level_refits = s->two_level ? s->top_refits : 0;
     return RTK_OK;
 }

@@ -188,6 +188,11 @@ struct rtk_scene_s {
     struct dyn_tree *dyn;
     uint32_t dyn_count;
     uint32_t trees_built, trees_refitted;
+    /* A dynamic scene's top level: the commits since its build that
+     * refitted it (commit.c, refit_top), and its build's SAH cost (what a
+     * refit's is held against). */
+    uint32_t top_refits;
+    double top_sah_built;
     /* What the tree holds (see built_geom), and the refits since its build. */
     built_geom *built;
     uint32_t built_count;

@@ -68,6 +68,18 @@ static void answers(rtk_scene s, rtk_rayhit *out)
         assert_int_equal(rtk_intersect1(s, &out[i]), RTK_OK);
 }
 
+/* The scene's answers to the rays, 1; or 0 when it has no tree (a failed
+ * commit of a `drops` variation). */
+static int answers_if_any(rtk_scene s, rtk_rayhit *out)
+{
+    make_rays(out);
+    if (rtk_intersect1(s, &out[0]) == RTK_ERROR_INVALID_OPERATION)
+        return 0;
+    for (int i = 0; i < NRAYS; i++)
+        assert_int_equal(rtk_intersect1(s, &out[i]), RTK_OK);
+    return 1;
+}
+
 /* The scene's geometry 0 on vertices v (of `ball` or `big`, by which
  * array), committed (with the scene). */
 static rtk_error recommit(rtk_scene s, const float *v)
@@ -103,6 +115,10 @@ typedef struct variation {
     rtk_build_quality quality;
     unsigned flags;
     int motion, refit, threads, big;
+    /* a dynamic scene with a REFIT geometry: a commit that fails after its
+     * tree's refit in place leaves the scene without a tree (rtk.h, build
+     * progress) */
+    int drops;
 } variation;
 
 static const variation variations[] = {
@@ -113,6 +129,9 @@ static const variation variations[] = {
     {.name = "compact", .quality = RTK_BUILD_QUALITY_MEDIUM, .flags = RTK_SCENE_FLAG_COMPACT, .threads = 2},
     {.name = "robust", .quality = RTK_BUILD_QUALITY_MEDIUM, .flags = RTK_SCENE_FLAG_ROBUST, .threads = 2},
     {.name = "dynamic", .quality = RTK_BUILD_QUALITY_MEDIUM, .flags = RTK_SCENE_FLAG_DYNAMIC, .threads = 2},
+    /* (a REFIT geometry: its tree and the top level refitted) */
+    {.name = "dynamic, refit", .quality = RTK_BUILD_QUALITY_MEDIUM, .flags = RTK_SCENE_FLAG_DYNAMIC, .refit = 1,
+     .threads = 2, .drops = 1},
     {.name = "motion", .quality = RTK_BUILD_QUALITY_MEDIUM, .motion = 1, .threads = 2},
     {.name = "refit", .quality = RTK_BUILD_QUALITY_MEDIUM, .refit = 1, .threads = 2},
     {.name = "medium, 72K triangles", .quality = RTK_BUILD_QUALITY_MEDIUM, .threads = 2, .big = 1},
@@ -172,6 +191,7 @@ static void test_progress_and_cancel_at_every_step(void **state)
         /* back to the ball, then each step cancelled in turn */
         assert_int_equal(rtk_scene_set_progress_monitor(s, NULL, NULL), RTK_OK);
         assert_int_equal(recommit(s, v_mesh(v)->v), RTK_OK);
+        int dropped = 0;
         for (int k = 0; k < full.calls; k++) {
             counter c = {.cancel_at = k};
             assert_int_equal(rtk_scene_set_progress_monitor(s, count_progress, &c), RTK_OK);
@@ -180,8 +200,11 @@ static void test_progress_and_cancel_at_every_step(void **state)
                 fail_msg("%s: cancelled at step %d of %d: the commit returned %s", v->name, k, full.calls,
                          rtk_error_name(e));
             assert_non_null(strstr(rtk_device_get_error_message(dev), "cancelled"));
-            answers(s, now);
-            if (memcmp(now, before, NRAYS * sizeof *now))
+            if (!answers_if_any(s, now)) {
+                if (!v->drops || k == 0)
+                    fail_msg("%s: cancelled at step %d of %d: the scene has no tree", v->name, k, full.calls);
+                dropped++;
+            } else if (memcmp(now, before, NRAYS * sizeof *now))
                 fail_msg("%s: cancelled at step %d of %d: the previous tree is not what it was", v->name, k,
                          full.calls);
             /* (the geometry is the moved ball now: put the ball back for the next round) */
@@ -197,7 +220,8 @@ static void test_progress_and_cancel_at_every_step(void **state)
         assert_int_equal(recommit(s, v_moved(v)), RTK_OK);
         answers(s, now);
         assert_memory_equal(now, after, NRAYS * sizeof *now);
-        print_message("%s: %d progress steps, each cancelled in turn\n", v->name, full.calls);
+        print_message("%s: %d progress steps, each cancelled in turn (%d left no tree)\n", v->name, full.calls,
+                      dropped);
         rtk_scene_release(s);
         rtk_device_release(dev);
     }
@@ -254,16 +278,19 @@ static void test_memory_monitor_refuses_each_allocation(void **state)
             m.refuse_at = n;
             const rtk_error e = recommit(s, v_moved(v));
             m.refuse_at = -1;
-            answers(s, now);
+            const int has_tree = answers_if_any(s, now);
             if (e == RTK_ERROR_MEMORY_REFUSED) {
-                /* the previous tree kept, to the bit */
+                /* the previous tree kept, to the bit (or none: drops) */
                 refused++;
                 assert_non_null(strstr(rtk_device_get_error_message(dev), "refused"));
-                if (memcmp(now, before, NRAYS * sizeof *now))
+                if (!has_tree && !v->drops)
+                    fail_msg("%s: allocation %d of %d refused: the scene has no tree", v->name, n, total);
+                if (has_tree && memcmp(now, before, NRAYS * sizeof *now))
                     fail_msg("%s: allocation %d of %d refused: the previous tree is not what it was", v->name, n,
                              total);
             } else if (e == RTK_OK) {
                 /* a builder that tried again smaller, or went without */
+                assert_true(has_tree);
                 assert_memory_equal(now, after, NRAYS * sizeof *now);
             } else {
                 fail_msg("%s: allocation %d of %d refused: the commit returned %s", v->name, n, total,

@@ -617,6 +617,170 @@ static void dynamic_scene(void **state)
         }
 }
 
+/* ---- a dynamic scene's top level refitted ---- */
+
+static uint32_t top_refits(rtk_scene s)
+{
+    rtk_scene_info info = {.struct_size = sizeof info};
+    assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
+    return info.top_level_refits;
+}
+
+/* Against the reference: the two balls, the slab and the ball instanced
+ * by xfm as inst_id. */
+static void check_with_instance(rtk_scene s, const moving *balls, const uint32_t *ids, uint32_t slab_id,
+                                const double *xfm, uint32_t inst_id, uint32_t seed)
+{
+    placed_ref ref = dynamic_reference(balls, ids, 2, slab_id);
+    ref_add_mesh(&ref, &ball, xfm, inst_id, 0);
+    int hits = 0, excused = 0;
+    check_rays(s, &ref, 1500, seed, 1e-4, &hits, &excused);
+    assert_true(hits > 300);
+    assert_true(excused < 15);
+    free(ref.t);
+}
+
+/* The ball at (x, 0, 0), its geometry committed. */
+static void move_ball(moving *b, rtk_geometry g, float x)
+{
+    place_ball(b, x, 0.0f);
+    assert_int_equal(rtk_geometry_update_buffer(g, RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+}
+
+/* The slab, two balls (one REFIT) and an instance of a third in a dynamic
+ * scene, on every backend and in both layouts: a commit that only refits
+ * the REFIT ball refits the top level too (the balls' trees are opened
+ * into it, so its items start inside them), and its hits match the
+ * reference; a move that grows the top level's SAH cost past 1.1 times its
+ * build's, a new transform, a disabled geometry and a scene that instances
+ * this one each have the top level built afresh. */
+static void dynamic_top_level_refit(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    double xf[NX][12];
+    transforms(xf);
+    for (size_t b = 0; b < nb; b++)
+        for (int compact = 0; compact < 2; compact++) {
+            rtk_device dev = test_device(names[b]);
+            rtk_scene s = NULL, child = NULL;
+            assert_int_equal(rtk_scene_new(dev, &child), RTK_OK);
+            attach_mesh(dev, child, &ball);
+            assert_int_equal(rtk_scene_commit(child), RTK_OK);
+            assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+            assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC | (compact ? RTK_SCENE_FLAG_COMPACT : 0)),
+                             RTK_OK);
+            moving balls[2];
+            uint32_t ids[2];
+            rtk_geometry geo[2];
+            const uint32_t slab_id = attach_mesh(dev, s, &slab);
+            for (int k = 0; k < 2; k++) {
+                balls[k].v = malloc(ball.nv * 3 * sizeof(float));
+                balls[k].m = (mesh){balls[k].v, ball.idx, ball.nv, ball.nt};
+                place_ball(&balls[k], 2.5f * (float)k - 1.0f, 0.0f);
+                ids[k] = attach_mesh(dev, s, &balls[k].m);
+                geo[k] = rtk_scene_get_geometry(s, ids[k]);
+            }
+            assert_int_equal(rtk_geometry_set_build_quality(geo[1], RTK_BUILD_QUALITY_REFIT), RTK_OK);
+            rtk_geometry inst = instance_of(dev, child, xf[0]);
+            const uint32_t inst_id = attach(s, inst);
+            float x = 1.5f;
+            const double *place = xf[0];
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            assert_int_equal(top_refits(s), 0);
+            check_with_instance(s, balls, ids, slab_id, place, inst_id, 1);
+            /* small moves: the REFIT ball's tree and the top level refitted */
+            for (int frame = 1; frame <= 3; frame++) {
+                x += 0.01f;
+                move_ball(&balls[1], geo[1], x);
+                assert_int_equal(rtk_scene_commit(s), RTK_OK);
+                expect_trees(s, 0, 1);
+                assert_int_equal(top_refits(s), frame);
+                check_with_instance(s, balls, ids, slab_id, place, inst_id, 10 + (uint32_t)frame);
+            }
+            /* scrambled and stretched (each vertex takes another's x,
+             * eight times as far out): the items opened from the ball's
+             * tree overlap across the slab, and the top level's SAH cost
+             * grows past 1.1 times its build's: built afresh */
+            for (size_t i = 0; i < ball.nv; i++)
+                balls[1].v[3 * i] = x + 8.0f * ball.v[3 * ((i * 7919) % ball.nv)];
+            assert_int_equal(rtk_geometry_update_buffer(geo[1], RTK_BUFFER_TYPE_VERTEX), RTK_OK);
+            assert_int_equal(rtk_geometry_commit(geo[1]), RTK_OK);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            expect_trees(s, 0, 1);
+            assert_int_equal(top_refits(s), 0);
+            check_with_instance(s, balls, ids, slab_id, place, inst_id, 20);
+            x -= 0.02f;
+            move_ball(&balls[1], geo[1], x);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            assert_int_equal(top_refits(s), 1);
+            check_with_instance(s, balls, ids, slab_id, place, inst_id, 21);
+            /* the instance moves: the top level built afresh, no tree */
+            float f[12];
+            xfm_to_float(xf[1], f);
+            place = xf[1];
+            assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, f), RTK_OK);
+            assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            expect_trees(s, 0, 0);
+            assert_int_equal(top_refits(s), 0);
+            check_with_instance(s, balls, ids, slab_id, place, inst_id, 30);
+            /* the other ball disabled, with the REFIT one moved: built afresh */
+            assert_int_equal(rtk_geometry_disable(geo[0]), RTK_OK);
+            x += 0.01f;
+            move_ball(&balls[1], geo[1], x);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            assert_int_equal(top_refits(s), 0);
+            assert_int_equal(rtk_geometry_enable(geo[0]), RTK_OK);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            x += 0.01f;
+            move_ball(&balls[1], geo[1], x);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            assert_int_equal(top_refits(s), 1);
+            check_with_instance(s, balls, ids, slab_id, place, inst_id, 40);
+            /* a scene instancing this one holds its top level: built afresh */
+            rtk_scene top = NULL;
+            assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
+            const double ident[12] = {1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0};
+            attach(top, instance_of(dev, s, ident));
+            assert_int_equal(rtk_scene_commit(top), RTK_OK);
+            x += 0.01f;
+            move_ball(&balls[1], geo[1], x);
+            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            assert_int_equal(top_refits(s), 0);
+            check_with_instance(s, balls, ids, slab_id, place, inst_id, 50);
+            rtk_scene_release(top);
+            rtk_scene_release(s);
+            rtk_scene_release(child);
+            for (int k = 0; k < 2; k++)
+                free(balls[k].v);
+            rtk_device_release(dev);
+        }
+}
+
+/* A dynamic scene without REFIT geometry keeps nothing for a refit: its
+ * top level is built at every commit. */
+static void dynamic_top_level_built(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    rtk_device dev = test_device(names[nb - 1]);
+    rtk_scene s = NULL;
+    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+    assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC), RTK_OK);
+    attach_mesh(dev, s, &slab);
+    attach_mesh(dev, s, &ball);
+    for (int c = 0; c < 3; c++) {
+        assert_int_equal(rtk_scene_commit(s), RTK_OK);
+        assert_int_equal(top_refits(s), 0);
+    }
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+}
+
 /* ---- the merged traversal against each object alone ----
  * A top level whose objects are trees of the triangle layouts is walked in
  * one loop with one set-up of the ray (traverse_objects.h); objects of
@@ -998,6 +1162,8 @@ int main(void)
         cmocka_unit_test(snapshot_until_commit),
         cmocka_unit_test(instance_errors),
         cmocka_unit_test(dynamic_scene),
+        cmocka_unit_test(dynamic_top_level_refit),
+        cmocka_unit_test(dynamic_top_level_built),
         cmocka_unit_test(merged_vs_each_object),
         cmocka_unit_test(many_instances),
     };

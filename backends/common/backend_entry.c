@@ -307,6 +307,8 @@ static const rtk_layout_refit_entry layout_refit[] = {
 #endif
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB, .refit = RTK_SYM(rtk_motion_refit)},
     {.layout = RTK_LAYOUT_BVH4_TRIANGLE4MB_ROBUST, .refit = RTK_SYM(rtk_motion_refit)},
+    /* a dynamic scene's top level, over the same objects (objects.c) */
+    {.layout = RTK_LAYOUT_BVH4_OBJECT, .refit = RTK_SYM(rtk_objects_refit)},
     {0},
 };
 

@@ -255,6 +255,14 @@ struct rtk_accel {
      * open_objects); the width of its nodes: 4 (rtk_bvh4_node) or 8
      * (rtk_bvh8_node, for the merged traversal of bvh8.triangle4) */
     uint32_t objects_opened, objects_width;
+    /* bvh4.object built for refitting (rtk_build_input.quality
+     * RTK_BUILD_QUALITY_REFIT; else NULL and 0): where each item's box
+     * comes from (rtk_object_src, object_count of them), and what the
+     * refit checks the objects against (rtk_objects_refit, objects.c):
+     * rtk_build_input.object_count, how many of them the top level kept,
+     * and the width of the opened trees' nodes */
+    struct rtk_object_src *object_src;
+    uint32_t objects_input_count, objects_kept, objects_open_width;
     /* bvh4/bvh8.triangle4mb: the trees of the time segments, else NULL.
      * Each is an accel of its own (root, nodes: rtk_bvh4mb_node or
      * rtk_bvh8mb_node, trisi, and
@@ -318,6 +326,15 @@ typedef struct rtk_object_item {
      * its record, objects[object] */
     uint32_t object;
 } rtk_object_item;
+/* Where a top level built for refitting takes an item's box from: the
+ * object's box (rtk_build_object.lower/upper) when parent is
+ * RTK_OBJECT_SRC_WHOLE, else child slot (parent & 7) of node
+ * (parent >> 3) of the object's tree (the item was opened there). */
+typedef struct rtk_object_src {
+    uint32_t input;  /* the object, an index into rtk_build_input.objects */
+    uint32_t parent;
+} rtk_object_src;
+#define RTK_OBJECT_SRC_WHOLE UINT32_MAX
 /* a tree of the merged traversal's layout with a root: walked inline */
 #define RTK_OBJECT_ITEM_INLINE 1u
 /* rtk_build_object.flags has RTK_BUILD_OBJECT_IDENTITY */

@@ -34,6 +34,7 @@ RTK_HIDDEN void RTK_SYM(rtk_bvh4i_intersect8)(const rtk_accel *accel, const int3
 RTK_HIDDEN void RTK_SYM(rtk_bvh4i_occluded8)(const rtk_accel *accel, const int32_t *active, void *packet, const rtk_query *q);
 RTK_HIDDEN int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_objects_release)(rtk_accel *accel);
+RTK_HIDDEN int RTK_SYM(rtk_objects_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
 #define RTK_OBJECTS_PACKET_DECL_(k)                                                                                    \

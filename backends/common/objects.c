@@ -62,6 +62,7 @@ typedef struct obj_build {
     uint64_t node_count, node_cap;
     rtk_object_item *items;    /* in leaf order, object_count of them */
     uint64_t object_count;
+    rtk_object_src *src; /* parallel to items when built for refitting, else NULL */
     /* each object once, in the order the leaves first name it: the records
      * of those not walked inline, the transforms of the instances that are;
      * slot[i]: where in->objects[i] went (UINT32_MAX: not yet) */
@@ -75,7 +76,11 @@ typedef struct obj_build {
     const rtk_build_input *in;
     const rtk_memory *mem; /* the top level's memory accounting */
     uint32_t max_depth;
-    double sah; /* sum over nodes of their area (relative to the root's, at the end) */
+    /* the SAH cost as the triangle trees count it (build_common.c,
+     * tree_sah): over every node's children, a child's area times its
+     * items if a leaf, else once; and the root's box (relative to the
+     * root's area, at the end) */
+    double sah;
 } obj_build;
 
 static float half_area(const float lo[3], const float hi[3])
@@ -346,6 +351,9 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
             const rtk_build_object *o = &b->in->objects[r[i].index];
             rtk_object_item *it = &b->items[b->object_count++];
             *it = (rtk_object_item){.accel = o->accel, .root = r[i].root, .mask = o->mask, .inst_id = o->inst_id};
+            if (b->src) /* (an opened item's parent: object_sources) */
+                b->src[it - b->items] = (rtk_object_src){
+                    .input = r[i].index, .parent = r[i].root == o->accel->root ? RTK_OBJECT_SRC_WHOLE : 0};
             it->flags = o->flags & RTK_BUILD_OBJECT_IDENTITY ? RTK_OBJECT_ITEM_WORLD : 0;
             const int walked_inline = is_inline(b, o);
             if (walked_inline) {
@@ -394,7 +402,6 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
     _Alignas(16) float lo[4], hi[4];
     vf4_store(lo, rb->lo);
     vf4_store(hi, rb->hi);
-    b->sah += half_area_d(lo, hi);
     box4 box[8];
     uint32_t child[8];
     const vbool4 xyz = vb4_from_bits(7);
@@ -403,6 +410,10 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
             return 0;
         box[c].lo = vf4_select(xyz, part[c].lo, vf4_set1(0.0f));
         box[c].hi = vf4_select(xyz, part[c].hi, vf4_set1(0.0f));
+        _Alignas(16) float clo[4], chi[4];
+        vf4_store(clo, part[c].lo);
+        vf4_store(chi, part[c].hi);
+        b->sah += half_area_d(clo, chi) * (double)(size[c] <= OBJ_LEAF_MAX ? size[c] : 1);
     }
     const build bd = {.width = b->width, .node_size = b->node_size};
     build_store_node(&bd, b->nodes, (uint64_t)index, box, child, nc);
@@ -484,7 +495,8 @@ static int pick_merged(const rtk_build_input *in, const obj_ref *r, size_t n)
  * 3,413, 18.9 and 19.5; 64 per object 2,523, 9.2 and 11.5 (Embree: 1,357,
  * 15.8 and 9.8), and 128 or 256 no different (the largest is a leaf by
  * then).  Building the top level over the dragon's 1,037 references takes
- * about 0.35 ms of each frame's commit. */
+ * about 0.35 ms of a frame's commit; refitting it (rtk_objects_refit), in
+ * a frame that only refits a deforming piece, about 0.05 ms. */
 #define OBJ_OPEN_PER_OBJECT 64
 #define OBJ_OPEN_MAX 4096
 
@@ -581,6 +593,9 @@ static size_t open_objects(const rtk_build_input *in, obj_ref *r, size_t n, size
     return fixed + hn;
 }
 
+static int object_sources(const rtk_build_input *in, const rtk_object_item *items, rtk_object_src *src,
+                          uint64_t count, int width, const rtk_memory *mem);
+
 int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
 {
     if (in->struct_size < offsetof(rtk_build_input, objects) + sizeof in->objects ||
@@ -648,13 +663,16 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     b.objects = b.refs ? mem_alloc(b.mem, (records ? records : 1) * sizeof *b.objects, 0) : NULL;
     /* (one more: the walk loads the last column 4 wide, xfm_to_columns) */
     b.xfms = b.refs ? mem_alloc(b.mem, (xfms + 1) * sizeof *b.xfms, 0) : NULL;
-    if (!accel || !b.refs || !b.items || !b.slot || !b.objects || !b.xfms) {
+    const int for_refit = in->quality == RTK_BUILD_QUALITY_REFIT;
+    b.src = b.refs && for_refit ? mem_alloc(b.mem, (cap ? cap : 1) * sizeof *b.src, 0) : NULL;
+    if (!accel || !b.refs || !b.items || !b.slot || !b.objects || !b.xfms || (for_refit && !b.src)) {
         if (accel) {
             mem_free(b.mem, b.refs);
             mem_free(b.mem, b.items);
             mem_free(b.mem, b.slot);
             mem_free(b.mem, b.objects);
             mem_free(b.mem, b.xfms);
+            mem_free(b.mem, b.src);
         }
         free(accel);
         build_set_message(out, "out of memory");
@@ -685,11 +703,17 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     }
     mem_free(b.mem, b.refs);
     mem_free(b.mem, b.slot);
+    const int open_width = merged >= 0 ? merged_layouts[merged].open_width : 0;
+    if (built && b.src && !object_sources(in, b.items, b.src, b.object_count, open_width, b.mem)) {
+        mem_free(b.mem, b.src); /* (a tree too large to name its nodes' slots: no refit, builds instead) */
+        b.src = NULL;
+    }
     if (!built) {
         mem_free(b.mem, b.nodes);
         mem_free(b.mem, b.items);
         mem_free(b.mem, b.objects);
         mem_free(b.mem, b.xfms);
+        mem_free(b.mem, b.src);
         free(accel);
         build_set_message(out, "out of memory");
         return RTK_ERROR_OUT_OF_MEMORY;
@@ -701,6 +725,10 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     accel->objects = b.objects;
     accel->object_xfms = b.xfms;
     accel->objects_opened = n > kept;
+    accel->object_src = b.src;
+    accel->objects_input_count = b.src ? in->object_count : 0;
+    accel->objects_kept = b.src ? (uint32_t)kept : 0;
+    accel->objects_open_width = b.src ? (uint32_t)open_width : 0;
     accel->objects_intersect1 = merged_layouts[merged >= 0 ? merged : 0].merged;
     accel->objects_occluded1 = merged_layouts[merged >= 0 ? merged : 0].merged_occluded;
     accel->inline_intersect1 = b.inline_kernel;
@@ -729,9 +757,11 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     out->leaves = n && !b.node_count ? 1 : leaves;
     out->depth = b.max_depth;
     out->bytes = b.node_count * b.node_size + b.object_count * sizeof *b.items +
-                 b.record_count * sizeof *b.objects + b.xfm_count * sizeof *b.xfms;
+                 b.record_count * sizeof *b.objects + b.xfm_count * sizeof *b.xfms +
+                 (b.src ? b.object_count * sizeof *b.src : 0);
     const double root_area = half_area_d(lo, hi);
-    out->sah_cost = root_area > 0.0 ? b.sah / root_area + (double)b.object_count : (double)b.object_count;
+    b.sah += root_area * (double)(n <= OBJ_LEAF_MAX ? n : 1);
+    out->sah_cost = root_area > 0.0 ? b.sah / root_area : 0.0;
     memcpy(out->lower, lo, sizeof out->lower);
     memcpy(out->upper, hi, sizeof out->upper);
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
@@ -747,7 +777,244 @@ void RTK_SYM(rtk_objects_release)(rtk_accel *accel)
     mem_free(&accel->memory, accel->object_items);
     mem_free(&accel->memory, accel->objects);
     mem_free(&accel->memory, accel->object_xfms);
+    mem_free(&accel->memory, accel->object_src);
     free(accel);
+}
+
+/* ---- refitting: the same objects, new boxes ----
+ * A dynamic scene whose geometries' trees were all kept or refitted in
+ * place (commit.c) has the same objects as at its top level's build, with
+ * new boxes: the top level keeps its tree and takes them, every box
+ * recomputed bottom-up, as the triangle trees' refit does (refit.c).  Its
+ * items name the same trees and nodes (a refit moves no node), so an
+ * opened item's box is its parent's child box in its object's refitted
+ * tree.  The builder records those parents (object_sources) when asked to
+ * build for refitting. */
+
+/* Opened items sorted by object and root: the parent search's keys. */
+typedef struct opened_key {
+    uint32_t input, root;
+    uint64_t item;
+} opened_key;
+
+static int by_opened(const void *a, const void *b)
+{
+    const opened_key *x = a, *y = b;
+    if (x->input != y->input)
+        return x->input < y->input ? -1 : 1;
+    return x->root < y->root ? -1 : x->root > y->root;
+}
+
+/* Fills in the parent slot (rtk_object_src.parent) of every opened item
+ * of src[0, count) (those whose parent is 0 on entry): a walk down each
+ * opened object's tree from its root through the nodes opening split
+ * (every child of one is an item or was itself opened).  0 when out of
+ * memory or a node index too large to name with its slot. */
+static int object_sources(const rtk_build_input *in, const rtk_object_item *items, rtk_object_src *src,
+                          uint64_t count, int width, const rtk_memory *mem)
+{
+    uint64_t n = 0;
+    for (uint64_t i = 0; i < count; i++)
+        n += src[i].parent != RTK_OBJECT_SRC_WHOLE;
+    if (!n)
+        return 1;
+    if (!width)
+        return 0;
+    const uint64_t stack_cap = 2 * n + 8;
+    opened_key *keys = mem_alloc(mem, n * sizeof *keys, 0);
+    uint32_t *stack = mem_alloc(mem, stack_cap * sizeof *stack, 0);
+    int ok = keys && stack;
+    uint64_t k = 0;
+    for (uint64_t i = 0; i < count && ok; i++)
+        if (src[i].parent != RTK_OBJECT_SRC_WHOLE)
+            keys[k++] = (opened_key){.input = src[i].input, .root = items[i].root, .item = i};
+    if (ok)
+        qsort(keys, n, sizeof *keys, by_opened);
+    const build view = {.width = width};
+    for (uint64_t a = 0; a < n && ok;) {
+        uint64_t e = a;
+        while (e < n && keys[e].input == keys[a].input)
+            e++;
+        const rtk_accel *t = in->objects[keys[a].input].accel;
+        uint64_t sp = 0, found = 0;
+        stack[sp++] = t->root;
+        while (sp && ok) {
+            const uint32_t node = stack[--sp];
+            ok = node < (1u << 29);
+            const node_view v = view_node(&view, (void *)t->nodes, node);
+            for (int c = 0; c < width && ok; c++) {
+                const uint32_t child = v.child[c];
+                if (child == RTK_BVH4_EMPTY)
+                    continue;
+                const opened_key want = {.input = keys[a].input, .root = child};
+                opened_key *hit = bsearch(&want, keys + a, e - a, sizeof *keys, by_opened);
+                if (hit) {
+                    src[hit->item].parent = node << 3 | (uint32_t)c;
+                    found++;
+                } else {
+                    ok = !(child & RTK_BVH4_LEAF_BIT) && sp < stack_cap;
+                    if (ok)
+                        stack[sp++] = child;
+                }
+            }
+        }
+        ok = ok && found == e - a;
+        a = e;
+    }
+    mem_free(mem, keys);
+    mem_free(mem, stack);
+    return ok;
+}
+
+/* Item i's box now, from its source; 0 when not finite and ordered. */
+static int item_box(const rtk_accel *top, const rtk_build_input *in, uint64_t i, float lo[3], float hi[3])
+{
+    const rtk_object_src *sr = &top->object_src[i];
+    const rtk_build_object *o = &in->objects[sr->input];
+    if (sr->parent == RTK_OBJECT_SRC_WHOLE) {
+        memcpy(lo, o->lower, 3 * sizeof *lo);
+        memcpy(hi, o->upper, 3 * sizeof *hi);
+    } else {
+        const build view = {.width = (int)top->objects_open_width};
+        const node_view v = view_node(&view, o->accel->nodes, sr->parent >> 3);
+        const int c = (int)(sr->parent & 7);
+        lo[0] = v.lx[c], lo[1] = v.ly[c], lo[2] = v.lz[c];
+        hi[0] = v.ux[c], hi[1] = v.uy[c], hi[2] = v.uz[c];
+    }
+    for (int k = 0; k < 3; k++)
+        if (!isfinite(lo[k]) || !isfinite(hi[k]) || !(lo[k] <= hi[k]))
+            return 0;
+    return 1;
+}
+
+/* Whether in->objects are the ones the top level was built over (the
+ * same trees, kernels, masks, ids and transforms, kept alike), their
+ * boxes aside; the reason why not in *why. */
+static int same_objects(const rtk_accel *top, const rtk_build_input *in, const char **why)
+{
+    if (in->object_count != top->objects_input_count) {
+        *why = "another number of objects";
+        return 0;
+    }
+    uint64_t kept = 0;
+    for (uint32_t i = 0; i < in->object_count; i++)
+        kept += kept_object(&in->objects[i]);
+    if (kept != top->objects_kept) {
+        *why = "other objects kept";
+        return 0;
+    }
+    for (uint64_t i = 0; i < top->object_count; i++) {
+        const rtk_object_item *it = &top->object_items[i];
+        const uint32_t input = top->object_src[i].input;
+        const rtk_build_object *o = input < in->object_count ? &in->objects[input] : NULL;
+        const int world = it->flags & RTK_OBJECT_ITEM_WORLD;
+        if (!o || !kept_object(o) || o->accel != it->accel || o->mask != it->mask || o->inst_id != it->inst_id ||
+            !world != !(o->flags & RTK_BUILD_OBJECT_IDENTITY)) {
+            *why = "another object";
+            return 0;
+        }
+        if (it->flags & RTK_OBJECT_ITEM_INLINE) {
+            _Alignas(16) float c[12];
+            xfm_to_columns(o->world_to_object, c);
+            if (o->intersect1 != top->inline_intersect1 || o->occluded1 != top->inline_occluded1 ||
+                o->intersect_packet || it->pass_all != o->accel->mask_pass_all ||
+                (!world && memcmp(c, top->object_xfms[it->object], sizeof c))) {
+                *why = "an object with other kernels, masks or transform";
+                return 0;
+            }
+        } else {
+            const rtk_build_object *r = &top->objects[it->object];
+            if (o->intersect1 != r->intersect1 || o->occluded1 != r->occluded1 ||
+                o->intersect_packet != r->intersect_packet || o->occluded_packet != r->occluded_packet ||
+                o->flags != r->flags || memcmp(o->world_to_object, r->world_to_object, sizeof r->world_to_object)) {
+                *why = "an object with other kernels or transform";
+                return 0;
+            }
+        }
+    }
+    return 1;
+}
+
+static void grow3(float lo[3], float hi[3], const float l[3], const float h[3])
+{
+    for (int k = 0; k < 3; k++) {
+        lo[k] = l[k] < lo[k] ? l[k] : lo[k];
+        hi[k] = h[k] > hi[k] ? h[k] : hi[k];
+    }
+}
+
+int RTK_SYM(rtk_objects_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out)
+{
+    if (in->struct_size < offsetof(rtk_build_input, objects) + sizeof in->objects ||
+        in->layout != RTK_LAYOUT_BVH4_OBJECT || accel->layout != RTK_LAYOUT_BVH4_OBJECT) {
+        build_set_message(out, "the objects refit needs a build input with objects, for layout bvh4.object");
+        return RTK_ERROR_INVALID_ARGUMENT;
+    }
+    const char *why = NULL;
+    if (!accel->object_src) {
+        build_set_message(out, "the top level was not built for refitting");
+        return RTK_REFIT_NEEDS_BUILD;
+    }
+    if (!same_objects(accel, in, &why)) {
+        build_set_message(out, why);
+        return RTK_REFIT_NEEDS_BUILD;
+    }
+    for (uint64_t i = 0; i < accel->object_count; i++) {
+        float lo[3], hi[3];
+        if (!item_box(accel, in, i, lo, hi)) {
+            build_set_message(out, "an object's box is no longer finite");
+            return RTK_REFIT_NEEDS_BUILD;
+        }
+    }
+    /* children after their parents (build_range numbers a node before its
+     * subtrees): backwards is bottom-up */
+    const build view = {.width = (int)accel->objects_width};
+    float root_lo[3] = {INFINITY, INFINITY, INFINITY}, root_hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+    double sah = 0.0;
+    for (uint64_t n = accel->node_count; n-- > 0;) {
+        const node_view v = view_node(&view, accel->nodes, n);
+        float nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        for (int c = 0; c < view.width; c++) {
+            const uint32_t child = v.child[c];
+            if (child == RTK_BVH4_EMPTY)
+                continue;
+            float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+            if (child & RTK_BVH4_LEAF_BIT) {
+                const uint32_t first = rtk_leaf_first(child);
+                for (uint32_t i = first; i < first + rtk_leaf_blocks(child); i++) {
+                    float l[3], h[3];
+                    item_box(accel, in, i, l, h);
+                    grow3(lo, hi, l, h);
+                }
+            } else {
+                const node_view cv = view_node(&view, accel->nodes, child);
+                for (int d = 0; d < view.width; d++)
+                    if (cv.child[d] != RTK_BVH4_EMPTY)
+                        grow3(lo, hi, (const float[3]){cv.lx[d], cv.ly[d], cv.lz[d]},
+                                 (const float[3]){cv.ux[d], cv.uy[d], cv.uz[d]});
+            }
+            v.lx[c] = lo[0], v.ly[c] = lo[1], v.lz[c] = lo[2];
+            v.ux[c] = hi[0], v.uy[c] = hi[1], v.uz[c] = hi[2];
+            grow3(nlo, nhi, lo, hi);
+            sah += half_area_d(lo, hi) * (child & RTK_BVH4_LEAF_BIT ? (double)rtk_leaf_blocks(child) : 1.0);
+        }
+        if (!n)
+            memcpy(root_lo, nlo, sizeof nlo), memcpy(root_hi, nhi, sizeof nhi);
+    }
+    if (!accel->node_count) /* (a root leaf, or no objects) */
+        for (uint64_t i = 0; i < accel->object_count; i++) {
+            float l[3], h[3];
+            item_box(accel, in, i, l, h);
+            grow3(root_lo, root_hi, l, h);
+        }
+    const double root_area = accel->object_count ? half_area_d(root_lo, root_hi) : 0.0;
+    sah += root_area * (accel->root & RTK_BVH4_LEAF_BIT ? (double)rtk_leaf_blocks(accel->root) : 1.0);
+    out->sah_cost = root_area > 0.0 ? sah / root_area : 0.0;
+    memcpy(out->lower, root_lo, sizeof out->lower);
+    memcpy(out->upper, root_hi, sizeof out->upper);
+    if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
+        out->threads = 1;
+    return 0;
 }
 
 /* ---- traversal (the ray and the node test: objects_ray.h) ---- */

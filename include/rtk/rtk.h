@@ -505,6 +505,15 @@ typedef struct rtk_scene_info {
      * tree, never hit, and count them in triangles_degenerate, as their
      * zero-area ones: a refit may give them their area back.) */
     uint64_t triangles_out_of_range;
+    /* Added after rtk 0.2.0: the commits since a dynamic scene's top level
+     * was built that refitted it instead: the same objects (the same trees,
+     * instances, masks and transforms) with new boxes, after commits that
+     * kept or refitted every tree of its own and built none.  Its SAH cost
+     * is then the refit's; once that is more than 1.1 times the build's, the
+     * next commit builds the top level afresh.  0 when the last commit
+     * built it, or for any other scene.  Only a dynamic scene with a REFIT
+     * geometry keeps what a refit needs (8 bytes per top-level item). */
+    uint32_t top_level_refits;
 } rtk_scene_info;
 RTK_API rtk_error rtk_scene_get_info(rtk_scene scene, rtk_scene_info *info);
 

@@ -418,7 +418,16 @@ typedef struct rtk_layout_io_entry {
  * in the tree are no longer the ones it holds (a vertex became or stopped
  * being NaN or infinite): the accel may then be partly rewritten, and the
  * core must build afresh or drop it.  Any other non-zero value is an
- * rtk_error, with the accel untouched. */
+ * rtk_error, with the accel untouched.
+ *
+ * Added after rtk 0.2.0: the top level (the objects entry's layout) may
+ * have a refit entry too.  `in` then holds the objects (object_count,
+ * objects) as for its build, with new boxes: the same trees (refitted in
+ * place, so their nodes are where they were), kernels, masks, ids, flags
+ * and transforms, which the function checks.  It refits only a top level
+ * built with quality RTK_BUILD_QUALITY_REFIT (which keeps what a refit
+ * needs), and returns RTK_REFIT_NEEDS_BUILD with the accel untouched when
+ * it was not or the objects differ. */
 #define RTK_REFIT_NEEDS_BUILD (-1)
 RTK_BACKEND_FN(int, rtk_accel_refit, (rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out));
 
@@ -431,7 +440,9 @@ typedef struct rtk_layout_refit_entry {
 /* The top level of two-level scenes: a builder over rtk_build_input.objects
  * producing `layout` (which has its width-1 kernels in the kernel table;
  * the core traces packets through it ray by ray).  Not in the builders
- * table: a triangle scene never gets this layout. */
+ * table: a triangle scene never gets this layout.  With quality
+ * RTK_BUILD_QUALITY_REFIT the tree keeps what its refit needs (see
+ * rtk_accel_refit); every other quality builds the same tree. */
 typedef struct rtk_objects_entry {
     uint32_t layout;
     uint32_t reserved;
