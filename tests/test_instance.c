@@ -511,6 +511,27 @@ static void expect_trees(rtk_scene s, uint32_t built, uint32_t refitted)
     assert_int_equal(info.flags_not_honoured & RTK_SCENE_FLAG_DYNAMIC, 0);
 }
 
+/* A dynamic scene (compact or not) of the slab and n balls, ball k at
+ * (x0 + k dx, 0, 0) with quality q[k]; not committed.  The slab's id in
+ * *slab_id. */
+static rtk_scene dynamic_balls(rtk_device dev, int compact, int n, const rtk_build_quality *q, float x0, float dx,
+                               moving *balls, uint32_t *ids, rtk_geometry *geo, uint32_t *slab_id)
+{
+    rtk_scene s = NULL;
+    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+    assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC | (compact ? RTK_SCENE_FLAG_COMPACT : 0)), RTK_OK);
+    *slab_id = attach_mesh(dev, s, &slab);
+    for (int k = 0; k < n; k++) {
+        balls[k].v = malloc(ball.nv * 3 * sizeof(float));
+        balls[k].m = (mesh){balls[k].v, ball.idx, ball.nv, ball.nt};
+        place_ball(&balls[k], x0 + dx * (float)k, 0.0f);
+        ids[k] = attach_mesh(dev, s, &balls[k].m);
+        geo[k] = rtk_scene_get_geometry(s, ids[k]);
+        assert_int_equal(rtk_geometry_set_build_quality(geo[k], q[k]), RTK_OK);
+    }
+    return s;
+}
+
 /* Three balls (low, medium and REFIT quality) and the slab in a dynamic
  * scene, on every backend and in both layouts: each commit builds only the
  * trees of the geometries that changed, refits the REFIT one when only its
@@ -524,22 +545,10 @@ static void dynamic_scene(void **state)
     for (size_t b = 0; b < nb; b++)
         for (int compact = 0; compact < 2; compact++) {
             rtk_device dev = test_device(names[b]);
-            rtk_scene s = NULL;
-            assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-            assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC | (compact ? RTK_SCENE_FLAG_COMPACT : 0)),
-                             RTK_OK);
             moving balls[3];
-            uint32_t ids[3];
+            uint32_t ids[3], slab_id;
             rtk_geometry geo[3];
-            const uint32_t slab_id = attach_mesh(dev, s, &slab);
-            for (int k = 0; k < 3; k++) {
-                balls[k].v = malloc(ball.nv * 3 * sizeof(float));
-                balls[k].m = (mesh){balls[k].v, ball.idx, ball.nv, ball.nt};
-                place_ball(&balls[k], 3.0f * (float)k - 3.0f, 0.0f);
-                ids[k] = attach_mesh(dev, s, &balls[k].m);
-                geo[k] = rtk_scene_get_geometry(s, ids[k]);
-                assert_int_equal(rtk_geometry_set_build_quality(geo[k], q[k]), RTK_OK);
-            }
+            rtk_scene s = dynamic_balls(dev, compact, 3, q, -3.0f, 3.0f, balls, ids, geo, &slab_id);
             assert_int_equal(rtk_scene_commit(s), RTK_OK);
             expect_trees(s, 4, 0);
             check_dynamic(s, balls, ids, 3, slab_id, 1);
@@ -665,25 +674,15 @@ static void dynamic_top_level_refit(void **state)
     for (size_t b = 0; b < nb; b++)
         for (int compact = 0; compact < 2; compact++) {
             rtk_device dev = test_device(names[b]);
-            rtk_scene s = NULL, child = NULL;
+            rtk_scene child = NULL;
             assert_int_equal(rtk_scene_new(dev, &child), RTK_OK);
             attach_mesh(dev, child, &ball);
             assert_int_equal(rtk_scene_commit(child), RTK_OK);
-            assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-            assert_int_equal(rtk_scene_set_flags(s, RTK_SCENE_FLAG_DYNAMIC | (compact ? RTK_SCENE_FLAG_COMPACT : 0)),
-                             RTK_OK);
+            static const rtk_build_quality q[2] = {RTK_BUILD_QUALITY_MEDIUM, RTK_BUILD_QUALITY_REFIT};
             moving balls[2];
-            uint32_t ids[2];
+            uint32_t ids[2], slab_id;
             rtk_geometry geo[2];
-            const uint32_t slab_id = attach_mesh(dev, s, &slab);
-            for (int k = 0; k < 2; k++) {
-                balls[k].v = malloc(ball.nv * 3 * sizeof(float));
-                balls[k].m = (mesh){balls[k].v, ball.idx, ball.nv, ball.nt};
-                place_ball(&balls[k], 2.5f * (float)k - 1.0f, 0.0f);
-                ids[k] = attach_mesh(dev, s, &balls[k].m);
-                geo[k] = rtk_scene_get_geometry(s, ids[k]);
-            }
-            assert_int_equal(rtk_geometry_set_build_quality(geo[1], RTK_BUILD_QUALITY_REFIT), RTK_OK);
+            rtk_scene s = dynamic_balls(dev, compact, 2, q, -1.0f, 2.5f, balls, ids, geo, &slab_id);
             rtk_geometry inst = instance_of(dev, child, xf[0]);
             const uint32_t inst_id = attach(s, inst);
             float x = 1.5f;
