@@ -674,10 +674,7 @@ static void dynamic_top_level_refit(void **state)
     for (size_t b = 0; b < nb; b++)
         for (int compact = 0; compact < 2; compact++) {
             rtk_device dev = test_device(names[b]);
-            rtk_scene child = NULL;
-            assert_int_equal(rtk_scene_new(dev, &child), RTK_OK);
-            attach_mesh(dev, child, &ball);
-            assert_int_equal(rtk_scene_commit(child), RTK_OK);
+            rtk_scene child = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
             static const rtk_build_quality q[2] = {RTK_BUILD_QUALITY_MEDIUM, RTK_BUILD_QUALITY_REFIT};
             moving balls[2];
             uint32_t ids[2], slab_id;
