@@ -770,7 +770,6 @@ static int refit_top(rtk_scene s, const rtk_layout_entry *layout, const rtk_buil
     s->stats = out;
     s->build_seconds = own_seconds + (t1 - t0);
     s->top_refits++;
-    remember_built(s);
     rtk_log(dev, 2, "scene: top level refitted (%u since its build): SAH %.2f (%.2f at its build), %.6f s",
             s->top_refits, out.sah_cost, s->top_sah_built, t1 - t0);
     return 1;

@@ -59,7 +59,7 @@ static void sah_chunk_task(void *data, uint32_t k)
     s->chunk[k] = sah_chunk_sum(s->bd, s->node_count, k);
 }
 
-static double tree_sah(const build *bd, uint64_t node_count, uint32_t root, const box4 *bounds)
+double build_tree_sah(const build *bd, uint64_t node_count, uint32_t root, const box4 *bounds)
 {
     if (root == RTK_BVH4_EMPTY)
         return 0.0;
@@ -504,7 +504,7 @@ void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root,
                  accel->attr_count * sizeof *accel->attrs;
     out->depth = prims ? depth : 0;
     const double root_area = box_half_area_d(bounds);
-    out->sah_cost = root_area > 0.0 ? tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
+    out->sah_cost = root_area > 0.0 ? build_tree_sah(bd, accel->node_count, root, bounds) / root_area : 0.0;
     accel->extent = 0.0f;
     for (int k = 0; k < 3; k++) {
         out->lower[k] = prims ? box_lo(bounds, k) : 0.0f;

@@ -355,6 +355,7 @@ static inline int build_unhittable_lane(const rtk_build_geometry *g, const float
 #define build_accel_finish RTK_SYM(rtk_build_accel_finish)
 #define build_write_block RTK_SYM(rtk_build_write_block)
 #define build_node_sah RTK_SYM(rtk_build_node_sah)
+#define build_tree_sah RTK_SYM(rtk_build_tree_sah)
 
 /* geom_id -> index of that geometry in in->geometries, UINT32_MAX for ids
  * not there (malloc'd, *max_id + 1 entries); NULL when out of memory. */
@@ -554,6 +555,10 @@ RTK_HIDDEN void *build_recycle_take(build *bd, int leaves, size_t size, size_t *
  * blocks for a leaf), summed in slot order; the tree's SAH cost adds them
  * in node order. */
 RTK_HIDDEN double build_node_sah(const build *bd, uint64_t index);
+/* The SAH cost of the tree of node_count nodes of bd->nodes at `root`
+ * (its box `bounds`), not yet relative to the root's area: the root's
+ * term, then every node's (build_node_sah) (build_common.c). */
+RTK_HIDDEN double build_tree_sah(const build *bd, uint64_t node_count, uint32_t root, const box4 *bounds);
 /* Describes the finished accel in out; `bounds` holds the scene's box. */
 RTK_HIDDEN void build_accel_finish(const build *bd, struct rtk_accel *accel, uint32_t root, uint64_t prims,
                                    uint32_t depth, const box4 *bounds, rtk_build_output *out);

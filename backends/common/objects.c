@@ -76,11 +76,6 @@ typedef struct obj_build {
     const rtk_build_input *in;
     const rtk_memory *mem; /* the top level's memory accounting */
     uint32_t max_depth;
-    /* the SAH cost as the triangle trees count it (build_common.c,
-     * tree_sah): over every node's children, a child's area times its
-     * items if a leaf, else once; and the root's box (relative to the
-     * root's area, at the end) */
-    double sah;
 } obj_build;
 
 static float half_area(const float lo[3], const float hi[3])
@@ -96,13 +91,6 @@ static inline vfloat4 half_area_axes(const vfloat4 lo[3], const vfloat4 hi[3])
     const vfloat4 d0 = vf4_sub(hi[0], lo[0]), d1 = vf4_sub(hi[1], lo[1]), d2 = vf4_sub(hi[2], lo[2]);
     const vfloat4 a = vf4_add(vf4_add(vf4_mul(d0, d1), vf4_mul(d1, d2)), vf4_mul(d2, d0));
     return vf4_select(vf4_ge(d0, vf4_set1(0.0f)), a, vf4_set1(0.0f));
-}
-
-/* In double, for the reported SAH cost (finite for any finite boxes). */
-static double half_area_d(const float lo[3], const float hi[3])
-{
-    const double d[3] = {(double)hi[0] - lo[0], (double)hi[1] - lo[1], (double)hi[2] - lo[2]};
-    return d[0] >= 0.0 ? d[0] * d[1] + d[1] * d[2] + d[2] * d[0] : 0.0;
 }
 
 /* A reference's box corners and centre 4 wide (lane 3 is the next field,
@@ -410,10 +398,6 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
             return 0;
         box[c].lo = vf4_select(xyz, part[c].lo, vf4_set1(0.0f));
         box[c].hi = vf4_select(xyz, part[c].hi, vf4_set1(0.0f));
-        _Alignas(16) float clo[4], chi[4];
-        vf4_store(clo, part[c].lo);
-        vf4_store(chi, part[c].hi);
-        b->sah += half_area_d(clo, chi) * (double)(size[c] <= OBJ_LEAF_MAX ? size[c] : 1);
     }
     const build bd = {.width = b->width, .node_size = b->node_size};
     build_store_node(&bd, b->nodes, (uint64_t)index, box, child, nc);
@@ -421,12 +405,18 @@ static int build_range(obj_build *b, obj_ref *r, size_t n, uint32_t depth, uint3
     return 1;
 }
 
-static int finite_box(const rtk_build_object *o)
+/* Whether the box lo-hi is finite and ordered. */
+static int finite_corners(const float lo[3], const float hi[3])
 {
     for (int k = 0; k < 3; k++)
-        if (!isfinite(o->lower[k]) || !isfinite(o->upper[k]) || !(o->lower[k] <= o->upper[k]))
+        if (!isfinite(lo[k]) || !isfinite(hi[k]) || !(lo[k] <= hi[k]))
             return 0;
     return 1;
+}
+
+static int finite_box(const rtk_build_object *o)
+{
+    return finite_corners(o->lower, o->upper);
 }
 
 /* Whether the top level keeps object o: a finite box, a tree and its kernels. */
@@ -741,7 +731,7 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     out->prims_degenerate = 0;
     out->nodes = b.node_count;
     accel->objects_width = (uint32_t)b.width;
-    const build view = {.width = b.width, .node_size = b.node_size};
+    const build view = {.width = b.width, .node_size = b.node_size, .nodes = b.nodes};
     uint64_t leaves = 0;
     for (uint64_t i = 0; i < b.node_count; i++) {
         const node_view v = view_node(&view, b.nodes, i);
@@ -759,9 +749,10 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     out->bytes = b.node_count * b.node_size + b.object_count * sizeof *b.items +
                  b.record_count * sizeof *b.objects + b.xfm_count * sizeof *b.xfms +
                  (b.src ? b.object_count * sizeof *b.src : 0);
-    const double root_area = half_area_d(lo, hi);
-    b.sah += root_area * (double)(n <= OBJ_LEAF_MAX ? n : 1);
-    out->sah_cost = root_area > 0.0 ? b.sah / root_area : 0.0;
+    /* (as the triangle trees count it: a leaf's items weighted by its box) */
+    const box4 bounds = {all.lo, all.hi};
+    const double root_area = box_half_area_d(&bounds);
+    out->sah_cost = root_area > 0.0 ? build_tree_sah(&view, b.node_count, accel->root, &bounds) / root_area : 0.0;
     memcpy(out->lower, lo, sizeof out->lower);
     memcpy(out->upper, hi, sizeof out->upper);
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
@@ -866,14 +857,16 @@ static int object_sources(const rtk_build_input *in, const rtk_object_item *item
     return ok;
 }
 
-/* Item i's box now, from its source; 0 when not finite and ordered. */
-static int item_box(const rtk_accel *top, const rtk_build_input *in, uint64_t i, float lo[3], float hi[3])
+/* Item i's box now, from its source, in *box; 0 when not finite and
+ * ordered. */
+static int item_box(const rtk_accel *top, const rtk_build_input *in, uint64_t i, box4 *box)
 {
     const rtk_object_src *sr = &top->object_src[i];
     const rtk_build_object *o = &in->objects[sr->input];
+    float lo[3], hi[3];
     if (sr->parent == RTK_OBJECT_SRC_WHOLE) {
-        memcpy(lo, o->lower, 3 * sizeof *lo);
-        memcpy(hi, o->upper, 3 * sizeof *hi);
+        memcpy(lo, o->lower, sizeof lo);
+        memcpy(hi, o->upper, sizeof hi);
     } else {
         const build view = {.width = (int)top->objects_open_width};
         const node_view v = view_node(&view, o->accel->nodes, sr->parent >> 3);
@@ -881,10 +874,32 @@ static int item_box(const rtk_accel *top, const rtk_build_input *in, uint64_t i,
         lo[0] = v.lx[c], lo[1] = v.ly[c], lo[2] = v.lz[c];
         hi[0] = v.ux[c], hi[1] = v.uy[c], hi[2] = v.uz[c];
     }
-    for (int k = 0; k < 3; k++)
-        if (!isfinite(lo[k]) || !isfinite(hi[k]) || !(lo[k] <= hi[k]))
-            return 0;
-    return 1;
+    *box = (box4){vf4_set(lo[0], lo[1], lo[2], 0.0f), vf4_set(hi[0], hi[1], hi[2], 0.0f)};
+    return finite_corners(lo, hi);
+}
+
+/* The box around node `index`'s children. */
+static box4 node_box(const build *view, uint64_t index)
+{
+    const node_view v = view_node(view, view->nodes, index);
+    box4 box = box_empty();
+    for (int c = 0; c < view->width; c++)
+        if (v.child[c] != RTK_BVH4_EMPTY)
+            box_grow(&box, vf4_set(v.lx[c], v.ly[c], v.lz[c], 0.0f), vf4_set(v.ux[c], v.uy[c], v.uz[c], 0.0f));
+    return box;
+}
+
+/* The box around the items of leaf `ref`. */
+static box4 leaf_box(const rtk_accel *top, const rtk_build_input *in, uint32_t ref)
+{
+    box4 box = box_empty();
+    const uint32_t first = rtk_leaf_first(ref);
+    for (uint32_t i = first; i < first + rtk_leaf_blocks(ref); i++) {
+        box4 b;
+        item_box(top, in, i, &b);
+        box_grow(&box, b.lo, b.hi);
+    }
+    return box;
 }
 
 /* Whether in->objects are the ones the top level was built over (the
@@ -935,14 +950,6 @@ static int same_objects(const rtk_accel *top, const rtk_build_input *in, const c
     return 1;
 }
 
-static void grow3(float lo[3], float hi[3], const float l[3], const float h[3])
-{
-    for (int k = 0; k < 3; k++) {
-        lo[k] = l[k] < lo[k] ? l[k] : lo[k];
-        hi[k] = h[k] > hi[k] ? h[k] : hi[k];
-    }
-}
-
 int RTK_SYM(rtk_objects_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out)
 {
     if (in->struct_size < offsetof(rtk_build_input, objects) + sizeof in->objects ||
@@ -960,58 +967,42 @@ int RTK_SYM(rtk_objects_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_
         return RTK_REFIT_NEEDS_BUILD;
     }
     for (uint64_t i = 0; i < accel->object_count; i++) {
-        float lo[3], hi[3];
-        if (!item_box(accel, in, i, lo, hi)) {
+        box4 b;
+        if (!item_box(accel, in, i, &b)) {
             build_set_message(out, "an object's box is no longer finite");
             return RTK_REFIT_NEEDS_BUILD;
         }
     }
     /* children after their parents (build_range numbers a node before its
      * subtrees): backwards is bottom-up */
-    const build view = {.width = (int)accel->objects_width};
-    float root_lo[3] = {INFINITY, INFINITY, INFINITY}, root_hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-    double sah = 0.0;
+    const build view = {.width = (int)accel->objects_width,
+                        .node_size = accel->objects_width == 8 ? sizeof(rtk_bvh8_node) : sizeof(rtk_bvh4_node),
+                        .nodes = accel->nodes};
     for (uint64_t n = accel->node_count; n-- > 0;) {
         const node_view v = view_node(&view, accel->nodes, n);
-        float nlo[3] = {INFINITY, INFINITY, INFINITY}, nhi[3] = {-INFINITY, -INFINITY, -INFINITY};
         for (int c = 0; c < view.width; c++) {
             const uint32_t child = v.child[c];
             if (child == RTK_BVH4_EMPTY)
                 continue;
-            float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
-            if (child & RTK_BVH4_LEAF_BIT) {
-                const uint32_t first = rtk_leaf_first(child);
-                for (uint32_t i = first; i < first + rtk_leaf_blocks(child); i++) {
-                    float l[3], h[3];
-                    item_box(accel, in, i, l, h);
-                    grow3(lo, hi, l, h);
-                }
-            } else {
-                const node_view cv = view_node(&view, accel->nodes, child);
-                for (int d = 0; d < view.width; d++)
-                    if (cv.child[d] != RTK_BVH4_EMPTY)
-                        grow3(lo, hi, (const float[3]){cv.lx[d], cv.ly[d], cv.lz[d]},
-                                 (const float[3]){cv.ux[d], cv.uy[d], cv.uz[d]});
-            }
+            const box4 b = child & RTK_BVH4_LEAF_BIT ? leaf_box(accel, in, child) : node_box(&view, child);
+            _Alignas(16) float lo[4], hi[4];
+            vf4_store(lo, b.lo);
+            vf4_store(hi, b.hi);
             v.lx[c] = lo[0], v.ly[c] = lo[1], v.lz[c] = lo[2];
             v.ux[c] = hi[0], v.uy[c] = hi[1], v.uz[c] = hi[2];
-            grow3(nlo, nhi, lo, hi);
-            sah += half_area_d(lo, hi) * (child & RTK_BVH4_LEAF_BIT ? (double)rtk_leaf_blocks(child) : 1.0);
         }
-        if (!n)
-            memcpy(root_lo, nlo, sizeof nlo), memcpy(root_hi, nhi, sizeof nhi);
     }
-    if (!accel->node_count) /* (a root leaf, or no objects) */
-        for (uint64_t i = 0; i < accel->object_count; i++) {
-            float l[3], h[3];
-            item_box(accel, in, i, l, h);
-            grow3(root_lo, root_hi, l, h);
-        }
-    const double root_area = accel->object_count ? half_area_d(root_lo, root_hi) : 0.0;
-    sah += root_area * (accel->root & RTK_BVH4_LEAF_BIT ? (double)rtk_leaf_blocks(accel->root) : 1.0);
-    out->sah_cost = root_area > 0.0 ? sah / root_area : 0.0;
-    memcpy(out->lower, root_lo, sizeof out->lower);
-    memcpy(out->upper, root_hi, sizeof out->upper);
+    const box4 root = accel->node_count ? node_box(&view, 0)
+                      : accel->object_count ? leaf_box(accel, in, accel->root) /* (a root leaf) */
+                                            : box_empty();
+    const double root_area = accel->object_count ? box_half_area_d(&root) : 0.0;
+    out->sah_cost =
+        root_area > 0.0 ? build_tree_sah(&view, accel->node_count, accel->root, &root) / root_area : 0.0;
+    _Alignas(16) float lo[4], hi[4];
+    vf4_store(lo, root.lo);
+    vf4_store(hi, root.hi);
+    memcpy(out->lower, lo, sizeof out->lower);
+    memcpy(out->upper, hi, sizeof out->upper);
     if (out->struct_size >= offsetof(rtk_build_output, threads) + sizeof out->threads)
         out->threads = 1;
     return 0;
