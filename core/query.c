@@ -10,10 +10,14 @@
 
 /* The query of a call without a context: one constant, so the entry
  * points without _ctx pass its address and build nothing on the stack (a
- * query built per call was five of rtk_occluded1's 38 instructions). */
+ * query built per call was five of rtk_occluded1's 38 instructions).  The
+ * checks below are inlined into each entry point, so that those without
+ * _ctx (ctx a constant NULL) keep no test of it and build no query
+ * either. */
 static const rtk_query query_plain = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
 
-static inline rtk_error intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query_context *ctx, const char *fn)
+static inline __attribute__((always_inline)) rtk_error intersect1(rtk_scene s, rtk_rayhit *rh,
+                                                                  const rtk_query_context *ctx, const char *fn)
 {
     if (!s)
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
@@ -32,7 +36,8 @@ static inline rtk_error intersect1(rtk_scene s, rtk_rayhit *rh, const rtk_query_
     return RTK_OK;
 }
 
-static inline rtk_error occluded1(rtk_scene s, rtk_ray *ray, const rtk_query_context *ctx, const char *fn)
+static inline __attribute__((always_inline)) rtk_error occluded1(rtk_scene s, rtk_ray *ray,
+                                                                 const rtk_query_context *ctx, const char *fn)
 {
     if (!s)
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
