@@ -1,6 +1,7 @@
 /*
- * The leaf blocks' oriented boxes of closest-point queries
- * (backends/common/block_bounds.h), compiled in directly: the float lower
+ * The float lower bounds of closest-point queries, compiled in directly.
+ *
+ * The leaf blocks' oriented boxes (backends/common/block_bounds.h): the float lower
  * bound a box gives must never exceed the block's true squared distance
  * (brute force over its triangles in double, geometry/closest_point.h, the
  * vertices as the kernels see them), for blocks of one to four triangles,
@@ -11,6 +12,11 @@
  * surface, at vertices, and near and far.  And it must be tight where it is
  * meant to be: a point straight above a flat block is bounded by nearly its
  * distance, which an axis-aligned box of a tilted block is not.
+ *
+ * The triangles' own bounds (backends/common/tri_lower.h), the same way,
+ * triangle by triangle, with slivers at the angle the bound still takes and
+ * points on and beside edges: never above the distance, and within 2^-11 of
+ * it for points far off, where most of a query's triangles are bounded.
  */
 #include <float.h>
 #include <math.h>
@@ -22,6 +28,7 @@
 #include <cmocka.h>
 
 #include "block_bounds.h"
+#include "tri_lower.h"
 #include "geometry/closest_point.h"
 
 static uint64_t rng_state = 0x9e3779b97f4a7c15ull;
@@ -292,12 +299,163 @@ static void test_worth(void **state)
         fail_msg("%d of %d tilted flat blocks worth their box", tilted_worth, tilted);
 }
 
+/* ---- the triangles' own bounds (tri_lower.h) ---- */
+
+/* The four lanes' bounds, from the block as the leaf walk reads it. */
+static void tri_bounds(const block *b, const double *p, float *lo)
+{
+    float pf[3], dp;
+    float_point(p, pf, &dp);
+    const float *f = (const float *)&b->t;
+    vfloat4 a[3], e1[3], e2[3];
+    for (int ax = 0; ax < 3; ax++) {
+        a[ax] = vf4_load(f + 4 * ax);
+        e1[ax] = b->vertices ? vf4_sub(vf4_load(f + 12 + 4 * ax), a[ax]) : vf4_load(f + 12 + 4 * ax);
+        e2[ax] = b->vertices ? vf4_sub(vf4_load(f + 24 + 4 * ax), a[ax]) : vf4_load(f + 24 + 4 * ax);
+    }
+    vf4_storeu(lo, rtk_tri4_lower(a[0], a[1], a[2], e1[0], e1[1], e1[2], e2[0], e2[1], e2[2], pf, dp));
+}
+
+static double tri_distance(const block *b, int k, const double *p)
+{
+    double v[3][3];
+    corners(b, k, v);
+    rtk_tri_closest t;
+    rtk_closest_point_triangle(&t, p, v[0], v[1], v[2]);
+    return sqrt(t.d2);
+}
+
+/* Lane k turned into a sliver: its third vertex moved to a point whose
+ * angle at v0 has a sine of about 2^-4 (the least the bound takes), on
+ * either side of the long edge. */
+static void make_sliver(block *b, int k)
+{
+    double v[3][3];
+    corners(b, k, v);
+    const double e[3] = {v[1][0] - v[0][0], v[1][1] - v[0][1], v[1][2] - v[0][2]};
+    const double w[3] = {v[2][0] - v[0][0], v[2][1] - v[0][1], v[2][2] - v[0][2]};
+    /* the part of w perpendicular to e, scaled to 0.07 |e| (sine ~0.07) */
+    const double ee = e[0] * e[0] + e[1] * e[1] + e[2] * e[2];
+    const double t = (w[0] * e[0] + w[1] * e[1] + w[2] * e[2]) / ee;
+    double q[3] = {w[0] - t * e[0], w[1] - t * e[1], w[2] - t * e[2]};
+    const double qn = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2]);
+    if (!(qn > 0.0) || !(ee > 0.0))
+        return;
+    const double along = 0.2 + 0.6 * rnd(), side = (0.065 + 0.02 * rnd()) * sqrt(ee) * along / qn;
+    for (int a = 0; a < 3; a++)
+        v[2][a] = v[0][a] + along * e[a] + side * q[a];
+    set_lane(b, k, v);
+}
+
+static void test_tri_never_above(void **state)
+{
+    (void)state;
+    static const double scales[] = {0x1p-60, 1e-6, 1.0, 1e3, 0x1p60};
+    static const double offsets[] = {0.0, 1.0, 1e5};
+    long checked = 0, bounded = 0, away = 0;
+    for (int si = 0; si < 5; si++)
+        for (int oi = 0; oi < 3; oi++)
+            for (int trial = 0; trial < 400; trial++) {
+                const double s = scales[si];
+                const double c[3] = {offsets[oi] * s * 1e3 * (rnd() + 0.5), offsets[oi] * s * 1e3 * (rnd() - 0.5),
+                                     s * (rnd() - 0.5)};
+                block b;
+                make_block(&b, c, s, trial % 2, trial % 4 >= 2);
+                if (trial % 3 == 0)
+                    for (int k = 0; k < b.count; k++)
+                        make_sliver(&b, k);
+                for (int q = 0; q < 40; q++) {
+                    double p[3], v[3][3];
+                    const int lane = (int)(rnd() * b.count), where = q % 7;
+                    corners(&b, lane, v);
+                    if (where == 0) { /* on a vertex */
+                        memcpy(p, v[(int)(rnd() * 3)], sizeof p);
+                    } else if (where <= 2) { /* on an edge, or beside it (in the plane, out or in) */
+                        const int i = (int)(rnd() * 3), j = (i + 1) % 3, o = (i + 2) % 3;
+                        const double t = rnd(), off = where == 1 ? 0.0 : (rnd() - 0.5) * 1e-3;
+                        for (int k = 0; k < 3; k++)
+                            p[k] = v[i][k] + t * (v[j][k] - v[i][k]) + off * (v[o][k] - v[i][k]);
+                    } else if (where == 3) { /* on the face, in double */
+                        double u = rnd(), w = rnd();
+                        if (u + w > 1.0)
+                            u = 1.0 - u, w = 1.0 - w;
+                        for (int k = 0; k < 3; k++)
+                            p[k] = v[0][k] + u * (v[1][k] - v[0][k]) + w * (v[2][k] - v[0][k]);
+                    } else { /* near, farther, far */
+                        const double r = s * (where == 4 ? 0.01 : where == 5 ? 1.0 : 1e4);
+                        for (int k = 0; k < 3; k++)
+                            p[k] = c[k] + r * (rnd() - 0.5);
+                    }
+                    for (int pass = 0; pass < 2; pass++) { /* a double point, then its float */
+                        if (pass)
+                            for (int k = 0; k < 3; k++)
+                                p[k] = (float)p[k];
+                        float lo[4];
+                        tri_bounds(&b, p, lo);
+                        for (int k = 0; k < b.count; k++) {
+                            const double want = tri_distance(&b, k, p);
+                            /* (beyond float's range the bound is never taken) */
+                            if (!((double)lo[k] <= want || want > FLT_MAX))
+                                fail_msg("scale %g, offset %g, trial %d, point %d (%s), lane %d: bound %.9g above "
+                                         "%.17g",
+                                         s, offsets[oi], trial, q, pass ? "float" : "double", k, lo[k], want);
+                            if (where >= 5) { /* (on and near the surface the bound is 0) */
+                                bounded += lo[k] > 0.0f;
+                                away++;
+                            }
+                            checked++;
+                        }
+                        for (int k = b.count; k < 4; k++) /* unused lanes: no bound */
+                            assert_true(lo[k] == 0.0f);
+                    }
+                }
+            }
+    /* away from the surface most triangles are bounded at all (needles,
+     * points and, far off, tiny triangles are not) */
+    if (!(bounded * 2 > away))
+        fail_msg("%ld of %ld triangles away from the surface bounded", bounded, away);
+    assert_true(checked > 5L * 3 * 400 * 40 * 2);
+}
+
+/* Far off, the bound is within 2^-11 of the distance: there a query meets
+ * many triangles at nearly its distance, and each one bounded above it is
+ * one not measured in double. */
+static void test_tri_tight(void **state)
+{
+    (void)state;
+    double worst = 1.0;
+    for (int trial = 0; trial < 2000; trial++) {
+        const double c[3] = {rnd(), rnd(), rnd()};
+        block b;
+        make_block(&b, c, 1.0, trial % 2, trial % 4 >= 2);
+        /* 10 to 1000 block sizes off, in a random direction */
+        double p[3], dir[3], n2 = 0.0;
+        for (int k = 0; k < 3; k++)
+            dir[k] = rnd() - 0.5, n2 += dir[k] * dir[k];
+        const double r = (10.0 + 990.0 * rnd()) / sqrt(n2);
+        for (int k = 0; k < 3; k++)
+            p[k] = c[k] + r * dir[k];
+        float lo[4];
+        tri_bounds(&b, p, lo);
+        for (int k = 0; k < b.count; k++) {
+            if (!(lo[k] > 0.0f))
+                continue; /* (a needle, a point or a sliver: not bounded) */
+            const double q = lo[k] / tri_distance(&b, k, p);
+            worst = q < worst ? q : worst;
+        }
+    }
+    if (!(worst > 1.0 - 0x1p-11))
+        fail_msg("far off, the bound is only %.7f of the distance", worst);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_never_above),
         cmocka_unit_test(test_tight),
         cmocka_unit_test(test_worth),
+        cmocka_unit_test(test_tri_never_above),
+        cmocka_unit_test(test_tri_tight),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }
