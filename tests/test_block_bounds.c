@@ -132,6 +132,55 @@ static double true_d2(const block *b, const double *p)
     return best;
 }
 
+/* The blocks the brute-force tests try: five scales, each at the origin,
+ * a thousand sizes off it and 10^8 sizes off it, flat or not, sharing
+ * vertices or not.  Returns the scale; c gets the block's centre. */
+static const double scales[] = {0x1p-60, 1e-6, 1.0, 1e3, 0x1p60};
+static const double offsets[] = {0.0, 1.0, 1e5};
+static double trial_block(int si, int oi, int trial, block *b, double *c)
+{
+    const double s = scales[si];
+    c[0] = offsets[oi] * s * 1e3 * (rnd() + 0.5);
+    c[1] = offsets[oi] * s * 1e3 * (rnd() - 0.5);
+    c[2] = s * (rnd() - 0.5);
+    make_block(b, c, s, trial % 2, trial % 4 >= 2);
+    return s;
+}
+
+/* Where the brute-force tests put their points, about lane k of a block
+ * of size s centred at c. */
+enum { AT_VERTEX, ON_EDGE, BESIDE_EDGE, ON_FACE, NEAR, FARTHER, FAR };
+static void trial_point(const block *b, int lane, const double *c, double s, int kind, double *p)
+{
+    double v[3][3];
+    corners(b, lane, v);
+    if (kind == AT_VERTEX) {
+        memcpy(p, v[(int)(rnd() * 3)], 3 * sizeof *p);
+    } else if (kind == ON_EDGE || kind == BESIDE_EDGE) { /* beside: in the plane, out or in */
+        const int i = (int)(rnd() * 3), j = (i + 1) % 3, o = (i + 2) % 3;
+        const double t = rnd(), off = kind == ON_EDGE ? 0.0 : (rnd() - 0.5) * 1e-3;
+        for (int k = 0; k < 3; k++)
+            p[k] = v[i][k] + t * (v[j][k] - v[i][k]) + off * (v[o][k] - v[i][k]);
+    } else if (kind == ON_FACE) { /* uniform over the triangle, in double */
+        double u = rnd(), w = rnd();
+        if (u + w > 1.0)
+            u = 1.0 - u, w = 1.0 - w;
+        for (int k = 0; k < 3; k++)
+            p[k] = v[0][k] + u * (v[1][k] - v[0][k]) + w * (v[2][k] - v[0][k]);
+    } else { /* in the cube of side 0.01 s, s or 10^4 s about c */
+        const double r = s * (kind == NEAR ? 0.01 : kind == FARTHER ? 1.0 : 1e4);
+        for (int k = 0; k < 3; k++)
+            p[k] = c[k] + r * (rnd() - 0.5);
+    }
+}
+
+/* The point moved to the nearest floats, as a float query would be. */
+static void round_to_float(double *p)
+{
+    for (int k = 0; k < 3; k++)
+        p[k] = (float)p[k];
+}
+
 /* The query's float and rounding as point_query.c's level_point has them. */
 static void float_point(const double *p, float *pf, float *dp)
 {
@@ -161,43 +210,22 @@ static const rtk_block_obb *box_of(rtk_accel *a, block *b) { return &bounds_of(a
 static void test_never_above(void **state)
 {
     (void)state;
-    static const double scales[] = {0x1p-60, 1e-6, 1.0, 1e3, 0x1p60};
-    static const double offsets[] = {0.0, 1.0, 1e5};
     long checked = 0;
     for (int si = 0; si < 5; si++)
         for (int oi = 0; oi < 3; oi++)
             for (int trial = 0; trial < 400; trial++) {
-                const double s = scales[si];
-                const double c[3] = {offsets[oi] * s * 1e3 * (rnd() + 0.5), offsets[oi] * s * 1e3 * (rnd() - 0.5),
-                                     s * (rnd() - 0.5)};
                 block b;
-                make_block(&b, c, s, trial % 2, trial % 4 >= 2);
+                double c[3];
+                const double s = trial_block(si, oi, trial, &b, c);
                 rtk_accel a;
                 const rtk_block_obb *o = box_of(&a, &b);
                 for (int q = 0; q < 40; q++) {
+                    static const int kinds[5] = {AT_VERTEX, ON_FACE, NEAR, FARTHER, FAR};
                     double p[3];
-                    const int where = q % 5;
-                    if (where == 0) { /* on a vertex */
-                        double v[3][3];
-                        corners(&b, (int)(rnd() * b.count), v);
-                        memcpy(p, v[(int)(rnd() * 3)], sizeof p);
-                    } else if (where == 1) { /* on a face, in double */
-                        double v[3][3];
-                        corners(&b, (int)(rnd() * b.count), v);
-                        double u = rnd(), w = rnd();
-                        if (u + w > 1.0)
-                            u = 1.0 - u, w = 1.0 - w;
-                        for (int k = 0; k < 3; k++)
-                            p[k] = v[0][k] + u * (v[1][k] - v[0][k]) + w * (v[2][k] - v[0][k]);
-                    } else { /* near, farther, far */
-                        const double r = s * (where == 2 ? 0.01 : where == 3 ? 1.0 : 1e4);
-                        for (int k = 0; k < 3; k++)
-                            p[k] = c[k] + r * (rnd() - 0.5);
-                    }
+                    trial_point(&b, (int)(rnd() * b.count), c, s, kinds[q % 5], p);
                     for (int pass = 0; pass < 2; pass++) { /* a double point, then its float */
                         if (pass)
-                            for (int k = 0; k < 3; k++)
-                                p[k] = (float)p[k];
+                            round_to_float(p);
                         float pf[3], dp;
                         float_point(p, pf, &dp);
                         const double want = true_d2(&b, p);
@@ -350,46 +378,23 @@ static void make_sliver(block *b, int k)
 static void test_tri_never_above(void **state)
 {
     (void)state;
-    static const double scales[] = {0x1p-60, 1e-6, 1.0, 1e3, 0x1p60};
-    static const double offsets[] = {0.0, 1.0, 1e5};
     long checked = 0, bounded = 0, away = 0;
     for (int si = 0; si < 5; si++)
         for (int oi = 0; oi < 3; oi++)
             for (int trial = 0; trial < 400; trial++) {
-                const double s = scales[si];
-                const double c[3] = {offsets[oi] * s * 1e3 * (rnd() + 0.5), offsets[oi] * s * 1e3 * (rnd() - 0.5),
-                                     s * (rnd() - 0.5)};
                 block b;
-                make_block(&b, c, s, trial % 2, trial % 4 >= 2);
+                double c[3];
+                const double s = trial_block(si, oi, trial, &b, c);
                 if (trial % 3 == 0)
                     for (int k = 0; k < b.count; k++)
                         make_sliver(&b, k);
                 for (int q = 0; q < 40; q++) {
-                    double p[3], v[3][3];
+                    double p[3];
                     const int lane = (int)(rnd() * b.count), where = q % 7;
-                    corners(&b, lane, v);
-                    if (where == 0) { /* on a vertex */
-                        memcpy(p, v[(int)(rnd() * 3)], sizeof p);
-                    } else if (where <= 2) { /* on an edge, or beside it (in the plane, out or in) */
-                        const int i = (int)(rnd() * 3), j = (i + 1) % 3, o = (i + 2) % 3;
-                        const double t = rnd(), off = where == 1 ? 0.0 : (rnd() - 0.5) * 1e-3;
-                        for (int k = 0; k < 3; k++)
-                            p[k] = v[i][k] + t * (v[j][k] - v[i][k]) + off * (v[o][k] - v[i][k]);
-                    } else if (where == 3) { /* on the face, in double */
-                        double u = rnd(), w = rnd();
-                        if (u + w > 1.0)
-                            u = 1.0 - u, w = 1.0 - w;
-                        for (int k = 0; k < 3; k++)
-                            p[k] = v[0][k] + u * (v[1][k] - v[0][k]) + w * (v[2][k] - v[0][k]);
-                    } else { /* near, farther, far */
-                        const double r = s * (where == 4 ? 0.01 : where == 5 ? 1.0 : 1e4);
-                        for (int k = 0; k < 3; k++)
-                            p[k] = c[k] + r * (rnd() - 0.5);
-                    }
+                    trial_point(&b, lane, c, s, where, p);
                     for (int pass = 0; pass < 2; pass++) { /* a double point, then its float */
                         if (pass)
-                            for (int k = 0; k < 3; k++)
-                                p[k] = (float)p[k];
+                            round_to_float(p);
                         float lo[4];
                         tri_bounds(&b, p, lo);
                         for (int k = 0; k < b.count; k++) {
@@ -399,7 +404,7 @@ static void test_tri_never_above(void **state)
                                 fail_msg("scale %g, offset %g, trial %d, point %d (%s), lane %d: bound %.9g above "
                                          "%.17g",
                                          s, offsets[oi], trial, q, pass ? "float" : "double", k, lo[k], want);
-                            if (where >= 5) { /* (on and near the surface the bound is 0) */
+                            if (where >= FARTHER) { /* (on and near the surface the bound is 0) */
                                 bounded += lo[k] > 0.0f;
                                 away++;
                             }
