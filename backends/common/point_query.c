@@ -57,6 +57,7 @@ typedef struct pq_level {
     double o2w[12];       /* row-major 3x4 */
     uint32_t inst_id;     /* the outermost instance entered, else the query's */
     uint32_t start;       /* the node the next walk starts at, RTK_BVH4_EMPTY: the tree's root */
+    float bound;          /* level_bound: set where the walk starts, and wherever this level lowers best2 */
 } pq_level;
 
 /* The next float up from a finite x >= 0 (nextafterf, without the call). */
@@ -124,6 +125,7 @@ static void consider(pq_level *l, const double *a0, const double *b0, const doub
     if (!(len > 0.0))
         return; /* no area: rays never hit it, and it is no surface here either */
     st->best2 = t.d2;
+    l->bound = level_bound(l);
     rtk_point_hit *r = st->result;
     r->x = t.p[0];
     r->y = t.p[1];
@@ -171,7 +173,7 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
             const rtk_triangle4v *tv = (const rtk_triangle4v *)t;
             /* the block's oriented box first, once the best distance is a
              * few blocks' sizes (block_bounds.h) */
-            const float bound = level_bound(l);
+            const float bound = l->bound;
             if (bb && bound > bb->from && rtk_block_worth(bb, i) && rtk_block_obb_lower2(&bb->obb[i], l->pf, l->dp) > bound)
                 continue;
             /* the four triangles' boxes first, as a node's children: only
@@ -202,7 +204,7 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
                 for (unsigned m = live & (live - 1); m; m &= m - 1)
                     k = lo[__builtin_ctz(m)] < lo[k] ? __builtin_ctz(m) : k;
                 live &= ~(1u << k);
-                if (!(lo[k] * lo[k] <= level_bound(l)))
+                if (!(lo[k] * lo[k] <= l->bound))
                     break;
                 if (t->prim[k] == RTK_BVH4_EMPTY)
                     continue;
@@ -344,14 +346,18 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                                      : NULL;
     const float obb_from = bb ? bb->from : INFINITY;
     l->start = RTK_BVH4_EMPTY; /* (the levels below start at their roots) */
-    float bound = level_bound(l);
+    l->bound = level_bound(l);
+    float bound = l->bound;
     for (;;) {
         if (cur & RTK_BVH4_LEAF_BIT) {
             if (objects)
                 objects_leaf(a, cur, l);
             else
                 leaf(leaves, cur, l, kind, mt);
-            bound = level_bound(l);
+            /* (a level below lowers best2 without telling this one) */
+            if (objects)
+                l->bound = level_bound(l);
+            bound = l->bound;
         } else {
             float d[8];
             unsigned mask;
