@@ -21,15 +21,17 @@
  * 2^-14 R (a triangle whose angle at a has a sine of at least 2^-4 costs a
  * few hundred ulps of R, and a point taken for inside or outside wrongly
  * lies within that of an edge, where both answers agree) and by twice the
- * point's own rounding dp.  tests/test_block_bounds.c finds bounds above
+ * point's own rounding dp.  Triangles that do not qualify get 0: angles
+ * under that (needles and zero-area triangles), edges under 2^-20 R (the
+ * point far off), and anything NaN (unused lanes).
+ *
+ * The margin is measured: tests/test_block_bounds.c finds bounds above
  * the distance at 2^-23 R and none at 2^-20 R over ten million triangles
  * and points (slivers at that sine, points on and beside edges, 2^-60 to
- * 2^60).  The 2^-10 R taken before the margin was measured sent a far
- * point's neighbouring triangles, within 0.2% of its distance, to be
- * measured in double: on the bunny's box points 2^-14 cuts the
- * instructions of those tests by 41% (callgrind).  Triangles that do not qualify get 0: angles
- * under that (needles and zero-area triangles), edges under 2^-20 R (the
- * point far off), and anything NaN (unused lanes). */
+ * 2^60).  The 2^-10 R taken before it was measured sent a far point's
+ * neighbouring triangles, within 0.2% of its distance, to be measured in
+ * double: on the bunny's box points 2^-14 cuts the instructions of those
+ * tests by 41% (callgrind). */
 static inline vfloat4 rtk_tri4_lower(vfloat4 ax, vfloat4 ay, vfloat4 az, vfloat4 e1x, vfloat4 e1y, vfloat4 e1z,
                                      vfloat4 e2x, vfloat4 e2y, vfloat4 e2z, const float *pf, float dp)
 {
