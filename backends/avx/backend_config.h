@@ -6,4 +6,10 @@
  */
 #ifndef RTK_BACKEND_CONFIG_H
 #define RTK_BACKEND_CONFIG_H
+
+/* Rays in flight per stream call (traverse_stream.h; 8 in the other
+ * backends): against 8, dragon.ply's incoherent and sun streams 8-11%
+ * faster, procedural:4M's within 2% (rtktool bench, 1 thread, AMD EPYC,
+ * docs/benchmarks/streams.md); sse41 was 3-10% slower at 16. */
+#define RTK_STREAM_K 16
 #endif

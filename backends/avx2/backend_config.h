@@ -6,4 +6,11 @@
  */
 #ifndef RTK_BACKEND_CONFIG_H
 #define RTK_BACKEND_CONFIG_H
+
+/* Rays in flight per stream call (traverse_stream.h; 8 in the other
+ * backends).  Against 8, rtktool bench's stream rows on 1 thread (AMD EPYC,
+ * docs/benchmarks/streams.md): incoherent and sun rays 6-15% faster on
+ * dragon.ply and procedural:4M, diffuse 2-3%; 24 was no faster than 16.
+ * The slots come from the heap, a few KB each. */
+#define RTK_STREAM_K 16
 #endif
