@@ -693,6 +693,19 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
         VK(store)(h->geom, zero);
     }
 
+    /* each lane as a single ray, made the first time it finishes a
+     * subtree alone and kept for the next ones (lanes_ready): a diffuse
+     * packet of neighbouring pixels parts at the root, and made per
+     * subtree its rays were set up once per child of the root they
+     * entered (dragon.ply's diffuse packets of 8: intersect8's
+     * instructions -3.4%, callgrind) */
+    ray_pre lane_p[RTK_PACKET];
+    ray_mem lane_m[RTK_PACKET];
+    rtk_ray lane_one[RTK_PACKET];
+    feat_ctx lane_fc[RTK_PACKET];
+    const feat_ctx *lane_f[RTK_PACKET];
+    unsigned lanes_ready = 0;
+
     PK_(pstack_entry) stack[RTK_BVHN_STACK_SIZE(RTK_BVHN) + 1];
     int sp = 0;
     stack[sp++] = (PK_(pstack_entry)){.dist = p.tnear, .ref = accel->root};
@@ -714,17 +727,18 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
             for (unsigned m = want; m; m &= m - 1) {
                 const int i = __builtin_ctz(m);
                 const vkb lane = PK_(lanes_mask)(1u << i);
-                ray_pre rp;
-                ray_mem rpm;
-                rtk_ray one;
-                feat_ctx fc;
-                const feat_ctx *f = PK_(lane_ray_pre)(&rp, &rpm, &one, &fc, ray, i, accel, q);
+                if (!(lanes_ready >> i & 1)) {
+                    lane_f[i] = PK_(lane_ray_pre)(&lane_p[i], &lane_m[i], &lane_one[i], &lane_fc[i], ray, i, accel, q);
+                    lanes_ready |= 1u << i;
+                }
+                const ray_pre *rp = &lane_p[i];
+                const feat_ctx *f = lane_f[i];
                 if (closest) {
                     closest_hit best = CLOSEST_HIT_NONE;
                     const int had = exact && (done >> i & 1);
                     /* a ray with a hit looks into the tie band too */
                     float ti = had ? tf[i] + fabsf(tf[i]) * PK_TIE_REL : tf[i];
-                    closest_from(accel, cur, &rp, ray->tnear[i], &ti, &best, f);
+                    closest_from(accel, cur, rp, ray->tnear[i], &ti, &best, f);
                     if (best.lane >= 0) {
                         block_t scratch;
                         if (had && ti >= tf[i] - fabsf(tf[i]) * PK_TIE_REL)
@@ -735,7 +749,7 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
                         PK_(record_triangle)(h, lane, leaf_block(accel, best.leaf, &scratch), best.lane);
                         done |= 1u << i;
                     }
-                } else if (any_from(accel, cur, &rp, ray->tnear[i], tf[i], f)) {
+                } else if (any_from(accel, cur, rp, ray->tnear[i], tf[i], f)) {
                     tfar = VK(select)(lane, VK(set1)(-INFINITY), tfar);
                     done |= 1u << i;
                 }
