@@ -31,6 +31,10 @@
  * Motion blur has no packet kernels, so its coherent groups go ray by
  * ray.
  *
+ * Any hits have a third way on avx2's default layouts: rays of one octant
+ * walked together by masks (stream_occluded_masks), which the stream's
+ * timing windows weigh against the other two (stream_window).
+ *
  * A template included after traverse_bvhn.h (or traverse_motion.h's entry
  * points); it defines rtk_bvh<tag>_intersect_stream and
  * rtk_bvh<tag>_occluded_stream (rtk_backend.h: rtk_intersect_stream_fn),
@@ -244,6 +248,141 @@ static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel
     return 1;
 }
 
+#if !RTK_MOTION
+/* Any hits by masks: up to RTK_MASK_RAYS rays of one direction octant
+ * walked through the tree together, as Embree 3's incoherent streams are
+ * (rtcOccluded1M sorts a stream into octants and walks up to 32 rays of one
+ * at a time).  A stack entry is a node and the mask of the rays that
+ * entered it; at a node its planes are loaded once and each ray of the mask
+ * is tested against its children with the single-ray kernel's fused test
+ * (the same constants, read from arrays by ray), the children's ray masks
+ * gathered in one vector; at a leaf each ray of the mask takes the
+ * single-ray triangle test, and a ray that hits leaves every mask.  Every
+ * ray enters exactly the boxes it enters alone, so it reaches the same
+ * leaves and gets rtk_occluded1's answer (whatever the order: any hit).
+ * One node read serves every ray that reaches it, which pays where the
+ * rays share the tree's upper nodes and those are in the caches (rays from
+ * scattered points along one direction: San Miguel's sun rays, the
+ * procedural mesh's shadow rays, docs/benchmarks/streams.md); where each
+ * ray waits on memory of its own, interleaving pays more, and the stream's
+ * timing windows choose (stream_window).  Only the fused test of the
+ * default layouts on 8-wide trees (avx2) has it. */
+#define RTK_MASK_RAYS 32
+#if RTK_SIMD_HAS_FMA && !RTK_ROBUST && RTK_BVHN == 8
+#define RTK_MASK_FAST 1
+#endif
+
+#ifdef RTK_MASK_FAST
+static __attribute__((noinline)) void stream_occluded_masks(const rtk_accel *accel, rtk_ray *const *rays, uint32_t n,
+                                                           const rtk_query *q)
+{
+    _Alignas(64) float inv[3][RTK_MASK_RAYS], cn[3][RTK_MASK_RAYS], cf[3][RTK_MASK_RAYS], tn[RTK_MASK_RAYS],
+        tf[RTK_MASK_RAYS], bits[RTK_MASK_RAYS];
+    _Alignas(64) ray_mem rm[RTK_MASK_RAYS];
+    size_t near_off[3] = {0, 0, 0}, far_off[3] = {0, 0, 0};
+    uint32_t active = 0;
+    for (uint32_t i = 0; i < n; i++) {
+        rtk_ray *r = rays[i];
+        if (ray_feat(accel, r) != 0) {
+            BVHN_OCCLUDED1(accel, r, q);
+            continue;
+        }
+        ray_pre p;
+        ray_pre_init(&p, &rm[i], r, accel);
+        if (!p.fma) {
+            BVHN_OCCLUDED1(accel, r, q);
+            continue;
+        }
+        for (int k = 0; k < 3; k++) {
+            inv[k][i] = p.rs[k]; /* (inv = inv_exact in the default layouts) */
+            cn[k][i] = rm[i].c[k];
+            cf[k][i] = rm[i].c[4 + k];
+            near_off[k] = p.near_off[k];
+            far_off[k] = p.far_off[k];
+        }
+        tn[i] = r->tnear + 0.0f;
+        tf[i] = r->tfar + 0.0f;
+        const uint32_t b = 1u << i;
+        memcpy(&bits[i], &b, 4);
+        active |= 1u << i;
+    }
+    if (!active)
+        return;
+    ray_pre shell; /* (the fused triangle test reads only its ray_mem) */
+    typedef struct {
+        uint32_t ref, mask;
+    } mask_entry;
+    mask_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
+    int sp = 0;
+    stack[sp++] = (mask_entry){accel->root, active};
+    while (sp > 0) {
+        sp--;
+        uint32_t cur = stack[sp].ref, mask = stack[sp].mask & active;
+        if (!mask)
+            continue;
+        while (!(cur & RTK_BVH4_LEAF_BIT)) {
+            const node_t *nd = &BVHN_NODES(accel)[cur];
+            const vnode nx = plane(nd, near_off[0]), ny = plane(nd, near_off[1]), nz = plane(nd, near_off[2]);
+            const vnode fx = plane(nd, far_off[0]), fy = plane(nd, far_off[1]), fz = plane(nd, far_off[2]);
+            vnode acc = vn_set1(0.0f);
+            for (uint32_t mm = mask; mm; mm &= mm - 1) {
+                const int r = __builtin_ctz(mm);
+                const vnode ix = vn_set1_at(&inv[0][r]), iy = vn_set1_at(&inv[1][r]), iz = vn_set1_at(&inv[2][r]);
+                const vnode t0x = vn_msub(nx, ix, vn_set1_at(&cn[0][r]));
+                const vnode t0y = vn_msub(ny, iy, vn_set1_at(&cn[1][r]));
+                const vnode t0z = vn_msub(nz, iz, vn_set1_at(&cn[2][r]));
+                const vnode t1x = vn_msub(fx, ix, vn_set1_at(&cf[0][r]));
+                const vnode t1y = vn_msub(fy, iy, vn_set1_at(&cf[1][r]));
+                const vnode t1z = vn_msub(fz, iz, vn_set1_at(&cf[2][r]));
+                const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, vn_set1_at(&tn[r])));
+                const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, vn_set1_at(&tf[r])));
+                const vbool8 hit = vn_gti(vn_add_ulps(tmax, RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1), tmin);
+                acc = vb8_or(acc, vb8_and(hit, vn_set1_at(&bits[r])));
+            }
+            _Alignas(32) uint32_t cm[8];
+            vn_store((float *)cm, acc);
+            unsigned any = 0;
+            for (int c = 0; c < 8; c++)
+                any |= (cm[c] != 0) << c;
+            if (!any)
+                goto next;
+            const int c0 = 31 - __builtin_clz(any);
+            any ^= 1u << c0;
+            for (; any; any &= any - 1) {
+                const int c = __builtin_ctz(any);
+                stack[sp++] = (mask_entry){nd->child[c], cm[c]};
+                prefetch_child(accel, nd, c);
+            }
+            prefetch_child(accel, nd, c0);
+            cur = nd->child[c0];
+            mask = cm[c0];
+        }
+        {
+            const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
+            for (uint32_t mm = mask; mm; mm &= mm - 1) {
+                const int r = __builtin_ctz(mm);
+                shell.m = &rm[r];
+                const vfloat4 tnear = vf4_set1(tn[r]), tfar = vf4_set1(tf[r]);
+                for (uint32_t block = first; block < end; block++) {
+                    tri4_hit h;
+                    block_t scratch;
+                    const block_t *t = LEAF_BLOCK(accel, block, &scratch);
+                    if (triangle4_intersect(t, &shell, NULL, tnear, tfar, &h)) {
+                        active &= ~(1u << r);
+                        rays[r]->tfar = -INFINITY;
+                        break;
+                    }
+                }
+            }
+            if (!active)
+                return;
+        }
+    next:;
+    }
+}
+#endif
+#endif
+
 /* Where the interleaved traversal takes its rays from: the stream, in
  * groups of RTK_STREAM_GROUP consecutive rays.  A group whose rays are
  * coherent (stream_coherent) is traced on the spot, the way such rays go
@@ -265,7 +404,10 @@ static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel
  * RTK_STREAM_EXPLOIT windows, then both are measured again; each time the
  * same way wins again it keeps the stream twice as long (up to
  * RTK_STREAM_EXPLOIT_MAX windows), since measuring the slower way costs.
- * Either way every ray gets the same answer. */
+ * Any hits on avx2's default layouts have a third way, measured after the
+ * other two: by masks (stream_occluded_masks), the window's rays gathered
+ * by octant, coherent groups included.  Every way gives every ray the same
+ * answer. */
 #define RTK_STREAM_WINDOW 128
 #define RTK_STREAM_EXPLOIT 16
 #define RTK_STREAM_EXPLOIT_MAX 256
@@ -274,13 +416,31 @@ typedef struct stream_src {
     uint32_t count, next, group_end;
     uint32_t window_start, window_end; /* the window in progress */
     int interleave;      /* the window's way: 1 interleaved, 0 one after the other */
-    int step; /* -1: not begun, 0: filling, 1: measuring one by one, 2: measuring interleaved, 3: exploiting */
+    int step; /* -1: not begun, 0: filling, 1: measuring one by one, 2: measuring interleaved,
+               * 4: measuring by masks, 3: exploiting */
     uint32_t left;       /* windows left to exploit */
     uint32_t span;       /* windows the last choice was given */
     uint64_t t0;         /* rtk_cycles() at the window's start */
     uint64_t cost_single; /* cycles of the measured one-by-one window, per ray */
-    int interleave_won;   /* the last choice */
+    uint64_t cost_inter;  /* and of the interleaved one */
+    int won;              /* the last choice: 0 one by one, 1 interleaved, 2 by masks */
+#ifdef RTK_MASK_FAST
+    int can_mask;         /* any hits: the masks are a third way */
+    int masks;            /* the window's way is by masks (interleave 0) */
+    uint32_t bin_n[8];    /* rays waiting per direction octant */
+    rtk_ray *bin[8][RTK_MASK_RAYS];
+#endif
 } stream_src;
+
+/* The way numbered w (0 one by one, 1 interleaved, 2 by masks) for the
+ * next window. */
+static inline void stream_way(stream_src *src, int w)
+{
+    src->interleave = w == 1;
+#ifdef RTK_MASK_FAST
+    src->masks = w == 2;
+#endif
+}
 
 /* At a window's end: what the window cost, and the way of the next one. */
 static inline void stream_window(stream_src *src, uint32_t rays)
@@ -288,38 +448,72 @@ static inline void stream_window(stream_src *src, uint32_t rays)
     const uint64_t t = rtk_cycles();
     const uint64_t per_ray = (t - src->t0) / (rays ? rays : 1);
     src->t0 = t;
+    int choose = 0;
     switch (src->step) {
     case -1: /* the first window fills the slots */
         src->step = 0;
-        src->interleave = 1;
+        stream_way(src, 1);
         break;
     case 0: /* filled: measure one by one */
         src->step = 1;
-        src->interleave = 0;
+        stream_way(src, 0);
         break;
     case 1:
         src->cost_single = per_ray;
         src->step = 2;
-        src->interleave = 1;
+        stream_way(src, 1);
         break;
-    case 2: {
-        const int interleave = per_ray <= src->cost_single;
-        src->span = src->span && interleave == src->interleave_won ? 2 * src->span : RTK_STREAM_EXPLOIT;
-        src->span = src->span < RTK_STREAM_EXPLOIT_MAX ? src->span : RTK_STREAM_EXPLOIT_MAX;
-        src->interleave_won = interleave;
-        src->interleave = interleave;
-        src->left = src->span;
-        src->step = 3;
+    case 2:
+        src->cost_inter = per_ray;
+#ifdef RTK_MASK_FAST
+        if (src->can_mask) {
+            src->step = 4;
+            stream_way(src, 2);
+            break;
+        }
+#endif
+        choose = 1;
         break;
-    }
+    case 4:
+        choose = 1;
+        break;
     default:
         if (--src->left == 0) {
             src->step = 1;
-            src->interleave = 0;
+            stream_way(src, 0);
         }
         break;
     }
+    if (choose) {
+        int w = src->cost_inter <= src->cost_single ? 1 : 0;
+        if (src->step == 4 && per_ray < (w ? src->cost_inter : src->cost_single))
+            w = 2;
+        src->span = src->span && w == src->won ? 2 * src->span : RTK_STREAM_EXPLOIT;
+        src->span = src->span < RTK_STREAM_EXPLOIT_MAX ? src->span : RTK_STREAM_EXPLOIT_MAX;
+        src->won = w;
+        stream_way(src, w);
+        src->left = src->span;
+        src->step = 3;
+    }
 }
+
+#ifdef RTK_MASK_FAST
+#define STREAM_MASKS(src) ((src)->masks)
+#else
+#define STREAM_MASKS(src) 0
+#endif
+
+#ifdef RTK_MASK_FAST
+/* The rays waiting in the octants' bins, traced by masks. */
+static inline void stream_flush_bins(const rtk_accel *accel, stream_src *src, const rtk_query *q)
+{
+    for (int o = 0; o < 8; o++)
+        if (src->bin_n[o]) {
+            stream_occluded_masks(accel, src->bin[o], src->bin_n[o], q);
+            src->bin_n[o] = 0;
+        }
+}
+#endif
 
 /* Whether rays[0 .. n) are coherent: none needs the features, their
  * direction signs agree on every axis, and their origins lie within a
@@ -481,6 +675,9 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
 {
     while (src->next < src->count) {
         if (src->next >= src->window_end) {
+#ifdef RTK_MASK_FAST
+            stream_flush_bins(accel, src, q); /* (the window's cost includes them) */
+#endif
             stream_window(src, src->next - src->window_start);
             src->window_start = src->next;
             src->window_end = src->count - src->next < RTK_STREAM_WINDOW ? src->count : src->next + RTK_STREAM_WINDOW;
@@ -489,7 +686,7 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
             const uint32_t n = src->count - src->next < RTK_STREAM_GROUP ? src->count - src->next : RTK_STREAM_GROUP;
             void *const *g = src->rays + src->next;
             src->group_end = src->next + n;
-            if (n == RTK_STREAM_GROUP && stream_coherent(accel, g, n)) {
+            if (n == RTK_STREAM_GROUP && !STREAM_MASKS(src) && stream_coherent(accel, g, n)) {
                 stream_group(accel, g, n, q, closest);
                 src->next = src->group_end;
                 continue;
@@ -498,11 +695,27 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
         void *r = src->rays[src->next++];
         if (src->interleave && stream_start(accel, s, r))
             return 1;
+#ifdef RTK_MASK_FAST
+        if (src->masks) { /* (any hits only) */
+            /* the octant by the sign bits, as ray_pre_init picks the
+             * planes (-0.0 counts as negative there) */
+            const unsigned o = (unsigned)vf4_signs(vf4_loadu(&((const rtk_ray *)r)->dir_x)) & 7;
+            src->bin[o][src->bin_n[o]++] = r;
+            if (src->bin_n[o] == RTK_MASK_RAYS) {
+                stream_occluded_masks(accel, src->bin[o], RTK_MASK_RAYS, q);
+                src->bin_n[o] = 0;
+            }
+            continue;
+        }
+#endif
         if (closest)
             BVHN_INTERSECT1(accel, r, q);
         else
             BVHN_OCCLUDED1(accel, r, q);
     }
+#ifdef RTK_MASK_FAST
+    stream_flush_bins(accel, src, q);
+#endif
     return 0;
 }
 
@@ -516,6 +729,9 @@ static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *
     stream_slot *active[RTK_STREAM_K];
     int n_active = 0;
     stream_src src = {.rays = rays, .count = count, .step = -1, .interleave = 1, .t0 = rtk_cycles()};
+#ifdef RTK_MASK_FAST
+    src.can_mask = !closest;
+#endif
     for (int k = 0; k < nslots && stream_next(accel, &src, &slots[k], q, closest); k++)
         active[n_active++] = &slots[k];
     while (n_active > 0) {
@@ -581,6 +797,8 @@ void BVHN_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint
     stream_trace(accel, (void *const *)rays, count, q, 1, slots, RTK_STREAM_K);
     free(slots);
 }
+
+
 
 void BVHN_OCCLUDED_STREAM(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count, const rtk_query *q)
 {
