@@ -499,11 +499,7 @@ static inline void stream_window(stream_src *src, uint32_t rays)
 
 #ifdef RTK_MASK_FAST
 #define STREAM_MASKS(src) ((src)->masks)
-#else
-#define STREAM_MASKS(src) 0
-#endif
 
-#ifdef RTK_MASK_FAST
 /* The rays waiting in the octants' bins, traced by masks. */
 static inline void stream_flush_bins(const rtk_accel *accel, stream_src *src, const rtk_query *q)
 {
@@ -513,6 +509,8 @@ static inline void stream_flush_bins(const rtk_accel *accel, stream_src *src, co
             src->bin_n[o] = 0;
         }
 }
+#else
+#define STREAM_MASKS(src) 0
 #endif
 
 /* Whether rays[0 .. n) are coherent: none needs the features, their
@@ -797,8 +795,6 @@ void BVHN_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint
     stream_trace(accel, (void *const *)rays, count, q, 1, slots, RTK_STREAM_K);
     free(slots);
 }
-
-
 
 void BVHN_OCCLUDED_STREAM(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count, const rtk_query *q)
 {
