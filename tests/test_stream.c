@@ -394,6 +394,44 @@ static void test_grazing_groups(void **state)
     assert_int_equal(failures, 0);
 }
 
+/* Rays of one direction octant, which the any-hit stream may walk
+ * together by masks (avx2: up to 64 rays of an octant at a time, in two
+ * halves of 32): a stream long enough that every way is measured on some
+ * of its windows, each window's rays filling whole bins, and every 16th
+ * ray's x direction -0.0 (its sign bit puts it in another octant's bin,
+ * as the node test picks that ray's planes).  Each ray gets its single
+ * call's answer. */
+static void test_one_octant(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    const size_t n = 4096;
+    rtk_rayhit *rh = malloc(n * sizeof *rh);
+    assert_non_null(rh);
+    rng r = {11};
+    for (size_t i = 0; i < n; i++) {
+        float o[3], d[3];
+        for (int k = 0; k < 3; k++) {
+            o[k] = 4.0f * rng_float(&r) - 3.0f;
+            d[k] = rng_float(&r) + 0x1p-8f;
+        }
+        if (i % 16 == 5)
+            d[0] = -0.0f;
+        rh[i] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY)};
+        rh[i].hit.geomID = rh[i].hit.primID = rh[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
+    }
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s = ball_scene(dev);
+        expect_same(s, rh, n, 1, NULL);
+        expect_same(s, rh, n, 0, NULL);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+    free(rh);
+}
+
 /* An application's task system: a batch runs its pieces through it. */
 static unsigned task_calls;
 static void serial_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
@@ -498,7 +536,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_bad_arguments),       cmocka_unit_test(test_invalid_rays_in_the_middle),
         cmocka_unit_test(test_filters),             cmocka_unit_test(test_scenes),
         cmocka_unit_test(test_batches),             cmocka_unit_test(test_threads),
-        cmocka_unit_test(test_grazing_groups),
+        cmocka_unit_test(test_grazing_groups),      cmocka_unit_test(test_one_octant),
     };
     const struct CMUnitTest threads[] = {cmocka_unit_test(test_threads), cmocka_unit_test(test_batches)};
     return quick ? cmocka_run_group_tests(threads, setup, teardown) : cmocka_run_group_tests(all, setup, teardown);

@@ -252,11 +252,13 @@ static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel
 /* Any hits by masks: up to RTK_MASK_RAYS rays of one direction octant
  * walked through the tree together, as Embree 3's incoherent streams are
  * (rtcOccluded1M sorts a stream into octants and walks up to 32 rays of one
- * at a time).  A stack entry is a node and the mask of the rays that
- * entered it; at a node its planes are loaded once and each ray of the mask
- * is tested against its children with the single-ray kernel's fused test
- * (the same constants, read from arrays by ray), the children's ray masks
- * gathered in one vector; at a leaf each ray of the mask takes the
+ * at a time; 64 measured 2-5% faster here, docs/benchmarks/streams.md).
+ * The rays are set up eight at a time in vectors.  A stack entry is a node
+ * and the mask of the rays that entered it; at a node its planes are loaded
+ * once and each ray of the mask is tested against its children with the
+ * single-ray kernel's fused test (the same constants, read from arrays by
+ * ray), the children's ray masks gathered in two vectors (rays 0-31 and
+ * 32-63); at a leaf each ray of the mask takes the
  * single-ray triangle test, and a ray that hits leaves every mask.  Every
  * ray enters exactly the boxes it enters alone, so it reaches the same
  * leaves and gets rtk_occluded1's answer (whatever the order: any hit).
@@ -267,100 +269,135 @@ static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel
  * ray waits on memory of its own, interleaving pays more, and the stream's
  * timing windows choose (stream_window).  Only the fused test of the
  * default layouts on 8-wide trees (avx2) has it. */
-#define RTK_MASK_RAYS 32
+#define RTK_MASK_RAYS 64
 #if RTK_SIMD_HAS_FMA && !RTK_ROBUST && RTK_BVHN == 8
 #define RTK_MASK_FAST 1
 #endif
 
 #ifdef RTK_MASK_FAST
+typedef uint64_t mask_t;
 static __attribute__((noinline)) void stream_occluded_masks(const rtk_accel *accel, rtk_ray *const *rays, uint32_t n,
                                                            const rtk_query *q)
 {
     _Alignas(64) float inv[3][RTK_MASK_RAYS], cn[3][RTK_MASK_RAYS], cf[3][RTK_MASK_RAYS], tn[RTK_MASK_RAYS],
-        tf[RTK_MASK_RAYS], bits[RTK_MASK_RAYS];
+        tf[RTK_MASK_RAYS], bits[32];
     _Alignas(64) ray_mem rm[RTK_MASK_RAYS];
-    size_t near_off[3] = {0, 0, 0}, far_off[3] = {0, 0, 0};
-    uint32_t active = 0;
-    for (uint32_t i = 0; i < n; i++) {
-        rtk_ray *r = rays[i];
-        if (ray_feat(accel, r) != 0) {
-            BVHN_OCCLUDED1(accel, r, q);
-            continue;
-        }
-        ray_pre p;
-        ray_pre_init(&p, &rm[i], r, accel);
-        if (!p.fma) {
-            BVHN_OCCLUDED1(accel, r, q);
-            continue;
-        }
-        for (int k = 0; k < 3; k++) {
-            inv[k][i] = p.rs[k]; /* (inv = inv_exact in the default layouts) */
-            cn[k][i] = rm[i].c[k];
-            cf[k][i] = rm[i].c[4 + k];
-            near_off[k] = p.near_off[k];
-            far_off[k] = p.far_off[k];
-        }
-        tn[i] = r->tnear + 0.0f;
-        tf[i] = r->tfar + 0.0f;
+    size_t near_off[3], far_off[3];
+    mask_t active = 0;
+    for (uint32_t i = 0; i < 32; i++) {
         const uint32_t b = 1u << i;
         memcpy(&bits[i], &b, 4);
-        active |= 1u << i;
+    }
+    /* the rays set up eight at a time, in vectors by component:
+     * ray_pre_init_v's arithmetic lane by lane, so each ray gets the
+     * single-ray kernel's reciprocals and c values to the bit */
+    for (uint32_t i0 = 0; i0 < n; i0 += 8) {
+        vfloat4 o[8], d[8];
+        for (int c = 0; c < 8; c++) {
+            const rtk_ray *r = rays[i0 + c < n ? i0 + c : i0];
+            o[c] = vf4_loadu(&r->org_x);
+            d[c] = vf4_loadu(&r->dir_x);
+            vf4_store(rm[i0 + c].o, o[c]); /* (the fused triangle test reads o and d) */
+            vf4_store(rm[i0 + c].d, d[c]);
+        }
+        vf4_transpose(&o[0], &o[1], &o[2], &o[3]);
+        vf4_transpose(&o[4], &o[5], &o[6], &o[7]);
+        vf4_transpose(&d[0], &d[1], &d[2], &d[3]);
+        vf4_transpose(&d[4], &d[5], &d[6], &d[7]);
+        const vfloat8 tiny = vf8_set1(1e-18f), ulp4 = vf8_set1(0x1p-22f), min_normal = vf8_set1(0x1p-126f);
+        unsigned in_range = 0xff;
+        for (int k = 0; k < 3; k++) {
+            const vfloat8 ok = vf8_from4(o[k], o[4 + k]), dk = vf8_from4(d[k], d[4 + k]);
+            const vfloat8 ik = vf8_div(vf8_set1(1.0f), vf8_select(vf8_lt(vf8_abs(dk), tiny), vf8_xor_sign(tiny, dk), dk));
+            const vfloat8 c = vf8_mul(ok, ik), e = vf8_add(vf8_mul(vf8_abs(c), ulp4), min_normal);
+            vf8_store(&inv[k][i0], ik);
+            vf8_store(&cn[k][i0], vf8_add(c, e));
+            vf8_store(&cf[k][i0], vf8_sub(c, e));
+            in_range &= (unsigned)vb8_mask(vf8_le(vf8_abs(c), vf8_set1(0x1p126f)));
+        }
+        vf8_store(&tn[i0], vf8_add(vf8_from4(o[3], o[7]), vf8_set1(0.0f)));
+        const uint32_t m = n - i0 < 8 ? n - i0 : 8;
+        for (uint32_t c = 0; c < m; c++) {
+            rtk_ray *r = rays[i0 + c];
+            /* features, or out of the fused test's range (ray_pre.fma):
+             * the single-ray kernel's own ways */
+            if (ray_feat(accel, r) != 0 || !(in_range >> c & 1)) {
+                BVHN_OCCLUDED1(accel, r, q);
+                continue;
+            }
+            tf[i0 + c] = r->tfar + 0.0f;
+            active |= (mask_t)1 << (i0 + c);
+        }
+    }
+    /* the planes by the direction's sign bits, as ray_pre_init_v picks
+     * them (one octant: the rays came binned by them) */
+    const unsigned neg = (unsigned)vf4_signs(vf4_loadu(&rays[0]->dir_x)) & 7;
+    for (int k = 0; k < 3; k++) {
+        near_off[k] = plane_offsets[neg][0][k];
+        far_off[k] = plane_offsets[neg][1][k];
     }
     if (!active)
         return;
     ray_pre shell; /* (the fused triangle test reads only its ray_mem) */
     typedef struct {
-        uint32_t ref, mask;
+        mask_t mask;
+        uint32_t ref;
     } mask_entry;
     mask_entry stack[RTK_BVHN_STACK_SIZE(RTK_BVHN)];
     int sp = 0;
-    stack[sp++] = (mask_entry){accel->root, active};
+    stack[sp++] = (mask_entry){active, accel->root};
     while (sp > 0) {
         sp--;
-        uint32_t cur = stack[sp].ref, mask = stack[sp].mask & active;
+        uint32_t cur = stack[sp].ref;
+        mask_t mask = stack[sp].mask & active;
         if (!mask)
             continue;
         while (!(cur & RTK_BVH4_LEAF_BIT)) {
             const node_t *nd = &BVHN_NODES(accel)[cur];
             const vnode nx = plane(nd, near_off[0]), ny = plane(nd, near_off[1]), nz = plane(nd, near_off[2]);
             const vnode fx = plane(nd, far_off[0]), fy = plane(nd, far_off[1]), fz = plane(nd, far_off[2]);
-            vnode acc = vn_set1(0.0f);
-            for (uint32_t mm = mask; mm; mm &= mm - 1) {
-                const int r = __builtin_ctz(mm);
-                const vnode ix = vn_set1_at(&inv[0][r]), iy = vn_set1_at(&inv[1][r]), iz = vn_set1_at(&inv[2][r]);
-                const vnode t0x = vn_msub(nx, ix, vn_set1_at(&cn[0][r]));
-                const vnode t0y = vn_msub(ny, iy, vn_set1_at(&cn[1][r]));
-                const vnode t0z = vn_msub(nz, iz, vn_set1_at(&cn[2][r]));
-                const vnode t1x = vn_msub(fx, ix, vn_set1_at(&cf[0][r]));
-                const vnode t1y = vn_msub(fy, iy, vn_set1_at(&cf[1][r]));
-                const vnode t1z = vn_msub(fz, iz, vn_set1_at(&cf[2][r]));
-                const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, vn_set1_at(&tn[r])));
-                const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, vn_set1_at(&tf[r])));
-                const vbool8 hit = vn_gti(vn_add_ulps(tmax, RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1), tmin);
-                acc = vb8_or(acc, vb8_and(hit, vn_set1_at(&bits[r])));
-            }
-            _Alignas(32) uint32_t cm[8];
-            vn_store((float *)cm, acc);
-            unsigned any = 0;
-            for (int c = 0; c < 8; c++)
-                any |= (cm[c] != 0) << c;
+            /* the children's ray masks, rays 0-31 and 32-63 */
+            vnode acc[2] = {vn_set1(0.0f), vn_set1(0.0f)};
+            for (int half = 0; half < 2; half++)
+                for (uint32_t mm = (uint32_t)(mask >> 32 * half); mm; mm &= mm - 1) {
+                    const int b = __builtin_ctz(mm), r = b + 32 * half;
+                    const vnode ix = vn_set1_at(&inv[0][r]), iy = vn_set1_at(&inv[1][r]), iz = vn_set1_at(&inv[2][r]);
+                    const vnode t0x = vn_msub(nx, ix, vn_set1_at(&cn[0][r]));
+                    const vnode t0y = vn_msub(ny, iy, vn_set1_at(&cn[1][r]));
+                    const vnode t0z = vn_msub(nz, iz, vn_set1_at(&cn[2][r]));
+                    const vnode t1x = vn_msub(fx, ix, vn_set1_at(&cf[0][r]));
+                    const vnode t1y = vn_msub(fy, iy, vn_set1_at(&cf[1][r]));
+                    const vnode t1z = vn_msub(fz, iz, vn_set1_at(&cf[2][r]));
+                    const vnode tmin = vn_maxi(vn_maxi(t0x, t0y), vn_maxi(t0z, vn_set1_at(&tn[r])));
+                    const vnode tmax = vn_mini(vn_mini(t1x, t1y), vn_mini(t1z, vn_set1_at(&tf[r])));
+                    const vbool8 hit = vn_gti(vn_add_ulps(tmax, RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1), tmin);
+                    acc[half] = vb8_or(acc[half], vb8_and(hit, vn_set1_at(&bits[b])));
+                }
+            _Alignas(32) uint32_t cm[2][8];
+            vn_store((float *)cm[0], acc[0]);
+            vn_store((float *)cm[1], acc[1]);
+            /* the children some ray entered: lanes not zero, as integers
+             * (bit 31 is the sign; a float comparison would take the
+             * lanes for denormals, zero under DAZ) */
+            const vnode both = vb8_or(acc[0], acc[1]);
+            unsigned any = (unsigned)(vn_mask(vn_gti(both, vn_set1(0.0f))) | vn_mask(both));
             if (!any)
                 goto next;
             const int c0 = 31 - __builtin_clz(any);
             any ^= 1u << c0;
             for (; any; any &= any - 1) {
                 const int c = __builtin_ctz(any);
-                stack[sp++] = (mask_entry){nd->child[c], cm[c]};
+                stack[sp++] = (mask_entry){cm[0][c] | (mask_t)cm[1][c] << 32, nd->child[c]};
                 prefetch_child(accel, nd, c);
             }
             prefetch_child(accel, nd, c0);
             cur = nd->child[c0];
-            mask = cm[c0];
+            mask = cm[0][c0] | (mask_t)cm[1][c0] << 32;
         }
         {
             const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
-            for (uint32_t mm = mask; mm; mm &= mm - 1) {
-                const int r = __builtin_ctz(mm);
+            for (mask_t mm = mask; mm; mm &= mm - 1) {
+                const int r = __builtin_ctzll(mm);
                 shell.m = &rm[r];
                 const vfloat4 tnear = vf4_set1(tn[r]), tfar = vf4_set1(tf[r]);
                 for (uint32_t block = first; block < end; block++) {
@@ -368,7 +405,7 @@ static __attribute__((noinline)) void stream_occluded_masks(const rtk_accel *acc
                     block_t scratch;
                     const block_t *t = LEAF_BLOCK(accel, block, &scratch);
                     if (triangle4_intersect(t, &shell, NULL, tnear, tfar, &h)) {
-                        active &= ~(1u << r);
+                        active &= ~((mask_t)1 << r);
                         rays[r]->tfar = -INFINITY;
                         break;
                     }
@@ -405,9 +442,11 @@ static __attribute__((noinline)) void stream_occluded_masks(const rtk_accel *acc
  * same way wins again it keeps the stream twice as long (up to
  * RTK_STREAM_EXPLOIT_MAX windows), since measuring the slower way costs.
  * Any hits on avx2's default layouts have a third way, measured after the
- * other two: by masks (stream_occluded_masks), the window's rays gathered
- * by octant, coherent groups included.  Every way gives every ray the same
- * answer. */
+ * other two: by masks (stream_occluded_masks), the rays gathered into bins
+ * by octant, coherent groups included; the bins are traced when full, at
+ * the end of a measured window and before the way changes, so that
+ * windows the masks keep fill whole bins.  Every way gives every ray the
+ * same answer. */
 #define RTK_STREAM_WINDOW 128
 #define RTK_STREAM_EXPLOIT 16
 #define RTK_STREAM_EXPLOIT_MAX 256
@@ -674,7 +713,11 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
     while (src->next < src->count) {
         if (src->next >= src->window_end) {
 #ifdef RTK_MASK_FAST
-            stream_flush_bins(accel, src, q); /* (the window's cost includes them) */
+            /* the bins traced at the end of a measured window (its cost
+             * includes them) and before the way changes; between windows
+             * that keep the masks they keep filling */
+            if (src->masks && (src->step != 3 || src->left == 1))
+                stream_flush_bins(accel, src, q);
 #endif
             stream_window(src, src->next - src->window_start);
             src->window_start = src->next;
