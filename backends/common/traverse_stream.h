@@ -539,14 +539,19 @@ static inline void stream_window(stream_src *src, uint32_t rays)
 #ifdef RTK_MASK_FAST
 #define STREAM_MASKS(src) ((src)->masks)
 
-/* The rays waiting in the octants' bins, traced by masks. */
+/* The rays waiting in octant o's bin, traced by masks. */
+static inline void stream_walk_bin(const rtk_accel *accel, stream_src *src, int o, const rtk_query *q)
+{
+    stream_occluded_masks(accel, src->bin[o], src->bin_n[o], q);
+    src->bin_n[o] = 0;
+}
+
+/* The rays waiting in every octant's bin. */
 static inline void stream_flush_bins(const rtk_accel *accel, stream_src *src, const rtk_query *q)
 {
     for (int o = 0; o < 8; o++)
-        if (src->bin_n[o]) {
-            stream_occluded_masks(accel, src->bin[o], src->bin_n[o], q);
-            src->bin_n[o] = 0;
-        }
+        if (src->bin_n[o])
+            stream_walk_bin(accel, src, o, q);
 }
 #else
 #define STREAM_MASKS(src) 0
@@ -742,10 +747,8 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
              * planes (-0.0 counts as negative there) */
             const unsigned o = (unsigned)vf4_signs(vf4_loadu(&((const rtk_ray *)r)->dir_x)) & 7;
             src->bin[o][src->bin_n[o]++] = r;
-            if (src->bin_n[o] == RTK_MASK_RAYS) {
-                stream_occluded_masks(accel, src->bin[o], RTK_MASK_RAYS, q);
-                src->bin_n[o] = 0;
-            }
+            if (src->bin_n[o] == RTK_MASK_RAYS)
+                stream_walk_bin(accel, src, (int)o, q);
             continue;
         }
 #endif
