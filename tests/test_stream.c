@@ -81,6 +81,21 @@ static rtk_scene ball_scene(rtk_device dev)
     return test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
 }
 
+/* expect_same for both queries on the ball, on every backend. */
+static void expect_same_everywhere(const rtk_rayhit *rh, size_t n)
+{
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s = ball_scene(dev);
+        expect_same(s, rh, n, 0, NULL);
+        expect_same(s, rh, n, 1, NULL);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+}
+
 /* Bad arguments: an error naming the problem, nothing written. */
 static void test_bad_arguments(void **state)
 {
@@ -132,8 +147,6 @@ static void test_bad_arguments(void **state)
 static void test_invalid_rays_in_the_middle(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     const size_t n = test_sanitized() ? 1000 : 5000;
     rtk_rayhit *rh = malloc(n * sizeof *rh);
     assert_non_null(rh);
@@ -151,14 +164,7 @@ static void test_invalid_rays_in_the_middle(void **state)
         default: r->dir_y = -0.0f; break; /* valid */
         }
     }
-    for (size_t b = 0; b < nb; b++) {
-        rtk_device dev = test_device(names[b]);
-        rtk_scene s = ball_scene(dev);
-        expect_same(s, rh, n, 0, NULL);
-        expect_same(s, rh, n, 1, NULL);
-        rtk_scene_release(s);
-        rtk_device_release(dev);
-    }
+    expect_same_everywhere(rh, n);
     free(rh);
 }
 
@@ -404,8 +410,6 @@ static void test_grazing_groups(void **state)
 static void test_one_octant(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     const size_t n = 4096;
     rtk_rayhit *rh = malloc(n * sizeof *rh);
     assert_non_null(rh);
@@ -421,14 +425,7 @@ static void test_one_octant(void **state)
         rh[i] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY)};
         rh[i].hit.geomID = rh[i].hit.primID = rh[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
     }
-    for (size_t b = 0; b < nb; b++) {
-        rtk_device dev = test_device(names[b]);
-        rtk_scene s = ball_scene(dev);
-        expect_same(s, rh, n, 1, NULL);
-        expect_same(s, rh, n, 0, NULL);
-        rtk_scene_release(s);
-        rtk_device_release(dev);
-    }
+    expect_same_everywhere(rh, n);
     free(rh);
 }
 
