@@ -9,11 +9,21 @@
 
 /* Rays handed to a stream kernel per call: the valid ones of up to this
  * many consecutive rays, as pointers.  The kernel keeps several in flight
- * and measures how to trace them fastest as it goes (traverse_stream.h),
  * and each call ends with its last rays finishing alone, so the list is
- * long, from the heap; a short stream's list (or, out of memory, a
- * chunk at a time) is on the stack. */
+ * long, from the heap; a short stream's list (or, out of memory, a chunk
+ * at a time) is on the stack. */
 enum { STREAM_CHUNK = 65536, STREAM_STACK_CHUNK = 512 };
+
+/* What the stream kernels learnt (traverse_stream.h: which way the rays
+ * go fastest) about the last tree this thread traced streams through, one
+ * for closest and one for any hits: renderers hand over streams of a tile's
+ * rays, a thousand or so, and a kernel that began every one of them
+ * measuring would spend much of each stream measuring.  Only ever a
+ * choice of speed: every way gives every ray the same answer. */
+static _Thread_local struct {
+    const rtk_accel *accel;
+    _Alignas(64) unsigned char state[2][RTK_STREAM_STATE_SIZE];
+} tls_stream;
 
 /* Rays per task of a batch: enough that a task's set-up and its drain are
  * a small share, few enough that the threads share the work evenly. */
@@ -74,6 +84,13 @@ void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occl
         }
         return;
     }
+    if (tls_stream.accel != s->accel) {
+        memset(tls_stream.state, 0, sizeof tls_stream.state);
+        tls_stream.accel = s->accel;
+    }
+    rtk_query sq = *q;
+    sq.flags |= RTK_QUERY_FLAG_STREAM_STATE;
+    sq.stream_state = tls_stream.state[occluded != 0];
     void *stack_list[STREAM_STACK_CHUNK], **list = stack_list;
     size_t chunk = STREAM_STACK_CHUNK;
     if (count > STREAM_STACK_CHUNK) {
@@ -96,9 +113,9 @@ void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occl
         if (!n)
             continue;
         if (occluded)
-            s->occluded_stream(s->accel, (rtk_ray *const *)list, n, q);
+            s->occluded_stream(s->accel, (rtk_ray *const *)list, n, &sq);
         else
-            s->intersect_stream(s->accel, (rtk_rayhit *const *)list, n, q);
+            s->intersect_stream(s->accel, (rtk_rayhit *const *)list, n, &sq);
     }
     if (list != stack_list)
         free(list);

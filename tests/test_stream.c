@@ -429,6 +429,44 @@ static void test_one_octant(void **state)
     free(rh);
 }
 
+/* A renderer's streams: many short ones of one scene from one thread, the
+ * way each traces fastest learnt in one call kept for the next (core/stream.c
+ * keeps it per thread and tree), whatever the next call's rays: rays of one
+ * octant (any hits by masks on avx2), then scattered ones, in turns, and
+ * another scene between; every call still gets the single calls' answers. */
+static void test_kept_ways(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    enum { N = 1024, CALLS = 12 };
+    rtk_rayhit *octant = malloc(N * sizeof *octant), *scattered = malloc(N * sizeof *scattered);
+    assert_true(octant && scattered);
+    rng r = {17};
+    for (size_t i = 0; i < N; i++) {
+        const float o[3] = {4.0f * rng_float(&r) - 3.0f, 4.0f * rng_float(&r) - 3.0f, 4.0f * rng_float(&r) - 3.0f};
+        octant[i] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], rng_float(&r) + 0x1p-8f, rng_float(&r) + 0x1p-8f,
+                                                 rng_float(&r) + 0x1p-8f, 0.0f, INFINITY)};
+        octant[i].hit.geomID = octant[i].hit.primID = octant[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
+    }
+    make_rays(scattered, N, 18);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s = ball_scene(dev), other = ball_scene(dev);
+        for (int c = 0; c < CALLS; c++) {
+            const rtk_rayhit *rh = c / 2 % 2 ? scattered : octant;
+            /* calls of 1024 rays, and of 700 (windows cut short) */
+            const size_t n = c % 3 == 2 ? 700 : N;
+            expect_same(c % 5 == 4 ? other : s, rh, n, c % 2, NULL);
+        }
+        rtk_scene_release(other);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+    free(octant);
+    free(scattered);
+}
+
 /* An application's task system: a batch runs its pieces through it. */
 static unsigned task_calls;
 static void serial_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
@@ -534,6 +572,7 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_filters),             cmocka_unit_test(test_scenes),
         cmocka_unit_test(test_batches),             cmocka_unit_test(test_threads),
         cmocka_unit_test(test_grazing_groups),      cmocka_unit_test(test_one_octant),
+        cmocka_unit_test(test_kept_ways),
     };
     const struct CMUnitTest threads[] = {cmocka_unit_test(test_threads), cmocka_unit_test(test_batches)};
     return quick ? cmocka_run_group_tests(threads, setup, teardown) : cmocka_run_group_tests(all, setup, teardown);

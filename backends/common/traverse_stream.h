@@ -548,6 +548,53 @@ static inline void stream_window(stream_src *src, uint32_t rays)
     }
 }
 
+/* What a stream call leaves for the next call of the same stream, in the
+ * query's stream state (rtk_query.stream_state, which the core zeroes when
+ * a stream begins and cuts into calls of a few thousand rays, so that
+ * their rays are still in the caches when the kernel reads them): the way
+ * being kept, how many windows more, and how long the last choice was
+ * given (the doubling of RTK_STREAM_EXPLOIT goes on across calls).  A call
+ * that ends while measuring leaves step 0, and the next measures afresh. */
+typedef struct stream_keep {
+    int32_t step; /* 3: keep the way `won` for `left` windows more; 0: begin afresh */
+    int32_t won;
+    uint32_t left, span;
+} stream_keep;
+_Static_assert(sizeof(stream_keep) <= RTK_STREAM_STATE_SIZE, "the query's stream state holds a stream_keep");
+
+/* At a call's start: the way the stream's previous call was keeping. */
+static inline void stream_resume(stream_src *src, const rtk_query *q)
+{
+    if (!(q->flags & RTK_QUERY_FLAG_STREAM_STATE))
+        return;
+    const stream_keep *k = q->stream_state;
+    src->span = k->span < RTK_STREAM_EXPLOIT_MAX ? k->span : RTK_STREAM_EXPLOIT_MAX;
+    src->won = k->won;
+    if (k->step != 3 || !k->left || k->won < 0 || k->won > 2)
+        return;
+#ifdef RTK_MASK_FAST
+    if (k->won == 2 && !src->can_mask)
+        return;
+#else
+    if (k->won == 2)
+        return;
+#endif
+    src->step = 3;
+    src->left = k->left;
+    stream_way(src, k->won);
+    /* (the first window begins now: no window of filling) */
+    src->window_end = src->count < RTK_STREAM_WINDOW ? src->count : RTK_STREAM_WINDOW;
+}
+
+/* At a call's end: what the next call of the stream resumes. */
+static inline void stream_keep_state(const stream_src *src, const rtk_query *q)
+{
+    if (!(q->flags & RTK_QUERY_FLAG_STREAM_STATE))
+        return;
+    stream_keep *k = q->stream_state;
+    *k = (stream_keep){.step = src->step == 3 ? 3 : 0, .won = src->won, .left = src->left, .span = src->span};
+}
+
 #ifdef RTK_MASK_FAST
 #define STREAM_MASKS(src) ((src)->masks)
 
@@ -788,6 +835,7 @@ static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *
 #ifdef RTK_MASK_FAST
     src.can_mask = !closest;
 #endif
+    stream_resume(&src, q);
     for (int k = 0; k < nslots && stream_next(accel, &src, &slots[k], q, closest); k++)
         active[n_active++] = &slots[k];
     while (n_active > 0) {
@@ -817,6 +865,7 @@ static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *
                 active[j] = active[--n_active];
         }
     }
+    stream_keep_state(&src, q);
 }
 
 /* The slots of a stream call, from the heap: RTK_STREAM_K of them are

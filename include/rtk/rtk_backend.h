@@ -108,8 +108,19 @@ typedef struct rtk_query {
      * collect through it; a backend that honours it says so
      * (RTK_BACKEND_CAP_QUERY_FILTER). */
     rtk_filter_fn filter;
+    /* Added after rtk 0.2.0 (interface version 2 still), read only when
+     * flags has RTK_QUERY_FLAG_STREAM_STATE, only by the stream kernels:
+     * RTK_STREAM_STATE_SIZE bytes, aligned to 8, zeroed by the core when a
+     * stream call begins, that the stream kernel may keep what it learnt
+     * in between the calls the core cuts one stream into (how its rays go
+     * fastest, traverse_stream.h); the same memory is handed to every
+     * call of that stream, on one thread.  A kernel that does not know the
+     * flag passes over it. */
+    void *stream_state;
 } rtk_query;
 #define RTK_QUERY_FLAG_FILTER 1u
+#define RTK_QUERY_FLAG_STREAM_STATE 2u
+#define RTK_STREAM_STATE_SIZE 64
 
 RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *query));
 RTK_BACKEND_FN(void, rtk_occluded1, (const rtk_accel *accel, rtk_ray *ray, const rtk_query *query));
