@@ -457,8 +457,9 @@ static __attribute__((noinline)) void stream_occluded_masks(const rtk_accel *acc
  * holds, where kept windows leave them to fill.  At 4/4 the masks kept
  * about 55% of the dragon's shadow stream's windows; at 5/4 the any
  * hit streams ran 1-6% faster on the shadow sets of San Miguel, the dragon
- * and procedural:4M beside it (either build first), and at 6/4 no faster
- * again; the masks forced on every window (no choice) run the sun sets of
+ * and procedural:4M beside it (either build first), and 6/4 gained on the
+ * dragon what it lost on San Miguel (docs/benchmarks/streams.md); the
+ * masks forced on every window (no choice) run the sun sets of
  * the dragon and procedural:4M at 0.4x of the interleaved way, which any
  * edge below 2x still finds. */
 #define RTK_STREAM_MASK_EDGE 5
