@@ -923,6 +923,14 @@ RTK_API rtk_error rtk_occluded1_ctx(rtk_scene scene, rtk_ray *ray, const rtk_que
  * stream kernel (two levels) are traced ray by ray, with the same
  * answers.
  *
+ * The rest (rays that scatter) goes one of several ways: one after the
+ * other, interleaved, or for any hits on avx2 walked together by direction
+ * octant; which is fastest depends on the scene and the rays, so the kernel
+ * times a window of rays each way now and then and keeps the fastest.  What
+ * it learnt is kept per thread and scene (closest and any hits apart) from
+ * one call to the next, so streams of a tile's rays, a thousand or so, are
+ * not each spent measuring; it is only ever a choice of speed.
+ *
  * RTK_ERROR_INVALID_ARGUMENT, with nothing written, for a NULL scene, NULL
  * rays with a count above 0, rays not aligned to 4 bytes, a byte_stride
  * below the struct's size or not a multiple of 4, or an array that would
