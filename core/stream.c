@@ -9,9 +9,10 @@
 
 /* Rays handed to a stream kernel per call: the valid ones of up to this
  * many consecutive rays, as pointers.  The kernel keeps several in flight
- * and each call ends with its last rays finishing alone, so the list is
- * long, from the heap; a short stream's list (or, out of memory, a chunk
- * at a time) is on the stack. */
+ * and measures how to trace them fastest as it goes (traverse_stream.h,
+ * tls_stream below), and each call ends with its last rays finishing
+ * alone, so the list is long, from the heap; a short stream's list (or,
+ * out of memory, a chunk at a time) is on the stack. */
 enum { STREAM_CHUNK = 65536, STREAM_STACK_CHUNK = 512 };
 
 /* What the stream kernels learnt (traverse_stream.h: which way the rays

@@ -407,13 +407,10 @@ static void test_grazing_groups(void **state)
  * ray's x direction -0.0 (its sign bit puts it in another octant's bin,
  * as the node test picks that ray's planes).  Each ray gets its single
  * call's answer. */
-static void test_one_octant(void **state)
+/* n rays of one octant (every 16th with a -0.0 x direction). */
+static void octant_rays(rtk_rayhit *rh, size_t n, uint64_t seed)
 {
-    (void)state;
-    const size_t n = 4096;
-    rtk_rayhit *rh = malloc(n * sizeof *rh);
-    assert_non_null(rh);
-    rng r = {11};
+    rng r = {seed};
     for (size_t i = 0; i < n; i++) {
         float o[3], d[3];
         for (int k = 0; k < 3; k++) {
@@ -425,6 +422,15 @@ static void test_one_octant(void **state)
         rh[i] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY)};
         rh[i].hit.geomID = rh[i].hit.primID = rh[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
     }
+}
+
+static void test_one_octant(void **state)
+{
+    (void)state;
+    const size_t n = 4096;
+    rtk_rayhit *rh = malloc(n * sizeof *rh);
+    assert_non_null(rh);
+    octant_rays(rh, n, 11);
     expect_same_everywhere(rh, n);
     free(rh);
 }
@@ -442,13 +448,7 @@ static void test_kept_ways(void **state)
     enum { N = 1024, CALLS = 12 };
     rtk_rayhit *octant = malloc(N * sizeof *octant), *scattered = malloc(N * sizeof *scattered);
     assert_true(octant && scattered);
-    rng r = {17};
-    for (size_t i = 0; i < N; i++) {
-        const float o[3] = {4.0f * rng_float(&r) - 3.0f, 4.0f * rng_float(&r) - 3.0f, 4.0f * rng_float(&r) - 3.0f};
-        octant[i] = (rtk_rayhit){.ray = test_ray(o[0], o[1], o[2], rng_float(&r) + 0x1p-8f, rng_float(&r) + 0x1p-8f,
-                                                 rng_float(&r) + 0x1p-8f, 0.0f, INFINITY)};
-        octant[i].hit.geomID = octant[i].hit.primID = octant[i].hit.instID = RTK_INVALID_GEOMETRY_ID;
-    }
+    octant_rays(octant, N, 17);
     make_rays(scattered, N, 18);
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);

@@ -549,13 +549,14 @@ static inline void stream_window(stream_src *src, uint32_t rays)
     }
 }
 
-/* What a stream call leaves for the next call of the same stream, in the
- * query's stream state (rtk_query.stream_state, which the core zeroes when
- * a stream begins and cuts into calls of a few thousand rays, so that
- * their rays are still in the caches when the kernel reads them): the way
- * being kept, how many windows more, and how long the last choice was
- * given (the doubling of RTK_STREAM_EXPLOIT goes on across calls).  A call
- * that ends while measuring leaves step 0, and the next measures afresh. */
+/* What a stream call leaves for the next stream call on the same tree, in
+ * the query's stream state (rtk_query.stream_state, which the core keeps
+ * per thread and tree, core/stream.c): the way being kept, how many
+ * windows more, and how long the last choice was given (the doubling of
+ * RTK_STREAM_EXPLOIT goes on across calls).  A call that ends while
+ * measuring leaves step 0, and the next measures afresh; a state the
+ * kernel cannot resume (another layout's, after the core found a new tree
+ * at a freed one's address) is measured afresh as well. */
 typedef struct stream_keep {
     int32_t step; /* 3: keep the way `won` for `left` windows more; 0: begin afresh */
     int32_t won;

@@ -110,12 +110,13 @@ typedef struct rtk_query {
     rtk_filter_fn filter;
     /* Added after rtk 0.2.0 (interface version 2 still), read only when
      * flags has RTK_QUERY_FLAG_STREAM_STATE, only by the stream kernels:
-     * RTK_STREAM_STATE_SIZE bytes, aligned to 8, zeroed by the core when a
-     * stream call begins, that the stream kernel may keep what it learnt
-     * in between the calls the core cuts one stream into (how its rays go
-     * fastest, traverse_stream.h); the same memory is handed to every
-     * call of that stream, on one thread.  A kernel that does not know the
-     * flag passes over it. */
+     * RTK_STREAM_STATE_SIZE bytes, aligned to 8, where a stream kernel
+     * keeps what it learnt (how the rays go fastest, traverse_stream.h)
+     * for its next call.  The core keeps one per thread and tree, one for
+     * closest and one for any hits, zeroed when the thread first streams
+     * through that tree; only ever a choice of speed, so a kernel must
+     * give every ray the same answer whatever it finds there.  A kernel
+     * that does not know the flag passes over it. */
     void *stream_state;
 } rtk_query;
 #define RTK_QUERY_FLAG_FILTER 1u
