@@ -362,6 +362,8 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
             float d[8];
             unsigned mask;
             const uint32_t *child;
+            const int32_t *pf = NULL; /* the node's prefetch[] (rtk_bvh4_node); motion nodes have none */
+            const char *node_at = NULL;
             if (kind == LEAF_MB && !objects && width == 4) {
                 const rtk_bvh4mb_node *n = &((const rtk_bvh4mb_node *)a->nodes)[cur];
                 mask = node_mb_dist(n, l, bound, d, mt);
@@ -376,12 +378,16 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                 const rtk_bvh8_node *n = &((const rtk_bvh8_node *)a->nodes)[cur];
                 mask = node8_dist(n, l, bound, d);
                 child = n->child;
+                pf = n->prefetch;
+                node_at = (const char *)n;
             }
 #endif
             else {
                 const rtk_bvh4_node *n = &((const rtk_bvh4_node *)a->nodes)[cur];
                 mask = node4_dist(n, l, bound, d);
                 child = n->child;
+                pf = n->prefetch;
+                node_at = (const char *)n;
             }
             /* the children within bound, nearest first */
             uint32_t r[8];
@@ -401,6 +407,15 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                     rtk_leaf_blocks(child[c]) == 1 && rtk_block_worth(bb, rtk_leaf_first(child[c])) &&
                     rtk_block_obb_lower2(&bb->obb[rtk_leaf_first(child[c])], l->pf, l->dp) > bound)
                     continue;
+                if (pf) {
+                    /* its node or its leaf's first block asked for now, as
+                     * the ray kernels do (traverse_bvhn.h, prefetch_child) */
+                    const char *at = node_at + (intptr_t)pf[c] * 16;
+                    __builtin_prefetch(at);
+                    __builtin_prefetch(at + 64);
+                    __builtin_prefetch(at + 128);
+                    __builtin_prefetch(at + 192);
+                }
                 int j = m++;
                 for (; j > 0 && rd[j - 1] > d[c]; j--) {
                     rd[j] = rd[j - 1];
