@@ -396,6 +396,9 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                 const int c = __builtin_ctz(mask);
                 if (child[c] == RTK_BVH4_EMPTY)
                     continue;
+                /* (the nearest by its box, whether left out below or not) */
+                if (near < 0 || d[c] < d[near])
+                    near = c;
                 /* a leaf of one block, once the best distance is finite and
                  * a few blocks' sizes: left out when its oriented box is
                  * beyond it (block_bounds.h), before it costs a push.  Only
@@ -417,21 +420,26 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                     __builtin_prefetch(at + 192);
                 }
                 kept |= 1u << c;
-                if (near < 0 || d[c] < d[near])
-                    near = c;
             }
-            /* the nearest entered (the lowest slot of equals), the others
+            /* The nearest entered (the lowest slot of equals), the others
              * pushed unsorted, the lowest slot on top: sorting them all
              * took more than the order saved (rtktool bench --only points,
              * avx2, either build first: batches of near points +7-10%,
-             * box points +1.5-8%) */
+             * box points +1.5-8%).  The order is the nearest, then slot
+             * order, over the children within the bound, whatever an
+             * oriented box left out: two walks with different bounds (a
+             * batch's hinted one, the single call) meet the children they
+             * both keep in the same order, and so tying triangles too
+             * (a child holding one lies within both bounds, and so does
+             * the nearest then). */
             if (kept) {
-                for (kept &= ~(1u << near); kept; kept &= ~(1u << (31 - __builtin_clz(kept)))) {
+                const int first = kept >> near & 1 ? near : __builtin_ctz(kept);
+                for (kept &= ~(1u << first); kept; kept &= ~(1u << (31 - __builtin_clz(kept)))) {
                     const int c = 31 - __builtin_clz(kept);
                     stack[sp] = child[c];
                     sd[sp++] = d[c];
                 }
-                cur = child[near];
+                cur = child[first];
                 continue;
             }
         }
