@@ -355,6 +355,22 @@ static inline int32_t rtk_prefetch_distance(uintptr_t node, uint32_t ref, uintpt
     return units >= INT32_MIN && units <= INT32_MAX ? (int32_t)units : 0;
 }
 
+/* Asks for the four cache lines from a: a node, or a leaf's first blocks. */
+static inline __attribute__((always_inline)) void rtk_prefetch4(const char *a)
+{
+    __builtin_prefetch(a);
+    __builtin_prefetch(a + 64);
+    __builtin_prefetch(a + 128);
+    __builtin_prefetch(a + 192);
+}
+
+/* Asks for what a node's prefetch[] slot (units of 16 bytes from the node)
+ * names: the child's node or its leaf's first block. */
+static inline __attribute__((always_inline)) void rtk_prefetch_slot(const void *node, int32_t units)
+{
+    rtk_prefetch4((const char *)node + (intptr_t)units * 16);
+}
+
 /* The same for a finished accel (its own node and leaf arrays). */
 static inline int32_t rtk_prefetch_units(const struct rtk_accel *a, const void *node, uint32_t ref, size_t node_size)
 {

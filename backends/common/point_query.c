@@ -410,15 +410,10 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                     rtk_leaf_blocks(child[c]) == 1 && rtk_block_worth(bb, rtk_leaf_first(child[c])) &&
                     rtk_block_obb_lower2(&bb->obb[rtk_leaf_first(child[c])], l->pf, l->dp) > bound)
                     continue;
-                if (pf) {
-                    /* its node or its leaf's first block asked for now, as
-                     * the ray kernels do (traverse_bvhn.h, prefetch_child) */
-                    const char *at = node_at + (intptr_t)pf[c] * 16;
-                    __builtin_prefetch(at);
-                    __builtin_prefetch(at + 64);
-                    __builtin_prefetch(at + 128);
-                    __builtin_prefetch(at + 192);
-                }
+                /* its node or its leaf's first block asked for now, as the
+                 * ray kernels do (traverse_bvhn.h, prefetch_child) */
+                if (pf)
+                    rtk_prefetch_slot(node_at, pf[c]);
                 kept |= 1u << c;
             }
             /* The nearest entered (the lowest slot of equals), the others

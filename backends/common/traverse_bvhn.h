@@ -565,14 +565,11 @@ static inline __attribute__((always_inline)) void prefetch_child(const rtk_accel
     const uintptr_t node = (uintptr_t)accel->nodes + (ref & ~RTK_BVH4_LEAF_BIT) * (uintptr_t)sizeof(node_t);
     const uintptr_t is_leaf = -(uintptr_t)(ref >> 31); /* all ones for a leaf */
     const char *a = (const char *)((leaf & is_leaf) | (node & ~is_leaf));
+    rtk_prefetch4(a);
 #else
     (void)accel;
-    const char *a = (const char *)n + (intptr_t)n->prefetch[i] * 16;
+    rtk_prefetch_slot(n, n->prefetch[i]);
 #endif
-    __builtin_prefetch(a);
-    __builtin_prefetch(a + 64);
-    __builtin_prefetch(a + 128);
-    __builtin_prefetch(a + 192);
 #if RTK_MOTION && RTK_BVHN == 8
     /* an 8-wide motion node's other three lines (for a leaf, the blocks
      * after its first, or its neighbour's) */
