@@ -400,13 +400,6 @@ static void test_grazing_groups(void **state)
     assert_int_equal(failures, 0);
 }
 
-/* Rays of one direction octant, which the any-hit stream may walk
- * together by masks (avx2: up to 64 rays of an octant at a time, in two
- * halves of 32): a stream long enough that every way is measured on some
- * of its windows, each window's rays filling whole bins, and every 16th
- * ray's x direction -0.0 (its sign bit puts it in another octant's bin,
- * as the node test picks that ray's planes).  Each ray gets its single
- * call's answer. */
 /* n rays of one octant (every 16th with a -0.0 x direction). */
 static void octant_rays(rtk_rayhit *rh, size_t n, uint64_t seed)
 {
@@ -424,6 +417,13 @@ static void octant_rays(rtk_rayhit *rh, size_t n, uint64_t seed)
     }
 }
 
+/* Rays of one direction octant, which the any-hit stream may walk
+ * together by masks (avx2: up to 64 rays of an octant at a time, in two
+ * halves of 32): a stream long enough that every way is measured on some
+ * of its windows, each window's rays filling whole bins, and every 16th
+ * ray's x direction -0.0 (its sign bit puts it in another octant's bin,
+ * as the node test picks that ray's planes).  Each ray gets its single
+ * call's answer. */
 static void test_one_octant(void **state)
 {
     (void)state;

@@ -7,11 +7,11 @@
  * (4 or 8 lanes, the node's width), of the children within the best
  * distance so far the nearest is entered and the others pushed with their
  * distances (in slot order), and a popped entry is dropped when the best
- * distance has fallen below it since.  At a leaf the four triangles' boxes are tested
- * in one SIMD step, the survivors' distances bounded from below in float
- * (tri_lower.h), and they are measured in double (geometry/closest_point.h,
- * from the vertices the layout keeps), nearest bound first, while that
- * bound is within the best distance.  Once that distance is a few leaf
+ * distance has fallen below it since.  At a leaf the four triangles'
+ * boxes are tested in one SIMD step, the survivors' distances bounded
+ * from below in float (tri_lower.h), and they are measured in double
+ * (geometry/closest_point.h, from the vertices the layout keeps), nearest
+ * bound first, while that bound is within the best distance.  Once that distance is a few leaf
  * blocks' sizes, each block's oriented box (block_bounds.h) is tested
  * before its triangles, and a leaf of one block's before it is pushed.
  *
