@@ -101,15 +101,18 @@ typedef struct PK_(packet_pre) {
     int frustum;
     size_t near_off[3], far_off[3]; /* as in ray_pre */
     vk rn[3], rf[3];                /* per ray: the near and far planes' reciprocals */
+    /* The frustum's bounds are kept as floats and broadcast where
+     * frustum_intersect reads them (one load either way): stored as
+     * vectors they cost the set-up a broadcast and a store each. */
 #if RTK_SIMD_HAS_FMA
     vk cn[3], cf[3]; /* per ray: c_near and c_far of ray_pre */
-    vnode fr_cn_max[3], fr_cf_min[3];
+    float fr_cn_max[3], fr_cf_min[3];
 #else
     vk on[3], of[3];          /* per ray: the near and far planes' origins */
-    vnode fr_on[3], fr_of[3]; /* the origins giving the least near and greatest far distance */
+    float fr_on[3], fr_of[3]; /* the origins giving the least near and greatest far distance */
 #endif
-    vnode fr_rn_min[3], fr_rn_max[3], fr_rf_min[3], fr_rf_max[3];
-    vnode fr_tnear;
+    float fr_rn_min[3], fr_rn_max[3], fr_rf_min[3], fr_rf_max[3];
+    float fr_tnear;
 } PK_(packet_pre);
 
 /* Sets up the frustum of a packet whose active rays share their direction
@@ -139,26 +142,35 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
     if (!all)
         return;
     for (int k = 0; k < 3; k++) {
-        const unsigned neg = (unsigned)VKB(mask)(VK(lt)(p->rinv_lo[k], zero)) & all;
+        /* (the exact reciprocal has the sign of rinv_lo and rinv_hi) */
+        const unsigned neg = (unsigned)VKB(mask)(VK(lt)(p->rinv_exact[k], zero)) & all;
         if (neg && neg != all)
             return;
         const int n = neg != 0;
         p->near_off[k] = n ? upper[k] : lower[k];
         p->far_off[k] = n ? lower[k] : upper[k];
-        p->rn[k] = n ? p->rinv_hi[k] : p->rinv_lo[k];
-        p->rf[k] = n ? p->rinv_lo[k] : p->rinv_hi[k];
-#if RTK_SIMD_HAS_FMA
-        p->cn[k] = n ? p->c_hi[k] : p->c_lo[k];
-        p->cf[k] = n ? p->c_lo[k] : p->c_hi[k];
 #if RTK_FUSED_FAR_ULPS
-        /* the single-ray kernel's fused far distances: the near planes'
-         * reciprocal and c moved down by the padding (ray_pre_init), the
-         * comparison then RTK_FAR_ULPS up (box_intersect_octant) */
+        /* the single-ray kernel's fused distances (ray_pre_init): both
+         * planes take the exact reciprocal (the near scale is 1), c moved
+         * by the padding up for the near plane and down for the far one,
+         * whose comparison is then RTK_FAR_ULPS up (box_intersect_octant);
+         * packet_pre_init's c_lo and c_hi, whichever is near, are c + e
+         * to the bit, so they are not made for a packet with a frustum */
         {
             const vk c = VK(mul)(p->org[k], p->rinv_exact[k]);
-            p->rf[k] = p->rinv_exact[k];
-            p->cf[k] = VK(sub)(c, VK(add)(VK(mul)(VK(abs)(c), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f)));
+            const vk e = VK(add)(VK(mul)(VK(abs)(c), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f));
+            p->rn[k] = p->rf[k] = p->rinv_exact[k];
+            p->cn[k] = VK(add)(c, e);
+            p->cf[k] = VK(sub)(c, e);
         }
+#else
+        p->rn[k] = n ? p->rinv_hi[k] : p->rinv_lo[k];
+        p->rf[k] = n ? p->rinv_lo[k] : p->rinv_hi[k];
+#endif
+#if RTK_SIMD_HAS_FMA
+#if !RTK_FUSED_FAR_ULPS
+        p->cn[k] = n ? p->c_hi[k] : p->c_lo[k];
+        p->cf[k] = n ? p->c_lo[k] : p->c_hi[k];
 #endif
         /* out of range products: the single-ray kernel would not use FMA */
         const vk big = VK(set1)(0x1p126f);
@@ -209,26 +221,26 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
          * scale (positive constants) in every active lane, whatever its
          * sign, and rounding is monotone: their extremes are the exact
          * reciprocal's times the scales */
-        p->fr_rn_min[k] = vn_set1(lo[k] * PK_NEAR_SCALE);
-        p->fr_rn_max[k] = vn_set1(hi[k] * PK_NEAR_SCALE);
-#if RTK_SIMD_HAS_FMA && RTK_FUSED_FAR_ULPS
-        /* (the far planes take the near planes' reciprocals, see frustum_init's rf) */
-        p->fr_rf_min[k] = vn_set1(lo[k]);
-        p->fr_rf_max[k] = vn_set1(hi[k]);
+        p->fr_rn_min[k] = lo[k] * PK_NEAR_SCALE;
+        p->fr_rn_max[k] = hi[k] * PK_NEAR_SCALE;
+#if RTK_FUSED_FAR_ULPS
+        /* (the far planes take the near planes' reciprocals, see rf above) */
+        p->fr_rf_min[k] = lo[k];
+        p->fr_rf_max[k] = hi[k];
 #else
-        p->fr_rf_min[k] = vn_set1(lo[k] * PK_FAR_SCALE);
-        p->fr_rf_max[k] = vn_set1(hi[k] * PK_FAR_SCALE);
+        p->fr_rf_min[k] = lo[k] * PK_FAR_SCALE;
+        p->fr_rf_max[k] = hi[k] * PK_FAR_SCALE;
 #endif
 #if RTK_SIMD_HAS_FMA
-        p->fr_cn_max[k] = vn_set1(hi[3 + k]);
-        p->fr_cf_min[k] = vn_set1(lo[3 + k]);
+        p->fr_cn_max[k] = hi[3 + k];
+        p->fr_cf_min[k] = lo[3 + k];
 #else
         const int n = p->near_off[k] == upper[k];
-        p->fr_on[k] = vn_set1(n ? lo[3 + k] : hi[3 + k]);
-        p->fr_of[k] = vn_set1(n ? hi[3 + k] : lo[3 + k]);
+        p->fr_on[k] = n ? lo[3 + k] : hi[3 + k];
+        p->fr_of[k] = n ? hi[3 + k] : lo[3 + k];
 #endif
     }
-    p->fr_tnear = vn_set1(lo[6]);
+    p->fr_tnear = lo[6];
     p->frustum = 1;
 }
 
@@ -241,16 +253,18 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 static inline unsigned PK_(frustum_intersect)(const node_t *n, const PK_(packet_pre) *p, vnode tfar_max)
 {
     const vnode zero = vn_set1(0.0f);
-    vnode tmin = p->fr_tnear, tmax = tfar_max;
+    vnode tmin = vn_set1(p->fr_tnear), tmax = tfar_max;
     for (int k = 0; k < 3; k++) {
         const vnode pn = plane(n, p->near_off[k]), pf = plane(n, p->far_off[k]);
 #if RTK_SIMD_HAS_FMA
-        const vnode tn = vn_msub(pn, vn_select(vn_ge(pn, zero), p->fr_rn_min[k], p->fr_rn_max[k]), p->fr_cn_max[k]);
-        const vnode tf = vn_msub(pf, vn_select(vn_ge(pf, zero), p->fr_rf_max[k], p->fr_rf_min[k]), p->fr_cf_min[k]);
+        const vnode tn = vn_msub(pn, vn_select(vn_ge(pn, zero), vn_set1(p->fr_rn_min[k]), vn_set1(p->fr_rn_max[k])),
+                                 vn_set1(p->fr_cn_max[k]));
+        const vnode tf = vn_msub(pf, vn_select(vn_ge(pf, zero), vn_set1(p->fr_rf_max[k]), vn_set1(p->fr_rf_min[k])),
+                                 vn_set1(p->fr_cf_min[k]));
 #else
-        const vnode xn = vn_sub(pn, p->fr_on[k]), xf = vn_sub(pf, p->fr_of[k]);
-        const vnode tn = vn_mul(xn, vn_select(vn_ge(xn, zero), p->fr_rn_min[k], p->fr_rn_max[k]));
-        const vnode tf = vn_mul(xf, vn_select(vn_ge(xf, zero), p->fr_rf_max[k], p->fr_rf_min[k]));
+        const vnode xn = vn_sub(pn, vn_set1(p->fr_on[k])), xf = vn_sub(pf, vn_set1(p->fr_of[k]));
+        const vnode tn = vn_mul(xn, vn_select(vn_ge(xn, zero), vn_set1(p->fr_rn_min[k]), vn_set1(p->fr_rn_max[k])));
+        const vnode tf = vn_mul(xf, vn_select(vn_ge(xf, zero), vn_set1(p->fr_rf_max[k]), vn_set1(p->fr_rf_min[k])));
 #endif
         tmin = vn_max(tmin, tn);
         tmax = vn_min(tmax, tf);
@@ -299,28 +313,13 @@ static inline int PK_(box_intersect_octant)(const node_t *n, int i, const PK_(pa
     return VKB(mask)(hit);
 }
 
-static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb active, const rtk_accel *accel)
+/* The constants of the ray-by-ray box test box_intersect: per axis the
+ * lower and upper planes' reciprocals (and c), by each ray's own signs. */
+static inline void PK_(box_consts)(PK_(packet_pre) *p)
 {
-    (void)accel;
-    const float *org[3] = {r->org_x, r->org_y, r->org_z}, *dir[3] = {r->dir_x, r->dir_y, r->dir_z};
-    const vk tiny = VK(set1)(1e-18f), one = VK(set1)(1.0f), zero = VK(set1)(0.0f);
-    const vk scale = VK(set1)(PK_FAR_SCALE), near_scale = VK(set1)(PK_NEAR_SCALE);
+    const vk zero = VK(set1)(0.0f), scale = VK(set1)(PK_FAR_SCALE), near_scale = VK(set1)(PK_NEAR_SCALE);
     for (int k = 0; k < 3; k++) {
-        p->org[k] = VK(load)(org[k]);
-        p->dir[k] = VK(load)(dir[k]);
-#if RTK_ROBUST
-        /* as in ray_pre_init */
-        const vk shift = VK(add)(VK(set1)(accel->extent * RTK_ROBUST_REL), VK(mul)(VK(abs)(p->org[k]), VK(set1)(0x1p-22f)));
-        p->org_lo[k] = VK(add)(p->org[k], shift);
-        p->org_hi[k] = VK(sub)(p->org[k], shift);
-#else
-        p->org_lo[k] = p->org_hi[k] = p->org[k];
-#endif
-        /* as in ray_pre_init: components below 1e-18 in magnitude become +-1e-18 */
-        const vk d = VK(select)(VK(lt)(VK(abs)(p->dir[k]), tiny), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
-        const vk rinv_exact = VK(div)(one, d);
-        p->rinv_exact[k] = rinv_exact;
-        const vk rinv = VK(mul)(rinv_exact, near_scale), rinv_far = VK(mul)(rinv_exact, scale);
+        const vk rinv = VK(mul)(p->rinv_exact[k], near_scale), rinv_far = VK(mul)(p->rinv_exact[k], scale);
         const vkb neg = VK(lt)(rinv, zero);
         p->rinv_lo[k] = VK(select)(neg, rinv_far, rinv);
         p->rinv_hi[k] = VK(select)(neg, rinv, rinv_far);
@@ -338,6 +337,31 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
         p->c_hi[k] = VK(sub)(c_hi, VK(xor_sign)(e_hi, rinv));
 #endif
     }
+}
+
+static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb active, const rtk_accel *accel)
+{
+    (void)accel;
+    const float *org[3] = {r->org_x, r->org_y, r->org_z}, *dir[3] = {r->dir_x, r->dir_y, r->dir_z};
+    const vk tiny = VK(set1)(1e-18f), one = VK(set1)(1.0f);
+    for (int k = 0; k < 3; k++) {
+        p->org[k] = VK(load)(org[k]);
+        p->dir[k] = VK(load)(dir[k]);
+#if RTK_ROBUST
+        /* as in ray_pre_init */
+        const vk shift = VK(add)(VK(set1)(accel->extent * RTK_ROBUST_REL), VK(mul)(VK(abs)(p->org[k]), VK(set1)(0x1p-22f)));
+        p->org_lo[k] = VK(add)(p->org[k], shift);
+        p->org_hi[k] = VK(sub)(p->org[k], shift);
+#else
+        p->org_lo[k] = p->org_hi[k] = p->org[k];
+#endif
+        /* as in ray_pre_init: components below 1e-18 in magnitude become +-1e-18 */
+        const vk d = VK(select)(VK(lt)(VK(abs)(p->dir[k]), tiny), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
+        p->rinv_exact[k] = VK(div)(one, d);
+    }
+#if !RTK_FUSED_FAR_ULPS
+    PK_(box_consts)(p); /* (fused: only for a packet without a frustum, made by traverse) */
+#endif
     /* inactive lanes start beyond everything: they never enter a box */
     p->tnear = VK(select)(active, VK(load)(r->tnear), VK(set1)(INFINITY));
 #if RTK_ROBUST
@@ -670,6 +694,10 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
     vk tfar = VK(select)(active, VK(load)(ray->tfar), VK(set1)(-INFINITY));
     vk tfar_n = PK_(loose)(tfar, exact); /* the node tests' */
     PK_(frustum_init)(&p, active);
+#if RTK_FUSED_FAR_ULPS
+    if (!p.frustum)
+        PK_(box_consts)(&p);
+#endif
     vnode fr_tfar = vn_set1(p.frustum ? VK(reduce_max)(tfar_n) : 0.0f);
     vk hu = VK(set1)(0.0f), hv = hu;
     const unsigned all = VKB(mask)(active);
