@@ -7,10 +7,6 @@
 
 #include "scene_internal.h"
 
-/* A query's point within +-2^64: its float is finite, and squared
- * distances stay far from double's range. */
-#define POINT_MAX 0x1p64
-
 rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot)
 {
     if (!s)
@@ -43,7 +39,7 @@ static rtk_error scene_check(rtk_scene s, const char *fn)
 
 const char *point_fault(const rtk_point_query *q)
 {
-    if (!(fabs(q->x) <= POINT_MAX && fabs(q->y) <= POINT_MAX && fabs(q->z) <= POINT_MAX))
+    if (!point_in_range(q))
         return "the point is not finite or lies beyond +-2^64";
     if (!(q->time >= 0.0f && q->time <= 1.0f))
         return "the time is outside [0, 1]";
@@ -86,14 +82,17 @@ static void closest_hinted(rtk_scene s, const rtk_point_query *q, rtk_point_hit 
         st.best2 = INFINITY;
     const double radius2 = st.best2;
     if (hint) {
+        /* (everything finite here: comparisons, where fmax and fmin were
+         * library calls) */
         double d2 = 0.0, mag = 0.0;
         for (int a = 0; a < 3; a++) {
-            const double g = hint[a] - st.p[a];
+            const double g = hint[a] - st.p[a], h = fabs(hint[a]), p = fabs(st.p[a]);
             d2 += g * g;
-            mag = fmax(mag, fmax(fabs(hint[a]), fabs(st.p[a])));
+            mag = h > mag ? h : mag;
+            mag = p > mag ? p : mag;
         }
         const double up = sqrt(d2) * (1.0 + 0x1p-30) + mag * 0x1p-30;
-        st.best2 = fmin(st.best2, up * up);
+        st.best2 = up * up < st.best2 ? up * up : st.best2;
     }
     const rtk_query rq = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
     s->closest_point(s->accel, &st, &rq);

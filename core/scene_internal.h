@@ -315,8 +315,15 @@ RTK_INTERNAL rtk_error scene_not_committing(rtk_scene s, const char *fn);
  * refuse every scene for: NULL, being committed, never committed, user
  * geometry in it or below (which rtk cannot `cannot`, for the message). */
 RTK_INTERNAL rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot);
+/* A query's point within +-2^64 (rtk.h): its float is finite, and
+ * squared distances stay far from double's range.  Inline: the batches'
+ * ordering (point_order.c) asks for every point. */
+static inline int point_in_range(const rtk_point_query *q)
+{
+    return __builtin_fabs(q->x) <= 0x1p64 && __builtin_fabs(q->y) <= 0x1p64 && __builtin_fabs(q->z) <= 0x1p64;
+}
 /* point_query.c: why a query's point and time are not valid (rtk.h:
- * finite, within +-2^64, time in [0, 1]), or NULL; for closest points and
+ * point_in_range, time in [0, 1]), or NULL; for closest points and
  * occupancy */
 RTK_INTERNAL const char *point_fault(const rtk_point_query *q);
 /* point_query.c: one closest-point query, checked valid (rtk.h), through
