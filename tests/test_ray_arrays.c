@@ -1,7 +1,9 @@
 /*
  * Rays in array form (rtk_intersect_arrays, rtk_occluded_arrays) against
  * rtk_intersect1 / rtk_occluded1 on the same rays, bit for bit: float and
- * double rays, packed and strided, on every backend and on two threads;
+ * double rays, packed and strided, as they come and as an image's rows
+ * (row_length: 4x2 blocks through the packets, ragged edges and a last
+ * row cut short included), on every backend and on two threads;
  * invalid rays (NaN, infinite, zero direction) as misses, answers left
  * NULL unwritten, tnear and tfar, and the errors.
  */
@@ -79,12 +81,13 @@ static rtk_rayhit as_rayhit(const double *x, float tnear, float tfar)
 }
 
 /* The arrays' answers for rays r (as doubles; float_stride: 0 to pass
- * them as double, else as floats that many floats apart) against the
- * single-ray calls. */
-static void check(rtk_scene s, const double *r, size_t n, int float_stride, float tnear, float tfar)
+ * them as double, else as floats that many floats apart; row: their
+ * row_length) against the single-ray calls: each ray answered, and as
+ * alone. */
+static void check(rtk_scene s, const double *r, size_t n, int float_stride, float tnear, float tfar, size_t row)
 {
     float *fr = NULL;
-    rtk_ray_arrays a = {.rays = r, .rays_double = 1, .tnear = tnear, .tfar = tfar};
+    rtk_ray_arrays a = {.rays = r, .rays_double = 1, .tnear = tnear, .tfar = tfar, .row_length = row};
     if (float_stride) {
         fr = calloc(n * (size_t)float_stride, sizeof *fr);
         assert_non_null(fr);
@@ -92,13 +95,16 @@ static void check(rtk_scene s, const double *r, size_t n, int float_stride, floa
             for (int k = 0; k < 6; k++)
                 fr[i * (size_t)float_stride + (size_t)k] = (float)r[6 * i + (size_t)k];
         a = (rtk_ray_arrays){.rays = fr, .ray_stride = float_stride == 6 ? 0 : (size_t)float_stride * sizeof(float),
-                             .tnear = tnear, .tfar = tfar};
+                             .tnear = tnear, .tfar = tfar, .row_length = row};
     }
     float *t = malloc(n * sizeof *t), *uv = malloc(2 * n * sizeof *uv), *ng = malloc(3 * n * sizeof *ng);
     uint32_t *g = malloc(n * sizeof *g), *p = malloc(n * sizeof *p), *in = malloc(n * sizeof *in);
     uint8_t *occ = malloc(n);
     assert_true(t && uv && ng && g && p && in && occ);
     memset(occ, 7, n);
+    /* (a ray left out would keep these: NaN t, ids no answer has) */
+    memset(t, 0xff, n * sizeof *t);
+    memset(g, 0x5a, n * sizeof *g);
     a.t_hit = t, a.geom_ids = g, a.prim_ids = p, a.inst_ids = in, a.uvs = uv, a.normals = ng, a.occluded = occ;
     assert_int_equal(rtk_intersect_arrays(s, &a, n), RTK_OK);
     assert_int_equal(rtk_occluded_arrays(s, &a, n), RTK_OK);
@@ -152,9 +158,11 @@ static void test_against_single(void **state)
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);
         rtk_scene s = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
-        check(s, r, n, 0, 0.0f, INFINITY);
-        check(s, r, n, 6, 0.0f, INFINITY);
-        check(s, r, n, 7, 0.5f, 3.0f); /* strided, and a window along the rays */
+        check(s, r, n, 0, 0.0f, INFINITY, 0);
+        check(s, r, n, 6, 0.0f, INFINITY, 0);
+        check(s, r, n, 7, 0.5f, 3.0f, 0); /* strided, and a window along the rays */
+        check(s, r, n, 6, 0.0f, INFINITY, 3);        /* rows too narrow for a block: as they come */
+        check(s, r, n, 6, 0.0f, INFINITY, n / 2 + 1); /* not two rows: as they come */
         rtk_scene_release(s);
         rtk_device_release(dev);
     }
@@ -178,8 +186,14 @@ static void test_camera_rays(void **state)
         for (int robust = 0; robust < 2; robust++) {
             rtk_scene s =
                 test_scene_flags(dev, ball.v, ball.nv, ball.idx, ball.nt, robust ? RTK_SCENE_FLAG_ROBUST : 0);
-            check(s, r, (size_t)(w * h), 6, 0.0f, INFINITY);
-            check(s, r, (size_t)(w * h), 0, 0.0f, 4.2f); /* as doubles; a window that cuts the ball */
+            check(s, r, (size_t)(w * h), 6, 0.0f, INFINITY, 0);
+            check(s, r, (size_t)(w * h), 0, 0.0f, 4.2f, 0); /* as doubles; a window that cuts the ball */
+            check(s, r, (size_t)(w * h), 6, 0.0f, INFINITY, (size_t)w); /* as rows: 4x2 blocks */
+            check(s, r, (size_t)(w * h), 7, 0.0f, 4.2f, (size_t)w);
+            /* a width not a multiple of 4, an odd number of rows, the last
+             * one cut short: the blocks' leftovers */
+            check(s, r, (size_t)(61 * 47 - 5), 6, 0.0f, INFINITY, 61);
+            check(s, r, (size_t)(61 * 47 - 5), 0, 0.0f, INFINITY, 61);
             rtk_scene_release(s);
         }
         rtk_device_release(dev);
@@ -199,9 +213,21 @@ static void test_threads(void **state)
     for (int robust = 0; robust < 2; robust++) {
         rtk_scene s =
             test_scene_flags(dev, ball.v, ball.nv, ball.idx, ball.nt, robust ? RTK_SCENE_FLAG_ROBUST : 0);
-        check(s, r, n, 6, 0.0f, INFINITY);
+        check(s, r, n, 6, 0.0f, INFINITY, 0);
         rtk_scene_release(s);
     }
+    /* rows over several pieces (12 rows of 300 a piece), the last cut short */
+    const int w = 300, h = 41;
+    double *c = malloc(6 * (size_t)(w * h) * sizeof *c);
+    assert_non_null(c);
+    make_camera_rays(c, w, h);
+    for (int robust = 0; robust < 2; robust++) {
+        rtk_scene s =
+            test_scene_flags(dev, ball.v, ball.nv, ball.idx, ball.nt, robust ? RTK_SCENE_FLAG_ROBUST : 0);
+        check(s, c, (size_t)(w * h) - 7, 6, 0.0f, INFINITY, (size_t)w);
+        rtk_scene_release(s);
+    }
+    free(c);
     rtk_device_release(dev);
     free(r);
 }

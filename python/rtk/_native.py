@@ -88,7 +88,7 @@ class RayArrays(ctypes.Structure):
     """rtk_ray_arrays (rtk.h)."""
     _fields_ = [("rays", P), ("rays_double", I), ("ray_stride", SZ), ("tnear", ctypes.c_float),
                 ("tfar", ctypes.c_float), ("t_hit", P), ("geom_ids", P), ("prim_ids", P), ("inst_ids", P),
-                ("uvs", P), ("normals", P), ("occluded", P)]
+                ("uvs", P), ("normals", P), ("occluded", P), ("row_length", SZ)]
 
 
 intersect_arrays = _fn("rtk_intersect_arrays", [P, ctypes.POINTER(RayArrays), SZ])

@@ -189,7 +189,10 @@ class RaycastingScene:
         tnear, tfar = float(tnear), float(tfar)
         if not (0.0 <= tnear <= tfar):
             raise ValueError(f"tnear {tnear} and tfar {tfar}: tnear must be at least 0 and at most tfar")
-        a = N.RayArrays(rays=N.ptr(r), rays_double=int(r.dtype == np.float64), ray_stride=0, tnear=tnear, tfar=tfar)
+        # rays (..., W, 6) are taken for an image's rows of W (the packets
+        # then take 4x2 blocks of pixels); only the speed depends on it
+        a = N.RayArrays(rays=N.ptr(r), rays_double=int(r.dtype == np.float64), ray_stride=0, tnear=tnear, tfar=tfar,
+                        row_length=r.shape[-2] if r.ndim >= 3 else 0)
         return r, a, r.shape[:-1]
 
     def cast_rays(self, rays, nthreads=0):

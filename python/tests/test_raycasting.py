@@ -135,6 +135,14 @@ def test_rays_in_every_dtype_and_layout(cube_scene):
         for k in ref:
             assert np.array_equal(ans[k].numpy(), ref[k].numpy()), k
         assert np.array_equal(s.test_occlusions(r).numpy(), s.test_occlusions(rays).numpy())
+    # an image's rows (..., W, 6) go as 4x2 blocks of pixels, a flat
+    # array as it comes: the same answers, widths not a multiple of 4 too
+    for w, h in ((16, 12), (13, 7)):
+        img = rtk.RaycastingScene.create_rays_pinhole(60, [0.5, 0.25, -0.75], [3, 2, 1], [0, 0, 1], w, h).numpy()
+        a, b = s.cast_rays(img), s.cast_rays(img.reshape(-1, 6))
+        for k in a:
+            assert np.array_equal(a[k].numpy().reshape(b[k].numpy().shape), b[k].numpy()), k
+        assert np.array_equal(s.test_occlusions(img).numpy().reshape(-1), s.test_occlusions(img.reshape(-1, 6)).numpy())
     ints = np.array([[3, 0, -1, -1, 0, 0], [3, 9, 0, -1, 0, 0]], np.int32)  # a hit and a miss
     assert np.array_equal(s.cast_rays(ints)["t_hit"].numpy(), [2.0, np.inf])
     with pytest.raises(ValueError):
