@@ -107,12 +107,13 @@ static int coherent8(const rtk_rayhit *r)
 
 /* The coherent groups of eight among records [0, n) through the packet
  * kernel (rtk_intersect8 / rtk_occluded8), each traced ray's mask then set
- * to 0 so that the stream passes over it.  Nothing where the scene's
- * packets of eight go ray by ray anyway. */
-static void trace_coherent(rtk_scene s, rtk_rayhit *block, size_t n, int occluded)
+ * to 0 so that the stream passes over it; how many rays it traced.
+ * Nothing where the scene's packets of eight go ray by ray anyway. */
+static size_t trace_coherent(rtk_scene s, rtk_rayhit *block, size_t n, int occluded)
 {
+    size_t traced = 0;
     if (s->packet[occluded][1].width < 4)
-        return;
+        return 0;
     _Alignas(32) rtk_rayhit8 p;
     for (size_t g = 0; g + 8 <= n; g += 8) {
         const rtk_rayhit *r = &block[g];
@@ -129,6 +130,7 @@ static void trace_coherent(rtk_scene s, rtk_rayhit *block, size_t n, int occlude
         }
         if (occluded ? rtk_occluded8(s, NULL, &p.ray) : rtk_intersect8(s, NULL, &p))
             continue; /* (cannot fail on a checked scene) the stream traces them */
+        traced += 8;
         /* back: what the answers are read from (tfar, the hit) */
         for (int i = 0; i < 8; i++) {
             rtk_rayhit *x = &block[g + (size_t)i];
@@ -141,6 +143,7 @@ static void trace_coherent(rtk_scene s, rtk_rayhit *block, size_t n, int occlude
                                .instID = p.hit.instID[i]};
         }
     }
+    return traced;
 }
 
 /* Rays idx[0..n) (n <= ARRAYS_BLOCK) traced and their answers written. */
@@ -149,14 +152,18 @@ static void trace_block(const arrays_job *j, const size_t *idx, size_t n)
     rtk_rayhit block[ARRAYS_BLOCK];
     const rtk_query q = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
     load(j, idx, n, block);
-    trace_coherent(j->scene, block, n, j->occluded);
+    /* (the stream only for what the packets left: camera rays leave
+     * nothing, and its pass over the records found that out ray by ray) */
+    const int rest = trace_coherent(j->scene, block, n, j->occluded) < n;
     if (j->occluded) {
         /* each record's ray (first in it): an occluded one's tfar becomes -inf */
-        stream_trace(j->scene, (char *)block, n, sizeof *block, 1, &q);
+        if (rest)
+            stream_trace(j->scene, (char *)block, n, sizeof *block, 1, &q);
         for (size_t i = 0; i < n; i++)
             j->a->occluded[idx[i]] = block[i].ray.tfar == -INFINITY;
     } else {
-        stream_trace(j->scene, (char *)block, n, sizeof *block, 0, &q);
+        if (rest)
+            stream_trace(j->scene, (char *)block, n, sizeof *block, 0, &q);
         store(j, idx, n, block);
     }
 }
