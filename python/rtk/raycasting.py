@@ -157,16 +157,17 @@ class RaycastingScene:
 
     # ---- rays ----
 
-    def _rays(self, rays, tnear=0.0, tfar=math.inf):
-        """rtk_rayhit records for rays (..., 6), built as one float32 block
-        of 20 columns (rtk_ray's 12 words, rtk_hit's 8): column copies, not
-        structured-field ones (which cost more than the tracing)."""
+    def _rays(self, rays, tnear=0.0, tfar=math.inf, hits=True):
+        """rtk_rayhit records for rays (..., 6) (hits=False: rtk_ray
+        records alone), built as one float32 block of 20 columns (rtk_ray's
+        12 words, rtk_hit's 8): column copies, not structured-field ones
+        (which cost more than the tracing)."""
         r = _as_array(rays, "rays")
         _last_dim(r, 6, "rays")
         shape = r.shape[:-1]
         flat = r.reshape(-1, 6)
         n = flat.shape[0]
-        block = np.empty((n, 20), dtype=np.float32)
+        block = np.empty((n, 20 if hits else 12), dtype=np.float32)
         words = block.view(np.uint32)
         block[:, 0:3] = flat[:, 0:3]
         block[:, 3] = tnear
@@ -175,6 +176,8 @@ class RaycastingScene:
         block[:, 8] = tfar
         words[:, 9] = 0xFFFFFFFF          # mask
         words[:, 10:12] = 0               # id, flags
+        if not hits:
+            return block.view(N.RAY).reshape(n), shape, _is_o3d(rays)
         block[:, 12:17] = 0.0             # Ng, u, v
         words[:, 17:20] = N.INVALID_ID    # primID, geomID, instID
         return block.view(N.RAYHIT).reshape(n), shape, _is_o3d(rays)
@@ -228,25 +231,26 @@ class RaycastingScene:
     def count_intersections(self, rays, nthreads=0):
         """How many times each ray crosses the surface (each crossing once:
         the scene is robust)."""
-        rh, shape, o3 = self._rays(rays)
-        ray, counts = self._counts(rh, "count_intersections")
+        ray, shape, o3 = self._rays(rays, hits=False)
+        counts = self._counts(ray, "count_intersections")
         return _out(counts.astype(np.int32).reshape(shape), o3)
 
-    def _counts(self, rh, what):
-        ray = np.ascontiguousarray(rh["ray"])
+    def _counts(self, ray, what):
+        """Each ray's crossings counted (ray: rtk_ray records, _rays(hits=False)),
+        straight from the records _rays built: no copy of their ray fields."""
         counts = np.zeros(len(ray), dtype=np.uint32)
         self._commit()
         if len(ray):
             N.check(N.count_intersections(self._scene, N.ptr(ray), len(ray), N.RAY.itemsize, N.ptr(counts)),
                     self._dev, what)
-        return ray, counts
+        return counts
 
     def list_intersections(self, rays, nthreads=0):
         """Every crossing of every ray, sorted by t per ray.  Keys ray_splits
         (ray i's crossings are [ray_splits[i], ray_splits[i + 1])), ray_ids,
         geometry_ids, primitive_ids, primitive_uvs, t_hit."""
-        rh, shape, o3 = self._rays(rays)
-        ray, counts = self._counts(rh, "list_intersections")
+        ray, shape, o3 = self._rays(rays, hits=False)
+        counts = self._counts(ray, "list_intersections")
         splits = np.zeros(len(ray) + 1, dtype=np.uint64)
         np.cumsum(counts, out=splits[1:])
         c = np.zeros(int(splits[-1]), dtype=N.CROSSING)
