@@ -100,20 +100,55 @@ typedef struct PK_(packet_pre) {
      * arithmetic (near and far planes by the shared signs). */
     int frustum;
     size_t near_off[3], far_off[3]; /* as in ray_pre */
-    vk rn[3], rf[3];                /* per ray: the near and far planes' reciprocals */
     /* The frustum's bounds are kept as floats and broadcast where
      * frustum_intersect reads them (one load either way): stored as
      * vectors they cost the set-up a broadcast and a store each. */
-#if RTK_SIMD_HAS_FMA
+#if RTK_FUSED_FAR_ULPS
+    /* (fused: both planes' reciprocals are rinv_exact, and the bounds are
+     * the reductions' lanes as they come, see PK_FR) */
+    vk cn[3], cf[3]; /* per ray: c_near and c_far of ray_pre */
+    _Alignas(32) float fr_lo[8], fr_hi[8];
+#elif RTK_SIMD_HAS_FMA
+    vk rn[3], rf[3]; /* per ray: the near and far planes' reciprocals */
     vk cn[3], cf[3]; /* per ray: c_near and c_far of ray_pre */
     float fr_cn_max[3], fr_cf_min[3];
 #else
+    vk rn[3], rf[3];          /* per ray: the near and far planes' reciprocals */
     vk on[3], of[3];          /* per ray: the near and far planes' origins */
     float fr_on[3], fr_of[3]; /* the origins giving the least near and greatest far distance */
 #endif
+#if !RTK_FUSED_FAR_ULPS
     float fr_rn_min[3], fr_rn_max[3], fr_rf_min[3], fr_rf_max[3];
     float fr_tnear;
+#endif
 } PK_(packet_pre);
+
+/* The per-ray reciprocals of the near and far planes on axis k, and the
+ * frustum's bounds, wherever the configuration keeps them. */
+#if RTK_FUSED_FAR_ULPS
+#define PK_RN(p, k) ((p)->rinv_exact[k])
+#define PK_RF(p, k) ((p)->rinv_exact[k])
+/* the reductions' lanes (frustum_init): least 0-2 the reciprocals, 3-5
+ * the far planes' c, 6 tnear; greatest 0-2 the reciprocals, 3-5 the near
+ * planes' c */
+#define PK_FR_RN_MIN(p, k) ((p)->fr_lo[k])
+#define PK_FR_RN_MAX(p, k) ((p)->fr_hi[k])
+#define PK_FR_RF_MIN(p, k) ((p)->fr_lo[k])
+#define PK_FR_RF_MAX(p, k) ((p)->fr_hi[k])
+#define PK_FR_CN_MAX(p, k) ((p)->fr_hi[3 + (k)])
+#define PK_FR_CF_MIN(p, k) ((p)->fr_lo[3 + (k)])
+#define PK_FR_TNEAR(p) ((p)->fr_lo[6])
+#else
+#define PK_RN(p, k) ((p)->rn[k])
+#define PK_RF(p, k) ((p)->rf[k])
+#define PK_FR_RN_MIN(p, k) ((p)->fr_rn_min[k])
+#define PK_FR_RN_MAX(p, k) ((p)->fr_rn_max[k])
+#define PK_FR_RF_MIN(p, k) ((p)->fr_rf_min[k])
+#define PK_FR_RF_MAX(p, k) ((p)->fr_rf_max[k])
+#define PK_FR_CN_MAX(p, k) ((p)->fr_cn_max[k])
+#define PK_FR_CF_MIN(p, k) ((p)->fr_cf_min[k])
+#define PK_FR_TNEAR(p) ((p)->fr_tnear)
+#endif
 
 /* Sets up the frustum of a packet whose active rays share their direction
  * signs (else leaves p->frustum 0).  For each axis the bounds are over the
@@ -151,7 +186,8 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
         p->far_off[k] = n ? lower[k] : upper[k];
 #if RTK_FUSED_FAR_ULPS
         /* the single-ray kernel's fused distances (ray_pre_init): both
-         * planes take the exact reciprocal (the near scale is 1), c moved
+         * planes take the exact reciprocal (the near scale is 1: rn and rf
+         * are rinv_exact itself, PK_RN and PK_RF), c moved
          * by the padding up for the near plane and down for the far one,
          * whose comparison is then RTK_FAR_ULPS up (box_intersect_octant);
          * packet_pre_init's c_lo and c_hi, whichever is near, are c + e
@@ -159,7 +195,6 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
         {
             const vk c = VK(mul)(p->org[k], p->rinv_exact[k]);
             const vk e = VK(add)(VK(mul)(VK(abs)(c), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f));
-            p->rn[k] = p->rf[k] = p->rinv_exact[k];
             p->cn[k] = VK(add)(c, e);
             p->cf[k] = VK(sub)(c, e);
         }
@@ -206,7 +241,14 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
     mn[6] = p->tnear; /* +inf in the inactive lanes */
     mn[7] = pinf;
     mx[6] = mx[7] = ninf;
+#if RTK_FUSED_FAR_ULPS
+    /* the reductions' lanes are the bounds as they are (PK_FR_*: the far
+     * planes take the near planes' reciprocals, see rn above), stored
+     * where frustum_intersect reads them */
+    float *const lo = p->fr_lo, *const hi = p->fr_hi;
+#else
     _Alignas(64) float lo[8], hi[8];
+#endif
 #if RTK_PACKET == 8
     VK(store)(lo, vf8_reduce8_min(mn));
     VK(store)(hi, vf8_reduce8_max(mx));
@@ -216,6 +258,7 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
         VK(store)(hi + b, vf4_reduce4_max(mx[b], mx[b + 1], mx[b + 2], mx[b + 3]));
     }
 #endif
+#if !RTK_FUSED_FAR_ULPS
     for (int k = 0; k < 3; k++) {
         /* rn and rf are the exact reciprocal times the near and the far
          * scale (positive constants) in every active lane, whatever its
@@ -223,14 +266,8 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
          * reciprocal's times the scales */
         p->fr_rn_min[k] = lo[k] * PK_NEAR_SCALE;
         p->fr_rn_max[k] = hi[k] * PK_NEAR_SCALE;
-#if RTK_FUSED_FAR_ULPS
-        /* (the far planes take the near planes' reciprocals, see rf above) */
-        p->fr_rf_min[k] = lo[k];
-        p->fr_rf_max[k] = hi[k];
-#else
         p->fr_rf_min[k] = lo[k] * PK_FAR_SCALE;
         p->fr_rf_max[k] = hi[k] * PK_FAR_SCALE;
-#endif
 #if RTK_SIMD_HAS_FMA
         p->fr_cn_max[k] = hi[3 + k];
         p->fr_cf_min[k] = lo[3 + k];
@@ -241,6 +278,7 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 #endif
     }
     p->fr_tnear = lo[6];
+#endif
     p->frustum = 1;
 }
 
@@ -253,18 +291,18 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 static inline unsigned PK_(frustum_intersect)(const node_t *n, const PK_(packet_pre) *p, vnode tfar_max)
 {
     const vnode zero = vn_set1(0.0f);
-    vnode tmin = vn_set1(p->fr_tnear), tmax = tfar_max;
+    vnode tmin = vn_set1(PK_FR_TNEAR(p)), tmax = tfar_max;
     for (int k = 0; k < 3; k++) {
         const vnode pn = plane(n, p->near_off[k]), pf = plane(n, p->far_off[k]);
 #if RTK_SIMD_HAS_FMA
-        const vnode tn = vn_msub(pn, vn_select(vn_ge(pn, zero), vn_set1(p->fr_rn_min[k]), vn_set1(p->fr_rn_max[k])),
-                                 vn_set1(p->fr_cn_max[k]));
-        const vnode tf = vn_msub(pf, vn_select(vn_ge(pf, zero), vn_set1(p->fr_rf_max[k]), vn_set1(p->fr_rf_min[k])),
-                                 vn_set1(p->fr_cf_min[k]));
+        const vnode tn = vn_msub(pn, vn_select(vn_ge(pn, zero), vn_set1(PK_FR_RN_MIN(p, k)), vn_set1(PK_FR_RN_MAX(p, k))),
+                                 vn_set1(PK_FR_CN_MAX(p, k)));
+        const vnode tf = vn_msub(pf, vn_select(vn_ge(pf, zero), vn_set1(PK_FR_RF_MAX(p, k)), vn_set1(PK_FR_RF_MIN(p, k))),
+                                 vn_set1(PK_FR_CF_MIN(p, k)));
 #else
         const vnode xn = vn_sub(pn, vn_set1(p->fr_on[k])), xf = vn_sub(pf, vn_set1(p->fr_of[k]));
-        const vnode tn = vn_mul(xn, vn_select(vn_ge(xn, zero), vn_set1(p->fr_rn_min[k]), vn_set1(p->fr_rn_max[k])));
-        const vnode tf = vn_mul(xf, vn_select(vn_ge(xf, zero), vn_set1(p->fr_rf_max[k]), vn_set1(p->fr_rf_min[k])));
+        const vnode tn = vn_mul(xn, vn_select(vn_ge(xn, zero), vn_set1(PK_FR_RN_MIN(p, k)), vn_set1(PK_FR_RN_MAX(p, k))));
+        const vnode tf = vn_mul(xf, vn_select(vn_ge(xf, zero), vn_set1(PK_FR_RF_MAX(p, k)), vn_set1(PK_FR_RF_MIN(p, k))));
 #endif
         tmin = vn_max(tmin, tn);
         tmax = vn_min(tmax, tf);
@@ -289,11 +327,11 @@ static inline int PK_(box_intersect_octant)(const node_t *n, int i, const PK_(pa
         const vk pn = VK(set1)(((const float *)((const char *)n + p->near_off[k]))[i]);
         const vk pf = VK(set1)(((const float *)((const char *)n + p->far_off[k]))[i]);
 #if RTK_SIMD_HAS_FMA
-        t0[k] = VK(msub)(pn, p->rn[k], p->cn[k]);
-        t1[k] = VK(msub)(pf, p->rf[k], p->cf[k]);
+        t0[k] = VK(msub)(pn, PK_RN(p, k), p->cn[k]);
+        t1[k] = VK(msub)(pf, PK_RF(p, k), p->cf[k]);
 #else
-        t0[k] = VK(mul)(VK(sub)(pn, p->on[k]), p->rn[k]);
-        t1[k] = VK(mul)(VK(sub)(pf, p->of[k]), p->rf[k]);
+        t0[k] = VK(mul)(VK(sub)(pn, p->on[k]), PK_RN(p, k));
+        t1[k] = VK(mul)(VK(sub)(pf, p->of[k]), PK_RF(p, k));
 #endif
     }
 #if RTK_SIMD_HAS_FMA
