@@ -146,11 +146,7 @@ static inline __attribute__((always_inline)) int packet_active(const void *packe
         const float tnear = LANE(tnear);
         active[i] = -((z == 0.0f) & (tnear >= 0.0f) & (tnear <= LANE(tfar)) & (u[RAY_ROW(mask) * n + i] != 0));
         any |= active[i];
-        /* ray_check's window, in comparisons alone (so in vectors) */
-        const float ax = fabsf(LANE(dir_x)), ay = fabsf(LANE(dir_y)), az = fabsf(LANE(dir_z));
-        far[i] = -((fabsf(LANE(org_x)) > RAY_ORG_MAX) | (fabsf(LANE(org_y)) > RAY_ORG_MAX) |
-                   (fabsf(LANE(org_z)) > RAY_ORG_MAX) | (ax > RAY_DIR_MAX) | (ay > RAY_DIR_MAX) | (az > RAY_DIR_MAX) |
-                   ((ax < RAY_DIR_MIN) & (ay < RAY_DIR_MIN) & (az < RAY_DIR_MIN)));
+        far[i] = -ray_out_of_window(LANE(org_x), LANE(org_y), LANE(org_z), LANE(dir_x), LANE(dir_y), LANE(dir_z));
     }
 #undef LANE
     if (valid) {

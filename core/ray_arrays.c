@@ -119,22 +119,20 @@ static int trace_group(const arrays_job *j, const size_t *idx, rtk_rayhit8 *p)
                 lane[k][i] = f[k];
         }
     }
+    /* the lanes' bits: every origin must be lane 0's, every direction's
+     * signs lane 0's */
+    uint32_t bits[6][8];
+    for (int k = 0; k < 6; k++)
+        memcpy(bits[k], lane[k], sizeof bits[k]);
     uint32_t bad = 0;
     for (int i = 0; i < 8; i++) {
-        uint32_t o[3], o0[3], d[3], d0[3];
-        memcpy(&o[0], &p->ray.org_x[i], 4), memcpy(&o[1], &p->ray.org_y[i], 4), memcpy(&o[2], &p->ray.org_z[i], 4);
-        memcpy(&o0[0], &p->ray.org_x[0], 4), memcpy(&o0[1], &p->ray.org_y[0], 4), memcpy(&o0[2], &p->ray.org_z[0], 4);
-        memcpy(&d[0], &p->ray.dir_x[i], 4), memcpy(&d[1], &p->ray.dir_y[i], 4), memcpy(&d[2], &p->ray.dir_z[i], 4);
-        memcpy(&d0[0], &p->ray.dir_x[0], 4), memcpy(&d0[1], &p->ray.dir_y[0], 4), memcpy(&d0[2], &p->ray.dir_z[0], 4);
-        const float ox = p->ray.org_x[i], oy = p->ray.org_y[i], oz = p->ray.org_z[i];
-        const float ax = fabsf(p->ray.dir_x[i]), ay = fabsf(p->ray.dir_y[i]), az = fabsf(p->ray.dir_z[i]);
-        /* (NaN fails every comparison: a NaN or infinite number is not
-         * within the window either) */
-        const int plain = fabsf(ox) <= RAY_ORG_MAX && fabsf(oy) <= RAY_ORG_MAX && fabsf(oz) <= RAY_ORG_MAX &&
-                          ax <= RAY_DIR_MAX && ay <= RAY_DIR_MAX && az <= RAY_DIR_MAX &&
-                          !(ax < RAY_DIR_MIN && ay < RAY_DIR_MIN && az < RAY_DIR_MIN);
-        bad |= (uint32_t)!plain | (o[0] ^ o0[0]) | (o[1] ^ o0[1]) | (o[2] ^ o0[2]) |
-               ((d[0] ^ d0[0]) >> 31) | ((d[1] ^ d0[1]) >> 31) | ((d[2] ^ d0[2]) >> 31);
+        const float ox = lane[0][i], oy = lane[1][i], oz = lane[2][i], dx = lane[3][i], dy = lane[4][i], dz = lane[5][i];
+        /* plain (ray_check's rules; tnear and tfar checked by the call):
+         * finite (0 * x is NaN otherwise) and within the window */
+        const float z = 0.0f * ox + 0.0f * oy + 0.0f * oz + 0.0f * dx + 0.0f * dy + 0.0f * dz;
+        bad |= (uint32_t)!(z == 0.0f) | (uint32_t)ray_out_of_window(ox, oy, oz, dx, dy, dz);
+        bad |= (bits[0][i] ^ bits[0][0]) | (bits[1][i] ^ bits[1][0]) | (bits[2][i] ^ bits[2][0]);
+        bad |= ((bits[3][i] ^ bits[3][0]) | (bits[4][i] ^ bits[4][0]) | (bits[5][i] ^ bits[5][0])) >> 31;
     }
     if (bad)
         return 0;
@@ -205,20 +203,26 @@ static void gather_put(gather *g, size_t i)
  * columns of a width not a multiple of 4, an odd last row, a last row
  * the array ends inside) in their own order.  Each ray's answer is the
  * same in any order; only which go through the packets changes. */
+/* How many full 4x2 blocks the row pair starting at ray y has (rows of w,
+ * the array ending at end): those whose last pixel is in range. */
+static size_t full_blocks(size_t y, size_t w, size_t end)
+{
+    const size_t room = y + w < end ? (end - (y + w)) / 4 : 0;
+    return room < w / 4 ? room : w / 4;
+}
+
 static void arrays_rows(const arrays_job *j, size_t begin, size_t end, size_t w)
 {
     gather g = {.j = j, .n = 0};
-    const size_t blocks = w / 4;
     for (size_t y = begin; y + w < end; y += 2 * w) {
-        /* full blocks of this pair: those whose last pixel is in range */
-        const size_t room = (end - (y + w)) / 4, full = room < blocks ? room : blocks;
+        const size_t full = full_blocks(y, w, end);
         for (size_t b = 0; b < full; b++)
             for (size_t r = 0; r < 2; r++)
                 for (size_t x = 0; x < 4; x++)
                     gather_put(&g, y + r * w + 4 * b + x);
     }
     for (size_t y = begin; y < end; y += 2 * w) {
-        const size_t room = y + w < end ? (end - (y + w)) / 4 : 0, full = room < blocks ? room : blocks;
+        const size_t full = full_blocks(y, w, end);
         for (size_t r = 0; r < 2; r++)
             for (size_t i = y + r * w + 4 * full; i < y + (r + 1) * w && i < end; i++)
                 gather_put(&g, i);

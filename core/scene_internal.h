@@ -246,6 +246,19 @@ typedef int32_t ray_ints4 __attribute__((vector_size(16)));
 
 enum { RAY_INVALID, RAY_PLAIN, RAY_RANGE };
 
+/* A ray outside that window: ray_check's test in comparisons alone, with
+ * no branches, so that a loop over a packet's lanes (query.c,
+ * packet_active; ray_arrays.c, trace_group) goes in vectors.  A NaN
+ * fails every comparison and so counts as inside: finiteness is asked
+ * apart. */
+static inline int ray_out_of_window(float ox, float oy, float oz, float dx, float dy, float dz)
+{
+    const float ax = __builtin_fabsf(dx), ay = __builtin_fabsf(dy), az = __builtin_fabsf(dz);
+    return (__builtin_fabsf(ox) > RAY_ORG_MAX) | (__builtin_fabsf(oy) > RAY_ORG_MAX) |
+           (__builtin_fabsf(oz) > RAY_ORG_MAX) | (ax > RAY_DIR_MAX) | (ay > RAY_DIR_MAX) | (az > RAY_DIR_MAX) |
+           ((ax < RAY_DIR_MIN) & (ay < RAY_DIR_MIN) & (az < RAY_DIR_MIN));
+}
+
 /* The lanes of v that are set (all ones), as bits 0..3. */
 static inline unsigned ray_lanes(ray_ints4 v)
 {
