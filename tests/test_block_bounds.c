@@ -453,12 +453,207 @@ static void test_tri_tight(void **state)
         fail_msg("far off, the bound is only %.7f of the distance", worst);
 }
 
+/* ---- the boxes of the nodes' children (node_obb) ---- */
+
+/* A tree of width w made by hand over blocks on a curved patch (a
+ * sphere's cap of radius 20 s about c, tilted blocks of size s, flat or
+ * not): the root's children are inner nodes (one of them with an inner
+ * node below it), a leaf of three blocks, a leaf of one, and an empty
+ * slot; the inner nodes' children leaves of one or two blocks. */
+enum { TREE_BLOCKS = 40 };
+typedef struct hand_tree {
+    block blocks[TREE_BLOCKS];
+    rtk_triangle4 tris[TREE_BLOCKS];
+    rtk_bvh8_node n8[4];
+    rtk_bvh4_node n4[4];
+    int used;
+} hand_tree;
+
+static uint32_t hand_leaf(hand_tree *t, int blocks, const double *c, double s, int vertices)
+{
+    const uint32_t first = (uint32_t)t->used;
+    for (int i = 0; i < blocks; i++, t->used++) {
+        const double th = 0.6 * rnd(), ph = 6.283 * rnd();
+        const double at[3] = {c[0] + 20.0 * s * sin(th) * cos(ph), c[1] + 20.0 * s * sin(th) * sin(ph),
+                              c[2] + 20.0 * s * cos(th)};
+        make_block(&t->blocks[t->used], at, s, rnd() < 0.5, vertices);
+        t->tris[t->used] = t->blocks[t->used].t;
+    }
+    return rtk_leaf_ref(first, (uint32_t)blocks);
+}
+
+/* The vertices' float box under ref (lanes of the node arrays). */
+static void hand_box(const hand_tree *t, const rtk_accel *a, uint32_t ref, int w, float *lo, float *hi)
+{
+    if (ref == RTK_BVH4_EMPTY)
+        return;
+    if (ref & RTK_BVH4_LEAF_BIT) {
+        for (uint32_t b = rtk_leaf_first(ref); b < rtk_leaf_first(ref) + rtk_leaf_blocks(ref); b++)
+            for (int k = 0; k < t->blocks[b].count; k++) {
+                double v[3][3];
+                corners(&t->blocks[b], k, v);
+                for (int i = 0; i < 3; i++)
+                    for (int x = 0; x < 3; x++) {
+                        lo[x] = fminf(lo[x], (float)v[i][x]);
+                        hi[x] = fmaxf(hi[x], (float)v[i][x]);
+                    }
+            }
+        return;
+    }
+    for (int c = 0; c < w; c++)
+        hand_box(t, a, w == 8 ? t->n8[ref].child[c] : t->n4[ref].child[c], w, lo, hi);
+}
+
+static void hand_node(hand_tree *t, uint32_t i, int w, const uint32_t *child)
+{
+    for (int c = 0; c < w; c++) {
+        float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        hand_box(t, NULL, child[c], w, lo, hi);
+        if (w == 8) {
+            rtk_bvh8_node *n = &t->n8[i];
+            n->child[c] = child[c];
+            n->lower_x[c] = lo[0], n->lower_y[c] = lo[1], n->lower_z[c] = lo[2];
+            n->upper_x[c] = hi[0], n->upper_y[c] = hi[1], n->upper_z[c] = hi[2];
+        } else {
+            rtk_bvh4_node *n = &t->n4[i];
+            n->child[c] = child[c];
+            n->lower_x[c] = lo[0], n->lower_y[c] = lo[1], n->lower_z[c] = lo[2];
+            n->upper_x[c] = hi[0], n->upper_y[c] = hi[1], n->upper_z[c] = hi[2];
+        }
+    }
+}
+
+/* The least squared distance from p to the triangles under ref. */
+static double hand_d2(const hand_tree *t, uint32_t ref, int w, const double *p)
+{
+    if (ref == RTK_BVH4_EMPTY)
+        return INFINITY;
+    double best = INFINITY;
+    if (ref & RTK_BVH4_LEAF_BIT) {
+        for (uint32_t b = rtk_leaf_first(ref); b < rtk_leaf_first(ref) + rtk_leaf_blocks(ref); b++)
+            best = fmin(best, true_d2(&t->blocks[b], p));
+        return best;
+    }
+    for (int c = 0; c < w; c++)
+        best = fmin(best, hand_d2(t, w == 8 ? t->n8[ref].child[c] : t->n4[ref].child[c], w, p));
+    return best;
+}
+
+/* Every child's box of every node, at every scale and offset, as the walk
+ * tests it (rtk_block_obb_lower2 on its lane): never above the true
+ * distance to the triangles below it, for points at their vertices, near
+ * and far, double and float; and it leaves out more of the points far
+ * off than the axis-aligned boxes do. */
+static void test_node_boxes(void **state)
+{
+    (void)state;
+    long checked = 0, inner = 0, tighter = 0;
+    static hand_tree t;
+    for (int w = 4; w <= 8; w += 4)
+        for (int si = 0; si < 5; si++)
+            for (int oi = 0; oi < 3; oi++)
+                for (int trial = 0; trial < 20; trial++) {
+                    const double s = scales[si];
+                    const int vertices = trial % 2;
+                    const double c[3] = {offsets[oi] * s * 1e3 * (rnd() + 0.5), offsets[oi] * s * 1e3 * (rnd() - 0.5),
+                                         s * (rnd() - 0.5)};
+                    memset(&t, 0, sizeof t);
+                    /* node 3 under node 2, nodes 1 and 2 under the root */
+                    uint32_t kids[8];
+                    for (int k = 0; k < 8; k++)
+                        kids[k] = k < w - 1 ? hand_leaf(&t, 1 + (k & 1), c, s, vertices) : RTK_BVH4_EMPTY;
+                    hand_node(&t, 3, w, kids);
+                    for (int k = 0; k < 8; k++)
+                        kids[k] = k == 0 ? 3 : k < w - 2 ? hand_leaf(&t, 1, c, s, vertices) : RTK_BVH4_EMPTY;
+                    hand_node(&t, 2, w, kids);
+                    for (int k = 0; k < 8; k++)
+                        kids[k] = k < w ? hand_leaf(&t, 1 + (k % 3 == 0), c, s, vertices) : RTK_BVH4_EMPTY;
+                    hand_node(&t, 1, w, kids);
+                    for (int k = 0; k < 8; k++)
+                        kids[k] = k == 0 ? 1 : k == 1 ? 2 : k == 2 ? hand_leaf(&t, 3, c, s, vertices)
+                                                      : k == 3 ? hand_leaf(&t, 1, c, s, vertices) : RTK_BVH4_EMPTY;
+                    hand_node(&t, 0, w, kids);
+                    assert_true(t.used <= TREE_BLOCKS);
+                    rtk_accel a;
+                    memset(&a, 0, sizeof a);
+                    a.layout = w == 8 ? (vertices ? RTK_LAYOUT_BVH8_TRIANGLE4V : RTK_LAYOUT_BVH8_TRIANGLE4)
+                                      : (vertices ? RTK_LAYOUT_BVH4_TRIANGLE4V : RTK_LAYOUT_BVH4_TRIANGLE4);
+                    a.tris = t.tris;
+                    a.leaf_count = (uint64_t)t.used;
+                    a.nodes = w == 8 ? (void *)t.n8 : (void *)t.n4;
+                    a.node_count = 4;
+                    a.root = 0;
+                    const rtk_block_bounds *bb = rtk_block_bounds_of(&a);
+                    assert_non_null(bb);
+                    for (uint32_t i = 0; i < 4; i++)
+                        for (int lane = 0; lane < w; lane++) {
+                            const uint32_t ref = w == 8 ? t.n8[i].child[lane] : t.n4[i].child[lane];
+                            if (ref == RTK_BVH4_EMPTY)
+                                continue;
+                            rtk_block_obb o;
+                            const float *row = bb->node_obb + (size_t)i * RTK_NODE_OBB_ROWS * w;
+                            for (int k = 0; k < 3; k++) {
+                                o.c[k] = row[k * w + lane];
+                                o.h[k] = row[(3 + k) * w + lane];
+                                o.axis[0][k] = row[(6 + k) * w + lane];
+                                o.axis[2][k] = row[(9 + k) * w + lane];
+                            }
+                            rtk_obb_axis1(o.axis[2], o.axis[0], o.axis[1]);
+                            float lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+                            hand_box(&t, &a, ref, w, lo, hi);
+                            for (int q = 0; q < 30; q++) {
+                                double p[3];
+                                const int kind = q % 3;
+                                if (kind == 0) { /* a vertex below */
+                                    uint32_t r = ref;
+                                    while (!(r & RTK_BVH4_LEAF_BIT))
+                                        r = w == 8 ? t.n8[r].child[0] : t.n4[r].child[0];
+                                    const block *b = &t.blocks[rtk_leaf_first(r)];
+                                    trial_point(b, (int)(rnd() * b->count), c, s, AT_VERTEX, p);
+                                } else { /* about the cap, near or far */
+                                    const double r = s * (kind == 1 ? 20.0 : 400.0);
+                                    for (int k = 0; k < 3; k++)
+                                        p[k] = c[k] + r * (2.0 * rnd() - 1.0);
+                                }
+                                for (int pass = 0; pass < 2; pass++) {
+                                    if (pass)
+                                        round_to_float(p);
+                                    float pf[3], dp;
+                                    float_point(p, pf, &dp);
+                                    const double want = hand_d2(&t, ref, w, p);
+                                    const float got = rtk_block_obb_lower2(&o, pf, dp);
+                                    if (!((double)got <= want || (want > FLT_MAX && got == INFINITY)))
+                                        fail_msg("width %d, scale %g, offset %g, node %u lane %d: bound %.9g above %.17g",
+                                                 w, s, offsets[oi], i, lane, got, want);
+                                    if (kind && pass && !(ref & RTK_BVH4_LEAF_BIT)) {
+                                        double g2 = 0.0;
+                                        for (int k = 0; k < 3; k++) {
+                                            const double g = fmax(fmax(lo[k] - p[k], p[k] - hi[k]), 0.0);
+                                            g2 += g * g;
+                                        }
+                                        inner++;
+                                        tighter += (double)got > g2;
+                                    }
+                                    checked++;
+                                }
+                            }
+                        }
+                    rtk_block_bounds_drop(&a);
+                }
+    assert_true(checked > 100000);
+    /* an inner node's box bounds many points off the cap tighter than its
+     * axis-aligned box */
+    if (!(tighter * 8 > inner))
+        fail_msg("an inner node's oriented box tighter for %ld of %ld points", tighter, inner);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_never_above),
         cmocka_unit_test(test_tight),
         cmocka_unit_test(test_worth),
+        cmocka_unit_test(test_node_boxes),
         cmocka_unit_test(test_tri_never_above),
         cmocka_unit_test(test_tri_tight),
     };
