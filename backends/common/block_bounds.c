@@ -223,21 +223,15 @@ static void obb_from_lanes(const rtk_block_obb *o, float *rows, uint32_t m, cons
     }
 }
 
-/* A leaf's box: as a block's (obb_make), from all its blocks' vertices;
- * a leaf of one block takes that block's, made already.  Its triangles'
- * summed normal into n. */
-static void leaf_obb(rtk_block_obb *o, double *n, const rtk_accel *a, const rtk_block_obb *blocks, uint32_t ref,
-                     int vertices)
+/* A leaf's box: as a block's (obb_make), from all its blocks' vertices.
+ * Its triangles' summed normal into n. */
+static void leaf_obb(rtk_block_obb *o, double *n, const rtk_accel *a, uint32_t ref, int vertices)
 {
     double v[48][3], e[3] = {1.0, 0.0, 0.0};
     int nv = 0;
     for (uint32_t b = rtk_leaf_first(ref), end = b + rtk_leaf_blocks(ref); b < end; b++)
         nv += block_vertices(&a->tris[b], vertices, (double(*)[3])v[nv]);
     normal_and_edge(v, nv, n, e);
-    if (rtk_leaf_blocks(ref) == 1) {
-        *o = blocks[rtk_leaf_first(ref)];
-        return;
-    }
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY}, vmag = 0.0;
     obb_axes(o, n, e);
     obb_grow(o, v, nv, lo, hi, &vmag);
@@ -248,8 +242,7 @@ static void leaf_obb(rtk_block_obb *o, double *n, const rtk_accel *a, const rtk_
  * summed normals of each child's triangles (area weighted) into nsum:
  * an inner child's box lies along its summed normal and the longest side
  * of its axis-aligned box (the next where that lies near the normal). */
-static void node_obbs(float *rows, const rtk_block_obb *blocks, const rtk_accel *a, uint32_t i, int w, int vertices,
-                      double nsum[][3])
+static void node_obbs(float *rows, const rtk_accel *a, uint32_t i, int w, int vertices, double nsum[][3])
 {
     const node_view nv = node_at(a, i, w);
     for (int c = 0; c < w; c++) {
@@ -260,10 +253,10 @@ static void node_obbs(float *rows, const rtk_block_obb *blocks, const rtk_accel 
         if (ref == RTK_BVH4_EMPTY) {
             /* (its box leaves nothing out) */
         } else if (ref & RTK_BVH4_LEAF_BIT) {
-            leaf_obb(&o, n, a, blocks, ref, vertices);
+            leaf_obb(&o, n, a, ref, vertices);
         } else {
             double sub[8][3];
-            node_obbs(rows, blocks, a, ref, w, vertices, sub);
+            node_obbs(rows, a, ref, w, vertices, sub);
             for (int j = 0; j < w; j++)
                 for (int k = 0; k < 3; k++)
                     n[k] += sub[j][k];
@@ -308,34 +301,42 @@ const rtk_block_bounds *rtk_block_bounds_of(const rtk_accel *ac)
     case RTK_LAYOUT_BVH8_TRIANGLE4V: vertices = 1; break;
     default: return NULL;
     }
-    /* the header, the boxes, the bits: one allocation */
-    const size_t words = (a->leaf_count + 63) / 64;
+    /* A tree of nodes gets its nodes' children's boxes, a leaf's made
+     * from its blocks' triangles, and its blocks none of their own (tested
+     * at the leaves as well, they measured no faster: docs/benchmarks/
+     * points-and-python.md); a tree of one leaf gets its blocks' boxes.
+     * The header, then the boxes (and the blocks' bits): one allocation. */
     const int w = a->layout == RTK_LAYOUT_BVH8_TRIANGLE4 || a->layout == RTK_LAYOUT_BVH8_TRIANGLE4V ? 8 : 4;
-    const size_t at = (sizeof(rtk_block_obb) + a->leaf_count * sizeof(rtk_block_obb) + words * 8 + 63) & ~(size_t)63;
-    unsigned char *mem = mem_alloc(&a->memory, at + a->node_count * RTK_NODE_OBB_ROWS * w * sizeof(float), 1);
+    const int nodes = a->node_count && a->root != RTK_BVH4_EMPTY && !(a->root & RTK_BVH4_LEAF_BIT);
+    const size_t words = (a->leaf_count + 63) / 64;
+    const size_t size = nodes ? a->node_count * RTK_NODE_OBB_ROWS * w * sizeof(float)
+                              : a->leaf_count * sizeof(rtk_block_obb) + words * 8;
+    unsigned char *mem = mem_alloc(&a->memory, sizeof(rtk_block_obb) + size, 1);
     if (!mem)
         return NULL;
     b = (rtk_block_bounds *)mem;
-    rtk_block_obb *o = (rtk_block_obb *)(mem + sizeof(rtk_block_obb));
-    uint64_t *worth = (uint64_t *)(o + a->leaf_count);
-    double sum = 0.0;
-    for (uint64_t i = 0; i < a->leaf_count; i++) {
-        if (obb_make(&o[i], &a->tris[i], vertices))
-            worth[i >> 6] |= (uint64_t)1 << (i & 63);
-        const double r2 = (double)o[i].h[0] * o[i].h[0] + (double)o[i].h[1] * o[i].h[1] + (double)o[i].h[2] * o[i].h[2];
-        sum += r2 < INFINITY ? r2 : 0.0;
-    }
-    b->obb = o;
-    b->worth = worth;
-    float *rows = (float *)(mem + at);
-    if (a->node_count && a->root != RTK_BVH4_EMPTY && !(a->root & RTK_BVH4_LEAF_BIT)) {
+    if (nodes) {
+        float *rows = (float *)(mem + sizeof(rtk_block_obb));
         double nsum[8][3];
-        node_obbs(rows, o, a, a->root, w, vertices, nsum);
+        node_obbs(rows, a, a->root, w, vertices, nsum);
+        b->node_obb = rows;
+    } else {
+        rtk_block_obb *o = (rtk_block_obb *)(mem + sizeof(rtk_block_obb));
+        uint64_t *worth = (uint64_t *)(o + a->leaf_count);
+        double sum = 0.0;
+        for (uint64_t i = 0; i < a->leaf_count; i++) {
+            if (obb_make(&o[i], &a->tris[i], vertices))
+                worth[i >> 6] |= (uint64_t)1 << (i & 63);
+            const double r2 =
+                (double)o[i].h[0] * o[i].h[0] + (double)o[i].h[1] * o[i].h[1] + (double)o[i].h[2] * o[i].h[2];
+            sum += r2 < INFINITY ? r2 : 0.0;
+        }
+        b->obb = o;
+        b->worth = worth;
+        /* RTK_OBB_FROM times the blocks' mean squared half-diagonal: 4
+         * half-diagonals */
+        b->from = (float)(RTK_OBB_FROM * sum / (double)a->leaf_count);
     }
-    b->node_obb = rows;
-    /* RTK_OBB_FROM times the blocks' mean squared half-diagonal: 4
-     * half-diagonals */
-    b->from = (float)(RTK_OBB_FROM * sum / (double)a->leaf_count);
     rtk_block_bounds *seen = NULL;
     if (!atomic_compare_exchange_strong_explicit(&a->block_bounds, &seen, b, memory_order_acq_rel,
                                                  memory_order_acquire)) {

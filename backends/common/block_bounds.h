@@ -10,18 +10,19 @@
  * So each block of the triangle4 and triangle4v layouts gets a box along
  * its own axes: the third its triangles' summed normal, the first its
  * longest edge made perpendicular to that, the second their cross
- * product.  And every child of a node gets one too (node_obb below), a
- * leaf's from its triangles, an inner node's from its children's boxes,
- * tested beside the axis-aligned boxes in one SIMD step: the curved or
- * tilted surface under an inner node also fills only part of its
- * axis-aligned box (python3 -m rtk.bench's box points: the bunny +30%,
- * torus:0.3M +68%, sphere:1.3M 2.2x over the blocks' boxes alone).
+ * product.  Since 5ed48c6 every child of a node gets one (node_obb
+ * below), a leaf's from its blocks' triangles, an inner node's from its
+ * children's boxes, tested beside the axis-aligned boxes in one SIMD
+ * step: the curved or tilted surface under an inner node also fills only
+ * part of its axis-aligned box (python3 -m rtk.bench's box points: the
+ * bunny +30%, torus:0.3M +68%, sphere:1.3M about 2x over the blocks' boxes
+ * alone), and the blocks' own boxes are then left out.
  *
  * The boxes are made at a tree's first closest-point query, not at its
- * build: a scene that is only traced pays nothing for them (64 bytes per
- * block, and 48 per child slot of a node: about 40 bytes a triangle on
- * the 8-wide trees of the shared meshes, through the tree's memory
- * monitor).  Queries
+ * build: a scene that is only traced pays nothing for them (48 bytes per
+ * child slot of a node, 21-25 bytes a triangle on the 8-wide trees of
+ * the shared meshes; 64 per block for a tree of one leaf; through the
+ * tree's memory monitor).  Queries
  * that find none made make them; concurrent first queries each make a
  * copy and one is kept (a compare-and-swap), so a committed scene stays
  * free to query from any number of threads.  A refit drops them.
@@ -53,7 +54,9 @@ static inline void rtk_obb_axis1(const float *a2, const float *a0, float *a1)
     a1[2] = a2[0] * a0[1] - a2[1] * a0[0];
 }
 
-/* What a tree's first closest-point query makes (one allocation): */
+/* What a tree's first closest-point query makes (one allocation): for a
+ * tree of nodes node_obb (obb and worth NULL), for a tree of one leaf its
+ * blocks' boxes (node_obb NULL). */
 typedef struct rtk_block_bounds {
     const rtk_block_obb *obb; /* one per block of a->tris */
     /* bit i of worth[i / 64]: block i's box is worth a test, being less than
@@ -69,12 +72,14 @@ typedef struct rtk_block_bounds {
      * node's width w, node i's RTK_NODE_OBB_ROWS rows of w floats from
      * node_obb + i * RTK_NODE_OBB_ROWS * w, lane c of each child c's: the
      * centre's x, y and z, the half extents h[0..2], axis[0] and axis[2]
-     * (axis[1] is their rtk_obb_axis1), as an rtk_block_obb's.  A leaf's is made from all of its
-     * blocks' triangles, an inner child's from its children's boxes
-     * (their extents along the new axes), an empty slot's leaves nothing
-     * out.  Tested as a node's children are (rtk_block_obb_lower2 lane by
-     * lane), they leave out inner nodes too, where curved or tilted
-     * surface lies in one corner of an axis-aligned box. */
+     * (axis[1] is their rtk_obb_axis1), as an rtk_block_obb's.  A leaf's
+     * is made from all of its blocks' triangles as a block's is, an inner
+     * child's along its triangles' summed normal from its children's
+     * boxes (their extents along the new axes), and an empty slot's leaves
+     * nothing out.  Tested beside the axis-aligned boxes of a node's
+     * children (rtk_block_obb_lower2 lane by lane), they leave out inner
+     * nodes too, where curved or tilted surface lies in one corner of an
+     * axis-aligned box. */
     const float *node_obb;
 } rtk_block_bounds;
 

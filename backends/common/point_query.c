@@ -14,8 +14,9 @@
  * bound first, while that bound is within the best distance.  Once that
  * distance is finite, the children's boxes along their own axes
  * (block_bounds.h, node_obb) are tested beside their axis-aligned ones,
- * in one more SIMD step, and once it is a few leaf blocks' sizes, so is
- * each block's of a leaf of several before its triangles.
+ * in one more SIMD step (a tree of one leaf has its blocks' boxes tested
+ * before their triangles instead, once the distance is a few blocks'
+ * sizes).
  *
  * Boxes are tested in float against the point rounded to float: a box is
  * left out only when even its distance lowered by the rounding (the
@@ -173,12 +174,11 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
         if (kind == LEAF_TRI4 || kind == LEAF_TRI4V) {
             const rtk_triangle4 *t = &a->tris[i];
             const rtk_triangle4v *tv = (const rtk_triangle4v *)t;
-            /* the block's oriented box first, once the best distance is a
-             * few blocks' sizes (block_bounds.h); a leaf of one block had
-             * it tested as its node's child (node_obb: testing it again
-             * here measured 5% slower on box points) */
+            /* in a tree of one leaf, the block's oriented box first, once
+             * the best distance is a few blocks' sizes (block_bounds.h; a
+             * tree of nodes tested its leaves' as its nodes' children) */
             const float bound = l->bound;
-            if (bb && bound > bb->from && (end - first > 1 || !bb->node_obb) && rtk_block_worth(bb, i) &&
+            if (bb && bb->obb && bound > bb->from && rtk_block_worth(bb, i) &&
                 rtk_block_obb_lower2(&bb->obb[i], l->pf, l->dp) > bound)
                 continue;
             /* the four triangles' boxes first, as a node's children: only
