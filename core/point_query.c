@@ -142,10 +142,15 @@ typedef struct point_job {
     size_t count;
 } point_job;
 
+/* Answers kept as hints: the nearest of the last few to each query. */
+#define POINT_HINTS 16
+
 static void point_range(const point_job *j, size_t begin, size_t end)
 {
-    /* along the curve, the previous query's answer is near: a hint */
-    const rtk_point_hit *prev = NULL;
+    /* along the curve, the previous queries' answers are near: the nearest
+     * of them is the hint */
+    double ring[POINT_HINTS][3];
+    int kept = 0, next = 0;
     float prev_time = 0.0f;
     for (size_t n = begin; n < end; n++) {
         const size_t i = j->order ? j->order[n] : n;
@@ -160,10 +165,23 @@ static void point_range(const point_job *j, size_t begin, size_t end)
             no_result(r, NAN);
             continue;
         }
-        const double hint[3] = {prev ? prev->x : 0.0, prev ? prev->y : 0.0, prev ? prev->z : 0.0};
-        closest_hinted(j->scene, q, r, prev && prev_time == q->time ? hint : NULL);
+        if (kept && prev_time != q->time)
+            kept = 0;
+        const double *hint = NULL;
+        double best = INFINITY;
+        for (int k = 0; k < kept; k++) {
+            const double dx = ring[k][0] - q->x, dy = ring[k][1] - q->y, dz = ring[k][2] - q->z;
+            const double d2 = dx * dx + dy * dy + dz * dz;
+            if (d2 < best) {
+                best = d2;
+                hint = ring[k];
+            }
+        }
+        closest_hinted(j->scene, q, r, hint);
         if (j->order && r->geomID != RTK_INVALID_GEOMETRY_ID) {
-            prev = r;
+            ring[next][0] = r->x, ring[next][1] = r->y, ring[next][2] = r->z;
+            next = (next + 1) % POINT_HINTS;
+            kept += kept < POINT_HINTS;
             prev_time = q->time;
         }
     }
