@@ -76,8 +76,10 @@ static void obb_extents(rtk_block_obb *o, const double *lo, const double *hi, do
     for (int r = 0; r < 3; r++)
         for (int k = 0; k < 3; k++)
             c[k] += 0.5 * (lo[r] + hi[r]) * o->axis[r][k];
+    /* (no finite extents: a centre of 0, and the half extents below are
+     * infinite, so no NaN reaches the boxes made from this one) */
     for (int k = 0; k < 3; k++)
-        o->c[k] = (float)c[k];
+        o->c[k] = fabs(c[k]) < INFINITY ? (float)c[k] : 0.0f;
     /* the largest |x|_1 of the vertices and the centre */
     const double cm = fabs(o->c[0]) + fabs(o->c[1]) + fabs(o->c[2]);
     const double mag = cm > vmag ? cm : vmag;
@@ -196,24 +198,30 @@ static void obb_from_lanes(const rtk_block_obb *o, float *rows, uint32_t m, cons
     for (int j = 0; j < w; j++) {
         if (mv->child[j] == RTK_BVH4_EMPTY)
             continue;
-        double c[3], h[3], ax[3][3];
+        double c[3], h[3];
+        float ax[3][3];
         for (int k = 0; k < 3; k++) {
             c[k] = obb_row(rows, m, w, k)[j];
             h[k] = obb_row(rows, m, w, 3 + k)[j];
             ax[0][k] = obb_row(rows, m, w, 6 + k)[j];
             ax[2][k] = obb_row(rows, m, w, 9 + k)[j];
         }
-        float a0[3] = {(float)ax[0][0], (float)ax[0][1], (float)ax[0][2]}, a1[3];
-        const float a2[3] = {(float)ax[2][0], (float)ax[2][1], (float)ax[2][2]};
-        rtk_obb_axis1(a2, a0, a1);
-        for (int k = 0; k < 3; k++)
-            ax[1][k] = a1[k];
+        rtk_obb_axis1(ax[2], ax[0], ax[1]);
         const double hs = h[0] + h[1] + h[2];
+        if (!(hs < INFINITY)) {
+            /* a lane that leaves nothing out: neither does this box (its
+             * support would be infinity times a zero, NaN, and the
+             * comparisons below would pass it over) */
+            for (int r = 0; r < 3; r++)
+                lo[r] = -INFINITY, hi[r] = INFINITY;
+            continue;
+        }
         for (int r = 0; r < 3; r++) {
             const double cu = o->axis[r][0] * c[0] + o->axis[r][1] * c[1] + o->axis[r][2] * c[2];
             double ext = hs * 0x1p-16;
             for (int k = 0; k < 3; k++)
-                ext += h[k] * fabs(o->axis[r][0] * ax[k][0] + o->axis[r][1] * ax[k][1] + o->axis[r][2] * ax[k][2]);
+                ext += h[k] * fabs((double)o->axis[r][0] * ax[k][0] + (double)o->axis[r][1] * ax[k][1] +
+                                   (double)o->axis[r][2] * ax[k][2]);
             lo[r] = cu - ext < lo[r] ? cu - ext : lo[r];
             hi[r] = cu + ext > hi[r] ? cu + ext : hi[r];
         }
