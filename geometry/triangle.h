@@ -4,18 +4,33 @@
  * Header-only so that each backend compiles it with its own ISA flags and the
  * tests compile the very same arithmetic as their brute-force reference.
  *
- * Fast intersector (Moeller-Trumbore, division-free form): with the edges
- * e1 = v1 - v0, e2 = v2 - v0 and the determinant det = dot(e1, cross(d, e2)),
- * the unnormalised barycentrics U, V and distance T are compared against |det|
- * so a miss costs no division.  A hit needs U >= 0, V >= 0, U + V <= |det|
- * and tnear*|det| <= T <= tfar*|det|; det == 0 (ray parallel to the plane, or
- * a degenerate triangle) never hits, and neither does |det| < FLT_MIN (a
- * triangle and ray so small, near 1e-13 and below, that 1/|det| would
- * overflow and t come out NaN or infinite); any NaN makes every comparison
- * false, so NaN input never hits.  Both faces are hit (no culling).
+ * Fast intersector (Moeller-Trumbore in the form Embree 3 computes it,
+ * division-free): with the edges e1 = v1 - v0, e2 = v2 - v0, the normal
+ * n = cross(e1, e2), c = v0 - o and r = cross(c, d), the unnormalised
+ * barycentrics are U = dot(r, e2) and V = -dot(r, e1) and the distance
+ * T = dot(n, c), each with the sign of det = dot(n, d) taken off, compared
+ * against |det| so a miss costs no division.  A hit needs U >= 0, V >= 0,
+ * U + V <= |det| and tnear*|det| <= T <= tfar*|det|; det == 0 (ray
+ * parallel to the plane, or a degenerate triangle) never hits, and neither
+ * does |det| < FLT_MIN (a triangle and ray so small, near 1e-13 and below,
+ * that 1/|det| would overflow and t come out NaN or infinite); any NaN
+ * makes every comparison false, so NaN input never hits.  Both faces are hit
+ * (no culling).
  *
- * Guarantees: none at shared edges and vertices (a ray exactly through an edge
- * may hit both triangles or neither).
+ * At shared edges: the two edge functions from v0 are r, made from v0 alone,
+ * against the edge's vector.  Two triangles that share an edge and both
+ * start at the same end of it (T1 = (a, b, c), T2 = (a, d, b)) hold the
+ * same floats b - a for it, as T1's e1 and T2's e2, so they compute its
+ * function from the same floats, exactly negated: a ray cannot pass between
+ * them or hit both unless the function is exactly zero (then both take
+ * the ray: a double hit, never a leak).
+ * Moeller-Trumbore's usual form (U = dot(o - v0, cross(d, e2)),
+ * V = dot(d, cross(o - v0, e1))) evaluates the two triple products in
+ * different orders and gave four times the double hits at shared edges
+ * (docs/benchmarks/accuracy.md).  Edges that the two triangles reach from
+ * different corners, and the edge opposite v0 (U + V <= |det|), have no
+ * such guarantee: a ray exactly through them may hit both triangles or
+ * neither.  The watertight intersector below has none of these.
  *
  * Watertight intersector (Woop, Benthin and Wald 2013, "Watertight
  * Ray/Triangle Intersection"), used by the robust layouts: the vertices are
@@ -149,25 +164,21 @@ static inline int rtk_triangle_intersect(const float o[3], const float d[3], flo
                                          const float v0[3], const float e1[3], const float e2[3],
                                          rtk_tri_hit *hit)
 {
-    /* p = cross(d, e2) */
-    const float px = d[1] * e2[2] - d[2] * e2[1];
-    const float py = d[2] * e2[0] - d[0] * e2[2];
-    const float pz = d[0] * e2[1] - d[1] * e2[0];
-    const float det = e1[0] * px + e1[1] * py + e1[2] * pz;
+    /* c = v0 - o, r = cross(c, d), n = cross(e1, e2) */
+    const float cx = v0[0] - o[0], cy = v0[1] - o[1], cz = v0[2] - o[2];
+    const float rx = cy * d[2] - cz * d[1];
+    const float ry = cz * d[0] - cx * d[2];
+    const float rz = cx * d[1] - cy * d[0];
+    const float nx = e1[1] * e2[2] - e1[2] * e2[1];
+    const float ny = e1[2] * e2[0] - e1[0] * e2[2];
+    const float nz = e1[0] * e2[1] - e1[1] * e2[0];
+    const float det = nx * d[0] + ny * d[1] + nz * d[2];
     const float absdet = fabsf(det);
-    /* s = o - v0 */
-    const float sx = o[0] - v0[0], sy = o[1] - v0[1], sz = o[2] - v0[2];
-    const float U = rtk_xor_sign(sx * px + sy * py + sz * pz, det);
-    if (!(U >= 0.0f && absdet >= FLT_MIN))
+    const float U = rtk_xor_sign(rx * e2[0] + ry * e2[1] + rz * e2[2], det);
+    const float V = rtk_xor_sign(rx * e1[0] + ry * e1[1] + rz * e1[2], -det);
+    if (!(U >= 0.0f && V >= 0.0f && U + V <= absdet && absdet >= FLT_MIN))
         return 0;
-    /* q = cross(s, e1) */
-    const float qx = sy * e1[2] - sz * e1[1];
-    const float qy = sz * e1[0] - sx * e1[2];
-    const float qz = sx * e1[1] - sy * e1[0];
-    const float V = rtk_xor_sign(d[0] * qx + d[1] * qy + d[2] * qz, det);
-    if (!(V >= 0.0f && U + V <= absdet))
-        return 0;
-    const float T = rtk_xor_sign(e2[0] * qx + e2[1] * qy + e2[2] * qz, det);
+    const float T = rtk_xor_sign(nx * cx + ny * cy + nz * cz, det);
     if (!(T >= tnear * absdet && T <= tfar * absdet))
         return 0;
     const float inv = 1.0f / absdet;

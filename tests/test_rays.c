@@ -527,7 +527,11 @@ static void test_box_edges(void **state)
         }
     }
     print_message("box edges: %zu rays checked, %zu hit their tooth\n", checked, hits);
-    assert_true(checked > 5000 && hits > 1000 && hits < checked);
+    /* (Moeller-Trumbore's usual form missed some of these rays, whose
+     * exact crossing lies above the base line; in Embree's form, whose edge
+     * functions from v0 are exact to a rounding or two, every one hits, so
+     * every box on the way must let every ray through) */
+    assert_true(checked > 5000 && hits > 1000);
 }
 
 /* Sixteen small triangles stacked 0.01 apart along z: splitting them buys

@@ -12,7 +12,8 @@
 #error "a part of traverse_bvhn.h: include that"
 #endif
 
-/* Moeller-Trumbore on four triangles at once, the same arithmetic as
+/* Moeller-Trumbore (in Embree's form, geometry/triangle.h) on four
+ * triangles at once, the same arithmetic as
  * rtk_triangle_intersect (geometry/triangle.h) lane by lane.  Returns the
  * mask of lanes hit within [tnear, tfar]; U, V, T and |det| per lane. */
 typedef struct tri4_hit {
@@ -144,23 +145,23 @@ static inline unsigned triangle4_intersect(const block_t *t, const ray_pre *p, c
     const vfloat4 dx = l->dir[0], dy = l->dir[1], dz = l->dir[2];
     const vfloat4 ox = l->org[0], oy = l->org[1], oz = l->org[2];
 #endif
-    /* p = cross(d, e2) */
-    const vfloat4 px = vf4_sub(vf4_mul(dy, e2z), vf4_mul(dz, e2y));
-    const vfloat4 py = vf4_sub(vf4_mul(dz, e2x), vf4_mul(dx, e2z));
-    const vfloat4 pz = vf4_sub(vf4_mul(dx, e2y), vf4_mul(dy, e2x));
-    const vfloat4 det = vf4_add(vf4_add(vf4_mul(e1x, px), vf4_mul(e1y, py)), vf4_mul(e1z, pz));
+    /* n = cross(e1, e2), c = v0 - o: det and T first, so that n is done
+     * with before r = cross(c, d) is made (fewer registers live) */
+    const vfloat4 nx = vf4_sub(vf4_mul(e1y, e2z), vf4_mul(e1z, e2y));
+    const vfloat4 ny = vf4_sub(vf4_mul(e1z, e2x), vf4_mul(e1x, e2z));
+    const vfloat4 nz = vf4_sub(vf4_mul(e1x, e2y), vf4_mul(e1y, e2x));
+    const vfloat4 det = vf4_add(vf4_add(vf4_mul(nx, dx), vf4_mul(ny, dy)), vf4_mul(nz, dz));
     const vfloat4 absdet = vf4_abs(det);
-    /* s = o - v0 */
-    const vfloat4 sx = vf4_sub(ox, vf4_load(t->v0x));
-    const vfloat4 sy = vf4_sub(oy, vf4_load(t->v0y));
-    const vfloat4 sz = vf4_sub(oz, vf4_load(t->v0z));
-    const vfloat4 U = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(sx, px), vf4_mul(sy, py)), vf4_mul(sz, pz)), det);
-    /* q = cross(s, e1) */
-    const vfloat4 qx = vf4_sub(vf4_mul(sy, e1z), vf4_mul(sz, e1y));
-    const vfloat4 qy = vf4_sub(vf4_mul(sz, e1x), vf4_mul(sx, e1z));
-    const vfloat4 qz = vf4_sub(vf4_mul(sx, e1y), vf4_mul(sy, e1x));
-    const vfloat4 V = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(dx, qx), vf4_mul(dy, qy)), vf4_mul(dz, qz)), det);
-    const vfloat4 T = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(e2x, qx), vf4_mul(e2y, qy)), vf4_mul(e2z, qz)), det);
+    const vfloat4 cx = vf4_sub(vf4_load(t->v0x), ox);
+    const vfloat4 cy = vf4_sub(vf4_load(t->v0y), oy);
+    const vfloat4 cz = vf4_sub(vf4_load(t->v0z), oz);
+    const vfloat4 T = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(nx, cx), vf4_mul(ny, cy)), vf4_mul(nz, cz)), det);
+    const vfloat4 rx = vf4_sub(vf4_mul(cy, dz), vf4_mul(cz, dy));
+    const vfloat4 ry = vf4_sub(vf4_mul(cz, dx), vf4_mul(cx, dz));
+    const vfloat4 rz = vf4_sub(vf4_mul(cx, dy), vf4_mul(cy, dx));
+    const vfloat4 U = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(rx, e2x), vf4_mul(ry, e2y)), vf4_mul(rz, e2z)), det);
+    const vfloat4 V = vf4_xor_sign(vf4_add(vf4_add(vf4_mul(rx, e1x), vf4_mul(ry, e1y)), vf4_mul(rz, e1z)),
+                                   vf4_xor(det, vf4_set1(-0.0f)));
     const vfloat4 zero = vf4_set1(0.0f);
     vbool4 ok = vb4_and(vf4_ge(U, zero), vf4_ge(V, zero));
     ok = vb4_and(ok, vf4_le(vf4_add(U, V), absdet));

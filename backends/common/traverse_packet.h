@@ -545,20 +545,22 @@ static inline vkb PK_(triangle_intersect)(const block_t *t, int j, const PK_(pac
     const vk e1x = VK(set1)(t->e1x[j]), e1y = VK(set1)(t->e1y[j]), e1z = VK(set1)(t->e1z[j]);
     const vk e2x = VK(set1)(t->e2x[j]), e2y = VK(set1)(t->e2y[j]), e2z = VK(set1)(t->e2z[j]);
     const vk dx = p->dir[0], dy = p->dir[1], dz = p->dir[2];
-    const vk px = VK(sub)(VK(mul)(dy, e2z), VK(mul)(dz, e2y));
-    const vk py = VK(sub)(VK(mul)(dz, e2x), VK(mul)(dx, e2z));
-    const vk pz = VK(sub)(VK(mul)(dx, e2y), VK(mul)(dy, e2x));
-    const vk det = VK(add)(VK(add)(VK(mul)(e1x, px), VK(mul)(e1y, py)), VK(mul)(e1z, pz));
+    /* c = v0 - o, r = cross(c, d), n = cross(e1, e2) */
+    const vk cx = VK(sub)(VK(set1)(t->v0x[j]), p->org[0]);
+    const vk cy = VK(sub)(VK(set1)(t->v0y[j]), p->org[1]);
+    const vk cz = VK(sub)(VK(set1)(t->v0z[j]), p->org[2]);
+    const vk rx = VK(sub)(VK(mul)(cy, dz), VK(mul)(cz, dy));
+    const vk ry = VK(sub)(VK(mul)(cz, dx), VK(mul)(cx, dz));
+    const vk rz = VK(sub)(VK(mul)(cx, dy), VK(mul)(cy, dx));
+    const vk nx = VK(sub)(VK(mul)(e1y, e2z), VK(mul)(e1z, e2y));
+    const vk ny = VK(sub)(VK(mul)(e1z, e2x), VK(mul)(e1x, e2z));
+    const vk nz = VK(sub)(VK(mul)(e1x, e2y), VK(mul)(e1y, e2x));
+    const vk det = VK(add)(VK(add)(VK(mul)(nx, dx), VK(mul)(ny, dy)), VK(mul)(nz, dz));
     const vk absdet = VK(abs)(det);
-    const vk sx = VK(sub)(p->org[0], VK(set1)(t->v0x[j]));
-    const vk sy = VK(sub)(p->org[1], VK(set1)(t->v0y[j]));
-    const vk sz = VK(sub)(p->org[2], VK(set1)(t->v0z[j]));
-    const vk U = VK(xor_sign)(VK(add)(VK(add)(VK(mul)(sx, px), VK(mul)(sy, py)), VK(mul)(sz, pz)), det);
-    const vk qx = VK(sub)(VK(mul)(sy, e1z), VK(mul)(sz, e1y));
-    const vk qy = VK(sub)(VK(mul)(sz, e1x), VK(mul)(sx, e1z));
-    const vk qz = VK(sub)(VK(mul)(sx, e1y), VK(mul)(sy, e1x));
-    const vk V = VK(xor_sign)(VK(add)(VK(add)(VK(mul)(dx, qx), VK(mul)(dy, qy)), VK(mul)(dz, qz)), det);
-    const vk T = VK(xor_sign)(VK(add)(VK(add)(VK(mul)(e2x, qx), VK(mul)(e2y, qy)), VK(mul)(e2z, qz)), det);
+    const vk U = VK(xor_sign)(VK(add)(VK(add)(VK(mul)(rx, e2x), VK(mul)(ry, e2y)), VK(mul)(rz, e2z)), det);
+    const vk V = VK(xor_sign)(VK(add)(VK(add)(VK(mul)(rx, e1x), VK(mul)(ry, e1y)), VK(mul)(rz, e1z)),
+                              VK(sub)(VK(set1)(0.0f), det));
+    const vk T = VK(xor_sign)(VK(add)(VK(add)(VK(mul)(nx, cx), VK(mul)(ny, cy)), VK(mul)(nz, cz)), det);
     const vk zero = VK(set1)(0.0f);
     vkb ok = VKB(and)(VK(ge)(U, zero), VK(ge)(V, zero));
     ok = VKB(and)(ok, VK(le)(VK(add)(U, V), absdet));
