@@ -6,14 +6,15 @@
  * (tools/bench/edges.c: a random point of a random edge shared by exactly
  * two triangles, from a fifth of the mesh's size away, meeting both
  * triangles' fronts), each formulation in float without FMA (the build's
- * -ffp-contract=off), per million rays:
+ * -ffp-contract=off) but Embree's fused one (fmaf), per million rays:
  *
- *   build/bin/edge_formulations ../shared/meshes/dragon.ply [RAYS] [--hubs]
+ *   build/bin/edge_formulations ../shared/meshes/dragon.ply [RAYS] [--hubs | --lowest]
  *
  * --hubs first turns each triangle's vertices round (keeping the winding)
  * so that neighbours start at the same vertex where a greedy choice can
  * (which the Embree form needs to compute an edge the same way in both
- * triangles).  For docs/benchmarks/accuracy.md, "Shared edges"; not a speed
+ * triangles); --lowest turns each to start at its lowest corner (no
+ * adjacency needed).  For docs/benchmarks/accuracy.md, "Shared edges"; not a speed
  * benchmark, and the library's own kernels are measured by rtktool bench.
  */
 #include <math.h>
@@ -94,6 +95,38 @@ static int f_embree(const float *o, const float *d, const float v[3][3], int tie
     return u_ok && v_ok && U + V <= ad && ad >= FLT_MIN && T >= 0;
 }
 
+/* Embree 3's default form as its AVX2 build computes it: each cross
+ * product term a*b - c*d as one fused a*b - round(c*d), each dot product
+ * as fused multiply-adds from its last term, the normal cross(v2 - v0,
+ * v0 - v1) stored at build. */
+static void fcross(const float *a, const float *b, float *c)
+{
+    c[0] = fmaf(a[1], b[2], -(a[2] * b[1]));
+    c[1] = fmaf(a[2], b[0], -(a[0] * b[2]));
+    c[2] = fmaf(a[0], b[1], -(a[1] * b[0]));
+}
+
+static float fdot(const float *a, const float *b)
+{
+    return fmaf(a[0], b[0], fmaf(a[1], b[1], a[2] * b[2]));
+}
+
+static int f_embree_fma(const float *o, const float *d, const float v[3][3], int ties)
+{
+    float e1[3], e2[3], c[3], r[3], n[3];
+    for (int k = 0; k < 3; k++)
+        e1[k] = v[0][k] - v[1][k], e2[k] = v[2][k] - v[0][k], c[k] = v[0][k] - o[k];
+    fcross(c, d, r);
+    fcross(e2, e1, n);
+    const float den = fdot(n, d), ad = fabsf(den);
+    const float U = rtk_xor_sign(fdot(r, e2), den), V = rtk_xor_sign(fdot(r, e1), den);
+    const float T = rtk_xor_sign(fdot(n, c), den);
+    const float ne1[3] = {-e1[0], -e1[1], -e1[2]};
+    const int u_ok = ties ? U > 0 || (U == 0 && edge_key(e2)) : U >= 0;
+    const int v_ok = ties ? V > 0 || (V == 0 && !edge_key(ne1)) : V >= 0;
+    return den != 0 && u_ok && v_ok && U + V <= ad && T >= 0;
+}
+
 /* The watertight test (every rtk kernel's robust intersector). */
 static int f_watertight(const float *o, const float *d, const float v[3][3])
 {
@@ -170,6 +203,31 @@ static unsigned char *hub_corners(const rtk_mesh *m, size_t *without)
     return first;
 }
 
+/* Each triangle's first corner by a rule of its own: the corner whose
+ * coordinates are lowest in lexicographic order (x, then y, then z), so
+ * that two triangles of an edge start at the same end of it whenever that
+ * end is the lowest corner of both, with no adjacency to look up. */
+static unsigned char *lowest_corners(const rtk_mesh *m)
+{
+    const size_t nt = m->triangle_count;
+    unsigned char *first = calloc(nt ? nt : 1, 1);
+    if (!first) {
+        fprintf(stderr, "out of memory\n");
+        exit(1);
+    }
+    for (size_t t = 0; t < nt; t++) {
+        int best = 0;
+        for (int k = 1; k < 3; k++) {
+            const float *a = &m->vertices[3 * (size_t)m->indices[3 * t + (size_t)k]];
+            const float *b = &m->vertices[3 * (size_t)m->indices[3 * t + (size_t)best]];
+            if (a[0] < b[0] || (a[0] == b[0] && (a[1] < b[1] || (a[1] == b[1] && a[2] < b[2]))))
+                best = k;
+        }
+        first[t] = (unsigned char)best;
+    }
+    return first;
+}
+
 static void corners(const rtk_mesh *m, uint32_t t, int first, float v[3][3])
 {
     for (int j = 0; j < 3; j++)
@@ -189,9 +247,10 @@ static void unit_normal(const float v[3][3], double n[3])
         n[k] /= l;
 }
 
-enum { F_RTK, F_EMBREE, F_EMBREE_TIES, F_WATERTIGHT, F_HYBRID_12, F_HYBRID_16, F_COUNT };
-static const char *const names[F_COUNT] = {"rtk 0.2 default (Moeller-Trumbore)", "Embree 3 default form",
-                                           "Embree form, ties by edge direction", "watertight (rtk robust)",
+enum { F_RTK, F_EMBREE, F_EMBREE_TIES, F_EMBREE_FMA, F_EMBREE_FMA_TIES, F_WATERTIGHT, F_HYBRID_12, F_HYBRID_16, F_COUNT };
+static const char *const names[F_COUNT] = {"Moeller-Trumbore, rtk 0.2 form", "Embree 3 default form",
+                                           "Embree form, ties by edge direction", "Embree form, fused (AVX2)",
+                                           "Embree form, fused, ties", "watertight (rtk robust)",
                                            "hybrid, margin 2^-12", "hybrid, margin 2^-16"};
 
 static int decide(int f, const float *o, const float *d, const float v[3][3])
@@ -203,6 +262,10 @@ static int decide(int f, const float *o, const float *d, const float v[3][3])
         return f_embree(o, d, v, 0);
     case F_EMBREE_TIES:
         return f_embree(o, d, v, 1);
+    case F_EMBREE_FMA:
+        return f_embree_fma(o, d, v, 0);
+    case F_EMBREE_FMA_TIES:
+        return f_embree_fma(o, d, v, 1);
     case F_WATERTIGHT:
         return f_watertight(o, d, v);
     case F_HYBRID_12:
@@ -215,18 +278,20 @@ static int decide(int f, const float *o, const float *d, const float v[3][3])
 int main(int argc, char **argv)
 {
     size_t want = 200000;
-    int hubs = 0;
+    int hubs = 0, lowest = 0;
     const char *path = NULL;
     for (int i = 1; i < argc; i++) {
         if (!strcmp(argv[i], "--hubs"))
             hubs = 1;
+        else if (!strcmp(argv[i], "--lowest"))
+            lowest = 1;
         else if (!path)
             path = argv[i];
         else
             want = strtoul(argv[i], NULL, 10);
     }
     if (!path || !want) {
-        fprintf(stderr, "usage: edge_formulations MESH [RAYS] [--hubs]\n");
+        fprintf(stderr, "usage: edge_formulations MESH [RAYS] [--hubs | --lowest]\n");
         return 2;
     }
     rtk_mesh m;
@@ -247,7 +312,7 @@ int main(int argc, char **argv)
         return 1;
     }
     size_t without = 0;
-    unsigned char *first = hubs ? hub_corners(&m, &without) : calloc(nt ? nt : 1, 1);
+    unsigned char *first = hubs ? hub_corners(&m, &without) : lowest ? lowest_corners(&m) : calloc(nt ? nt : 1, 1);
     float lo[3], hi[3];
     const float diag = rtk_mesh_bounds(&m, lo, hi);
     size_t both[F_COUNT] = {0}, neither[F_COUNT] = {0}, n = 0, same_start = 0;
@@ -292,7 +357,9 @@ int main(int argc, char **argv)
         }
     }
     printf("%s: %zu rays at shared edges%s; edges whose two triangles start at the same end of it: %.1f%%\n", path,
-           n, hubs ? " (triangles turned to start at hubs)" : "", n ? 100.0 * (double)same_start / (double)n : 0.0);
+           n, hubs     ? " (triangles turned to start at hubs)"
+           : lowest ? " (triangles turned to start at their lowest corner)"
+                    : "", n ? 100.0 * (double)same_start / (double)n : 0.0);
     if (hubs)
         printf("  (%zu of %zu triangles have no hub)\n", without, nt);
     printf("  %-38s %14s %14s\n", "per million rays", "both triangles", "neither");
