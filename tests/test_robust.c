@@ -14,7 +14,8 @@
  * through an edge or vertex hitting two triangles of one crossing) is a
  * double hit.  Robust scenes must have no leak and no double hit at all;
  * the default intersector's leaks and double hits on the same rays are
- * printed beside (it has no such guarantee).
+ * printed beside and held under bounds (it has no guarantee, but it must
+ * not lose the consistency its test has: DEFAULT_*).
  *
  * - watertight_far_from_origin: the meshes of size 1 moved to 10^k,
  *   k = 0 ... 6.
@@ -214,6 +215,41 @@ static rtk_scene filtered_scene(rtk_device dev, const closed_mesh *m, unsigned f
     return s;
 }
 
+/* Bounds on the default mode, per million rays, every backend's together.
+ * It has no guarantee at shared edges, but a change that loses the
+ * consistency its test has had since it took Embree's form (91ca0d2)
+ * fails here.  Measured then, in brackets the usual form before it:
+ * leaks 3,459 (6,396) far from the origin, 59,614 (79,596) on the
+ * needles, 1,143 (12,839) grazing; double hits 157,727 (163,999),
+ * 303,576 (313,384), 254,839 (233,768). */
+#define DEFAULT_FAR_LEAKS 5000.0
+#define DEFAULT_FAR_TWICE 200000.0
+#define DEFAULT_NEEDLE_LEAKS 70000.0
+#define DEFAULT_NEEDLE_TWICE 350000.0
+#define DEFAULT_GRAZING_LEAKS 5000.0
+#define DEFAULT_GRAZING_TWICE 300000.0
+
+/* The default layouts' rays, leaks and double hits, every backend's added
+ * (check_mesh): the tests that bound them reset them first. */
+static size_t default_rays, default_leaks, default_twice;
+
+static void default_counts_reset(void)
+{
+    default_rays = default_leaks = default_twice = 0;
+}
+
+/* The default mode's leaks and double hits per million rays, printed, and
+ * checked against bounds (per million, every backend's rays together). */
+static void default_counts_check(const char *what, double max_leaks, double max_twice)
+{
+    const double per = default_rays ? 1e6 / (double)default_rays : 0.0;
+    print_message("default mode, %s: %zu rays, %.0f leaks and %.0f double hits per million (at most %.0f and %.0f)\n",
+                  what, default_rays, (double)default_leaks * per, (double)default_twice * per, max_leaks, max_twice);
+    assert_true(default_rays > 0);
+    assert_true((double)default_leaks * per <= max_leaks);
+    assert_true((double)default_twice * per <= max_twice);
+}
+
 /* The aimed rays through one closed mesh, on every backend and robust
  * layout at every build quality (robust leaks and double hits added to
  * *rays and *leaked), and through the default layouts (their leaks and
@@ -277,6 +313,9 @@ static void check_mesh(const closed_mesh *m, const aimed *a, const char *where, 
         s = filtered_scene(dev, m, 0, RTK_BUILD_QUALITY_MEDIUM);
         const size_t twice = double_hits(s, a, (uint32_t)m->closed_triangles, &missed, &first);
         snprintf(defaults + strlen(defaults), sizeof defaults - strlen(defaults), " %s %zu/%zu", names[b], n, twice);
+        default_rays += a->count;
+        default_leaks += n;
+        default_twice += twice;
         rtk_scene_release(s);
         rtk_device_release(dev);
     }
@@ -312,6 +351,7 @@ static void watertight_far_from_origin(void **state)
 {
     (void)state;
     size_t rays = 0, leaked = 0;
+    default_counts_reset();
     /* (under the sanitizers 1, 1e4 and 1e8 only: the same code paths) */
     const int step = test_sanitized() ? 4 : 1;
     for (int k = 0; k <= 8; k += step) {
@@ -323,6 +363,8 @@ static void watertight_far_from_origin(void **state)
     }
     print_message("robust: %zu leaks or double hits in %zu rays\n", leaked, rays);
     assert_int_equal(leaked, 0);
+    if (!test_sanitized()) /* (there 1, 1e4 and 1e8 only: another mix, most leaks being at 1) */
+        default_counts_check("closed meshes at 1e0 ... 1e8", DEFAULT_FAR_LEAKS, DEFAULT_FAR_TWICE);
 }
 
 /* Meshes of size 1e-10 (triangles near the smallest in rtk's range), 1e-8
@@ -357,9 +399,11 @@ static void needles_and_zero_area(void **state)
     aimed a = aim_at_mesh(&m, 1e-5, 1.5f, 0.5f, 4242);
     assert_true(a.count > 10000);
     size_t rays = 0, leaked = 0;
+    default_counts_reset();
     check_mesh(&m, &a, "of needles", &rays, &leaked);
     print_message("robust: %zu leaks or double hits in %zu rays\n", leaked, rays);
     assert_int_equal(leaked, 0);
+    default_counts_check("needles", DEFAULT_NEEDLE_LEAKS, DEFAULT_NEEDLE_TWICE);
     rtk_aimed_free(&a);
     rtk_closed_free(&m);
 }
@@ -374,6 +418,7 @@ static void grazing_rays(void **state)
     closed_mesh box;
     assert_int_equal(rtk_closed_box(c, 1.0, 16, &box), 0);
     size_t rays = 0, leaked = 0;
+    default_counts_reset();
     for (int k = 0; k <= 6; k++)
         for (int on_lines = 0; on_lines < 2; on_lines++) {
             aimed a;
@@ -388,6 +433,7 @@ static void grazing_rays(void **state)
         }
     print_message("robust: %zu leaks or double hits in %zu rays\n", leaked, rays);
     assert_int_equal(leaked, 0);
+    default_counts_check("grazing rays", DEFAULT_GRAZING_LEAKS, DEFAULT_GRAZING_TWICE);
     rtk_closed_free(&box);
 }
 
