@@ -26,8 +26,8 @@
  * the ray: a double hit, never a leak).
  * Moeller-Trumbore's usual form (U = dot(o - v0, cross(d, e2)),
  * V = dot(d, cross(o - v0, e1))) evaluates the two triple products in
- * different orders and gave four times the double hits at shared edges
- * (docs/benchmarks/accuracy.md).  Edges that the two triangles reach from
+ * different orders and gave twice the double hits at the shared edges of
+ * the dragon and San Miguel (docs/benchmarks/accuracy.md).  Edges that the two triangles reach from
  * different corners, and the edge opposite v0 (U + V <= |det|), have no
  * such guarantee: a ray exactly through them may hit both triangles or
  * neither.  The watertight intersector below has none of these.
