@@ -74,57 +74,48 @@ static int edge_key(const float *e)
     return e[0] != 0 ? e[0] > 0 : e[1] != 0 ? e[1] > 0 : e[2] > 0;
 }
 
-/* Embree 3's default form: R = (v0 - o) x d, U = R . e2, V = R . (v0 - v1):
- * two triangles that reach their shared edge from the same v0 compute it
- * from the same floats, negated.  ties: an edge function exactly zero is
- * given to one of its triangles by the edge's direction. */
-static int f_embree(const float *o, const float *d, const float v[3][3], int ties)
+/* a x b and a . b in float, or as Embree's AVX2 build computes them
+ * (fused): each cross product term a*b - c*d as one fused a*b - round(c*d),
+ * each dot product as fused multiply-adds from its last term. */
+static void cross3(const float *a, const float *b, float *c, int fused)
 {
-    float e1[3], e2[3], c[3];
-    for (int k = 0; k < 3; k++)
-        e1[k] = v[1][k] - v[0][k], e2[k] = v[2][k] - v[0][k], c[k] = v[0][k] - o[k];
-    const float rx = c[1] * d[2] - c[2] * d[1], ry = c[2] * d[0] - c[0] * d[2], rz = c[0] * d[1] - c[1] * d[0];
-    float n[3];
-    rtk_triangle_normal(e1, e2, n);
-    const float den = n[0] * d[0] + n[1] * d[1] + n[2] * d[2], ad = fabsf(den);
-    const float U = rtk_xor_sign(rx * e2[0] + ry * e2[1] + rz * e2[2], den);
-    const float V = rtk_xor_sign(-(rx * e1[0] + ry * e1[1] + rz * e1[2]), den);
-    const float T = rtk_xor_sign(n[0] * c[0] + n[1] * c[1] + n[2] * c[2], den);
-    const int u_ok = ties ? U > 0 || (U == 0 && edge_key(e2)) : U >= 0;
-    const int v_ok = ties ? V > 0 || (V == 0 && !edge_key(e1)) : V >= 0;
-    return u_ok && v_ok && U + V <= ad && ad >= FLT_MIN && T >= 0;
+    if (fused) {
+        c[0] = fmaf(a[1], b[2], -(a[2] * b[1]));
+        c[1] = fmaf(a[2], b[0], -(a[0] * b[2]));
+        c[2] = fmaf(a[0], b[1], -(a[1] * b[0]));
+    } else {
+        c[0] = a[1] * b[2] - a[2] * b[1];
+        c[1] = a[2] * b[0] - a[0] * b[2];
+        c[2] = a[0] * b[1] - a[1] * b[0];
+    }
 }
 
-/* Embree 3's default form as its AVX2 build computes it: each cross
- * product term a*b - c*d as one fused a*b - round(c*d), each dot product
- * as fused multiply-adds from its last term, the normal cross(v2 - v0,
- * v0 - v1) stored at build. */
-static void fcross(const float *a, const float *b, float *c)
+static float dot3(const float *a, const float *b, int fused)
 {
-    c[0] = fmaf(a[1], b[2], -(a[2] * b[1]));
-    c[1] = fmaf(a[2], b[0], -(a[0] * b[2]));
-    c[2] = fmaf(a[0], b[1], -(a[1] * b[0]));
+    return fused ? fmaf(a[0], b[0], fmaf(a[1], b[1], a[2] * b[2])) : a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
-static float fdot(const float *a, const float *b)
-{
-    return fmaf(a[0], b[0], fmaf(a[1], b[1], a[2] * b[2]));
-}
-
-static int f_embree_fma(const float *o, const float *d, const float v[3][3], int ties)
+/* Embree 3's default form: R = (v0 - o) x d, U = R . e2, V = R . e1 with
+ * e1 = v0 - v1 and the normal e2 x e1 (rtk's default test, to the bit,
+ * unfused; Embree's own, fused, where a ray is decided by den != 0 rather
+ * than |den| >= FLT_MIN): two triangles that reach their shared edge from
+ * the same v0 compute it from the same floats, negated.  ties: an edge
+ * function exactly zero is given to one of its triangles by the edge's
+ * direction, walked in the triangle's winding (v0 -> v1 is -e1). */
+static int f_embree(const float *o, const float *d, const float v[3][3], int ties, int fused)
 {
     float e1[3], e2[3], c[3], r[3], n[3];
     for (int k = 0; k < 3; k++)
         e1[k] = v[0][k] - v[1][k], e2[k] = v[2][k] - v[0][k], c[k] = v[0][k] - o[k];
-    fcross(c, d, r);
-    fcross(e2, e1, n);
-    const float den = fdot(n, d), ad = fabsf(den);
-    const float U = rtk_xor_sign(fdot(r, e2), den), V = rtk_xor_sign(fdot(r, e1), den);
-    const float T = rtk_xor_sign(fdot(n, c), den);
+    cross3(c, d, r, fused);
+    cross3(e2, e1, n, fused);
+    const float den = dot3(n, d, fused), ad = fabsf(den);
+    const float U = rtk_xor_sign(dot3(r, e2, fused), den), V = rtk_xor_sign(dot3(r, e1, fused), den);
+    const float T = rtk_xor_sign(dot3(n, c, fused), den);
     const float ne1[3] = {-e1[0], -e1[1], -e1[2]};
     const int u_ok = ties ? U > 0 || (U == 0 && edge_key(e2)) : U >= 0;
     const int v_ok = ties ? V > 0 || (V == 0 && !edge_key(ne1)) : V >= 0;
-    return den != 0 && u_ok && v_ok && U + V <= ad && T >= 0;
+    return (fused ? den != 0 : ad >= FLT_MIN) && u_ok && v_ok && U + V <= ad && T >= 0;
 }
 
 /* The watertight test (every rtk kernel's robust intersector). */
@@ -259,13 +250,13 @@ static int decide(int f, const float *o, const float *d, const float v[3][3])
     case F_RTK:
         return f_rtk(o, d, v);
     case F_EMBREE:
-        return f_embree(o, d, v, 0);
+        return f_embree(o, d, v, 0, 0);
     case F_EMBREE_TIES:
-        return f_embree(o, d, v, 1);
+        return f_embree(o, d, v, 1, 0);
     case F_EMBREE_FMA:
-        return f_embree_fma(o, d, v, 0);
+        return f_embree(o, d, v, 0, 1);
     case F_EMBREE_FMA_TIES:
-        return f_embree_fma(o, d, v, 1);
+        return f_embree(o, d, v, 1, 1);
     case F_WATERTIGHT:
         return f_watertight(o, d, v);
     case F_HYBRID_12:
