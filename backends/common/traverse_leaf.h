@@ -236,25 +236,40 @@ static inline void lane_axis(const block_t *t, int j, int k, float *a, float *b,
 #endif
 }
 
+/* (see block_hit_floor) */
+#define RTK_FLOOR_PAD 0x1p-22f
+
 /* Lane j's lowest and highest coordinate along axis k, as minps / maxps
- * give them over block_axis's three (spelled as their comparisons). */
+ * give them over block_axis's three (spelled as their comparisons), each
+ * moved out by block_hit_floor's pad. */
 static inline void lane_axis_range(const block_t *t, int j, int k, float *lo, float *hi)
 {
     float a, b, c;
     lane_axis(t, j, k, &a, &b, &c);
     const float ab_lo = a < b ? a : b, ab_hi = a > b ? a : b;
-    *lo = ab_lo < c ? ab_lo : c;
-    *hi = ab_hi > c ? ab_hi : c;
+    const float l = ab_lo < c ? ab_lo : c, h = ab_hi > c ? ab_hi : c;
+    const float al = fabsf(l), ah = fabsf(h);
+    const float pad = (al > ah ? al : ah) * RTK_FLOOR_PAD;
+    *lo = l - pad;
+    *hi = h + pad;
 }
 
-/* The floors of a block's four triangles for ray p (see above). */
+/* The floors of a block's four triangles for ray p (see above).  The box
+ * is widened by 2^-22 of its largest coordinate magnitude on each axis:
+ * v0 + e1 and v0 + e2 can round an ulp of that magnitude away from the
+ * vertices themselves, and a ray through such a vertex along a zero
+ * direction component (reciprocal 1e18) then found the box an ulp
+ * outside it and got a floor of an ulp times 1e18: t = 3.7e9 for a hit at
+ * 0.3 (test_rays, axis_rays_through_vertices). */
 static inline __attribute__((always_inline)) vfloat4 block_hit_floor(const block_t *t, const ray_pre *p)
 {
     vfloat4 entry = vf4_set1(0.0f);
     for (int k = 0; k < 3; k++) {
         vfloat4 a, b, c;
         block_axis(t, k, &a, &b, &c);
-        const vfloat4 near = p->rs[k] < 0.0f ? vf4_max(vf4_max(a, b), c) : vf4_min(vf4_min(a, b), c);
+        const vfloat4 lo = vf4_min(vf4_min(a, b), c), hi = vf4_max(vf4_max(a, b), c);
+        const vfloat4 pad = vf4_mul(vf4_max(vf4_abs(lo), vf4_abs(hi)), vf4_set1(RTK_FLOOR_PAD));
+        const vfloat4 near = p->rs[k] < 0.0f ? vf4_add(hi, pad) : vf4_sub(lo, pad);
         const vfloat4 tk = vf4_mul(vf4_sub(near, vf4_set1(p->os[k])), vf4_set1(p->rs[k]));
         entry = k ? vf4_max(entry, tk) : tk;
     }
