@@ -602,34 +602,106 @@ static void test_multi_block_leaf(void **state)
  * bit on every backend.  The hit floor (traverse_leaf.h) took the box of
  * those rounded corners, which such a ray can miss by an ulp, times the
  * reciprocal of its zero component, 1e18: t came out near 1e9 for hits
- * at 0.3.  The backends without FMA also miss some of these rays
- * altogether: one that lies in a box's face plane along a zero component
- * gets a far distance of 0 * 1e18 there and skips the box (the fused test
- * pads it; padding the unfused one's origin cost sse41 3-5%, not landed):
- * counted, and required of the FMA backends only. */
-/* Whether device dev's active backend needs FMA (its node test is the
- * fused one). */
-static int backend_has_fma(rtk_device dev)
+ * at 0.3.  And a ray that lies in a box's face plane along a zero
+ * component got a far distance of 0 * 1e18 there in the node tests of the
+ * backends without FMA and skipped the box: 3,572-3,724 of these 21,600
+ * rays missed their triangle on scalar, sse41 and avx (the top level's
+ * test did the same on every backend: test_user rays_along_box_faces;
+ * here the instances' boxes are padded).  Every backend must now hit
+ * each of them, alone, in packets of 4 (the three vertices of a triangle,
+ * one lane inactive) and in a stream, through the triangles' own tree,
+ * through an instance of it and through a top level of AXIS_GROUPS
+ * instances of a part each, whose boxes have vertices on their faces. */
+enum { AXIS_N = 600, AXIS_RAYS = 3 * AXIS_N * 12, AXIS_GROUPS = 8, AXIS_PART = AXIS_N / AXIS_GROUPS };
+
+/* A committed scene of AXIS_GROUPS instances (identity), instance g of a
+ * scene of triangles AXIS_PART * g ... (kept in parts[g]). */
+static rtk_scene axis_parts_scene(rtk_device dev, const float *v, const uint32_t *idx, rtk_scene parts[AXIS_GROUPS])
 {
-    for (size_t i = 0; i < rtk_device_get_backend_count(dev); i++) {
-        rtk_backend_info bi = {.struct_size = sizeof bi};
-        assert_int_equal(rtk_device_get_backend_info(dev, i, &bi), RTK_OK);
-        if (bi.status == RTK_BACKEND_STATUS_ACTIVE)
-            return (bi.cpu_requires & RTK_CPU_FMA) != 0;
+    rtk_scene outer;
+    assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
+    for (int g = 0; g < AXIS_GROUPS; g++) {
+        parts[g] = test_scene(dev, v, 3 * AXIS_N, idx + 3 * AXIS_PART * g, AXIS_PART);
+        rtk_geometry inst;
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
+        assert_int_equal(rtk_geometry_set_instanced_scene(inst, parts[g]), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+        uint32_t id;
+        assert_int_equal(rtk_scene_attach_geometry(outer, inst, &id), RTK_OK);
+        assert_int_equal(id, (uint32_t)g);
+        rtk_geometry_release(inst);
     }
-    fail_msg("no active backend");
-    return 0;
+    assert_int_equal(rtk_scene_commit(outer), RTK_OK);
+    return outer;
+}
+
+/* Ray i of the set: vertex i / 12, along axis (i % 12) / 4 from 200 away,
+ * the direction's sign and its zero components' signs by i % 4. */
+static rtk_ray axis_ray(const float *v, size_t i)
+{
+    const size_t vtx = i / 12;
+    const int a = (int)(i % 12) / 4, sg = (int)(i % 4);
+    const float *p = &v[3 * vtx];
+    float o[3] = {p[0], p[1], p[2]}, d[3];
+    for (int k = 0; k < 3; k++)
+        d[k] = (sg & 2) ? -0.0f : 0.0f;
+    d[a] = (sg & 1) ? -1.0f : 1.0f;
+    o[a] -= d[a] * 200.0f;
+    return test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
+}
+
+/* The rays of `rays` through scene s in packets of 4 (the rays of one
+ * triangle's three vertices along one axis and sign) and in one stream:
+ * each the answer rtk_intersect1 gave it (want). */
+static void axis_rays_grouped(const char *what, rtk_scene s, const rtk_rayhit *want)
+{
+    rtk_rayhit *st = malloc(AXIS_RAYS * sizeof *st);
+    assert_non_null(st);
+    for (size_t i = 0; i < AXIS_RAYS; i++) {
+        st[i] = (rtk_rayhit){.ray = want[i].ray};
+        st[i].ray.tfar = INFINITY;
+        st[i].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+    }
+    assert_int_equal(rtk_intersect1M(s, st, AXIS_RAYS, sizeof *st), RTK_OK);
+    for (size_t t = 0; t < AXIS_N; t++)
+        for (size_t dir = 0; dir < 12; dir++) {
+            _Alignas(64) uint32_t pk[20 * 4];
+            const int valid[4] = {-1, -1, -1, 0};
+            for (unsigned j = 0; j < 4; j++)
+                test_packet_put(pk, 4, j, &st[(3 * t + (j < 3 ? j : 0)) * 12 + dir], 0);
+            for (unsigned j = 0; j < 3; j++) { /* (fresh rays: the stream's hits are in st) */
+                rtk_rayhit fresh = {.ray = want[(3 * t + j) * 12 + dir].ray};
+                fresh.ray.tfar = INFINITY;
+                fresh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                test_packet_put(pk, 4, j, &fresh, 0);
+            }
+            assert_int_equal(test_trace_packet(s, 4, 0, valid, pk), RTK_OK);
+            for (unsigned j = 0; j < 3; j++) {
+                const size_t i = (3 * t + j) * 12 + dir;
+                rtk_rayhit got;
+                test_packet_get(pk, 4, j, &got, 0);
+                if (memcmp(&got.ray.tfar, &want[i].ray.tfar, sizeof(float)) || got.hit.geomID != want[i].hit.geomID)
+                    fail_msg("%s: packet ray %zu: t %a, alone %a", what, i, (double)got.ray.tfar,
+                             (double)want[i].ray.tfar);
+            }
+        }
+    for (size_t i = 0; i < AXIS_RAYS; i++)
+        if (memcmp(&st[i].ray.tfar, &want[i].ray.tfar, sizeof(float)) || st[i].hit.geomID != want[i].hit.geomID)
+            fail_msg("%s: stream ray %zu: t %a, alone %a", what, i, (double)st[i].ray.tfar, (double)want[i].ray.tfar);
+    free(st);
 }
 
 static void test_axis_rays_through_vertices(void **state)
 {
     (void)state;
-    enum { N = 600 };
+    enum { N = AXIS_N };
     rng r = {4242};
     float *v = malloc(9 * N * sizeof *v);
     uint32_t *idx = malloc(3 * N * sizeof *idx);
+    rtk_rayhit *alone = malloc(AXIS_RAYS * sizeof *alone);
     assert_non_null(v);
     assert_non_null(idx);
+    assert_non_null(alone);
     for (size_t i = 0; i < N; i++) {
         const float scale = i % 3 == 0 ? 1.0f : i % 3 == 1 ? 37.0f : 0.013f;
         float c[3];
@@ -646,44 +718,51 @@ static void test_axis_rays_through_vertices(void **state)
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);
-        rtk_scene s = test_scene(dev, v, 3 * N, idx, N);
-        size_t hits = 0, missed = 0;
-        for (size_t i = 0; i < 3 * N; i++)
-            for (int a = 0; a < 3; a++)
-                for (int sg = 0; sg < 4; sg++) {
-                    const float *p = &v[3 * i];
-                    float o[3] = {p[0], p[1], p[2]}, d[3];
-                    for (int k = 0; k < 3; k++)
-                        d[k] = (sg & 2) ? -0.0f : 0.0f;
-                    d[a] = (sg & 1) ? -1.0f : 1.0f;
-                    o[a] -= d[a] * 200.0f;
-                    const rtk_ray ray = test_ray(o[0], o[1], o[2], d[0], d[1], d[2], 0.0f, INFINITY);
-                    rtk_rayhit rh = {.ray = ray};
-                    rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
-                    assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
-                    rtk_tri_hit want;
-                    uint32_t prim = RTK_INVALID_GEOMETRY_ID;
-                    const int hit = ref_closest(&ref, &ray, &want, &prim);
-                    const int got = rh.hit.geomID != RTK_INVALID_GEOMETRY_ID;
-                    rtk_tri_hit same;
-                    hits += (size_t)hit;
-                    /* missed: no hit, or one on a farther triangle than the reference's */
-                    missed += (size_t)(hit && (!got || rh.ray.tfar > want.t));
-                    if (got && (!hit || rh.ray.tfar < want.t ||
-                                (ref_one(&ref, rh.hit.primID, &ray, &same) && rh.ray.tfar != same.t)))
-                        fail_msg("%s: vertex %zu axis %d (%d): t %a on %u, the reference's %a on %u", names[b], i,
-                                 a, sg, (double)rh.ray.tfar, rh.hit.primID, hit ? (double)want.t : -1.0, prim);
-                }
-        const int fma = backend_has_fma(dev);
-        print_message("%s: %zu axis rays through vertices hit, %zu of them missed (%s)\n", names[b], hits,
-                      missed, fma ? "fused node test: none may miss" : "unfused node test");
-        assert_true(hits > N);
-        if (fma)
+        rtk_scene tris = test_scene(dev, v, 3 * N, idx, N);
+        rtk_scene inst = test_instancing_scene(dev, tris);
+        assert_int_equal(rtk_scene_commit(inst), RTK_OK);
+        rtk_scene parts[AXIS_GROUPS];
+        rtk_scene top = axis_parts_scene(dev, v, idx, parts);
+        for (int form = 0; form < 3; form++) {
+            rtk_scene s = form == 2 ? top : form ? inst : tris;
+            char what[64];
+            snprintf(what, sizeof what, "%s%s", names[b], form == 2 ? ", instances of parts" : form ? ", an instance" : "");
+            size_t hits = 0, missed = 0;
+            for (size_t i = 0; i < AXIS_RAYS; i++) {
+                const rtk_ray ray = axis_ray(v, i);
+                rtk_rayhit *rh = &alone[i];
+                *rh = (rtk_rayhit){.ray = ray};
+                rh->hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                assert_int_equal(rtk_intersect1(s, rh), RTK_OK);
+                if (form == 2 && rh->hit.geomID != RTK_INVALID_GEOMETRY_ID) /* (the part's triangle) */
+                    rh->hit.primID += AXIS_PART * rh->hit.instID;
+                rtk_tri_hit want;
+                uint32_t prim = RTK_INVALID_GEOMETRY_ID;
+                const int hit = ref_closest(&ref, &ray, &want, &prim);
+                const int got = rh->hit.geomID != RTK_INVALID_GEOMETRY_ID;
+                rtk_tri_hit same;
+                hits += (size_t)hit;
+                /* missed: no hit, or one on a farther triangle than the reference's */
+                missed += (size_t)(hit && (!got || rh->ray.tfar > want.t));
+                if (got && (!hit || rh->ray.tfar < want.t ||
+                            (ref_one(&ref, rh->hit.primID, &ray, &same) && rh->ray.tfar != same.t)))
+                    fail_msg("%s: ray %zu: t %a on %u, the reference's %a on %u", what, i, (double)rh->ray.tfar,
+                             rh->hit.primID, hit ? (double)want.t : -1.0, prim);
+            }
+            print_message("%s: %zu axis rays through vertices hit, %zu of them missed\n", what, hits, missed);
+            assert_true(hits > N);
             assert_int_equal(missed, 0);
-        rtk_scene_release(s);
+            axis_rays_grouped(what, s, alone);
+        }
+        rtk_scene_release(top);
+        for (int g = 0; g < AXIS_GROUPS; g++)
+            rtk_scene_release(parts[g]);
+        rtk_scene_release(inst);
+        rtk_scene_release(tris);
         rtk_device_release(dev);
     }
     ref_free(&ref);
+    free(alone);
     free(v);
     free(idx);
 }

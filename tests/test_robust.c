@@ -221,11 +221,17 @@ static rtk_scene filtered_scene(rtk_device dev, const closed_mesh *m, unsigned f
  * fails here.  Measured then, in brackets the usual form before it:
  * leaks 3,459 (6,396) far from the origin, 59,614 (79,596) on the
  * needles, 1,143 (12,839) grazing; double hits 157,727 (163,999),
- * 303,576 (313,384), 254,839 (233,768). */
+ * 303,576 (313,384), 254,839 (233,768).  Since the backends without FMA
+ * stopped skipping boxes that an axis ray runs along a face of (their far
+ * planes' reciprocals +-inf, ray_pre_init), they count what avx2 counted
+ * all along, ray for ray: far from the origin 2,910 leaks and 248,480
+ * double hits (were 3,320 and 157,882 with their misses), on the needles
+ * 338,527 double hits (were 303,576); avx2's own were above the old bound
+ * of 200,000, hidden in the sum by the others' lost rays. */
 #define DEFAULT_FAR_LEAKS 5000.0
-#define DEFAULT_FAR_TWICE 200000.0
+#define DEFAULT_FAR_TWICE 260000.0
 #define DEFAULT_NEEDLE_LEAKS 70000.0
-#define DEFAULT_NEEDLE_TWICE 350000.0
+#define DEFAULT_NEEDLE_TWICE 360000.0
 #define DEFAULT_GRAZING_LEAKS 5000.0
 #define DEFAULT_GRAZING_TWICE 300000.0
 

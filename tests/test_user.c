@@ -420,12 +420,120 @@ static void test_boxes_across_the_float_range(void **state)
     }
 }
 
+/* Rays along a face, an edge or a corner of their primitives' boxes (the
+ * boxes [p, p + 1] x [0, 1] x [0, 1], p = 0 ... 7; the callback hits at
+ * t = 1 + p): a ray in a box's plane with its component there +0.0 or
+ * -0.0 touches the closed box, and each gets the first primitive whose box
+ * it touches (face_query), alone, in packets of 8 and in a stream.  The top level's
+ * node test took such a ray's far distance as 0 * 1e18 = 0 and skipped
+ * the box when it lay on the box's far plane (obj_ray_scalars). */
+static void unit_box_bounds(const rtk_bounds_args *a)
+{
+    a->lower[0] = (float)a->prim_id;
+    a->upper[0] = (float)a->prim_id + 1.0f;
+    a->lower[1] = a->lower[2] = 0.0f;
+    a->upper[1] = a->upper[2] = 1.0f;
+}
+
+/* The primitive's box as unit_box_bounds gives it is touched by the ray
+ * (lane i), whose direction components are 0 but along one axis that
+ * crosses every box's span: it hits at t = 1 + p (-inf for occluded). */
+static void face_query(const rtk_user_query_args *a, int occluded)
+{
+    const float lo[3] = {(float)a->prim_id, 0.0f, 0.0f}, hi[3] = {(float)a->prim_id + 1.0f, 1.0f, 1.0f};
+    for (uint32_t i = 0; i < a->N; i++) {
+        if (!a->valid[i])
+            continue;
+        int touched = 1;
+        for (int k = 0; k < 3; k++) {
+            const float o = LANE(a->rays, a->N, k, i), d = LANE(a->rays, a->N, 4 + k, i);
+            touched &= d != 0.0f || (o >= lo[k] && o <= hi[k]);
+        }
+        float *tfar = &LANE(a->rays, a->N, 8, i);
+        const float t = 1.0f + (float)a->prim_id;
+        if (touched && t >= LANE(a->rays, a->N, 3, i) && t <= *tfar)
+            *tfar = occluded ? -INFINITY : t;
+    }
+}
+static void face_intersect(const rtk_user_query_args *a) { face_query(a, 0); }
+static void face_occluded(const rtk_user_query_args *a) { face_query(a, 1); }
+
+static void test_rays_along_box_faces(void **state)
+{
+    (void)state;
+    enum { BOXES = 8, RAYS = (BOXES + 1) * 2 * 4 * 2 };
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s;
+        rtk_geometry g;
+        assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
+        assert_int_equal(rtk_geometry_set_user_primitive_count(g, BOXES), RTK_OK);
+        assert_int_equal(rtk_geometry_set_bounds_function(g, unit_box_bounds), RTK_OK);
+        assert_int_equal(rtk_geometry_set_intersect_function(g, face_intersect), RTK_OK);
+        assert_int_equal(rtk_geometry_set_occluded_function(g, face_occluded), RTK_OK);
+        assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+        assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
+        assert_int_equal(rtk_scene_commit(s), RTK_OK);
+        rtk_rayhit rays[RAYS];
+        uint32_t want[RAYS];
+        size_t n = 0;
+        for (int x = 0; x <= BOXES; x++) /* on a face in x, and an edge or a corner with y */
+            for (int y = 0; y < 2; y++)
+                for (int sg = 0; sg < 4; sg++)
+                    for (int z = 0; z < 2; z++) { /* along z from below, or along y from the side */
+                        const float zx = (sg & 1) ? -0.0f : 0.0f, zy = (sg & 2) ? -0.0f : 0.0f;
+                        const rtk_ray r = z ? test_ray((float)x, (float)y, -5.0f, zx, zy, 1.0f, 0.0f, INFINITY)
+                                            : test_ray((float)x, -5.0f, (float)y, zx, 1.0f, zy, 0.0f, INFINITY);
+                        rays[n] = (rtk_rayhit){.ray = r};
+                        rays[n].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                        want[n++] = x == 0 ? 0u : (uint32_t)x - 1u;
+                    }
+        for (size_t i = 0; i < RAYS; i++) {
+            rtk_rayhit rh = rays[i];
+            assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+            if (rh.hit.geomID != 0 || rh.hit.primID != want[i] || rh.ray.tfar != 1.0f + (float)want[i])
+                fail_msg("%s: ray %zu from %g %g %g: primitive %u at %g, want %u", names[b], i,
+                         (double)rays[i].ray.org_x, (double)rays[i].ray.org_y, (double)rays[i].ray.org_z,
+                         rh.hit.primID, (double)rh.ray.tfar, want[i]);
+            rtk_ray occ = rays[i].ray;
+            assert_int_equal(rtk_occluded1(s, &occ), RTK_OK);
+            assert_true(occ.tfar == -INFINITY);
+        }
+        for (size_t i = 0; i < RAYS; i += 8) {
+            _Alignas(64) uint32_t pk[20 * 8];
+            for (unsigned l = 0; l < 8; l++)
+                test_packet_put(pk, 8, l, &rays[i + l], 0);
+            assert_int_equal(test_trace_packet(s, 8, 0, NULL, pk), RTK_OK);
+            for (unsigned l = 0; l < 8; l++) {
+                rtk_rayhit got;
+                test_packet_get(pk, 8, l, &got, 0);
+                if (got.hit.primID != want[i + l] || got.ray.tfar != 1.0f + (float)want[i + l])
+                    fail_msg("%s: packet ray %zu: primitive %u, want %u", names[b], i + l, got.hit.primID,
+                             want[i + l]);
+            }
+        }
+        rtk_rayhit st[RAYS];
+        memcpy(st, rays, sizeof st);
+        assert_int_equal(rtk_intersect1M(s, st, RAYS, sizeof *st), RTK_OK);
+        for (size_t i = 0; i < RAYS; i++)
+            if (st[i].hit.primID != want[i] || st[i].ray.tfar != 1.0f + (float)want[i])
+                fail_msg("%s: stream ray %zu: primitive %u, want %u", names[b], i, st[i].hit.primID, want[i]);
+        rtk_geometry_release(g);
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_spheres_and_triangles),
         cmocka_unit_test(test_wrong_answers_are_misses),
         cmocka_unit_test(test_boxes_across_the_float_range),
+        cmocka_unit_test(test_rays_along_box_faces),
     };
     return cmocka_run_group_tests(tests, NULL, NULL);
 }

@@ -1131,9 +1131,12 @@ static void objects_packet(const rtk_accel *accel, const int32_t *active, void *
                 for (int a = 0; a < 3; a++) {
                     const float org = vf4_lane0(p->org[a]), inv = vf4_lane0(p->inv[a]);
                     const float inv_far = vf4_lane0(p->inv_far[a]);
-                    const float n0 = (o->lower[a] - org) * inv, n1 = (o->upper[a] - org) * inv;
-                    const float f0 = (o->lower[a] - org) * inv_far, f1 = (o->upper[a] - org) * inv_far;
-                    const float near_a = n0 < n1 ? n0 : n1, far_a = f0 < f1 ? f1 : f0;
+                    /* the planes by the direction's sign (inv has it), and
+                     * a NaN slab (an origin on a plane of a zero
+                     * direction's, obj_ray_scalars) dropped by the
+                     * comparisons */
+                    const float lo = o->lower[a] - org, hi = o->upper[a] - org;
+                    const float near_a = (inv < 0.0f ? hi : lo) * inv, far_a = (inv < 0.0f ? lo : hi) * inv_far;
                     t0 = near_a > t0 ? near_a : t0;
                     t1 = far_a < t1 ? far_a : t1;
                 }

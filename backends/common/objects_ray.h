@@ -35,12 +35,14 @@ typedef struct obj_ray {
 static inline unsigned obj_ray_scalars(const rtk_ray *r, float o[4], float in[4], float inf[4])
 {
     const vfloat4 org = vf4_loadu(&r->org_x), dir = vf4_loadu(&r->dir_x);
-    /* as the triangle kernels do: no 0 * inf NaN in a slab test, and the
-     * reciprocals with the direction's signs (-0.0 included) */
+    /* as the triangle kernels do: no 0 * inf NaN in a near slab, and the
+     * reciprocals with the direction's signs (-0.0 included); the far
+     * planes' +-inf for a zero direction (vf4_inf_below: NaN for an origin
+     * on such a plane, which the node tests drop) */
     const vfloat4 inv = vf4_rcp_clamped(dir, 1e-18f);
     vf4_storeu(o, org);
     vf4_storeu(in, inv);
-    vf4_storeu(inf, vf4_mul(inv, vf4_set1(OBJ_FAR_SCALE)));
+    vf4_storeu(inf, vf4_mul(vf4_inf_below(inv, dir, 1e-18f), vf4_set1(OBJ_FAR_SCALE)));
     return (unsigned)vf4_signs(dir) & 7;
 }
 
@@ -73,10 +75,12 @@ static inline vfloat4 obj_plane(const rtk_bvh4_node *n, size_t off)
  * inverted box is never entered). */
 static inline unsigned node_entered(const rtk_bvh4_node *n, const obj_ray *p, float tnear, float tfar, float t[4])
 {
+    /* a far slab's NaN (obj_ray_scalars) dropped: min returns its second
+     * operand, the bound so far, where either is NaN */
     vfloat4 tmin = vf4_set1(tnear), tmax = vf4_set1(tfar);
     for (int k = 0; k < 3; k++) {
-        tmin = vf4_max(tmin, vf4_mul(vf4_sub(obj_plane(n, p->near_off[k]), p->org[k]), p->inv[k]));
-        tmax = vf4_min(tmax, vf4_mul(vf4_sub(obj_plane(n, p->far_off[k]), p->org[k]), p->inv_far[k]));
+        tmin = vf4_max(vf4_mul(vf4_sub(obj_plane(n, p->near_off[k]), p->org[k]), p->inv[k]), tmin);
+        tmax = vf4_min(vf4_mul(vf4_sub(obj_plane(n, p->far_off[k]), p->org[k]), p->inv_far[k]), tmax);
     }
     vf4_store(t, tmin);
     return (unsigned)vb4_mask(vf4_le(tmin, tmax));

@@ -373,7 +373,18 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
     _Alignas(16) float of[4];
     vf4_store(of, org_far);
 #else
-    const vfloat4 inv = inv_exact, inv_far = vf4_mul(inv, vf4_set1(RTK_BOX_FAR_SCALE));
+    const vfloat4 inv = inv_exact;
+#if RTK_SIMD_HAS_FMA
+    const vfloat4 inv_far = vf4_mul(inv, vf4_set1(RTK_BOX_FAR_SCALE));
+#else
+    /* the subtract-then-multiply test's far planes: +-inf where the
+     * direction is below 1e-18 (vf4_inf_below; node_intersect drops the
+     * NaN of an origin on such a plane).  With +-1e18 an axis ray along a
+     * box's far face got a far distance of 0 and missed the triangles
+     * there (test_rays axis_rays_through_vertices); the fused test's c
+     * pads such a far distance up instead. */
+    const vfloat4 inv_far = vf4_mul(vf4_inf_below(inv, dir, 1e-18f), vf4_set1(RTK_BOX_FAR_SCALE));
+#endif
     const vfloat4 org_near = org, org_far = org;
 #endif
 #if RTK_FUSED_FAR_ULPS
@@ -483,6 +494,9 @@ static inline vnode plane(const node_t *n, size_t off)
 #if RTK_SIMD_HAS_FMA && !RTK_NODE_INT_ORDER
 #error "the fused node test orders by bits: an FMA backend needs the integer ops at this node width"
 #endif
+#if !RTK_SIMD_HAS_FMA && RTK_NODE_INT_ORDER
+#error "a backend without FMA gives its node test NaN distances (ray_pre_init), which only the float order drops"
+#endif
 static inline __attribute__((always_inline)) unsigned node_intersect(const node_t *n, const ray_pre *p, vnode tnear,
                                                                      vnode tfar, vnode *dist, int fused)
 {
@@ -539,6 +553,12 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
     *dist = tmin;
     return (unsigned)vn_mask(vn_gti(vn_add_ulps(tmax, fused ? RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1 : 1), tmin));
 #else
+    /* A NaN far distance (a zero direction's slab with the origin on its
+     * far plane, ray_pre_init) is dropped: the SSE min returns its second
+     * operand where either is NaN, and tfar, never NaN, comes in as a
+     * second operand last.  A NaN first operand leaves the other; a NaN
+     * second one (y) takes x's bound along with it: a box more to visit,
+     * never one fewer. */
     const vnode tmin = vn_max(vn_max(t0x, t0y), vn_max(t0z, tnear));
     const vnode tmax = vn_min(vn_min(t1x, t1y), vn_min(t1z, tfar));
     *dist = tmin;

@@ -286,9 +286,9 @@ static inline __attribute__((always_inline)) unsigned top_node(const node_t *n, 
                                                                vnode tfar, vnode *dist)
 {
     vnode tmin = tnear, tmax = tfar;
-    for (int k = 0; k < 3; k++) {
-        tmin = vn_max(tmin, vn_mul(vn_sub(plane(n, t->near_off[k]), t->org[k]), t->inv[k]));
-        tmax = vn_min(tmax, vn_mul(vn_sub(plane(n, t->far_off[k]), t->org[k]), t->inv_far[k]));
+    for (int k = 0; k < 3; k++) { /* (a NaN slab dropped, as there) */
+        tmin = vn_max(vn_mul(vn_sub(plane(n, t->near_off[k]), t->org[k]), t->inv[k]), tmin);
+        tmax = vn_min(vn_mul(vn_sub(plane(n, t->far_off[k]), t->org[k]), t->inv_far[k]), tmax);
     }
     *dist = tmin;
     return (unsigned)vn_mask(vn_le(tmin, tmax));

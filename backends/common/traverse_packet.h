@@ -123,6 +123,18 @@ typedef struct PK_(packet_pre) {
 #endif
 } PK_(packet_pre);
 
+/* Whether the subtract-then-multiply box tests give the zero directions
+ * +-inf reciprocals (packet_pre_init), as ray_pre_init does: without FMA,
+ * and not in the robust layouts, whose padded origins already keep a far
+ * distance of 0 off a ray along a face. */
+#define PK_ZERO_DIR_INF (!RTK_SIMD_HAS_FMA && !RTK_ROBUST)
+#if PK_ZERO_DIR_INF
+static inline vkb PK_(tiny_dir)(const PK_(packet_pre) *p, int k)
+{
+    return VK(lt)(VK(abs)(p->dir[k]), VK(set1)(1e-18f));
+}
+#endif
+
 /* The per-ray reciprocals of the near and far planes on axis k, and the
  * frustum's bounds, wherever the configuration keeps them. */
 #if RTK_FUSED_FAR_ULPS
@@ -268,6 +280,17 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
         p->fr_rn_max[k] = hi[k] * PK_NEAR_SCALE;
         p->fr_rf_min[k] = lo[k] * PK_FAR_SCALE;
         p->fr_rf_max[k] = hi[k] * PK_FAR_SCALE;
+#if PK_ZERO_DIR_INF
+        /* a ray's far reciprocal +-inf (box_consts): the greatest far
+         * distance +inf wherever one of them is inside the slab (its origin
+         * moved, the frustum's far plane minus origin is then never 0) */
+        if ((unsigned)VKB(mask)(PK_(tiny_dir)(p, k)) & all) {
+            if (p->near_off[k] == upper[k])
+                p->fr_rf_min[k] = -INFINITY;
+            else
+                p->fr_rf_max[k] = INFINITY;
+        }
+#endif
 #if RTK_SIMD_HAS_FMA
         p->fr_cn_max[k] = hi[3 + k];
         p->fr_cf_min[k] = lo[3 + k];
@@ -357,7 +380,15 @@ static inline void PK_(box_consts)(PK_(packet_pre) *p)
 {
     const vk zero = VK(set1)(0.0f), scale = VK(set1)(PK_FAR_SCALE), near_scale = VK(set1)(PK_NEAR_SCALE);
     for (int k = 0; k < 3; k++) {
-        const vk rinv = VK(mul)(p->rinv_exact[k], near_scale), rinv_far = VK(mul)(p->rinv_exact[k], scale);
+        const vk rinv = VK(mul)(p->rinv_exact[k], near_scale);
+#if PK_ZERO_DIR_INF
+        /* the far planes' +-inf for a zero direction (ray_pre_init), with
+         * the origins moved off the planes (packet_pre_init) */
+        const vk rinv_far = VK(select)(PK_(tiny_dir)(p, k), VK(xor_sign)(VK(set1)(INFINITY), p->rinv_exact[k]),
+                                       VK(mul)(p->rinv_exact[k], scale));
+#else
+        const vk rinv_far = VK(mul)(p->rinv_exact[k], scale);
+#endif
         const vkb neg = VK(lt)(rinv, zero);
         p->rinv_lo[k] = VK(select)(neg, rinv_far, rinv);
         p->rinv_hi[k] = VK(select)(neg, rinv, rinv_far);
@@ -390,6 +421,24 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
         const vk shift = VK(add)(VK(set1)(accel->extent * RTK_ROBUST_REL), VK(mul)(VK(abs)(p->org[k]), VK(set1)(0x1p-22f)));
         p->org_lo[k] = VK(add)(p->org[k], shift);
         p->org_hi[k] = VK(sub)(p->org[k], shift);
+#elif PK_ZERO_DIR_INF
+        /* Where a direction component is below 1e-18 in magnitude, the
+         * subtract-then-multiply tests take +-inf for its far planes'
+         * reciprocal, as the single-ray kernel does (ray_pre_init), and the
+         * origins of the lower and upper planes move up and down by an ulp
+         * or two: lower - org_lo < 0 for every lower <= org, upper - org_hi
+         * > 0 for every upper >= org, so a far distance is +inf wherever
+         * the origin is on the slab, with no 0 * inf (but for an origin
+         * just outside it, where a NaN is dropped and the ray may enter a
+         * box it does not: a box more to visit, never one fewer; the near
+         * distances only move down). */
+        {
+            const vk s = VK(select)(PK_(tiny_dir)(p, k),
+                                    VK(add)(VK(mul)(VK(abs)(p->org[k]), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f)),
+                                    VK(set1)(0.0f));
+            p->org_lo[k] = VK(add)(p->org[k], s);
+            p->org_hi[k] = VK(sub)(p->org[k], s);
+        }
 #else
         p->org_lo[k] = p->org_hi[k] = p->org[k];
 #endif
@@ -1149,6 +1198,7 @@ void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, con
 #undef PK_SWITCH_FRUSTUM
 #undef PK_SLOTS
 #undef PK_NEAR_SCALE
+#undef PK_ZERO_DIR_INF
 #undef PK_FAR_SCALE
 #undef PK_NAME_
 #undef PK_NAME
