@@ -390,17 +390,7 @@ static void test_boxes_across_the_float_range(void **state)
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);
-        rtk_scene s;
-        rtk_geometry g;
-        assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
-        assert_int_equal(rtk_geometry_set_user_primitive_count(g, 40), RTK_OK);
-        assert_int_equal(rtk_geometry_set_bounds_function(g, huge_bounds), RTK_OK);
-        assert_int_equal(rtk_geometry_set_intersect_function(g, huge_query), RTK_OK);
-        assert_int_equal(rtk_geometry_set_occluded_function(g, huge_query), RTK_OK);
-        assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-        assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
-        assert_int_equal(rtk_scene_commit(s), RTK_OK);
+        rtk_scene s = test_user_geometry_scene(dev, 40, huge_bounds, huge_query, huge_query);
         rtk_scene_info info = {.struct_size = sizeof info};
         assert_int_equal(rtk_scene_get_info(s, &info), RTK_OK);
         assert_int_equal(info.user_primitives, 40);
@@ -414,7 +404,6 @@ static void test_boxes_across_the_float_range(void **state)
         rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
         assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
         assert_int_equal(rh.hit.primID, 1);
-        rtk_geometry_release(g);
         rtk_scene_release(s);
         rtk_device_release(dev);
     }
@@ -466,17 +455,7 @@ static void test_rays_along_box_faces(void **state)
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);
-        rtk_scene s;
-        rtk_geometry g;
-        assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
-        assert_int_equal(rtk_geometry_set_user_primitive_count(g, BOXES), RTK_OK);
-        assert_int_equal(rtk_geometry_set_bounds_function(g, unit_box_bounds), RTK_OK);
-        assert_int_equal(rtk_geometry_set_intersect_function(g, face_intersect), RTK_OK);
-        assert_int_equal(rtk_geometry_set_occluded_function(g, face_occluded), RTK_OK);
-        assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-        assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
-        assert_int_equal(rtk_scene_commit(s), RTK_OK);
+        rtk_scene s = test_user_geometry_scene(dev, BOXES, unit_box_bounds, face_intersect, face_occluded);
         rtk_rayhit rays[RAYS];
         uint32_t want[RAYS];
         size_t n = 0;
@@ -521,7 +500,6 @@ static void test_rays_along_box_faces(void **state)
         for (size_t i = 0; i < RAYS; i++)
             if (st[i].hit.primID != want[i] || st[i].ray.tfar != 1.0f + (float)want[i])
                 fail_msg("%s: stream ray %zu: primitive %u, want %u", names[b], i, st[i].hit.primID, want[i]);
-        rtk_geometry_release(g);
         rtk_scene_release(s);
         rtk_device_release(dev);
     }
