@@ -283,7 +283,9 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
 #if PK_ZERO_DIR_INF
         /* a ray's far reciprocal +-inf (box_consts): the greatest far
          * distance +inf wherever one of them is inside the slab (its origin
-         * moved, the frustum's far plane minus origin is then never 0) */
+         * moved, the frustum's far plane minus origin is then not 0; it
+         * can be where another ray's origin lies on the plane, and that
+         * NaN is dropped in frustum_intersect) */
         if ((unsigned)VKB(mask)(PK_(tiny_dir)(p, k)) & all) {
             if (p->near_off[k] == upper[k])
                 p->fr_rf_min[k] = -INFINITY;
@@ -328,7 +330,14 @@ static inline unsigned PK_(frustum_intersect)(const node_t *n, const PK_(packet_
         const vnode tf = vn_mul(xf, vn_select(vn_ge(xf, zero), vn_set1(PK_FR_RF_MAX(p, k)), vn_set1(PK_FR_RF_MIN(p, k))));
 #endif
         tmin = vn_max(tmin, tn);
+#if PK_ZERO_DIR_INF
+        /* (0 * inf = NaN where a ray's origin lies on the plane and another
+         * ray's far reciprocal is infinite: dropped, the bound so far kept
+         * as min's second operand) */
+        tmax = vn_min(tf, tmax);
+#else
         tmax = vn_min(tmax, tf);
+#endif
     }
 #if RTK_SIMD_HAS_FMA
     /* the rays' far ends are compared RTK_FUSED_FAR_ULPS * RTK_FAR_ULPS + 1
