@@ -610,8 +610,9 @@ static void test_multi_block_leaf(void **state)
  * here the instances' boxes are padded).  Every backend must now hit
  * each of them, alone, in packets of 4 (the three vertices of a triangle,
  * one lane inactive) and in a stream, through the triangles' own tree,
- * through an instance of it and through a top level of AXIS_GROUPS
- * instances of a part each, whose boxes have vertices on their faces. */
+ * through an instance of it, through a top level of AXIS_GROUPS instances
+ * of a part each, whose boxes have vertices on their faces, and through the
+ * compact (index leaves) and robust (watertight) layouts' trees. */
 enum { AXIS_N = 600, AXIS_RAYS = 3 * AXIS_N * 12, AXIS_GROUPS = 8, AXIS_PART = AXIS_N / AXIS_GROUPS };
 
 /* A committed scene of AXIS_GROUPS instances (identity), instance g of a
@@ -723,10 +724,14 @@ static void test_axis_rays_through_vertices(void **state)
         assert_int_equal(rtk_scene_commit(inst), RTK_OK);
         rtk_scene parts[AXIS_GROUPS];
         rtk_scene top = axis_parts_scene(dev, v, idx, parts);
-        for (int form = 0; form < 3; form++) {
-            rtk_scene s = form == 2 ? top : form ? inst : tris;
+        rtk_scene compact = test_scene_flags(dev, v, 3 * N, idx, N, RTK_SCENE_FLAG_COMPACT);
+        rtk_scene robust = test_scene_flags(dev, v, 3 * N, idx, N, RTK_SCENE_FLAG_ROBUST);
+        static const char *const form_names[5] = {"", ", an instance", ", instances of parts", ", compact", ", robust"};
+        for (int form = 0; form < 5; form++) {
+            rtk_scene s = (rtk_scene[5]){tris, inst, top, compact, robust}[form];
+            ref.watertight = form == 4;
             char what[64];
-            snprintf(what, sizeof what, "%s%s", names[b], form == 2 ? ", instances of parts" : form ? ", an instance" : "");
+            snprintf(what, sizeof what, "%s%s", names[b], form_names[form]);
             size_t hits = 0, missed = 0;
             for (size_t i = 0; i < AXIS_RAYS; i++) {
                 const rtk_ray ray = axis_ray(v, i);
@@ -754,6 +759,8 @@ static void test_axis_rays_through_vertices(void **state)
             assert_int_equal(missed, 0);
             axis_rays_grouped(what, s, alone);
         }
+        rtk_scene_release(robust);
+        rtk_scene_release(compact);
         rtk_scene_release(top);
         for (int g = 0; g < AXIS_GROUPS; g++)
             rtk_scene_release(parts[g]);
