@@ -774,6 +774,81 @@ static void test_axis_rays_through_vertices(void **state)
     free(idx);
 }
 
+/* Rays along the boundary edges x = 0 and x = 1 of a grid of 32 x 32
+ * squares on [0, 1]^2 (z = 0), straight down with the x and y components
+ * +0.0 or -0.0, from z = 10 and 1000: each hits the grid, alone, in packets
+ * of 8 and in a stream.  With the origin's x at 0 and its direction -0.0,
+ * the far plane of the boxes at the edge is the origin's own, and the
+ * fused node test's padding of org * inv (2^-22 of it, and the least
+ * normal) gave a far distance of about 1e-20: avx2 missed half of these
+ * rays until such rays took the subtract-then-multiply test. */
+static void test_rays_along_grid_edges(void **state)
+{
+    (void)state;
+    enum { G = 32, RAYS = 2 * 4 * 2 * 32 };
+    float *v = malloc(3 * (G + 1) * (G + 1) * sizeof *v);
+    uint32_t *idx = malloc(6 * G * G * sizeof *idx);
+    assert_non_null(v);
+    assert_non_null(idx);
+    for (int j = 0; j <= G; j++)
+        for (int i = 0; i <= G; i++) {
+            float *q = &v[3 * (j * (G + 1) + i)];
+            q[0] = (float)i / G, q[1] = (float)j / G, q[2] = 0.0f;
+        }
+    for (uint32_t j = 0, n = 0; j < G; j++)
+        for (uint32_t i = 0; i < G; i++) {
+            const uint32_t a = j * (G + 1) + i, b = a + 1, c = a + G + 2, d = a + G + 1;
+            const uint32_t tri[6] = {a, b, c, a, c, d};
+            memcpy(&idx[n], tri, sizeof tri);
+            n += 6;
+        }
+    rtk_rayhit rays[RAYS];
+    size_t n = 0;
+    for (int x = 0; x < 2; x++)
+        for (int sg = 0; sg < 4; sg++)
+            for (int z = 0; z < 2; z++)
+                for (int k = 0; k < 32; k++) {
+                    rays[n] = (rtk_rayhit){.ray = test_ray((float)x, (0.5f + (float)k) / 32.0f, z ? 1000.0f : 10.0f,
+                                                           (sg & 1) ? -0.0f : 0.0f, (sg & 2) ? -0.0f : 0.0f, -1.0f, 0.0f,
+                                                           INFINITY)};
+                    rays[n++].hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                }
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s = test_scene(dev, v, (G + 1) * (G + 1), idx, 2 * G * G);
+        rtk_rayhit st[RAYS];
+        memcpy(st, rays, sizeof st);
+        assert_int_equal(rtk_intersect1M(s, st, RAYS, sizeof *st), RTK_OK);
+        for (size_t i = 0; i < RAYS; i++) {
+            rtk_rayhit rh = rays[i];
+            assert_int_equal(rtk_intersect1(s, &rh), RTK_OK);
+            if (rh.hit.geomID != 0 || rh.ray.tfar != rays[i].ray.org_z || st[i].hit.geomID != 0 ||
+                st[i].ray.tfar != rh.ray.tfar)
+                fail_msg("%s: ray %zu from %g %g %g (dir x %g): t %g alone, %g in the stream", names[b], i,
+                         (double)rays[i].ray.org_x, (double)rays[i].ray.org_y, (double)rays[i].ray.org_z,
+                         (double)rays[i].ray.dir_x, (double)rh.ray.tfar, (double)st[i].ray.tfar);
+        }
+        for (size_t i = 0; i < RAYS; i += 8) {
+            _Alignas(64) uint32_t pk[20 * 8];
+            for (unsigned l = 0; l < 8; l++)
+                test_packet_put(pk, 8, l, &rays[i + l], 0);
+            assert_int_equal(test_trace_packet(s, 8, 0, NULL, pk), RTK_OK);
+            for (unsigned l = 0; l < 8; l++) {
+                rtk_rayhit got;
+                test_packet_get(pk, 8, l, &got, 0);
+                if (got.hit.geomID != 0 || got.ray.tfar != rays[i + l].ray.org_z)
+                    fail_msg("%s: packet ray %zu: t %g", names[b], i + l, (double)got.ray.tfar);
+            }
+        }
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+    free(v);
+    free(idx);
+}
+
 int main(void)
 {
     const struct CMUnitTest tests[] = {
@@ -789,6 +864,7 @@ int main(void)
         cmocka_unit_test_setup_teardown(test_multi_block_leaf, setup_stacked_triangles, restore_fixture),
         cmocka_unit_test_setup_teardown(test_box_edges, setup_teeth, restore_fixture),
         cmocka_unit_test(test_axis_rays_through_vertices),
+        cmocka_unit_test(test_rays_along_grid_edges),
     };
     return cmocka_run_group_tests(tests, setup, teardown);
 }

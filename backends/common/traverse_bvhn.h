@@ -374,16 +374,19 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
     vf4_store(of, org_far);
 #else
     const vfloat4 inv = inv_exact;
-#if RTK_SIMD_HAS_FMA
-    const vfloat4 inv_far = vf4_mul(inv, vf4_set1(RTK_BOX_FAR_SCALE));
-#else
     /* the subtract-then-multiply test's far planes: +-inf where the
      * direction is below 1e-18 (vf4_inf_below; node_intersect drops the
      * NaN of an origin on such a plane).  With +-1e18 an axis ray along a
      * box's far face got a far distance of 0 and missed the triangles
-     * there (test_rays axis_rays_through_vertices); the fused test's c
-     * pads such a far distance up instead. */
+     * there (test_rays axis_rays_through_vertices).  The fused test pads
+     * c instead, by 2^-22 of org * inv, which is not enough where the
+     * origin is near 0 (an axis ray along x = 0 missed a grid's edge
+     * there, t = 10 against a far distance of 1e-20): with FMA such rays
+     * take this test (ray_pre.fma = 0, below), whose far planes are the
+     * only reader of inv_far in the FMA layouts (RTK_FUSED_FAR_ULPS). */
     const vfloat4 inv_far = vf4_mul(vf4_inf_below(inv, dir, 1e-18f), vf4_set1(RTK_BOX_FAR_SCALE));
+#if RTK_SIMD_HAS_FMA && !RTK_FUSED_FAR_ULPS
+#error "with FMA, the default layouts' fused test must not read inv_far (its zero directions are infinite)"
 #endif
     const vfloat4 org_near = org, org_far = org;
 #endif
@@ -425,6 +428,10 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
     vf4_store(pm->o, org);
     vf4_store(pm->d, dir);
     p->fma = (vb4_mask(vf4_le(vf4_abs(cf), vf4_set1(0x1p126f))) & 7) == 7;
+#if !RTK_ROBUST
+    /* (a zero direction: the subtract-then-multiply test, see inv_far) */
+    p->fma &= (vb4_mask(vf4_lt(vf4_abs(dir), vf4_set1(1e-18f))) & 7) == 0;
+#endif
 #endif
     for (int k = 0; k < 3; k++) {
         p->ninv[k] = vn_set1(in[k]);
@@ -538,6 +545,15 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
          * nothing else: three additions beside the critical path buy integer
          * ops on it */
         const vnode zero = vn_set1(0.0f);
+#if !RTK_ROBUST
+        /* and first a NaN far distance (0 * inf: a zero direction's origin
+         * on the plane, ray_pre_init) becomes +inf, as the float order
+         * drops it: min returns its second operand where either is NaN */
+        const vnode pinf = vn_set1(__builtin_inff());
+        t1x = vn_min(t1x, pinf);
+        t1y = vn_min(t1y, pinf);
+        t1z = vn_min(t1z, pinf);
+#endif
         t1x = vn_add(t1x, zero);
         t1y = vn_add(t1y, zero);
         t1z = vn_add(t1z, zero);

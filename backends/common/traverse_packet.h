@@ -806,9 +806,14 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
          * (ray_pre.fma), not the fused one the packet takes: alone */
         unsigned fits = all;
         const vk limit = VK(set1)(0x1p125f);
-        for (int k = 0; k < 3; k++) /* (the origins of both planes: robust layouts pad them) */
+        for (int k = 0; k < 3; k++) { /* (the origins of both planes: robust layouts pad them) */
             fits &= (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org_lo[k], p.rinv_exact[k])), limit)) &
                     (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org_hi[k], p.rinv_exact[k])), limit));
+#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
+            /* and a zero direction takes it too (ray_pre_init) */
+            fits &= ~(unsigned)VKB(mask)(VK(lt)(VK(abs)(p.dir[k]), VK(set1)(1e-18f)));
+#endif
+        }
         *ties = all & ~fits;
     }
     if (closest) { /* defined lanes throughout, for the blends (and memory checkers) */
@@ -1051,6 +1056,17 @@ static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_
     const unsigned nx = (unsigned)VKB(mask)(VK(lt)(VK(load)(r->dir_x), zero)) & all;
     const unsigned ny = (unsigned)VKB(mask)(VK(lt)(VK(load)(r->dir_y), zero)) & all;
     const unsigned nz = (unsigned)VKB(mask)(VK(lt)(VK(load)(r->dir_z), zero)) & all;
+#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
+    /* A zero direction component: the single-ray kernel takes the
+     * subtract-then-multiply test for it (ray_pre_init), whose far plane
+     * is exact where the fused test's padding is not (an origin near 0):
+     * the stream's steps give the ray that answer. */
+    const vk tiny = VK(set1)(1e-18f);
+    if (((unsigned)VKB(mask)(VK(lt)(VK(abs)(VK(load)(r->dir_x)), tiny)) |
+         (unsigned)VKB(mask)(VK(lt)(VK(abs)(VK(load)(r->dir_y)), tiny)) |
+         (unsigned)VKB(mask)(VK(lt)(VK(abs)(VK(load)(r->dir_z)), tiny))) & all)
+        return 1;
+#endif
     if (!((nx && nx != all) || (ny && ny != all) || (nz && nz != all)))
         return 0;
     const vk pinf = VK(set1)(INFINITY), ninf = VK(set1)(-INFINITY);

@@ -624,18 +624,33 @@ static inline void stream_flush_bins(const rtk_accel *accel, stream_src *src, co
  * measures them): camera rays, and shadow rays to one light from
  * neighbouring hits.  Such rays share most of their nodes, which are then
  * in the caches, and there interleaving only costs. */
+static inline unsigned stream_zero_dir(const rtk_ray *r)
+{
+#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
+    /* A zero direction component takes the single-ray kernel's
+     * subtract-then-multiply test (ray_pre_init), not a packet's fused
+     * one: a group with such a ray is not coherent, and the packet
+     * kernels' stream of such rays (PK_(scattered)) does not come back to
+     * them. */
+    return fabsf(r->dir_x) < 1e-18f || fabsf(r->dir_y) < 1e-18f || fabsf(r->dir_z) < 1e-18f;
+#else
+    (void)r;
+    return 0;
+#endif
+}
+
 static inline int stream_coherent(const rtk_accel *accel, void *const *rays, uint32_t n)
 {
     const rtk_ray *r0 = rays[0];
     const unsigned s0 = (r0->dir_x < 0.0f) | (r0->dir_y < 0.0f) << 1 | (r0->dir_z < 0.0f) << 2;
     float lo[3] = {r0->org_x, r0->org_y, r0->org_z}, hi[3] = {r0->org_x, r0->org_y, r0->org_z};
-    unsigned feat = ray_feat(accel, r0);
+    unsigned feat = ray_feat(accel, r0) | stream_zero_dir(r0);
     for (uint32_t i = 1; i < n; i++) {
         const rtk_ray *r = rays[i];
         const unsigned si = (r->dir_x < 0.0f) | (r->dir_y < 0.0f) << 1 | (r->dir_z < 0.0f) << 2;
         if (si != s0)
             return 0;
-        feat |= ray_feat(accel, r);
+        feat |= ray_feat(accel, r) | stream_zero_dir(r);
         const float o[3] = {r->org_x, r->org_y, r->org_z};
         for (int k = 0; k < 3; k++) {
             lo[k] = o[k] < lo[k] ? o[k] : lo[k];
