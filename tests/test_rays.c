@@ -831,16 +831,11 @@ static void test_rays_along_grid_edges(void **state)
                          (double)rays[i].ray.dir_x, (double)rh.ray.tfar, (double)st[i].ray.tfar);
         }
         for (size_t i = 0; i < RAYS; i += 8) {
-            _Alignas(64) uint32_t pk[20 * 8];
+            rtk_rayhit got[8];
+            test_intersect8_rows(s, &rays[i], got);
             for (unsigned l = 0; l < 8; l++)
-                test_packet_put(pk, 8, l, &rays[i + l], 0);
-            assert_int_equal(test_trace_packet(s, 8, 0, NULL, pk), RTK_OK);
-            for (unsigned l = 0; l < 8; l++) {
-                rtk_rayhit got;
-                test_packet_get(pk, 8, l, &got, 0);
-                if (got.hit.geomID != 0 || got.ray.tfar != rays[i + l].ray.org_z)
-                    fail_msg("%s: packet ray %zu: t %g", names[b], i + l, (double)got.ray.tfar);
-            }
+                if (got[l].hit.geomID != 0 || got[l].ray.tfar != rays[i + l].ray.org_z)
+                    fail_msg("%s: packet ray %zu: t %g", names[b], i + l, (double)got[l].ray.tfar);
         }
         rtk_scene_release(s);
         rtk_device_release(dev);

@@ -482,17 +482,12 @@ static void test_rays_along_box_faces(void **state)
             assert_true(occ.tfar == -INFINITY);
         }
         for (size_t i = 0; i < RAYS; i += 8) {
-            _Alignas(64) uint32_t pk[20 * 8];
+            rtk_rayhit got[8];
+            test_intersect8_rows(s, &rays[i], got);
             for (unsigned l = 0; l < 8; l++)
-                test_packet_put(pk, 8, l, &rays[i + l], 0);
-            assert_int_equal(test_trace_packet(s, 8, 0, NULL, pk), RTK_OK);
-            for (unsigned l = 0; l < 8; l++) {
-                rtk_rayhit got;
-                test_packet_get(pk, 8, l, &got, 0);
-                if (got.hit.primID != want[i + l] || got.ray.tfar != 1.0f + (float)want[i + l])
-                    fail_msg("%s: packet ray %zu: primitive %u, want %u", names[b], i + l, got.hit.primID,
+                if (got[l].hit.primID != want[i + l] || got[l].ray.tfar != 1.0f + (float)want[i + l])
+                    fail_msg("%s: packet ray %zu: primitive %u, want %u", names[b], i + l, got[l].hit.primID,
                              want[i + l]);
-            }
         }
         rtk_rayhit st[RAYS];
         memcpy(st, rays, sizeof st);

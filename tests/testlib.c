@@ -380,6 +380,16 @@ rtk_error test_trace_packet(rtk_scene scene, unsigned width, int occluded, const
     }
 }
 
+void test_intersect8_rows(rtk_scene scene, const rtk_rayhit in[8], rtk_rayhit out[8])
+{
+    _Alignas(64) uint32_t pk[20 * 8];
+    for (unsigned l = 0; l < 8; l++)
+        test_packet_put(pk, 8, l, &in[l], 0);
+    assert_int_equal(test_trace_packet(scene, 8, 0, NULL, pk), RTK_OK);
+    for (unsigned l = 0; l < 8; l++)
+        test_packet_get(pk, 8, l, &out[l], 0);
+}
+
 static int cmp_names(const void *a, const void *b)
 {
     return strcmp(*(char *const *)a, *(char *const *)b);

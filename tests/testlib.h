@@ -98,6 +98,8 @@ int test_sphere_hit(const float c[3], float r, const float o[3], const float d[3
 void test_packet_put(void *packet, unsigned width, unsigned lane, const rtk_rayhit *rh, int occluded);
 void test_packet_get(const void *packet, unsigned width, unsigned lane, rtk_rayhit *rh, int occluded);
 rtk_error test_trace_packet(rtk_scene scene, unsigned width, int occluded, const int *valid, void *packet);
+/* The closest hits of in[0 .. 8) as one packet of 8 (every lane active), in out. */
+void test_intersect8_rows(rtk_scene scene, const rtk_rayhit in[8], rtk_rayhit out[8]);
 
 /* The .ply files of the shared mesh directory (only == NULL or "": all;
  * else just that file name), full paths sorted by name, malloc'd: the
