@@ -128,12 +128,13 @@ typedef struct PK_(packet_pre) {
  * and not in the robust layouts, whose padded origins already keep a far
  * distance of 0 off a ray along a face. */
 #define PK_ZERO_DIR_INF (!RTK_SIMD_HAS_FMA && !RTK_ROBUST)
-#if PK_ZERO_DIR_INF
-static inline vkb PK_(tiny_dir)(const PK_(packet_pre) *p, int k)
+
+/* The lanes of d below 1e-18 in magnitude: a zero direction component, as
+ * ray_pre_init treats it. */
+static inline vkb PK_(zero_dir)(vk d)
 {
-    return VK(lt)(VK(abs)(p->dir[k]), VK(set1)(1e-18f));
+    return VK(lt)(VK(abs)(d), VK(set1)(1e-18f));
 }
-#endif
 
 /* The per-ray reciprocals of the near and far planes on axis k, and the
  * frustum's bounds, wherever the configuration keeps them. */
@@ -286,7 +287,7 @@ static inline void PK_(frustum_init)(PK_(packet_pre) *p, vkb active)
          * moved, the frustum's far plane minus origin is then not 0; it
          * can be where another ray's origin lies on the plane, and that
          * NaN is dropped in frustum_intersect) */
-        if ((unsigned)VKB(mask)(PK_(tiny_dir)(p, k)) & all) {
+        if ((unsigned)VKB(mask)(PK_(zero_dir)(p->dir[k])) & all) {
             if (p->near_off[k] == upper[k])
                 p->fr_rf_min[k] = -INFINITY;
             else
@@ -393,7 +394,7 @@ static inline void PK_(box_consts)(PK_(packet_pre) *p)
 #if PK_ZERO_DIR_INF
         /* the far planes' +-inf for a zero direction (ray_pre_init), with
          * the origins moved off the planes (packet_pre_init) */
-        const vk rinv_far = VK(select)(PK_(tiny_dir)(p, k), VK(xor_sign)(VK(set1)(INFINITY), p->rinv_exact[k]),
+        const vk rinv_far = VK(select)(PK_(zero_dir)(p->dir[k]), VK(xor_sign)(VK(set1)(INFINITY), p->rinv_exact[k]),
                                        VK(mul)(p->rinv_exact[k], scale));
 #else
         const vk rinv_far = VK(mul)(p->rinv_exact[k], scale);
@@ -442,7 +443,7 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
          * box it does not: a box more to visit, never one fewer; the near
          * distances only move down). */
         {
-            const vk s = VK(select)(PK_(tiny_dir)(p, k),
+            const vk s = VK(select)(PK_(zero_dir)(p->dir[k]),
                                     VK(add)(VK(mul)(VK(abs)(p->org[k]), VK(set1)(0x1p-22f)), VK(set1)(0x1p-126f)),
                                     VK(set1)(0.0f));
             p->org_lo[k] = VK(add)(p->org[k], s);
@@ -452,7 +453,7 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
         p->org_lo[k] = p->org_hi[k] = p->org[k];
 #endif
         /* as in ray_pre_init: components below 1e-18 in magnitude become +-1e-18 */
-        const vk d = VK(select)(VK(lt)(VK(abs)(p->dir[k]), tiny), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
+        const vk d = VK(select)(PK_(zero_dir)(p->dir[k]), VK(xor_sign)(tiny, p->dir[k]), p->dir[k]);
         p->rinv_exact[k] = VK(div)(one, d);
     }
 #if !RTK_FUSED_FAR_ULPS
@@ -806,14 +807,11 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
          * (ray_pre.fma), not the fused one the packet takes: alone */
         unsigned fits = all;
         const vk limit = VK(set1)(0x1p125f);
-        for (int k = 0; k < 3; k++) { /* (the origins of both planes: robust layouts pad them) */
+        for (int k = 0; k < 3; k++) /* (the origins of both planes: robust layouts pad them) */
             fits &= (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org_lo[k], p.rinv_exact[k])), limit)) &
                     (unsigned)VKB(mask)(VK(le)(VK(abs)(VK(mul)(p.org_hi[k], p.rinv_exact[k])), limit));
-#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
-            /* and a zero direction takes it too (ray_pre_init) */
-            fits &= ~(unsigned)VKB(mask)(VK(lt)(VK(abs)(p.dir[k]), VK(set1)(1e-18f)));
-#endif
-        }
+        /* (a zero direction takes that test too, but never comes here: the
+         * stream's coherent groups leave such rays out, stream_zero_dir) */
         *ties = all & ~fits;
     }
     if (closest) { /* defined lanes throughout, for the blends (and memory checkers) */
@@ -1061,10 +1059,8 @@ static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_
      * subtract-then-multiply test for it (ray_pre_init), whose far plane
      * is exact where the fused test's padding is not (an origin near 0):
      * the stream's steps give the ray that answer. */
-    const vk tiny = VK(set1)(1e-18f);
-    if (((unsigned)VKB(mask)(VK(lt)(VK(abs)(VK(load)(r->dir_x)), tiny)) |
-         (unsigned)VKB(mask)(VK(lt)(VK(abs)(VK(load)(r->dir_y)), tiny)) |
-         (unsigned)VKB(mask)(VK(lt)(VK(abs)(VK(load)(r->dir_z)), tiny))) & all)
+    if (((unsigned)VKB(mask)(PK_(zero_dir)(VK(load)(r->dir_x))) | (unsigned)VKB(mask)(PK_(zero_dir)(VK(load)(r->dir_y))) |
+         (unsigned)VKB(mask)(PK_(zero_dir)(VK(load)(r->dir_z)))) & all)
         return 1;
 #endif
     if (!((nx && nx != all) || (ny && ny != all) || (nz && nz != all)))

@@ -618,12 +618,6 @@ static inline void stream_flush_bins(const rtk_accel *accel, stream_src *src, co
 #define STREAM_MASKS(src) 0
 #endif
 
-/* Whether rays[0 .. n) are coherent: none needs the features, their
- * direction signs agree on every axis, and their origins lie within a
- * sixteenth of the tree's largest side of each other (as PK_(scattered)
- * measures them): camera rays, and shadow rays to one light from
- * neighbouring hits.  Such rays share most of their nodes, which are then
- * in the caches, and there interleaving only costs. */
 static inline unsigned stream_zero_dir(const rtk_ray *r)
 {
 #if RTK_SIMD_HAS_FMA && !RTK_ROBUST
@@ -639,6 +633,12 @@ static inline unsigned stream_zero_dir(const rtk_ray *r)
 #endif
 }
 
+/* Whether rays[0 .. n) are coherent: none needs the features, their
+ * direction signs agree on every axis, and their origins lie within a
+ * sixteenth of the tree's largest side of each other (as PK_(scattered)
+ * measures them): camera rays, and shadow rays to one light from
+ * neighbouring hits.  Such rays share most of their nodes, which are then
+ * in the caches, and there interleaving only costs. */
 static inline int stream_coherent(const rtk_accel *accel, void *const *rays, uint32_t n)
 {
     const rtk_ray *r0 = rays[0];
