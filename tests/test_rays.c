@@ -781,7 +781,9 @@ static void test_axis_rays_through_vertices(void **state)
  * the far plane of the boxes at the edge is the origin's own, and the
  * fused node test's padding of org * inv (2^-22 of it, and the least
  * normal) gave a far distance of about 1e-20: avx2 missed half of these
- * rays until such rays took the subtract-then-multiply test. */
+ * rays until such rays took the subtract-then-multiply test; in any-hit
+ * streams traced by masks (avx2's stream_occluded_masks) they kept the
+ * fused test, and rays of a long stream along x = 0 were not occluded. */
 static void test_rays_along_grid_edges(void **state)
 {
     (void)state;
@@ -830,6 +832,20 @@ static void test_rays_along_grid_edges(void **state)
                          (double)rays[i].ray.org_x, (double)rays[i].ray.org_y, (double)rays[i].ray.org_z,
                          (double)rays[i].ray.dir_x, (double)rh.ray.tfar, (double)st[i].ray.tfar);
         }
+        /* any hits in a stream long enough for every way of tracing it
+         * to be measured on some window (traverse_stream.h stream_window:
+         * by masks, on avx2, the fourth window of 128), the rays mixed so
+         * that each window has some along x = 0 */
+        enum { LONG = 16 * RAYS };
+        rtk_ray *occ = malloc(LONG * sizeof *occ);
+        assert_non_null(occ);
+        for (size_t i = 0; i < LONG; i++)
+            occ[i] = rays[i * 37 % RAYS].ray;
+        assert_int_equal(rtk_occluded1M(s, occ, LONG, sizeof *occ), RTK_OK);
+        for (size_t i = 0; i < LONG; i++)
+            if (occ[i].tfar != -INFINITY)
+                fail_msg("%s: any hit, stream ray %zu (ray %zu) missed", names[b], i, i * 37 % RAYS);
+        free(occ);
         for (size_t i = 0; i < RAYS; i += 8) {
             rtk_rayhit got[8];
             test_intersect8_rows(s, &rays[i], got);

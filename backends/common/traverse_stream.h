@@ -314,13 +314,17 @@ static __attribute__((noinline)) void stream_occluded_masks(const rtk_accel *acc
             vf8_store(&cn[k][i0], vf8_add(c, e));
             vf8_store(&cf[k][i0], vf8_sub(c, e));
             in_range &= (unsigned)vb8_mask(vf8_le(vf8_abs(c), vf8_set1(0x1p126f)));
+            /* (and a zero direction component: the subtract-then-multiply
+             * test, stream_zero_dir; by the fused one here avx2 missed
+             * test_rays' rays along a grid's edge x = 0) */
+            in_range &= ~(unsigned)vb8_mask(vf8_lt(vf8_abs(dk), tiny));
         }
         vf8_store(&tn[i0], vf8_add(vf8_from4(o[3], o[7]), vf8_set1(0.0f)));
         const uint32_t m = n - i0 < 8 ? n - i0 : 8;
         for (uint32_t c = 0; c < m; c++) {
             rtk_ray *r = rays[i0 + c];
-            /* features, or out of the fused test's range (ray_pre.fma):
-             * the single-ray kernel's own ways */
+            /* features, or not for the fused test (ray_pre.fma): the
+             * single-ray kernel's own ways */
             if (ray_feat(accel, r) != 0 || !(in_range >> c & 1)) {
                 BVHN_OCCLUDED1(accel, r, q);
                 continue;
