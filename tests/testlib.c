@@ -194,7 +194,7 @@ ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt)
     for (size_t i = 0; i < nt; i++) {
         const uint32_t *t = idx + 3 * i;
         const float *a = v + 3 * (size_t)t[0], *b = v + 3 * (size_t)t[1], *c = v + 3 * (size_t)t[2];
-        m.keep[i] = rtk_triangle_is_finite(a, b, c) && !rtk_triangle_is_degenerate(a, b, c);
+        m.keep[i] = rtk_triangle_classify(a, b, c) == RTK_TRIANGLE_HITTABLE; /* (what a build keeps) */
         for (int k = 0; k < 3; k++) {
             m.tri[i][k] = a[k];
             m.tri[i][3 + k] = b[k] - a[k];

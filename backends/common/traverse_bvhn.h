@@ -366,7 +366,11 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
      * planes and away from the far ones by the absolute padding, plus 4 ulps
      * of the origin so the rounding of the sum cannot undo the move */
     const vfloat4 inv = vf4_mul(inv_exact, vf4_set1(1.0f - RTK_ROBUST_REL));
-    const vfloat4 inv_far = vf4_mul(inv_exact, vf4_set1(RTK_BOX_FAR_SCALE + RTK_ROBUST_REL));
+    /* (the far planes of a zero direction at +-inf, as below: with +-1e18
+     * the origin's move, 2^-20 of a tree some 1e-7 across, made a far
+     * distance of about 1e5 for a ray along a face, and rays from farther
+     * away missed: test_rays axis_rays_through_vertices_tiny) */
+    const vfloat4 inv_far = vf4_mul(vf4_inf_below(inv_exact, dir, 1e-18f), vf4_set1(RTK_BOX_FAR_SCALE + RTK_ROBUST_REL));
     const vfloat4 shift = vf4_add(vf4_set1(accel->extent * RTK_ROBUST_REL), vf4_mul(vf4_abs(org), vf4_set1(0x1p-22f)));
     const vfloat4 org_near = vf4_add(org, vf4_xor_sign(shift, inv_exact));
     const vfloat4 org_far = vf4_sub(org, vf4_xor_sign(shift, inv_exact));
@@ -428,10 +432,9 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
     vf4_store(pm->o, org);
     vf4_store(pm->d, dir);
     p->fma = (vb4_mask(vf4_le(vf4_abs(cf), vf4_set1(0x1p126f))) & 7) == 7;
-#if !RTK_ROBUST
-    /* (a zero direction: the subtract-then-multiply test, see inv_far) */
+    /* (a zero direction: the subtract-then-multiply test, see inv_far;
+     * in robust layouts cf is then infinite already) */
     p->fma &= (vb4_mask(vf4_lt(vf4_abs(dir), vf4_set1(1e-18f))) & 7) == 0;
-#endif
 #endif
     for (int k = 0; k < 3; k++) {
         p->ninv[k] = vn_set1(in[k]);
@@ -545,15 +548,15 @@ static inline __attribute__((always_inline)) unsigned node_intersect(const node_
          * nothing else: three additions beside the critical path buy integer
          * ops on it */
         const vnode zero = vn_set1(0.0f);
-#if !RTK_ROBUST
         /* and first a NaN far distance (0 * inf: a zero direction's origin
-         * on the plane, ray_pre_init) becomes +inf, as the float order
-         * drops it: min returns its second operand where either is NaN */
+         * on the plane, ray_pre_init; robust layouts move their origins
+         * off the planes, unless by exactly the move) becomes +inf, as the
+         * float order drops it: min returns its second operand where
+         * either is NaN */
         const vnode pinf = vn_set1(__builtin_inff());
         t1x = vn_min(t1x, pinf);
         t1y = vn_min(t1y, pinf);
         t1z = vn_min(t1z, pinf);
-#endif
         t1x = vn_add(t1x, zero);
         t1y = vn_add(t1y, zero);
         t1z = vn_add(t1z, zero);

@@ -124,10 +124,12 @@ typedef struct PK_(packet_pre) {
 } PK_(packet_pre);
 
 /* Whether the subtract-then-multiply box tests give the zero directions
- * +-inf reciprocals (packet_pre_init), as ray_pre_init does: without FMA,
- * and not in the robust layouts, whose padded origins already keep a far
- * distance of 0 off a ray along a face. */
-#define PK_ZERO_DIR_INF (!RTK_SIMD_HAS_FMA && !RTK_ROBUST)
+ * +-inf reciprocals (packet_pre_init), as ray_pre_init does: without FMA
+ * (with it, packets with such rays go as a stream, PK_(scattered)).  The
+ * robust layouts too: their padded origins keep a far distance of 0 off a
+ * ray along a face, but with +-1e18 not far enough for a tree some 1e-7
+ * across. */
+#define PK_ZERO_DIR_INF (!RTK_SIMD_HAS_FMA)
 
 /* The lanes of d below 1e-18 in magnitude: a zero direction component, as
  * ray_pre_init treats it. */
@@ -1054,7 +1056,7 @@ static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_
     const unsigned nx = (unsigned)VKB(mask)(VK(lt)(VK(load)(r->dir_x), zero)) & all;
     const unsigned ny = (unsigned)VKB(mask)(VK(lt)(VK(load)(r->dir_y), zero)) & all;
     const unsigned nz = (unsigned)VKB(mask)(VK(lt)(VK(load)(r->dir_z), zero)) & all;
-#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
+#if RTK_SIMD_HAS_FMA
     /* A zero direction component: the single-ray kernel takes the
      * subtract-then-multiply test for it (ray_pre_init), whose far plane
      * is exact where the fused test's padding is not (an origin near 0):

@@ -624,7 +624,7 @@ static inline void stream_flush_bins(const rtk_accel *accel, stream_src *src, co
 
 static inline unsigned stream_zero_dir(const rtk_ray *r)
 {
-#if RTK_SIMD_HAS_FMA && !RTK_ROBUST
+#if RTK_SIMD_HAS_FMA
     /* A zero direction component takes the single-ray kernel's
      * subtract-then-multiply test (ray_pre_init), not a packet's fused
      * one: a group with such a ray is not coherent, and the packet
