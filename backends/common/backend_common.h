@@ -24,4 +24,10 @@
 
 #define RTK_HIDDEN __attribute__((visibility("hidden")))
 
+/* A direction component below this in magnitude is a zero direction to the
+ * box tests: its near planes' reciprocal is clamped to +-1e18 (as Embree
+ * does), its far planes' is +-inf (traverse_bvhn.h ray_pre_init_v), and on
+ * FMA backends such a ray takes the subtract-then-multiply test. */
+#define RTK_ZERO_DIR 1e-18f
+
 #endif

@@ -39,10 +39,10 @@ static inline unsigned obj_ray_scalars(const rtk_ray *r, float o[4], float in[4]
      * reciprocals with the direction's signs (-0.0 included); the far
      * planes' +-inf for a zero direction (vf4_inf_below: NaN for an origin
      * on such a plane, which the node tests drop) */
-    const vfloat4 inv = vf4_rcp_clamped(dir, 1e-18f);
+    const vfloat4 inv = vf4_rcp_clamped(dir, RTK_ZERO_DIR);
     vf4_storeu(o, org);
     vf4_storeu(in, inv);
-    vf4_storeu(inf, vf4_mul(vf4_inf_below(inv, dir, 1e-18f), vf4_set1(OBJ_FAR_SCALE)));
+    vf4_storeu(inf, vf4_mul(vf4_inf_below(inv, dir, RTK_ZERO_DIR), vf4_set1(OBJ_FAR_SCALE)));
     return (unsigned)vf4_signs(dir) & 7;
 }
 

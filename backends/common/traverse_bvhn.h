@@ -15,9 +15,10 @@
  * sorting (any hit ends it; on dragon.ply shadow rays that measured about 8%
  * faster than nearest first), last slot first, as Embree's does (see
  * next_leaf).  Direction
- * components smaller than 1e-18 in magnitude are replaced by +-1e-18 before
- * taking the reciprocal (as Embree does), so no 0 * inf NaN can appear in a
- * slab test.  The far slab distance is scaled by 1 + 2*gamma(4) (Ize 2013), which makes the box test conservative against the rounding of
+ * components smaller than 1e-18 in magnitude (RTK_ZERO_DIR) are replaced by
+ * +-1e-18 before taking the reciprocal for the near planes (as Embree
+ * does); the far planes take +-inf there (ray_pre_init_v), and the NaN of
+ * an origin on such a plane is dropped (node_intersect).  The far slab distance is scaled by 1 + 2*gamma(4) (Ize 2013), which makes the box test conservative against the rounding of
  * the slab arithmetic: a triangle whose hit lies on a box face or edge (rays
  * aimed at vertices do that) is not culled by its box.  A leaf's four
  * triangles are tested at once with the arithmetic of rtk_triangle_intersect.
@@ -359,7 +360,7 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
     (void)accel;
     p->m = pm;
     /* a component below 1e-18 in magnitude becomes +-1e-18, its sign kept */
-    const vfloat4 inv_exact = vf4_rcp_clamped(dir, 1e-18f);
+    const vfloat4 inv_exact = vf4_rcp_clamped(dir, RTK_ZERO_DIR);
 #if RTK_ROBUST
     /* (see RTK_ROBUST_REL) the reciprocals for the near planes scaled
      * down, for the far ones up, and the origin moved toward the near
@@ -370,7 +371,7 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
      * the origin's move, 2^-20 of a tree some 1e-7 across, made a far
      * distance of about 1e5 for a ray along a face, and rays from farther
      * away missed: test_rays axis_rays_through_vertices_tiny) */
-    const vfloat4 inv_far = vf4_mul(vf4_inf_below(inv_exact, dir, 1e-18f), vf4_set1(RTK_BOX_FAR_SCALE + RTK_ROBUST_REL));
+    const vfloat4 inv_far = vf4_mul(vf4_inf_below(inv_exact, dir, RTK_ZERO_DIR), vf4_set1(RTK_BOX_FAR_SCALE + RTK_ROBUST_REL));
     const vfloat4 shift = vf4_add(vf4_set1(accel->extent * RTK_ROBUST_REL), vf4_mul(vf4_abs(org), vf4_set1(0x1p-22f)));
     const vfloat4 org_near = vf4_add(org, vf4_xor_sign(shift, inv_exact));
     const vfloat4 org_far = vf4_sub(org, vf4_xor_sign(shift, inv_exact));
@@ -388,7 +389,7 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
      * there, t = 10 against a far distance of 1e-20): with FMA such rays
      * take this test (ray_pre.fma = 0, below), whose far planes are the
      * only reader of inv_far in the FMA layouts (RTK_FUSED_FAR_ULPS). */
-    const vfloat4 inv_far = vf4_mul(vf4_inf_below(inv, dir, 1e-18f), vf4_set1(RTK_BOX_FAR_SCALE));
+    const vfloat4 inv_far = vf4_mul(vf4_inf_below(inv, dir, RTK_ZERO_DIR), vf4_set1(RTK_BOX_FAR_SCALE));
 #if RTK_SIMD_HAS_FMA && !RTK_FUSED_FAR_ULPS
 #error "with FMA, the default layouts' fused test must not read inv_far (its zero directions are infinite)"
 #endif
@@ -434,7 +435,7 @@ static inline __attribute__((always_inline)) void ray_pre_init_v(ray_pre *p, ray
     p->fma = (vb4_mask(vf4_le(vf4_abs(cf), vf4_set1(0x1p126f))) & 7) == 7;
     /* (a zero direction: the subtract-then-multiply test, see inv_far;
      * in robust layouts cf is then infinite already) */
-    p->fma &= (vb4_mask(vf4_lt(vf4_abs(dir), vf4_set1(1e-18f))) & 7) == 0;
+    p->fma &= (vb4_mask(vf4_lt(vf4_abs(dir), vf4_set1(RTK_ZERO_DIR))) & 7) == 0;
 #endif
     for (int k = 0; k < 3; k++) {
         p->ninv[k] = vn_set1(in[k]);

@@ -135,7 +135,7 @@ typedef struct PK_(packet_pre) {
  * ray_pre_init treats it. */
 static inline vkb PK_(zero_dir)(vk d)
 {
-    return VK(lt)(VK(abs)(d), VK(set1)(1e-18f));
+    return VK(lt)(VK(abs)(d), VK(set1)(RTK_ZERO_DIR));
 }
 
 /* The per-ray reciprocals of the near and far planes on axis k, and the
@@ -424,7 +424,7 @@ static inline void PK_(packet_pre_init)(PK_(packet_pre) *p, const rayK *r, vkb a
 {
     (void)accel;
     const float *org[3] = {r->org_x, r->org_y, r->org_z}, *dir[3] = {r->dir_x, r->dir_y, r->dir_z};
-    const vk tiny = VK(set1)(1e-18f), one = VK(set1)(1.0f);
+    const vk tiny = VK(set1)(RTK_ZERO_DIR), one = VK(set1)(1.0f);
     for (int k = 0; k < 3; k++) {
         p->org[k] = VK(load)(org[k]);
         p->dir[k] = VK(load)(dir[k]);

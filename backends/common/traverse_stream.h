@@ -304,7 +304,7 @@ static __attribute__((noinline)) void stream_occluded_masks(const rtk_accel *acc
         vf4_transpose(&o[4], &o[5], &o[6], &o[7]);
         vf4_transpose(&d[0], &d[1], &d[2], &d[3]);
         vf4_transpose(&d[4], &d[5], &d[6], &d[7]);
-        const vfloat8 tiny = vf8_set1(1e-18f), ulp4 = vf8_set1(0x1p-22f), min_normal = vf8_set1(0x1p-126f);
+        const vfloat8 tiny = vf8_set1(RTK_ZERO_DIR), ulp4 = vf8_set1(0x1p-22f), min_normal = vf8_set1(0x1p-126f);
         unsigned in_range = 0xff;
         for (int k = 0; k < 3; k++) {
             const vfloat8 ok = vf8_from4(o[k], o[4 + k]), dk = vf8_from4(d[k], d[4 + k]);
@@ -630,7 +630,7 @@ static inline unsigned stream_zero_dir(const rtk_ray *r)
      * one: a group with such a ray is not coherent, and the packet
      * kernels' stream of such rays (PK_(scattered)) does not come back to
      * them. */
-    return fabsf(r->dir_x) < 1e-18f || fabsf(r->dir_y) < 1e-18f || fabsf(r->dir_z) < 1e-18f;
+    return fabsf(r->dir_x) < RTK_ZERO_DIR || fabsf(r->dir_y) < RTK_ZERO_DIR || fabsf(r->dir_z) < RTK_ZERO_DIR;
 #else
     (void)r;
     return 0;
