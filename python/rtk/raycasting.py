@@ -33,7 +33,9 @@ class Array(np.ndarray):
 
 
 def _out(a, like_o3d):
-    a = np.ascontiguousarray(a)
+    a = np.asarray(a)
+    if not a.flags.c_contiguous:  # (np.ascontiguousarray would make a 0-d array 1-d)
+        a = a.copy(order="C")
     if like_o3d:
         import open3d as o3d  # only when the caller handed Open3D tensors
 
@@ -54,11 +56,47 @@ def _as_array(x, name):
         raise TypeError(f"{name}: expected an array, got {type(x).__name__}") from e
 
 
+def _nthreads(n):
+    """nthreads as Open3D takes it: a whole number, 0 for every core."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"nthreads: expected a whole number >= 0, got {n!r}")
+    return int(n)
+
+
+def _nsamples(n):
+    """nsamples as Open3D takes it: odd and at least 1."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1 or n % 2 != 1:
+        raise ValueError(f"nsamples: expected an odd whole number >= 1, got {n!r}")
+    return int(n)
+
+
 def _last_dim(a, k, name):
     if a.ndim < 1 or a.shape[-1] != k:
         raise ValueError(f"{name}: expected shape (..., {k}), got {a.shape}")
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise TypeError(f"{name}: expected numbers, got dtype {a.dtype}")
+
+
+def _pixels(w, h):
+    """width_px and height_px: whole numbers >= 0."""
+    for v, name in ((w, "width_px"), (h, "height_px")):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"{name}: expected a whole number >= 0, got {v!r}")
+    return int(w), int(h)
+
+
+def _vec3(x, name):
+    v = np.asarray(_as_array(x, name), dtype=np.float64)
+    if v.size != 3 or not np.isfinite(v).all():
+        raise ValueError(f"{name}: expected 3 finite numbers, got {v.tolist()!r}")
+    return v.reshape(3)
+
+
+def _matrix(x, name, k):
+    m = np.asarray(_as_array(x, name), dtype=np.float64)
+    if m.shape != (k, k):
+        raise ValueError(f"{name}: expected shape ({k}, {k}), got {m.shape}")
+    return m
 
 
 class RaycastingScene:
@@ -73,11 +111,9 @@ class RaycastingScene:
         """nthreads: the threads queries run on (0: every core).  rtk's
         threads belong to the scene's device, so this is where they are set;
         the queries' own nthreads argument is accepted, for Open3D's code,
-        and changes nothing."""
-        if not isinstance(nthreads, (int, np.integer)) or nthreads < 0:
-            raise ValueError(f"nthreads: expected a whole number >= 0, got {nthreads!r}")
+        and checked as Open3D's is, but changes nothing."""
         dev = ctypes.c_void_p()
-        cfg = f"threads={int(nthreads)}".encode()
+        cfg = f"threads={_nthreads(nthreads)}".encode()
         if N.device_new(cfg, ctypes.byref(dev)) != 0:
             msg = N.device_get_error_message(None)
             raise RuntimeError("rtk: device: " + (msg.decode() if msg else "failed"))
@@ -203,6 +239,7 @@ class RaycastingScene:
         t_hit (inf for a miss, in units of the direction's length),
         geometry_ids, primitive_ids (INVALID_ID for a miss), primitive_uvs,
         primitive_normals (unit)."""
+        _nthreads(nthreads)
         r, a, shape = self._ray_arrays(rays, 0.0, math.inf)
         n = int(np.prod(shape, dtype=np.int64))
         t = np.empty(n, np.float32)
@@ -220,6 +257,7 @@ class RaycastingScene:
 
     def test_occlusions(self, rays, tnear=0.0, tfar=math.inf, nthreads=0):
         """Whether anything lies along each ray within [tnear, tfar]."""
+        _nthreads(nthreads)
         r, a, shape = self._ray_arrays(rays, tnear, tfar)
         n = int(np.prod(shape, dtype=np.int64))
         hit = np.empty(n, np.uint8)
@@ -231,6 +269,7 @@ class RaycastingScene:
     def count_intersections(self, rays, nthreads=0):
         """How many times each ray crosses the surface (each crossing once:
         the scene is robust)."""
+        _nthreads(nthreads)
         ray, shape, o3 = self._rays(rays, hits=False)
         counts = self._counts(ray, "count_intersections")
         return _out(counts.astype(np.int32).reshape(shape), o3)
@@ -249,6 +288,7 @@ class RaycastingScene:
         """Every crossing of every ray, sorted by t per ray.  Keys ray_splits
         (ray i's crossings are [ray_splits[i], ray_splits[i + 1])), ray_ids,
         geometry_ids, primitive_ids, primitive_uvs, t_hit."""
+        _nthreads(nthreads)
         ray, shape, o3 = self._rays(rays, hits=False)
         counts = self._counts(ray, "list_intersections")
         splits = np.zeros(len(ray) + 1, dtype=np.uint64)
@@ -288,6 +328,7 @@ class RaycastingScene:
         """The nearest point of the surface to each point (..., 3).  Keys
         points, geometry_ids, primitive_ids, primitive_uvs,
         primitive_normals (unit); points keep float64 when given it."""
+        _nthreads(nthreads)
         q, shape, dtype, o3 = self._points(query_points)
         res = self._closest(q)
         return {"points": _out(res["p"].astype(dtype).reshape(shape + (3,)), o3),
@@ -300,6 +341,7 @@ class RaycastingScene:
     def compute_distance(self, query_points, nthreads=0):
         """The distance from each point to the surface (float64 for float64
         points)."""
+        _nthreads(nthreads)
         q, shape, dtype, o3 = self._points(query_points)
         return _out(self._closest(q)["distance"].astype(dtype).reshape(shape), o3)
 
@@ -313,7 +355,10 @@ class RaycastingScene:
     def compute_occupancy(self, query_points, nthreads=0, nsamples=1):
         """1 for a point inside the closed surface or on it, 0 outside: the
         exact parity of one ray's crossings in the robust scene (nsamples,
-        Open3D's vote over rays, is accepted and not needed)."""
+        Open3D's vote over rays, is checked as Open3D's, odd, and not
+        needed)."""
+        _nthreads(nthreads)
+        _nsamples(nsamples)
         q, shape, dtype, o3 = self._points(query_points)
         inside = self._inside(q)
         occ = np.where(inside == 255, np.nan, inside).astype(dtype)
@@ -322,6 +367,8 @@ class RaycastingScene:
     def compute_signed_distance(self, query_points, nthreads=0, nsamples=1):
         """The distance to the surface, negative inside (see
         compute_occupancy); 0 on the surface."""
+        _nthreads(nthreads)
+        _nsamples(nsamples)
         q, shape, dtype, o3 = self._points(query_points)
         d = self._closest(q)["distance"]
         inside = self._inside(q)
@@ -336,19 +383,29 @@ class RaycastingScene:
         """Rays through the pixel centres of a pinhole camera, shape
         (height_px, width_px, 6): either (fov_deg, center, eye, up, width_px,
         height_px) or (intrinsic_matrix, extrinsic_matrix, width_px,
-        height_px), as Open3D's."""
+        height_px), as Open3D's.  A width or height of 0 gives no rays, as
+        Open3D's; what would give NaN or infinite rays (the eye at the
+        centre, up along the view, a field of view outside (0, 180), a
+        singular intrinsic matrix) is a ValueError."""
         names_fov = ["fov_deg", "center", "eye", "up", "width_px", "height_px"]
         names_k = ["intrinsic_matrix", "extrinsic_matrix", "width_px", "height_px"]
         if "fov_deg" in kw or (len(args) == 6):
             a = dict(zip(names_fov, args))
             a.update(kw)
-            w, h = int(a["width_px"]), int(a["height_px"])
-            f = 0.5 * w / math.tan(math.radians(float(a["fov_deg"])) / 2)
+            w, h = _pixels(a["width_px"], a["height_px"])
+            fov = float(a["fov_deg"])
+            if not 0.0 < fov < 180.0:
+                raise ValueError(f"fov_deg: expected an angle in (0, 180), got {fov}")
+            f = 0.5 * max(w, 1) / math.tan(math.radians(fov) / 2)
             K = np.array([[f, 0, 0.5 * w], [0, f, 0.5 * h], [0, 0, 1.0]])
-            eye = np.asarray(_as_array(a["eye"], "eye"), dtype=np.float64).reshape(3)
-            z = np.asarray(_as_array(a["center"], "center"), dtype=np.float64).reshape(3) - eye
+            eye = _vec3(a["eye"], "eye")
+            z = _vec3(a["center"], "center") - eye
+            if not np.linalg.norm(z) > 0:
+                raise ValueError("center and eye: expected two different points")
             z /= np.linalg.norm(z)
-            x = np.cross(np.asarray(_as_array(a["up"], "up"), dtype=np.float64).reshape(3), z)
+            x = np.cross(_vec3(a["up"], "up"), z)
+            if not np.linalg.norm(x) > 1e-12:
+                raise ValueError("up: expected a direction not along the view (center - eye)")
             x /= np.linalg.norm(x)
             y = np.cross(z, x)
             R = np.stack([x, y, z])
@@ -357,9 +414,12 @@ class RaycastingScene:
         else:
             a = dict(zip(names_k, args))
             a.update(kw)
-            w, h = int(a["width_px"]), int(a["height_px"])
-            K = np.asarray(_as_array(a["intrinsic_matrix"], "intrinsic_matrix"), dtype=np.float64).reshape(3, 3)
-            E = np.asarray(_as_array(a["extrinsic_matrix"], "extrinsic_matrix"), dtype=np.float64).reshape(4, 4)
+            w, h = _pixels(a["width_px"], a["height_px"])
+            K = _matrix(a["intrinsic_matrix"], "intrinsic_matrix", 3)
+            E = _matrix(a["extrinsic_matrix"], "extrinsic_matrix", 4)
+            if not (np.isfinite(K).all() and np.isfinite(E).all()) or abs(np.linalg.det(K)) == 0.0 or \
+                    abs(np.linalg.det(E[:3, :3])) == 0.0:
+                raise ValueError("intrinsic_matrix and extrinsic_matrix: expected finite, invertible matrices")
             R, t = E[:3, :3], E[:3, 3]
             origin = -R.T @ t
             o3 = _is_o3d(a["intrinsic_matrix"]) or _is_o3d(a["extrinsic_matrix"])

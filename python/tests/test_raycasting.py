@@ -316,6 +316,64 @@ def test_pinhole_matches_open3d():
     assert np.allclose(a.numpy(), b.numpy(), atol=1e-6)
 
 
+def test_one_ray_and_one_point_keep_their_shape(cube_scene):
+    # a single ray (6,) or point (3,): the answers' shape is () per ray
+    # and point, with the per-ray vectors' own last axis (2 and 3), as for
+    # any (..., 6) input; np.ascontiguousarray once made t_hit (1,)
+    s, v, t = cube_scene
+    ans = s.cast_rays(np.array([0.5, 0.25, 5, 0, 0, -1], np.float32))
+    assert ans["t_hit"].shape == () and ans["geometry_ids"].shape == ()
+    assert ans["primitive_uvs"].shape == (2,) and ans["primitive_normals"].shape == (3,)
+    assert float(ans["t_hit"]) == pytest.approx(5 - (-0.25))
+    assert s.test_occlusions(np.array([0.5, 0.25, 5, 0, 0, -1], np.float32)).shape == ()
+    assert s.count_intersections(np.array([0.5, 0.25, 5, 0, 0, -1], np.float32)).shape == ()
+    assert s.compute_distance(np.array([0.5, 0.25, 5], np.float32)).shape == ()
+    assert s.compute_closest_points(np.array([0.5, 0.25, 5], np.float32))["points"].shape == (3,)
+
+
+def test_query_arguments_checked_as_open3d(cube_scene):
+    s, v, t = cube_scene
+    p = np.array([[0.5, 0.25, -0.75]], np.float32)
+    r = np.array([[0.5, 0.25, 5, 0, 0, -1]], np.float32)
+    for bad in (-1, 1.5, "2", True):
+        with pytest.raises(ValueError, match="nthreads"):
+            s.compute_distance(p, nthreads=bad)
+        with pytest.raises(ValueError, match="nthreads"):
+            s.cast_rays(r, nthreads=bad)
+    assert s.compute_distance(p, nthreads=2).shape == (1,)
+    # nsamples: odd and at least 1 (Open3D's rule); 1 and 3 give the same exact answer
+    for bad in (0, -1, 2, 1.0):
+        with pytest.raises(ValueError, match="nsamples"):
+            s.compute_occupancy(p, nsamples=bad)
+        with pytest.raises(ValueError, match="nsamples"):
+            s.compute_signed_distance(p, nsamples=bad)
+    assert s.compute_occupancy(p, nsamples=3).numpy()[0] == 1
+    assert s.compute_signed_distance(p, nsamples=1).numpy()[0] < 0
+
+
+def test_pinhole_bad_cameras_are_errors():
+    P = rtk.RaycastingScene.create_rays_pinhole
+    cam = dict(fov_deg=60, center=[0, 0, 0], eye=[1, 2, 3], up=[0, 1, 0], width_px=8, height_px=5)
+    # no pixels: no rays (as Open3D)
+    assert P(**{**cam, "width_px": 0}).shape == (5, 0, 6)
+    assert P(**{**cam, "height_px": 0}).shape == (0, 8, 6)
+    # what would make NaN or infinite rays, or no camera at all
+    for change, what in (({"width_px": -1}, "width_px"), ({"height_px": 2.5}, "height_px"),
+                         ({"fov_deg": 0}, "fov_deg"), ({"fov_deg": 180}, "fov_deg"),
+                         ({"fov_deg": float("nan")}, "fov_deg"), ({"eye": [0, 0, 0]}, "eye"),
+                         ({"up": [2, 4, 6]}, "up"), ({"up": [0, np.inf, 0]}, "up"), ({"eye": [1, 2]}, "eye")):
+        with pytest.raises(ValueError, match=what):
+            P(**{**cam, **change})
+    K = np.array([[100, 0, 4], [0, 100, 2.5], [0, 0, 1.0]])
+    with pytest.raises(ValueError, match="intrinsic_matrix"):
+        P(np.zeros((3, 3)), np.eye(4), 8, 5)
+    with pytest.raises(ValueError, match="extrinsic_matrix"):
+        P(K, np.eye(3), 8, 5)
+    with pytest.raises(ValueError, match="intrinsic_matrix"):
+        P(K, np.full((4, 4), np.nan), 8, 5)
+    assert P(K, np.eye(4), 8, 5).shape == (5, 8, 6)
+
+
 def test_open3d_tensors_in_and_out(cube_scene):
     o3d = pytest.importorskip("open3d")
     s, v, t = cube_scene
