@@ -842,7 +842,7 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
         depth = c->depth + 1 > depth ? c->depth + 1 : depth;
     }
     const uint32_t nchildren = k;
-    uint64_t used = 0, skipped = 0;
+    uint64_t used = 0, skipped = 0, pointless = 0;
     for (uint32_t i = 0; i < s->geom_count; i++) {
         rtk_geometry g = s->geoms[i];
         if (!g || !g->enabled || g->type != RTK_GEOMETRY_TYPE_USER)
@@ -858,8 +858,9 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
                 continue;
             }
             user_prim *u = &prims[used++];
-            *u = (user_prim){.intersect = g->user_intersect, .occluded = g->user_occluded, .user = g->user,
-                             .geom_id = i, .prim_id = p};
+            *u = (user_prim){.intersect = g->user_intersect, .occluded = g->user_occluded, .point = g->user_point,
+                             .user = g->user, .geom_id = i, .prim_id = p};
+            pointless += !g->user_point;
             objs[k] = (rtk_build_object){.accel = (const rtk_accel *)(const void *)u,
                                          .intersect1 = user_intersect1, .occluded1 = user_occluded1,
                                          .inst_id = RTK_INVALID_GEOMETRY_ID, .flags = RTK_BUILD_OBJECT_IDENTITY,
@@ -911,8 +912,11 @@ static rtk_error commit_objects(rtk_scene s, accel_ref **own, uint32_t own_count
     top->depth = depth;
     top->user_prims = prims;
     top->user_deep = used;
-    for (uint32_t c = 0; c < nchildren; c++)
+    top->user_pointless_deep = pointless;
+    for (uint32_t c = 0; c < nchildren; c++) {
         top->user_deep += children[c]->user_deep;
+        top->user_pointless_deep += children[c]->user_pointless_deep;
+    }
     install(s, top, &out, "objects", own_seconds + (t1 - t0));
     s->top_refits = 0;
     s->top_sah_built = out.sah_cost;

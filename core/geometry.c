@@ -360,6 +360,14 @@ rtk_error rtk_geometry_set_occluded_function(rtk_geometry g, rtk_user_query_fn o
     return err;
 }
 
+rtk_error rtk_geometry_set_point_query_function(rtk_geometry g, rtk_point_query_fn fn)
+{
+    rtk_error err = user_only(g, "rtk_geometry_set_point_query_function");
+    if (!err)
+        g->user_point = fn;
+    return err;
+}
+
 /* The callback's answer for lane i of a K-packet (K = 1: an rtk_rayhit or
  * rtk_ray) kept if it is a hit within the lane's interval (then rtk's ids
  * are written), else the lane restored from `before`. */
@@ -418,6 +426,32 @@ void user_occluded1(const rtk_accel *a, rtk_ray *ray, const rtk_query *q)
 {
     const int32_t one = -1;
     user_call((const user_prim *)(const void *)a, &one, ray, 1, q, 1);
+}
+
+/* rtk_query.user_point: the primitive's point query function asked for its
+ * nearest point to p; 0 when it has none within radius or gives a point
+ * that is not finite. */
+int user_point(const rtk_accel *a, const double p[3], double radius, float time, rtk_user_point *out)
+{
+    const user_prim *u = (const user_prim *)(const void *)a;
+    if (!u->point)
+        return 0;
+    rtk_point_query_args args = {.geometry_user = u->user, .geom_id = u->geom_id, .prim_id = u->prim_id,
+                                 .p = {p[0], p[1], p[2]}, .radius = radius, .time = time,
+                                 .closest = {NAN, NAN, NAN}, .u = NAN, .v = NAN};
+    if (!u->point(&args))
+        return 0;
+    for (int k = 0; k < 3; k++)
+        if (!isfinite(args.closest[k]))
+            return 0;
+    memcpy(out->closest, args.closest, sizeof out->closest);
+    out->u = args.u;
+    out->v = args.v;
+    for (int k = 0; k < 3; k++)
+        out->normal[k] = isfinite(args.normal[k]) ? args.normal[k] : 0.0f;
+    out->prim_id = u->prim_id;
+    out->geom_id = u->geom_id;
+    return 1;
 }
 
 void user_intersect_packet(const rtk_accel *a, const int32_t *active, void *packet, uint32_t width,

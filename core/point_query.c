@@ -7,7 +7,8 @@
 
 #include "scene_internal.h"
 
-rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot)
+/* The checks of every geometry query but the user geometry's. */
+static rtk_error committed_check(rtk_scene s, const char *fn)
 {
     if (!s)
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
@@ -15,6 +16,14 @@ rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot)
         return RTK_ERROR_INVALID_OPERATION;
     if (!s->accel)
         return rtk_fail(s->device, RTK_ERROR_INVALID_OPERATION, "%s: the scene was never committed", fn);
+    return RTK_OK;
+}
+
+rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot)
+{
+    const rtk_error err = committed_check(s, fn);
+    if (err)
+        return err;
     if (s->ref->user_deep)
         return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
                         "%s: the scene has user geometry (%llu primitives, in it or in the scenes it instances), "
@@ -27,9 +36,19 @@ rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot)
  * the error (reported). */
 static rtk_error scene_check(rtk_scene s, const char *fn)
 {
-    const rtk_error err = geometry_query_check(s, fn, "measure distances to");
+    const rtk_error err = committed_check(s, fn);
     if (err)
         return err;
+    const rtk_backend_desc *bk = s->device->backend;
+    if (s->ref->user_pointless_deep)
+        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
+                        "%s: the scene has user geometry without a point query function (%llu primitives, in it or "
+                        "in the scenes it instances; rtk_geometry_set_point_query_function)",
+                        fn, (unsigned long long)s->ref->user_pointless_deep);
+    if (s->ref->user_deep && !(RTK_DESC_HAS(bk, caps) && (bk->caps & RTK_BACKEND_CAP_USER_POINTS)))
+        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
+                        "%s: the scene has user geometry, and backend %s predates closest points on it", fn,
+                        bk->name);
     if (!s->closest_point)
         return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
                         "%s: backend %s has no closest-point kernel for layout %s (it predates them)", fn,
@@ -94,7 +113,9 @@ static void closest_hinted(rtk_scene s, const rtk_point_query *q, rtk_point_hit 
         const double up = sqrt(d2) * (1.0 + 0x1p-30) + mag * 0x1p-30;
         st.best2 = up * up < st.best2 ? up * up : st.best2;
     }
-    const rtk_query rq = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID};
+    const rtk_query rq = {.context = NULL, .inst_id = RTK_INVALID_GEOMETRY_ID,
+                          .flags = s->ref->user_deep ? RTK_QUERY_FLAG_USER_POINT : 0u,
+                          .user_point = s->ref->user_deep ? user_point : NULL};
     s->closest_point(s->accel, &st, &rq);
     if (r->geomID == RTK_INVALID_GEOMETRY_ID && st.best2 < radius2) {
         st.best2 = radius2;

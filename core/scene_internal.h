@@ -39,9 +39,11 @@ typedef struct accel_ref {
     uint32_t depth; /* levels of instances below: 0 for a tree of triangles */
     float lower[3], upper[3];
     /* A top level: the user primitives its objects point to, and how many
-     * there are in it and in the trees below (which closest points refuse). */
+     * there are in it and in the trees below (which crossings refuse), and
+     * of those how many have no point query function (which closest
+     * points refuse). */
     struct user_prim *user_prims;
-    uint64_t user_deep;
+    uint64_t user_deep, user_pointless_deep;
 } accel_ref;
 
 typedef struct buffer {
@@ -81,6 +83,7 @@ struct rtk_geometry_s {
             uint32_t user_count;
             rtk_bounds_fn bounds;
             rtk_user_query_fn user_intersect, user_occluded;
+            rtk_point_query_fn user_point;
         };
         struct { /* RTK_GEOMETRY_TYPE_INSTANCE: the scene placed (retained)
                   * and the transform from its space (row-major 3x4), whose
@@ -227,6 +230,7 @@ struct rtk_scene_s {
 /* One user primitive in a top level: the accel its object points to. */
 typedef struct user_prim {
     rtk_user_query_fn intersect, occluded;
+    rtk_point_query_fn point;
     void *user;
     uint32_t geom_id, prim_id;
 } user_prim;
@@ -360,6 +364,7 @@ RTK_INTERNAL int scene_reaches(rtk_scene from, rtk_scene target);
  * through the geometry's callbacks */
 RTK_INTERNAL void user_intersect1(const rtk_accel *a, rtk_rayhit *rh, const rtk_query *q);
 RTK_INTERNAL void user_occluded1(const rtk_accel *a, rtk_ray *ray, const rtk_query *q);
+RTK_INTERNAL int user_point(const rtk_accel *a, const double p[3], double radius, float time, rtk_user_point *out);
 RTK_INTERNAL void user_intersect_packet(const rtk_accel *a, const int32_t *active, void *packet, uint32_t width,
                                        const rtk_query *q);
 RTK_INTERNAL void user_occluded_packet(const rtk_accel *a, const int32_t *active, void *packet, uint32_t width,

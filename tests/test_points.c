@@ -8,7 +8,8 @@
  * kept), huge and tiny coordinates, zero-area triangles (never the answer),
  * quads, instances (scaled, rotated, sheared, nested) and motion blur; the
  * batch against the single call on two threads; empty scenes, user
- * geometry (refused) and every bad argument.
+ * geometry without a point query function (refused; test_user_points has
+ * user geometry with one) and every bad argument.
  */
 #include <math.h>
 #include <stdio.h>

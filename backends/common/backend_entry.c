@@ -348,7 +348,7 @@ static const rtk_backend_desc desc = {
     .layout_refit = layout_refit,
     .objects = objects,
     .motion_builders = motion_builders,
-    .caps = RTK_BACKEND_CAP_QUERY_FILTER,
+    .caps = RTK_BACKEND_CAP_QUERY_FILTER | RTK_BACKEND_CAP_USER_POINTS,
 };
 
 #define HEADER_SYM RTK_CAT(RTK_CAT(rtk_backend_, RTK_BACKEND_NAME), _header)

@@ -61,6 +61,7 @@ typedef struct pq_level {
     uint32_t inst_id;     /* the outermost instance entered, else the query's */
     uint32_t start;       /* the node the next walk starts at, RTK_BVH4_EMPTY: the tree's root */
     float bound;          /* level_bound: set where the walk starts, and wherever this level lowers best2 */
+    const rtk_query *q;   /* the query's (user primitives: user_point) */
 } pq_level;
 
 /* The next float up from a finite x >= 0 (nextafterf, without the call). */
@@ -598,14 +599,63 @@ static void compose3x4(const double *p, const double *q, double *x)
     }
 }
 
+/* A user primitive (an object of this level, in its space): its point
+ * query function's nearest point, taken into the scene's space and kept
+ * when nearer than the best so far, as a triangle's (consider). */
+static void user_leaf(const rtk_build_object *o, pq_level *l)
+{
+    if (!(l->q->flags & RTK_QUERY_FLAG_USER_POINT))
+        return; /* (the core refuses such scenes without it) */
+    rtk_point_state *st = l->st;
+    /* the best distance in this level's space, from above */
+    const double radius = st->best2 == INFINITY ? INFINITY : sqrt(st->best2 * l->scale2) * (1.0 + 0x1p-40);
+    rtk_user_point u;
+    if (!l->q->user_point(o->accel, l->p, radius, st->time, &u))
+        return;
+    double c[3] = {u.closest[0], u.closest[1], u.closest[2]}, n[3] = {u.normal[0], u.normal[1], u.normal[2]};
+    if (l->transformed) {
+        const double *m = l->o2w;
+        double minv[12];
+        for (int r = 0; r < 3; r++)
+            c[r] = m[4 * r] * u.closest[0] + m[4 * r + 1] * u.closest[1] + m[4 * r + 2] * u.closest[2] + m[4 * r + 3];
+        /* a normal goes by the inverse's transpose */
+        if (rtk_affine_invert(m, minv))
+            for (int r = 0; r < 3; r++)
+                n[r] = minv[r] * u.normal[0] + minv[4 + r] * u.normal[1] + minv[8 + r] * u.normal[2];
+        else
+            n[0] = n[1] = n[2] = 0.0;
+    }
+    const double d[3] = {c[0] - st->p[0], c[1] - st->p[1], c[2] - st->p[2]};
+    const double d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    if (!(d2 <= st->best2))
+        return;
+    st->best2 = d2;
+    l->bound = level_bound(l);
+    const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    rtk_point_hit *r = st->result;
+    r->x = c[0];
+    r->y = c[1];
+    r->z = c[2];
+    r->n_x = len > 0.0 ? (float)(n[0] / len) : 0.0f;
+    r->n_y = len > 0.0 ? (float)(n[1] / len) : 0.0f;
+    r->n_z = len > 0.0 ? (float)(n[2] / len) : 0.0f;
+    r->u = u.u;
+    r->v = u.v;
+    r->primID = u.prim_id;
+    r->geomID = u.geom_id;
+    r->instID = l->inst_id;
+}
+
 static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
 {
     const uint32_t first = rtk_leaf_first(ref), end = first + rtk_leaf_blocks(ref);
     for (uint32_t i = first; i < end; i++) {
         rtk_build_object tmp;
         const rtk_build_object *o = object_at(a, i, &tmp);
-        if (o->intersect_packet)
-            continue; /* a user primitive: the core refuses those scenes */
+        if (o->intersect_packet) { /* a user primitive (RTK_BUILD_OBJECT_IDENTITY) */
+            user_leaf(o, l);
+            continue;
+        }
         pq_level in = *l;
         /* an object opened into the top level (objects.c, open_objects)
          * is walked from the node its reference names */
@@ -660,7 +710,7 @@ static void closest_in(const rtk_accel *a, pq_level *l)
 
 void RTK_SYM(rtk_closest_point)(const rtk_accel *accel, rtk_point_state *st, const rtk_query *q)
 {
-    pq_level l = {.st = st, .scale2 = 1.0, .inst_id = q->inst_id, .start = RTK_BVH4_EMPTY};
+    pq_level l = {.st = st, .scale2 = 1.0, .inst_id = q->inst_id, .start = RTK_BVH4_EMPTY, .q = q};
     memcpy(l.p, st->p, sizeof l.p);
     level_point(&l);
     closest_in(accel, &l);

@@ -1022,8 +1022,9 @@ RTK_API rtk_error rtk_occluded_arrays(rtk_scene scene, const rtk_ray_arrays *arr
  * at the query's time for motion blur, and without the triangles rays
  * never hit either (those left out at the commit: zero area, NaN or
  * infinite vertices, outside rtk's range; rtk_scene_info counts them).
- * Masks and filters play no part.  Scenes with user geometry are refused
- * (RTK_ERROR_UNSUPPORTED): rtk cannot measure a distance to them.
+ * Masks and filters play no part.  User geometry answers through its
+ * point query function (rtk_geometry_set_point_query_function); a scene
+ * with user geometry that has none is refused (RTK_ERROR_UNSUPPORTED).
  *
  * Precision: the query point is a double and the answer is computed in
  * double from the scene's float vertices, so it loses nothing of either;
@@ -1048,12 +1049,53 @@ typedef struct rtk_point_hit {
     uint32_t primID, geomID, instID; /* as a hit's; RTK_INVALID_GEOMETRY_ID when no surface lies within the radius */
 } rtk_point_hit;
 
+/* Closest points on user geometry (added after rtk 0.2.0), as Embree's
+ * rtcSetGeometryPointQueryFunction: for each user primitive whose box lies
+ * within the best distance found so far (in the geometry's space, through
+ * any instances), rtk calls the geometry's point query function with the
+ * query point and that distance (radius: a bound from above, +inf at
+ * first, in the geometry's space).  The function returns 1 and fills
+ * closest (the primitive's point nearest to p, or any point of it within
+ * radius nearer than the others it could give), u, v (the application's
+ * parameters of that point) and normal (the surface's unit normal there,
+ * or 0, 0, 0), or returns 0 when the primitive has no point within
+ * radius.  rtk takes the point into the scene's space, measures its
+ * distance itself and keeps the nearest of every candidate, user or
+ * triangle (a closest point that is NaN or infinite is left out); the
+ * result's primID, geomID and instID are rtk's, as for hits, and its
+ * normal is the function's taken into the scene's space.  Through an
+ * instance the function works in the geometry's space: the answer is
+ * exact through similarities (rotations, uniform scales, moves); through
+ * a shear or an uneven scale the point nearest in the geometry's space
+ * may not be the nearest in the scene's (as with Embree's).  The function
+ * runs on the query's thread (a batch's threads) and must not change or
+ * commit the scene. */
+typedef struct rtk_point_query_args {
+    void *geometry_user;
+    uint32_t geom_id, prim_id;
+    double p[3];       /* the query point, in the geometry's space */
+    double radius;     /* only points within this of p are wanted; INFINITY at first */
+    float time;        /* the query's */
+    uint32_t reserved; /* 0 */
+    /* the function's answer where it returns 1: */
+    double closest[3];
+    float u, v;
+    float normal[3];
+} rtk_point_query_args;
+typedef int (*rtk_point_query_fn)(rtk_point_query_args *args);
+
+/* RTK_ERROR_INVALID_OPERATION on a geometry that is not of the user type;
+ * NULL removes the function (the geometry's scenes then refuse closest
+ * points).  Read at the geometry's commit. */
+RTK_API rtk_error rtk_geometry_set_point_query_function(rtk_geometry geometry, rtk_point_query_fn fn);
+
 /* One query, on the calling thread.  RTK_ERROR_INVALID_ARGUMENT for a NULL
  * argument, a point not finite or beyond +-2^64, a radius negative or NaN,
  * a time outside [0, 1] or reserved not 0 (nothing written);
  * RTK_ERROR_INVALID_OPERATION for a scene never committed or being
- * committed; RTK_ERROR_UNSUPPORTED for a scene with user geometry or a
- * backend without closest-point kernels. */
+ * committed; RTK_ERROR_UNSUPPORTED for a scene with user geometry that has
+ * no point query function, or a backend without closest-point kernels
+ * (or, for user geometry, one that predates them). */
 RTK_API rtk_error rtk_closest_point(rtk_scene scene, const rtk_point_query *query, rtk_point_hit *result);
 
 /* `count` queries over the device's threads (its pool, or the

@@ -93,6 +93,20 @@ typedef struct rtk_build_geometry {
     uint32_t flags; /* RTK_BUILD_GEOMETRY_* (was reserved, 0, before rtk 0.1.0's refit) */
 } rtk_build_geometry;
 
+/* A user primitive's answer to rtk_query.user_point: its point nearest to
+ * p, the application's u, v and normal there, and its ids. */
+typedef struct rtk_user_point {
+    double closest[3];
+    float u, v;
+    float normal[3];
+    uint32_t prim_id, geom_id;
+} rtk_user_point;
+
+/* The core's: user primitive prim's nearest point to p within radius (in
+ * its space) into *out, 1; or 0 (rtk_query.user_point). */
+typedef int (*rtk_user_point_fn)(const rtk_accel *prim, const double p[3], double radius, float time,
+                                 rtk_user_point *out);
+
 /* What a query carries beside its rays, from the core to the kernels (and
  * from a top level to the trees of its objects).  Never NULL. */
 typedef struct rtk_query {
@@ -118,9 +132,21 @@ typedef struct rtk_query {
      * give every ray the same answer whatever it finds there.  A kernel
      * that does not know the flag passes over it. */
     void *stream_state;
+    /* Added after rtk 0.2.0 (interface version 2 still), read only when
+     * flags has RTK_QUERY_FLAG_USER_POINT, only by the closest-point
+     * kernels: at a user primitive of a top level (an object with
+     * intersect_packet, whose accel is the core's), the kernel asks it
+     * for its nearest point to p (in the level's space, within radius
+     * there) and takes that point into the scene's space and measures it
+     * as a triangle's.  A backend that honours it says so
+     * (RTK_BACKEND_CAP_USER_POINTS); without it the core refuses closest
+     * points on scenes with user geometry. */
+    rtk_user_point_fn user_point;
 } rtk_query;
 #define RTK_QUERY_FLAG_FILTER 1u
 #define RTK_QUERY_FLAG_STREAM_STATE 2u
+#define RTK_QUERY_FLAG_USER_POINT 4u
+
 #define RTK_STREAM_STATE_SIZE 64
 
 RTK_BACKEND_FN(void, rtk_intersect1, (const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *query));
@@ -487,6 +513,8 @@ typedef struct rtk_backend_desc {
 } rtk_backend_desc;
 /* The width-1 kernels honour rtk_query.filter (RTK_QUERY_FLAG_FILTER). */
 #define RTK_BACKEND_CAP_QUERY_FILTER 1u
+/* The closest-point kernel honours rtk_query.user_point. */
+#define RTK_BACKEND_CAP_USER_POINTS 2u
 
 #define RTK_BACKEND_EXPORT __attribute__((visibility("default")))
 
