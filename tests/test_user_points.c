@@ -84,6 +84,18 @@ static rtk_geometry spheres_geometry(rtk_device dev, sphere_set *s, rtk_point_qu
     return g;
 }
 
+/* A committed scene of the spheres alone. */
+static rtk_scene spheres_scene(rtk_device dev, sphere_set *sp, rtk_point_query_fn fn)
+{
+    rtk_scene s;
+    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
+    rtk_geometry g = spheres_geometry(dev, sp, fn);
+    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
+    rtk_geometry_release(g);
+    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    return s;
+}
+
 /* The floor: two triangles of the square [-3, 3]^2 at z = -2.5. */
 static const float floor_v[] = {-3, -3, -2.5f, 3, -3, -2.5f, 3, 3, -2.5f, -3, 3, -2.5f};
 static const uint32_t floor_idx[] = {0, 1, 2, 0, 2, 3};
@@ -202,12 +214,7 @@ static void test_spheres(void **state)
         rtk_device dev = test_device(names[b]);
         char what[64];
         /* the spheres alone */
-        rtk_scene alone;
-        assert_int_equal(rtk_scene_new(dev, &alone), RTK_OK);
-        rtk_geometry g = spheres_geometry(dev, &sp, sphere_point);
-        assert_int_equal(rtk_scene_attach_geometry(alone, g, NULL), RTK_OK);
-        rtk_geometry_release(g);
-        assert_int_equal(rtk_scene_commit(alone), RTK_OK);
+        rtk_scene alone = spheres_scene(dev, &sp, sphere_point);
         sp.calls = 0;
         snprintf(what, sizeof what, "%s, spheres", names[b]);
         check_scene(what, alone, &sp, NULL, 1.0, 0, 0, RTK_INVALID_GEOMETRY_ID, q);
@@ -218,7 +225,7 @@ static void test_spheres(void **state)
         assert_true(sp.calls < 2ul * POINTS * SPHERES / 4);
         /* beside the floor's triangles */
         rtk_scene mixed = test_scene_uncommitted(dev, floor_v, 4, floor_idx, 2, 0); /* (geometry 0) */
-        g = spheres_geometry(dev, &sp, sphere_point);
+        rtk_geometry g = spheres_geometry(dev, &sp, sphere_point);
         uint32_t id;
         assert_int_equal(rtk_scene_attach_geometry(mixed, g, &id), RTK_OK);
         rtk_geometry_release(g);
@@ -278,12 +285,7 @@ static void test_refusals_and_bad_answers(void **state)
     rtk_geometry_release(tri);
     /* a user geometry without the function (removed with NULL): refused,
      * and so is an instance of it */
-    rtk_scene s;
-    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-    rtk_geometry g = spheres_geometry(dev, &sp, NULL);
-    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
-    rtk_geometry_release(g);
-    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    rtk_scene s = spheres_scene(dev, &sp, NULL);
     const rtk_point_query q = {.x = 0.1, .y = 0.2, .z = 0.3, .radius = INFINITY};
     rtk_point_hit h;
     assert_int_equal(rtk_closest_point(s, &q, &h), RTK_ERROR_UNSUPPORTED);
@@ -294,11 +296,7 @@ static void test_refusals_and_bad_answers(void **state)
     rtk_scene_release(outer);
     rtk_scene_release(s);
     /* a point that is not finite is no answer: sphere 0 left out */
-    assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-    g = spheres_geometry(dev, &sp, sphere_point_nan0);
-    assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
-    rtk_geometry_release(g);
-    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    s = spheres_scene(dev, &sp, sphere_point_nan0);
     const rtk_point_query at0 = {.x = sp.c[0][0], .y = sp.c[0][1], .z = sp.c[0][2] + sp.r[0], .radius = INFINITY};
     assert_int_equal(rtk_closest_point(s, &at0, &h), RTK_OK);
     assert_true(h.primID != 0 && h.primID < SPHERES && h.distance > 0.0);
