@@ -30,4 +30,11 @@ static inline int rtk_affine_invert(const double *m, double *inv)
     return 1;
 }
 
+/* x = m p (x may not alias p). */
+static inline void rtk_affine_apply(const double *m, const double p[3], double x[3])
+{
+    for (int r = 0; r < 3; r++)
+        x[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
+}
+
 #endif

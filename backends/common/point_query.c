@@ -99,6 +99,28 @@ static inline float level_bound(const pq_level *l)
 #define GAP_(V, lo, hi, p)                                                                                             \
     V##_max(V##_sub(V##_mul(V##_max(V##_sub(lo, p), V##_sub(p, hi)), V##_set1(1.0f - 0x1p-22f)), dp), zero)
 
+/* The answer so far: point p of the surface (in the scene's space) at
+ * squared distance d2, with normal n of length len (0: none), u, v and
+ * the ids. */
+static void keep(pq_level *l, const double p[3], double d2, const double n[3], double len, float u, float v,
+                 uint32_t prim, uint32_t geom)
+{
+    l->st->best2 = d2;
+    l->bound = level_bound(l);
+    rtk_point_hit *r = l->st->result;
+    r->x = p[0];
+    r->y = p[1];
+    r->z = p[2];
+    r->n_x = len > 0.0 ? (float)(n[0] / len) : 0.0f;
+    r->n_y = len > 0.0 ? (float)(n[1] / len) : 0.0f;
+    r->n_z = len > 0.0 ? (float)(n[2] / len) : 0.0f;
+    r->u = u;
+    r->v = v;
+    r->primID = prim;
+    r->geomID = geom;
+    r->instID = l->inst_id;
+}
+
 /* ---- triangles ---- */
 
 /* One triangle's vertices in this level's space: its nearest point to the
@@ -109,12 +131,9 @@ static void consider(pq_level *l, const double *a0, const double *b0, const doub
     double a[3], b[3], c[3];
     const double *va = a0, *vb = b0, *vc = c0;
     if (l->transformed) {
-        const double *m = l->o2w;
-        for (int r = 0; r < 3; r++) {
-            a[r] = m[4 * r] * a0[0] + m[4 * r + 1] * a0[1] + m[4 * r + 2] * a0[2] + m[4 * r + 3];
-            b[r] = m[4 * r] * b0[0] + m[4 * r + 1] * b0[1] + m[4 * r + 2] * b0[2] + m[4 * r + 3];
-            c[r] = m[4 * r] * c0[0] + m[4 * r + 1] * c0[1] + m[4 * r + 2] * c0[2] + m[4 * r + 3];
-        }
+        rtk_affine_apply(l->o2w, a0, a);
+        rtk_affine_apply(l->o2w, b0, b);
+        rtk_affine_apply(l->o2w, c0, c);
         va = a, vb = b, vc = c;
     }
     rtk_point_state *st = l->st;
@@ -128,23 +147,10 @@ static void consider(pq_level *l, const double *a0, const double *b0, const doub
     const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
     if (!(len > 0.0))
         return; /* no area: rays never hit it, and it is no surface here either */
-    st->best2 = t.d2;
-    l->bound = level_bound(l);
-    rtk_point_hit *r = st->result;
-    r->x = t.p[0];
-    r->y = t.p[1];
-    r->z = t.p[2];
-    r->n_x = (float)(n[0] / len);
-    r->n_y = (float)(n[1] / len);
-    r->n_z = (float)(n[2] / len);
     float u = (float)t.u, v = (float)t.v;
     if (attrs)
         rtk_quad_hit(attrs, geom, &prim, &u, &v);
-    r->u = u;
-    r->v = v;
-    r->primID = prim;
-    r->geomID = geom;
-    r->instID = l->inst_id;
+    keep(l, t.p, t.d2, n, len, u, v, prim, geom);
 }
 
 static inline void load3(double *d, const float *f)
@@ -612,38 +618,23 @@ static void user_leaf(const rtk_build_object *o, pq_level *l)
     rtk_user_point u;
     if (!l->q->user_point(o->accel, l->p, radius, st->time, &u))
         return;
-    double c[3] = {u.closest[0], u.closest[1], u.closest[2]}, n[3] = {u.normal[0], u.normal[1], u.normal[2]};
+    double c[3] = {u.closest[0], u.closest[1], u.closest[2]};
+    if (l->transformed)
+        rtk_affine_apply(l->o2w, u.closest, c);
+    const double d[3] = {c[0] - st->p[0], c[1] - st->p[1], c[2] - st->p[2]};
+    const double d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
+    if (!(d2 <= st->best2))
+        return;
+    /* (only for a point kept) a normal goes by the inverse's transpose */
+    double n[3] = {u.normal[0], u.normal[1], u.normal[2]}, minv[12];
     if (l->transformed) {
-        const double *m = l->o2w;
-        double minv[12];
-        for (int r = 0; r < 3; r++)
-            c[r] = m[4 * r] * u.closest[0] + m[4 * r + 1] * u.closest[1] + m[4 * r + 2] * u.closest[2] + m[4 * r + 3];
-        /* a normal goes by the inverse's transpose */
-        if (rtk_affine_invert(m, minv))
+        if (rtk_affine_invert(l->o2w, minv))
             for (int r = 0; r < 3; r++)
                 n[r] = minv[r] * u.normal[0] + minv[4 + r] * u.normal[1] + minv[8 + r] * u.normal[2];
         else
             n[0] = n[1] = n[2] = 0.0;
     }
-    const double d[3] = {c[0] - st->p[0], c[1] - st->p[1], c[2] - st->p[2]};
-    const double d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-    if (!(d2 <= st->best2))
-        return;
-    st->best2 = d2;
-    l->bound = level_bound(l);
-    const double len = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
-    rtk_point_hit *r = st->result;
-    r->x = c[0];
-    r->y = c[1];
-    r->z = c[2];
-    r->n_x = len > 0.0 ? (float)(n[0] / len) : 0.0f;
-    r->n_y = len > 0.0 ? (float)(n[1] / len) : 0.0f;
-    r->n_z = len > 0.0 ? (float)(n[2] / len) : 0.0f;
-    r->u = u.u;
-    r->v = u.v;
-    r->primID = u.prim_id;
-    r->geomID = u.geom_id;
-    r->instID = l->inst_id;
+    keep(l, c, d2, n, sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), u.u, u.v, u.prim_id, u.geom_id);
 }
 
 static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
@@ -669,8 +660,7 @@ static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)
                 m[k] = o->world_to_object[k];
             if (!rtk_affine_invert(m, minv))
                 continue; /* flat: the object has no surface in this space */
-            for (int r = 0; r < 3; r++)
-                in.p[r] = m[4 * r] * l->p[0] + m[4 * r + 1] * l->p[1] + m[4 * r + 2] * l->p[2] + m[4 * r + 3];
+            rtk_affine_apply(m, l->p, in.p);
             level_point(&in);
             in.scale2 = l->scale2 * scale2_bound(m);
             if (l->transformed)
