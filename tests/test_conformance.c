@@ -942,12 +942,7 @@ static int check_user(scene_data *s, const rtk_ray *all, size_t n_all, char name
         rtk_device dev = test_device(names[b]);
         rtk_geometry g, u;
         rtk_scene scene = conformance_scene(dev, s, compact ? RTK_SCENE_FLAG_COMPACT : RTK_SCENE_FLAG_NONE, &g, NULL);
-        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &u), RTK_OK);
-        assert_int_equal(rtk_geometry_set_user_primitive_count(u, (uint32_t)nballs), RTK_OK);
-        assert_int_equal(rtk_geometry_set_bounds_function(u, ball_bounds), RTK_OK);
-        assert_int_equal(rtk_geometry_set_intersect_function(u, ball_intersect), RTK_OK);
-        assert_int_equal(rtk_geometry_set_occluded_function(u, ball_occluded), RTK_OK);
-        assert_int_equal(rtk_geometry_set_user_data(u, balls), RTK_OK);
+        u = test_user_geometry(dev, (uint32_t)nballs, balls, ball_bounds, ball_intersect, ball_occluded);
         assert_int_equal(rtk_geometry_commit(u), RTK_OK);
         uint32_t id;
         assert_int_equal(rtk_scene_attach_geometry(scene, u, &id), RTK_OK);

@@ -1046,12 +1046,7 @@ static rtk_scene many_instances_scene(rtk_device dev, rtk_scene child, int with_
         attach(s, instance_of(dev, child, m));
     }
     if (with_user) {
-        rtk_geometry u = NULL;
-        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &u), RTK_OK);
-        assert_int_equal(rtk_geometry_set_user_primitive_count(u, 1), RTK_OK);
-        assert_int_equal(rtk_geometry_set_bounds_function(u, far_bounds), RTK_OK);
-        assert_int_equal(rtk_geometry_set_intersect_function(u, no_hit), RTK_OK);
-        assert_int_equal(rtk_geometry_set_occluded_function(u, no_hit), RTK_OK);
+        rtk_geometry u = test_user_geometry(dev, 1, NULL, far_bounds, no_hit, no_hit);
         assert_int_equal(rtk_geometry_commit(u), RTK_OK);
         attach(s, u);
     }

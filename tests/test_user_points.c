@@ -72,13 +72,7 @@ static void spheres_make(sphere_set *s, uint64_t seed)
 /* A user geometry of the spheres, committed (point query function fn). */
 static rtk_geometry spheres_geometry(rtk_device dev, sphere_set *s, rtk_point_query_fn fn)
 {
-    rtk_geometry g;
-    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
-    assert_int_equal(rtk_geometry_set_user_primitive_count(g, SPHERES), RTK_OK);
-    assert_int_equal(rtk_geometry_set_user_data(g, s), RTK_OK);
-    assert_int_equal(rtk_geometry_set_bounds_function(g, sphere_bounds), RTK_OK);
-    assert_int_equal(rtk_geometry_set_intersect_function(g, sphere_rays), RTK_OK);
-    assert_int_equal(rtk_geometry_set_occluded_function(g, sphere_rays), RTK_OK);
+    rtk_geometry g = test_user_geometry(dev, SPHERES, s, sphere_bounds, sphere_rays, sphere_rays);
     assert_int_equal(rtk_geometry_set_point_query_function(g, fn), RTK_OK);
     assert_int_equal(rtk_geometry_commit(g), RTK_OK);
     return g;

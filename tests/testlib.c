@@ -125,17 +125,25 @@ static void user_box_bounds(const rtk_bounds_args *a)
 
 static void user_nothing(const rtk_user_query_args *a) { (void)a; }
 
+rtk_geometry test_user_geometry(rtk_device dev, uint32_t count, void *user, rtk_bounds_fn bounds,
+                                rtk_user_query_fn intersect, rtk_user_query_fn occluded)
+{
+    rtk_geometry g;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
+    assert_int_equal(rtk_geometry_set_user_primitive_count(g, count), RTK_OK);
+    assert_int_equal(rtk_geometry_set_user_data(g, user), RTK_OK);
+    assert_int_equal(rtk_geometry_set_bounds_function(g, bounds), RTK_OK);
+    assert_int_equal(rtk_geometry_set_intersect_function(g, intersect), RTK_OK);
+    assert_int_equal(rtk_geometry_set_occluded_function(g, occluded), RTK_OK);
+    return g;
+}
+
 rtk_scene test_user_geometry_scene(rtk_device dev, uint32_t count, rtk_bounds_fn bounds, rtk_user_query_fn intersect,
                                    rtk_user_query_fn occluded)
 {
     rtk_scene s;
-    rtk_geometry g;
     assert_int_equal(rtk_scene_new(dev, &s), RTK_OK);
-    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_USER, &g), RTK_OK);
-    assert_int_equal(rtk_geometry_set_user_primitive_count(g, count), RTK_OK);
-    assert_int_equal(rtk_geometry_set_bounds_function(g, bounds), RTK_OK);
-    assert_int_equal(rtk_geometry_set_intersect_function(g, intersect), RTK_OK);
-    assert_int_equal(rtk_geometry_set_occluded_function(g, occluded), RTK_OK);
+    rtk_geometry g = test_user_geometry(dev, count, NULL, bounds, intersect, occluded);
     assert_int_equal(rtk_geometry_commit(g), RTK_OK);
     assert_int_equal(rtk_scene_attach_geometry(s, g, NULL), RTK_OK);
     rtk_geometry_release(g);

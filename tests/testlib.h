@@ -44,6 +44,10 @@ void test_commit_moved(rtk_scene s, rtk_geometry g);
 /* A committed scene of one user primitive (the box [0, 1]^3) whose
  * callbacks report nothing: for the queries that refuse user geometry. */
 rtk_scene test_user_scene(rtk_device dev);
+/* A user geometry of `count` primitives with this user data and these
+ * callbacks, not yet committed. */
+rtk_geometry test_user_geometry(rtk_device dev, uint32_t count, void *user, rtk_bounds_fn bounds,
+                                rtk_user_query_fn intersect, rtk_user_query_fn occluded);
 /* A committed scene of one user geometry of `count` primitives with these
  * callbacks (the scene holds the geometry). */
 rtk_scene test_user_geometry_scene(rtk_device dev, uint32_t count, rtk_bounds_fn bounds, rtk_user_query_fn intersect,
