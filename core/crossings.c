@@ -4,7 +4,9 @@
  * (rtk_query.filter) collecting every candidate and rejecting it, so the
  * walk goes on to the ray's tfar; then the crossings sorted by t, and a
  * triangle met twice at the same t (spatial splits put one in several
- * leaves) kept once.  Over the device's threads, as the batches of rays. */
+ * leaves) kept once.  User geometry's callbacks offer their hits
+ * (rtk_user_offer_hit, geometry.c) to the same filter.  Over the device's
+ * threads, as the batches of rays. */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -17,6 +19,7 @@ typedef struct collector {
     rtk_crossing *c;
     size_t n, cap;
     int oom;
+    uint32_t unoffered; /* a user geometry whose callback reported a hit it had not offered: its geomID + 1 */
 } collector;
 
 static int collect(const rtk_filter_args *a)
@@ -36,6 +39,14 @@ static int collect(const rtk_filter_args *a)
     k->c[k->n++] = (rtk_crossing){.t = a->t, .u = h->u, .v = h->v, .Ng_x = h->Ng_x, .Ng_y = h->Ng_y,
                                   .Ng_z = h->Ng_z, .primID = h->primID, .geomID = h->geomID, .instID = h->instID};
     return 0; /* rejected: the walk goes on */
+}
+
+void crossings_unoffered(const rtk_query *q, uint32_t geom_id)
+{
+    if ((q->flags & RTK_QUERY_FLAG_FILTER) && q->filter == collect && q->context) {
+        collector *k = q->context->user;
+        k->unoffered = geom_id + 1;
+    }
 }
 
 static int by_t(const void *x, const void *y)
@@ -86,7 +97,7 @@ static int crossings1(rtk_scene s, const rtk_ray *r, collector *k)
 
 static rtk_error scene_check(rtk_scene s, const char *fn)
 {
-    const rtk_error err = geometry_query_check(s, fn, "list the crossings of");
+    const rtk_error err = geometry_query_check(s, fn);
     if (err)
         return err;
     const rtk_backend_desc *bk = s->device->backend;
@@ -115,6 +126,7 @@ typedef struct crossing_job {
     uint8_t *inside;
     atomic_int oom;
     atomic_size_t short_ray; /* JOB_LIST: the first ray with more crossings than room, + 1 */
+    atomic_uint unoffered;   /* collector.unoffered, of any range */
 } crossing_job;
 
 /* The direction occupancy's rays take: none of a mesh's usual planes
@@ -258,6 +270,8 @@ static void crossing_range(crossing_job *j, size_t begin, size_t end)
     }
     if (k.oom)
         atomic_store(&j->oom, 1);
+    if (k.unoffered)
+        atomic_store(&j->unoffered, k.unoffered);
     free(k.c);
 }
 
@@ -277,6 +291,12 @@ static rtk_error run(crossing_job *j, const char *fn)
     rtk_device_for(j->scene->device, (uint32_t)pieces, crossing_piece, j);
     if (atomic_load(&j->oom))
         return rtk_fail(j->scene->device, RTK_ERROR_OUT_OF_MEMORY, "%s: out of memory collecting crossings", fn);
+    const unsigned unoffered = atomic_load(&j->unoffered);
+    if (unoffered)
+        return rtk_fail(j->scene->device, RTK_ERROR_UNSUPPORTED,
+                        "%s: the intersect callback of user geometry %u reported a hit it had not offered to "
+                        "rtk_user_offer_hit, so rtk cannot collect that geometry's crossings (rtk.h: user geometry)",
+                        fn, unoffered - 1);
     const size_t short_ray = atomic_load(&j->short_ray);
     if (short_ray)
         return rtk_fail(j->scene->device, RTK_ERROR_INVALID_ARGUMENT,
@@ -327,6 +347,8 @@ rtk_error rtk_occupancy(rtk_scene s, const rtk_point_query *points, size_t count
 {
     static const char fn[] = "rtk_occupancy";
     rtk_error err = scene_check(s, fn);
+    if (!err && s->ref->user_deep) /* its distances needed near the surface */
+        err = closest_point_check(s, fn);
     if (!err)
         err = array_check(s, points, count, sizeof *points, sizeof *points, "points", fn);
     if (!err && count && !inside)

@@ -368,53 +368,128 @@ rtk_error rtk_geometry_set_point_query_function(rtk_geometry g, rtk_point_query_
     return err;
 }
 
-/* The callback's answer for lane i of a K-packet (K = 1: an rtk_rayhit or
- * rtk_ray) kept if it is a hit within the lane's interval (then rtk's ids
- * are written), else the lane restored from `before`. */
-static void user_settle(void *rays, const void *before, uint32_t k, uint32_t i, int occluded, const user_prim *u)
+/* Word f of lane i of a K-packet (K = 1: an rtk_rayhit or rtk_ray, whose
+ * fields are 4-byte words in the packets' order). */
+#define WORD_AT(p, f, k, i) ((char *)(p) + 4 * ((size_t)(f) * (k) + (i)))
+enum { WORD_TNEAR = 3, WORD_TFAR = 8, RAY_WORDS = 12, WORD_PRIM = 17, RAYHIT_WORDS = 20 };
+
+static float lane_float(const void *rays, uint32_t f, uint32_t k, uint32_t i)
+{
+    float x;
+    memcpy(&x, WORD_AT(rays, f, k, i), 4);
+    return x;
+}
+
+/* Whether the callback reported a hit for lane i of a K-packet: tfar set
+ * within the lane's interval (occluded: to -inf); `before` is the lane as
+ * the callback got it. */
+static int user_reported(const void *rays, const void *before, uint32_t k, uint32_t i, int occluded)
+{
+    const float t = lane_float(rays, WORD_TFAR, k, i), tnear = lane_float(before, WORD_TNEAR, k, i),
+                old = lane_float(before, WORD_TFAR, k, i);
+    return occluded ? t == -INFINITY : t != old && t >= tnear && t <= old;
+}
+
+/* Lane i settled: a hit keeps tfar (and the hit's u, v, Ng; then rtk's ids
+ * are written), but not changes to the rest of the ray; a miss restores
+ * everything from `before`. */
+static void user_settle(void *rays, const void *before, uint32_t k, uint32_t i, int occluded, int hit,
+                        const user_prim *u)
 {
     /* (4-byte words moved with memcpy: the fields are floats and uint32s) */
-#define WORD_AT(p, f) ((char *)(p) + 4 * ((size_t)(f) * k + i))
-    float t, tnear, old;
-    memcpy(&t, WORD_AT(rays, 8), 4);
-    memcpy(&tnear, WORD_AT(before, 3), 4);
-    memcpy(&old, WORD_AT(before, 8), 4);
-    const int hit = occluded ? t == -INFINITY : t != old && t >= tnear && t <= old;
-    /* a miss restores everything; a hit keeps tfar (and the hit's u, v,
-     * Ng) but not changes to the rest of the ray */
-    const int fields = hit ? 12 : occluded ? 12 : 20;
+    const int fields = hit ? RAY_WORDS : occluded ? RAY_WORDS : RAYHIT_WORDS;
     for (int f = 0; f < fields; f++)
-        if (!hit || f != 8)
-            memcpy(WORD_AT(rays, f), WORD_AT(before, f), 4);
+        if (!hit || f != WORD_TFAR)
+            memcpy(WORD_AT(rays, f, k, i), WORD_AT(before, f, k, i), 4);
     if (hit && !occluded) {
         const uint32_t ids[3] = {u->prim_id, u->geom_id, RTK_INVALID_GEOMETRY_ID}; /* an instance above writes its own instID */
         for (int f = 0; f < 3; f++)
-            memcpy(WORD_AT(rays, 17 + f), &ids[f], 4);
+            memcpy(WORD_AT(rays, WORD_PRIM + f, k, i), &ids[f], 4);
     }
-#undef WORD_AT
+}
+
+/* A callback's call, as rtk_user_offer_hit finds it: the arguments the
+ * callback got first. */
+typedef struct user_frame {
+    rtk_user_query_args args;
+    const rtk_query *q;
+    const user_prim *u;
+    const void *before;            /* the rays as the callback got them */
+    uint32_t taken;                /* the lanes with an offered hit the query took */
+    struct user_frame *outer;      /* a callback's own query's callbacks nest */
+} user_frame;
+
+/* The callback running on this thread, innermost. */
+static _Thread_local user_frame *tls_frame;
+
+int rtk_user_offer_hit(const rtk_user_query_args *args, uint32_t lane, const rtk_user_hit *hit)
+{
+    static const char fn[] = "rtk_user_offer_hit";
+    user_frame *f = tls_frame;
+    if (!f || !args || args != &f->args) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT,
+                 "%s: args are not those of the user geometry callback running on this thread", fn);
+        return 0;
+    }
+    if (!hit || lane >= args->N || !args->valid[lane]) {
+        rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, hit ? "%s: lane %u is not one the callback is to test (N %u)"
+                                                       : "%s: hit is NULL",
+                 fn, lane, args->N);
+        return 0;
+    }
+    const uint32_t k = args->N;
+    if (!(hit->t >= lane_float(f->before, WORD_TNEAR, k, lane) && hit->t <= lane_float(f->before, WORD_TFAR, k, lane)))
+        return 0;
+    const rtk_query *q = f->q;
+    if ((q->flags & RTK_QUERY_FLAG_FILTER) && q->filter) {
+        /* (the query filters serve the width-1 kernels only) */
+        rtk_ray ray;
+        for (uint32_t w = 0; w < RAY_WORDS; w++)
+            memcpy((char *)&ray + 4 * w, WORD_AT(f->before, w, k, lane), 4);
+        const rtk_hit h = {.Ng_x = hit->Ng_x, .Ng_y = hit->Ng_y, .Ng_z = hit->Ng_z, .u = hit->u, .v = hit->v,
+                           .primID = f->u->prim_id, .geomID = f->u->geom_id, .instID = q->inst_id};
+        const rtk_filter_args fa = {.geometry_user = args->geometry_user, .context = q->context, .ray = &ray,
+                                    .hit = &h, .t = hit->t};
+        if (!q->filter(&fa))
+            return 0;
+    }
+    f->taken |= 1u << lane;
+    return 1;
 }
 
 static void user_call(const user_prim *u, const int32_t *active, void *rays, uint32_t k, const rtk_query *q,
                       int occluded)
 {
-    const size_t bytes = (occluded ? 12u : 20u) * 4u * k;
-    uint32_t before[20 * 16];
+    const size_t bytes = (occluded ? RAY_WORDS : RAYHIT_WORDS) * 4u * k;
+    uint32_t before[RAYHIT_WORDS * 16];
     memcpy(before, rays, bytes);
     int valid[16];
     for (uint32_t i = 0; i < k; i++)
         valid[i] = active[i] != 0;
-    const rtk_user_query_args args = {.valid = valid, .geometry_user = u->user, .geom_id = u->geom_id,
-                                      .prim_id = u->prim_id, .context = q->context, .rays = rays, .N = k};
-    (occluded ? u->occluded : u->intersect)(&args);
+    user_frame f = {.args = {.valid = valid, .geometry_user = u->user, .geom_id = u->geom_id, .prim_id = u->prim_id,
+                             .context = q->context, .rays = rays, .N = k},
+                    .q = q, .u = u, .before = before, .outer = tls_frame};
+    tls_frame = &f;
+    (occluded ? u->occluded : u->intersect)(&f.args);
+    tls_frame = f.outer;
+    const int filtered = (q->flags & RTK_QUERY_FLAG_FILTER) && q->filter;
     for (uint32_t i = 0; i < k; i++) {
         if (active[i]) {
-            user_settle(rays, before, k, i, occluded, u);
+            int hit = user_reported(rays, before, k, i, occluded);
+            if (hit && filtered && !(f.taken & 1u << i)) {
+                /* a hit the query's filter never saw: a miss, and a query
+                 * collecting crossings fails rather than lose them */
+                hit = 0;
+                crossings_unoffered(q, u->geom_id);
+            }
+            user_settle(rays, before, k, i, occluded, hit, u);
         } else { /* not the callback's to touch */
-            for (int f = 0; f < (occluded ? 12 : 20); f++)
-                memcpy((char *)rays + 4 * ((size_t)f * k + i), (const char *)before + 4 * ((size_t)f * k + i), 4);
+            for (int w = 0; w < (occluded ? RAY_WORDS : RAYHIT_WORDS); w++)
+                memcpy(WORD_AT(rays, w, k, i), WORD_AT(before, w, k, i), 4);
         }
     }
 }
+#undef WORD_AT
 
 void user_intersect1(const rtk_accel *a, rtk_rayhit *rh, const rtk_query *q)
 {

@@ -7,8 +7,7 @@
 
 #include "scene_internal.h"
 
-/* The checks of every geometry query but the user geometry's. */
-static rtk_error committed_check(rtk_scene s, const char *fn)
+rtk_error geometry_query_check(rtk_scene s, const char *fn)
 {
     if (!s)
         return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
@@ -19,24 +18,9 @@ static rtk_error committed_check(rtk_scene s, const char *fn)
     return RTK_OK;
 }
 
-rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot)
+rtk_error closest_point_check(rtk_scene s, const char *fn)
 {
-    const rtk_error err = committed_check(s, fn);
-    if (err)
-        return err;
-    if (s->ref->user_deep)
-        return rtk_fail(s->device, RTK_ERROR_UNSUPPORTED,
-                        "%s: the scene has user geometry (%llu primitives, in it or in the scenes it instances), "
-                        "and rtk cannot %s it",
-                        fn, (unsigned long long)s->ref->user_deep, cannot);
-    return RTK_OK;
-}
-
-/* What rtk_closest_point would refuse the scene for, per call: RTK_OK, or
- * the error (reported). */
-static rtk_error scene_check(rtk_scene s, const char *fn)
-{
-    const rtk_error err = committed_check(s, fn);
+    const rtk_error err = geometry_query_check(s, fn);
     if (err)
         return err;
     const rtk_backend_desc *bk = s->device->backend;
@@ -134,7 +118,7 @@ rtk_error rtk_closest_point(rtk_scene s, const rtk_point_query *query, rtk_point
     if (!query || !result)
         return rtk_fail(s ? s->device : NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: %s is NULL", fn,
                         query ? "result" : "query");
-    const rtk_error err = scene_check(s, fn);
+    const rtk_error err = closest_point_check(s, fn);
     if (err)
         return err;
     const char *fault = query_fault(query);
@@ -224,7 +208,7 @@ rtk_error rtk_closest_point_batch(rtk_scene s, const rtk_point_query *queries, r
     if (count && (!queries || !results))
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: %s is NULL (count %zu)", fn,
                         queries ? "results" : "queries", count);
-    const rtk_error err = scene_check(s, fn);
+    const rtk_error err = closest_point_check(s, fn);
     if (err || !count)
         return err;
     /* window by window, each walked along its Morton curve (or as it

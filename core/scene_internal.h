@@ -329,9 +329,16 @@ RTK_INTERNAL void range_trace1(rtk_scene s, void *ray, int occluded, const rtk_q
 RTK_INTERNAL rtk_error scene_not_committing(rtk_scene s, const char *fn);
 
 /* point_query.c: what the geometry queries (closest points, crossings)
- * refuse every scene for: NULL, being committed, never committed, user
- * geometry in it or below (which rtk cannot `cannot`, for the message). */
-RTK_INTERNAL rtk_error geometry_query_check(rtk_scene s, const char *fn, const char *cannot);
+ * refuse every scene for: NULL, being committed, never committed. */
+RTK_INTERNAL rtk_error geometry_query_check(rtk_scene s, const char *fn);
+/* point_query.c: what closest points refuse a scene for (rtk.h:
+ * rtk_closest_point), those above included; occupancy asks it of scenes
+ * with user geometry, whose distances it needs. */
+RTK_INTERNAL rtk_error closest_point_check(rtk_scene s, const char *fn);
+/* crossings.c: a user geometry's callback reported a hit it had not
+ * offered (rtk_user_offer_hit) to query q: when q collects crossings, its
+ * call fails, naming the geometry. */
+RTK_INTERNAL void crossings_unoffered(const rtk_query *q, uint32_t geom_id);
 /* A query's point within +-2^64 (rtk.h): its float is finite, and
  * squared distances stay far from double's range.  Inline: the batches'
  * ordering (point_order.c) asks for every point. */

@@ -853,9 +853,10 @@ RTK_API rtk_error rtk_geometry_set_occluded_filter(rtk_geometry geometry, rtk_fi
  * tfar, u, v and Ng (geomID, primID and instID are rtk's to write), and
  * occluded sets the lane's tfar to -inf.  A lane whose tfar the callback
  * leaves NaN, below tnear or above the old tfar is taken as a miss and
- * restored.  Filters are not called for user geometry (its callbacks
- * decide, with the query's context at hand).  The callbacks run on the
- * query's thread and must not change or commit the scene. */
+ * restored.  Geometry filters are not called for user geometry (its
+ * callbacks decide, with the query's context at hand; rtk_user_offer_hit
+ * below asks the query itself).  The callbacks run on the query's thread
+ * and must not change or commit the scene. */
 typedef struct rtk_bounds_args {
     void *geometry_user;
     uint32_t prim_id;
@@ -880,6 +881,33 @@ RTK_API rtk_error rtk_geometry_set_user_primitive_count(rtk_geometry geometry, u
 RTK_API rtk_error rtk_geometry_set_bounds_function(rtk_geometry geometry, rtk_bounds_fn bounds);
 RTK_API rtk_error rtk_geometry_set_intersect_function(rtk_geometry geometry, rtk_user_query_fn intersect);
 RTK_API rtk_error rtk_geometry_set_occluded_function(rtk_geometry geometry, rtk_user_query_fn occluded);
+
+/* Every hit of a user primitive (added after rtk 0.2.0), as Embree's
+ * rtcFilterIntersection and rtcFilterOcclusion: an intersect or occluded
+ * callback offers each hit it finds for a lane, nearest first, before
+ * reporting one.  rtk_user_offer_hit returns 1 when the query takes the
+ * hit (the callback then reports it as above: tfar, u, v and Ng, or tfar
+ * = -inf) and 0 when it does not (the callback reports nothing for it and
+ * offers its next hit beyond, if the primitive has one).  The queries
+ * that collect every crossing (rtk_count_intersections,
+ * rtk_list_intersections, rtk_occupancy) take none: they collect each hit
+ * offered and the walk goes on, which is how they see a primitive that
+ * the ray crosses more than once (a sphere: in and out).  Other queries
+ * take every hit offered within the lane's [tnear, tfar] (the one a
+ * callback that does not offer would report), and a hit outside it is
+ * never taken.  User geometry must offer its hits for those queries: a
+ * hit a callback reports there without the query having taken it is not
+ * counted, and the call fails (RTK_ERROR_UNSUPPORTED, naming the
+ * geometry) rather than miss crossings.  `args` must be the callback's
+ * own, on its thread, and `lane` one it is to test; otherwise the result
+ * is 0 and the thread's error (rtk_device_get_error(NULL)) is
+ * RTK_ERROR_INVALID_ARGUMENT. */
+typedef struct rtk_user_hit {
+    float t;                /* along the lane's ray, as the callback would write to tfar */
+    float u, v;             /* as the callback would report them */
+    float Ng_x, Ng_y, Ng_z; /* the same */
+} rtk_user_hit;
+RTK_API int rtk_user_offer_hit(const rtk_user_query_args *args, uint32_t lane, const rtk_user_hit *hit);
 
 /* Closest hit.  RTK_ERROR_INVALID_ARGUMENT for NULL arguments,
  * RTK_ERROR_INVALID_OPERATION for a scene that was never committed.
@@ -1119,9 +1147,13 @@ RTK_API rtk_error rtk_closest_point_batch(rtk_scene scene, const rtk_point_query
  * test gives a ray through an edge or vertex shared by the triangles of a
  * closed mesh exactly one of them where the surface crosses the ray once
  * (tests/test_points.c counts rays through vertices and edges); the
- * default intersector may count such a ray twice or not at all.  Scenes
- * with user geometry are refused (RTK_ERROR_UNSUPPORTED), as is a backend
- * whose kernels predate the query filters the collection goes through.
+ * default intersector may count such a ray twice or not at all.  User
+ * geometry's crossings are the hits its callbacks offer
+ * (rtk_user_offer_hit; a callback that reports a hit without offering it
+ * fails the call, RTK_ERROR_UNSUPPORTED), and rtk_occupancy needs its
+ * point query functions too (rtk_closest_point's refusals).  A backend
+ * whose kernels predate the query filters the collection goes through is
+ * refused (RTK_ERROR_UNSUPPORTED).
  * Over the device's threads; invalid rays (rtk_ray's rules) cross nothing.
  * Rays with a byte stride as the stream calls take them. */
 typedef struct rtk_crossing {
@@ -1156,7 +1188,10 @@ RTK_API rtk_error rtk_list_intersections(rtk_scene scene, const rtk_ray *rays, s
  * included, and double points wherever the mesh lies (tests/test_crossings.c:
  * points 1e-4 off unit meshes 10^5 from the origin, where float's grid
  * is 2^-7); for open meshes the answer is that ray's parity, which
- * another direction may contradict. */
+ * another direction may contradict.  Through an instance, the surface is
+ * where the instance's float transform puts it (a few ulps of float from
+ * where double would); user geometry's, where its callbacks' hits and
+ * point query function put it. */
 #define RTK_OCCUPANCY_INVALID 255u
 RTK_API rtk_error rtk_occupancy(rtk_scene scene, const rtk_point_query *points, size_t count, uint8_t *inside);
 
