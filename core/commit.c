@@ -435,10 +435,12 @@ static int try_refit(rtk_scene s, const rtk_build_geometry *geoms, size_t n, con
 static accel_ref *make_ref(const rtk_backend_desc *bk, const rtk_layout_entry *layout, rtk_accel *accel,
                            const rtk_build_output *out)
 {
+    static atomic_uint_fast64_t serials;
     accel_ref *r = calloc(1, sizeof *r);
     if (!r)
         return NULL;
     atomic_init(&r->refs, 1);
+    r->serial = atomic_fetch_add(&serials, 1) + 1;
     r->layout = layout;
     r->accel = accel;
     r->intersect1 = find_kernel(bk, layout->id, RTK_QUERY_INTERSECT)->fn.intersect1;

@@ -44,6 +44,10 @@ typedef struct accel_ref {
      * points refuse). */
     struct user_prim *user_prims;
     uint64_t user_deep, user_pointless_deep;
+    /* This tree among every tree the process has made, from 1: what the
+     * stream kernels' learnt state is kept for (stream.c), where the
+     * address of a freed tree may come back for a new one. */
+    uint64_t serial;
 } accel_ref;
 
 typedef struct buffer {

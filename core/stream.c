@@ -20,9 +20,10 @@ enum { STREAM_CHUNK = 65536, STREAM_STACK_CHUNK = 512 };
  * for closest and one for any hits: renderers hand over streams of a tile's
  * rays, a thousand or so, and a kernel that began every one of them
  * measuring would spend much of each stream measuring.  Only ever a
- * choice of speed: every way gives every ray the same answer. */
+ * choice of speed: every way gives every ray the same answer.  Kept by
+ * the tree's serial, not its address, which a new tree may reuse. */
 static _Thread_local struct {
-    const rtk_accel *accel;
+    uint64_t serial;
     _Alignas(64) unsigned char state[2][RTK_STREAM_STATE_SIZE];
 } tls_stream;
 
@@ -85,9 +86,9 @@ void stream_trace(rtk_scene s, char *rays, size_t count, size_t stride, int occl
         }
         return;
     }
-    if (tls_stream.accel != s->accel) {
+    if (tls_stream.serial != s->ref->serial) {
         memset(tls_stream.state, 0, sizeof tls_stream.state);
-        tls_stream.accel = s->accel;
+        tls_stream.serial = s->ref->serial;
     }
     rtk_query sq = *q;
     sq.flags |= RTK_QUERY_FLAG_STREAM_STATE;
