@@ -563,6 +563,79 @@ static void test_threads(void **state)
     rtk_device_release(dev);
 }
 
+/* Any-hit packets of sun rays: one direction, origins scattered through
+ * the ball's box.  Each tree keeps the way such packets take and samples
+ * both ways in turns (traverse_packet.h, PK_(occluded_spread)), so enough
+ * calls take both, and switch; every lane must get rtk_occluded1's
+ * answer whichever way its call took.  T threads share the scene and its
+ * choice (run under ThreadSanitizer by scripts/test). */
+typedef struct sun_job {
+    rtk_scene scene;
+    unsigned width;
+    uint64_t seed;
+    int failures, occluded;
+} sun_job;
+
+static void *sun_thread(void *arg)
+{
+    sun_job *j = arg;
+    rng r = {j->seed};
+    const int calls = test_sanitized() ? 1500 : 12000;
+    _Alignas(64) uint32_t pk[12 * 16];
+    for (int c = 0; c < calls; c++) {
+        rtk_ray rays[16];
+        int valid[16];
+        for (unsigned l = 0; l < j->width; l++) {
+            const float o[3] = {4.0f * rng_float(&r) - 2.0f, 4.0f * rng_float(&r) - 2.0f, 4.0f * rng_float(&r) - 2.0f};
+            rays[l] = test_ray(o[0], o[1], o[2], 0.3f, -0.8f, 0.5f, 0.0f, INFINITY);
+            valid[l] = (c + (int)l) % 11 != 3;
+            rtk_rayhit rh = {.ray = rays[l]};
+            test_packet_put(pk, j->width, l, &rh, 1);
+        }
+        assert_int_equal(test_trace_packet(j->scene, j->width, 1, valid, pk), RTK_OK);
+        for (unsigned l = 0; l < j->width; l++) {
+            rtk_rayhit got;
+            test_packet_get(pk, j->width, l, &got, 1);
+            rtk_ray one = rays[l];
+            assert_int_equal(rtk_occluded1(j->scene, &one), RTK_OK);
+            if (!valid[l])
+                one.tfar = rays[l].tfar; /* an inactive lane comes back as it went */
+            j->failures += got.ray.tfar != one.tfar;
+            j->occluded += one.tfar == -INFINITY;
+        }
+    }
+    return NULL;
+}
+
+static void test_sun_packets(void **state)
+{
+    (void)state;
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    for (size_t b = 0; b < nb; b++) {
+        rtk_device dev = test_device(names[b]);
+        rtk_scene s = ball_scene(dev);
+        enum { T = 2 };
+        for (unsigned width = 4; width <= 16; width *= 2) {
+            sun_job jobs[T];
+            pthread_t tid[T];
+            for (int t = 0; t < T; t++) {
+                jobs[t] = (sun_job){.scene = s, .width = width, .seed = 200 + (uint64_t)t + width};
+                assert_int_equal(pthread_create(&tid[t], NULL, sun_thread, &jobs[t]), 0);
+            }
+            for (int t = 0; t < T; t++) {
+                pthread_join(tid[t], NULL);
+                if (jobs[t].failures)
+                    fail_msg("%s: packets of %u: %d lanes differ from rtk_occluded1", names[b], width,
+                             jobs[t].failures);
+                assert_true(jobs[t].occluded > 0);
+            }
+        }
+        rtk_scene_release(s);
+        rtk_device_release(dev);
+    }
+}
+
 int main(int argc, char **argv)
 {
     /* "quick": the thread test alone (scripts/test runs it under ThreadSanitizer) */
@@ -572,8 +645,9 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_filters),             cmocka_unit_test(test_scenes),
         cmocka_unit_test(test_batches),             cmocka_unit_test(test_threads),
         cmocka_unit_test(test_grazing_groups),      cmocka_unit_test(test_one_octant),
-        cmocka_unit_test(test_kept_ways),
+        cmocka_unit_test(test_kept_ways),           cmocka_unit_test(test_sun_packets),
     };
-    const struct CMUnitTest threads[] = {cmocka_unit_test(test_threads), cmocka_unit_test(test_batches)};
+    const struct CMUnitTest threads[] = {cmocka_unit_test(test_threads), cmocka_unit_test(test_batches),
+                                         cmocka_unit_test(test_sun_packets)};
     return quick ? cmocka_run_group_tests(threads, setup, teardown) : cmocka_run_group_tests(all, setup, teardown);
 }

@@ -18,6 +18,7 @@
 #ifndef RTK_BVH4_TRIANGLE4_H
 #define RTK_BVH4_TRIANGLE4_H
 
+#include <stdatomic.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -276,6 +277,14 @@ struct rtk_accel {
     /* the largest side of the tree's box: the robust traversal pads every
      * box by a few ulps of it (traverse_bvhn.h) */
     float extent;
+    /* Any-hit packets whose origins lie far apart (traverse_packet.h,
+     * PK_(occluded_spread)): the way they take (0 the packet traversal, 1
+     * interleaved), and the cycles, rays and calls of the sampled calls
+     * by way.  Only ever a choice of speed, which the traversals change
+     * as they measure (relaxed atomics, shared by the threads). */
+    _Atomic uint32_t pk_way;
+    _Atomic uint32_t pk_calls[2];
+    _Atomic uint64_t pk_cycles[2], pk_rays[2];
     /* masks and filters by geometry id (attr_count entries), copied from
      * rtk_build_input.attrs; NULL when the build had none, and then the
      * kernels never look (traverse_bvhn.h, ray_pre.feat) */

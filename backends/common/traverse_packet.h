@@ -1047,8 +1047,16 @@ static inline __attribute__((always_inline)) void PK_(traverse)(const rtk_accel 
  * Miguel's diffuse packets lost 5%.  By the spread alone, so that sun rays
  * from scattered points went interleaved too: dragon.ply's sun packets of
  * 8 1.64x Embree's, San Miguel's 0.63x, whose rays mostly test the top of
- * the tree and leave.) */
-static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_accel *accel)
+ * the tree and leave: such any-hit packets are measured, PK_SPREAD.) */
+#ifndef RTK_PK_KINDS
+#define RTK_PK_KINDS /* (this header is included once per packet width) */
+enum { PK_COHERENT, PK_SCATTERED, PK_SPREAD };
+#endif
+/* PK_SCATTERED for such a packet (or one with a zero direction component,
+ * below); for an any-hit packet whose direction signs agree but whose
+ * origins lie that far apart (sun rays from scattered points:
+ * PK_(occluded_spread) below), PK_SPREAD; PK_COHERENT for the rest. */
+static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_accel *accel, int occluded)
 {
     const vkb active = VKB(load)(valid);
     const unsigned all = (unsigned)VKB(mask)(active);
@@ -1063,20 +1071,53 @@ static inline int PK_(scattered)(const rayK *r, const int32_t *valid, const rtk_
      * the stream's steps give the ray that answer. */
     if (((unsigned)VKB(mask)(PK_(zero_dir)(VK(load)(r->dir_x))) | (unsigned)VKB(mask)(PK_(zero_dir)(VK(load)(r->dir_y))) |
          (unsigned)VKB(mask)(PK_(zero_dir)(VK(load)(r->dir_z)))) & all)
-        return 1;
+        return PK_SCATTERED;
 #endif
-    if (!((nx && nx != all) || (ny && ny != all) || (nz && nz != all)))
-        return 0;
-    const vk pinf = VK(set1)(INFINITY), ninf = VK(set1)(-INFINITY);
     const float *org[3] = {r->org_x, r->org_y, r->org_z};
+    if (!((nx && nx != all) || (ny && ny != all) || (nz && nz != all))) {
+        if (!occluded || !all)
+            return PK_COHERENT;
+        /* the first and the last active ray's origins further apart than
+         * the sixteenth on some axis: a few scalar steps (the spread of
+         * all of them, by reductions, cost San Miguel's shadow packets of
+         * 8, some 300 cycles each, 6-9%) */
+        const int a = __builtin_ctz(all), b = 31 - __builtin_clz(all);
+        const float limit = accel->extent * (1.0f / 16.0f);
+        int far = 0;
+        for (int k = 0; k < 3; k++)
+            far |= fabsf(org[k][b] - org[k][a]) > limit;
+        return far ? PK_SPREAD : PK_COHERENT;
+    }
+    const vk pinf = VK(set1)(INFINITY), ninf = VK(set1)(-INFINITY);
     float spread = 0.0f;
     for (int k = 0; k < 3; k++) {
         const vk o = VK(load)(org[k]);
         const float d = VK(reduce_max)(VK(select)(active, o, ninf)) - VK(reduce_min)(VK(select)(active, o, pinf));
         spread = d > spread ? d : spread;
     }
-    return spread > accel->extent * (1.0f / 16.0f);
+    return spread > accel->extent * (1.0f / 16.0f) ? PK_SCATTERED : PK_COHERENT;
 }
+
+#if !RTK_MOTION
+/* Any-hit packets whose direction signs agree but whose origins lie far
+ * apart (PK_SPREAD: sun rays from scattered points) have no way that serves
+ * every scene: interleaved as a stream, dragon.ply's sun packets of 8 ran
+ * 1.64x Embree's packets, San Miguel's 0.64x, whose rays mostly test the
+ * top of the tree and leave; by the packet traversal 0.99x and 0.92x
+ * (rtktool bench --only trace --api packet8 --rays sun, 1 thread, avx2).
+ * So the tree keeps the way they take (rtk_accel.pk_way), and about one
+ * call in 64 (picked by its first origin's bits, so that the other calls
+ * neither time themselves nor look up a thread's state) takes either way
+ * by turns, timed; once each way has PK_SAMPLES of them, the other way is
+ * taken if it costs fewer cycles per ray by an eighth.  Only ever a choice of speed: either way gives
+ * each ray rtk_occluded1's answer.  (The stream's coherent groups come back
+ * to the packet kernels only with their origins within the sixteenth, so
+ * never as PK_SPREAD.) */
+#ifndef RTK_PK_SAMPLES
+#define RTK_PK_SAMPLES
+enum { PK_SAMPLES = 64 };
+#endif
+#endif
 
 #if !RTK_MOTION
 /* The slots a scattered packet's rays are interleaved in (traverse_stream.h):
@@ -1120,7 +1161,7 @@ void PK_INTERSECT(const rtk_accel *accel, const int32_t *valid, void *packet, co
         return;
     rayhitK *rh = packet;
 #if !RTK_MOTION
-    if (PK_(scattered)(&rh->ray, valid, accel)) {
+    if (PK_(scattered)(&rh->ray, valid, accel, 0) == PK_SCATTERED) {
         /* rays that share hardly a node: interleaved as a stream, each
          * with the single-ray kernel's steps (so its answer is
          * rtk_intersect1's), their cache misses overlapped */
@@ -1181,34 +1222,107 @@ unsigned PK_INTERSECT_EXACT(const rtk_accel *accel, const int32_t *valid, void *
 }
 #endif
 
+/* The packet traversal's any hits. */
+static inline __attribute__((always_inline)) void PK_(occluded_packet)(const rtk_accel *accel, const int32_t *valid,
+                                                                       rayK *r, const rtk_query *q)
+{
+    PK_(hits) h;
+    PK_(traverse)(accel, valid, r, 0, &h, q, NULL);
+    if (h.hit) /* a row, not lane by lane (see PK_INTERSECT) */
+        VK(store)(r->tfar, VK(select)(PK_(lanes_mask)(h.hit), VK(set1)(-INFINITY), VK(load)(r->tfar)));
+}
+
+#if !RTK_MOTION
+/* The any hits of the packet's rays interleaved as a stream (see
+ * PK_INTERSECT); how many rays there were. */
+static __attribute__((noinline)) uint32_t PK_(occluded_interleaved)(const rtk_accel *accel, const int32_t *valid,
+                                                                    rayK *r, const rtk_query *q)
+{
+    _Alignas(16) rtk_ray one[RTK_PACKET];
+    void *list[RTK_PACKET];
+    uint32_t n = 0;
+    for (int i = 0; i < RTK_PACKET; i++) {
+        if (!valid[i])
+            continue;
+        PK_(lane_ray_to)(r, i, &one[i]);
+        list[n++] = &one[i];
+    }
+    stream_slot slots[PK_SLOTS];
+    stream_trace(accel, list, n, q, 0, slots, PK_SLOTS);
+    for (int i = 0; i < RTK_PACKET; i++)
+        if (valid[i] && one[i].tfar == -INFINITY)
+            r->tfar[i] = -INFINITY;
+    return n;
+}
+
+/* A PK_SPREAD packet: the tree's way, or in a sampled call either way by
+ * turns, timed (out of line, so that the other packets' path stays as it
+ * was). */
+static __attribute__((noinline)) void PK_(occluded_spread)(const rtk_accel *accel, const int32_t *valid, rayK *r,
+                                                           const rtk_query *q)
+{
+    rtk_accel *t = (rtk_accel *)(uintptr_t)accel; /* (its choice is the traversals' to change) */
+    const unsigned all = (unsigned)VKB(mask)(VKB(load)(valid));
+    uint32_t bits;
+    memcpy(&bits, &r->org_x[__builtin_ctz(all)], sizeof bits);
+    const uint32_t h = (bits ^ bits >> 13) * 0x9e3779b1u;
+    if (h >> 26) { /* (63 calls in 64) */
+        if (atomic_load_explicit(&t->pk_way, memory_order_relaxed))
+            PK_(occluded_interleaved)(accel, valid, r, q);
+        else
+            PK_(occluded_packet)(accel, valid, r, q);
+        return;
+    }
+    const int way = h >> 25 & 1;
+    const uint64_t t0 = rtk_cycles();
+    if (way)
+        PK_(occluded_interleaved)(accel, valid, r, q);
+    else
+        PK_(occluded_packet)(accel, valid, r, q);
+    const uint64_t cycles = rtk_cycles() - t0;
+    atomic_fetch_add_explicit(&t->pk_cycles[way], cycles, memory_order_relaxed);
+    atomic_fetch_add_explicit(&t->pk_rays[way], (uint64_t)__builtin_popcount(all), memory_order_relaxed);
+    const uint32_t calls = atomic_fetch_add_explicit(&t->pk_calls[way], 1, memory_order_relaxed) + 1;
+    if (calls < PK_SAMPLES || atomic_load_explicit(&t->pk_calls[!way], memory_order_relaxed) < PK_SAMPLES)
+        return;
+    /* both ways sampled: the other way is kept when it takes fewer cycles
+     * per ray by an eighth (single packets' costs spread widely, and a
+     * wrong turn on San Miguel's sun packets costs 1.4x), c_o / r_o * 9/8 <
+     * c_w / r_w; another thread's samples may land between the loads: a
+     * choice of speed */
+    const uint64_t c0 = atomic_load_explicit(&t->pk_cycles[0], memory_order_relaxed),
+                   c1 = atomic_load_explicit(&t->pk_cycles[1], memory_order_relaxed),
+                   r0 = atomic_load_explicit(&t->pk_rays[0], memory_order_relaxed),
+                   r1 = atomic_load_explicit(&t->pk_rays[1], memory_order_relaxed);
+    const uint32_t kept = atomic_load_explicit(&t->pk_way, memory_order_relaxed) != 0;
+    const uint64_t ck = kept ? c1 : c0, rk = kept ? r1 : r0, co = kept ? c0 : c1, ro = kept ? r0 : r1;
+    if (co * rk * 9 < ck * ro * 8)
+        atomic_store_explicit(&t->pk_way, !kept, memory_order_relaxed);
+    for (int w = 0; w < 2; w++) {
+        atomic_store_explicit(&t->pk_calls[w], 0, memory_order_relaxed);
+        atomic_store_explicit(&t->pk_cycles[w], 0, memory_order_relaxed);
+        atomic_store_explicit(&t->pk_rays[w], 0, memory_order_relaxed);
+    }
+}
+#endif
+
 void PK_OCCLUDED(const rtk_accel *accel, const int32_t *valid, void *packet, const rtk_query *q)
 {
     if (accel->root == RTK_BVH4_EMPTY)
         return;
     rayK *r = packet;
 #if !RTK_MOTION
-    if (PK_(scattered)(r, valid, accel)) { /* (see PK_INTERSECT) */
-        _Alignas(16) rtk_ray one[RTK_PACKET];
-        void *list[RTK_PACKET];
-        uint32_t n = 0;
-        for (int i = 0; i < RTK_PACKET; i++) {
-            if (!valid[i])
-                continue;
-            PK_(lane_ray_to)(r, i, &one[i]);
-            list[n++] = &one[i];
-        }
-        stream_slot slots[PK_SLOTS];
-        stream_trace(accel, list, n, q, 0, slots, PK_SLOTS);
-        for (int i = 0; i < RTK_PACKET; i++)
-            if (valid[i] && one[i].tfar == -INFINITY)
-                r->tfar[i] = -INFINITY;
+    const int kind = PK_(scattered)(r, valid, accel, 1);
+    if (kind == PK_SCATTERED) {
+        PK_(occluded_interleaved)(accel, valid, r, q);
+        return;
+    }
+    if (kind == PK_SPREAD) {
+        PK_(occluded_spread)(accel, valid, r, q);
         return;
     }
 #endif
-    PK_(hits) h;
-    PK_(traverse)(accel, valid, r, 0, &h, q, NULL);
-    if (h.hit) /* a row, not lane by lane (see PK_INTERSECT) */
-        VK(store)(r->tfar, VK(select)(PK_(lanes_mask)(h.hit), VK(set1)(-INFINITY), VK(load)(r->tfar)));
+    PK_(occluded_packet)(accel, valid, r, q);
 }
 
 #undef vk
