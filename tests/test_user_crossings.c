@@ -273,13 +273,7 @@ static void test_crossings(void **state)
         /* through an instance */
         rtk_scene outer;
         assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
-        rtk_geometry inst;
-        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
-        assert_int_equal(rtk_geometry_set_instanced_scene(inst, alone), RTK_OK);
-        assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xf), RTK_OK);
-        assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
-        assert_int_equal(rtk_scene_attach_geometry(outer, inst, &id), RTK_OK);
-        rtk_geometry_release(inst);
+        id = test_attach_instance(dev, outer, alone, xf);
         assert_int_equal(rtk_scene_commit(outer), RTK_OK);
         place(&sp, xf, 2.0, 0, id, &p);
         snprintf(what, sizeof what, "%s, an instance of the spheres", names[b]);

@@ -157,13 +157,7 @@ static void test_spheres(void **state)
         check_scene(what, mixed, &sp, NULL, 1.0, 1, id, RTK_INVALID_GEOMETRY_ID, q);
         /* the spheres through an instance, beside the floor */
         rtk_scene outer = test_scene_uncommitted(dev, floor_v, 4, floor_idx, 2, 0);
-        rtk_geometry inst;
-        assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
-        assert_int_equal(rtk_geometry_set_instanced_scene(inst, alone), RTK_OK);
-        assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xf), RTK_OK);
-        assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
-        assert_int_equal(rtk_scene_attach_geometry(outer, inst, &id), RTK_OK);
-        rtk_geometry_release(inst);
+        id = test_attach_instance(dev, outer, alone, xf);
         assert_int_equal(rtk_scene_commit(outer), RTK_OK);
         snprintf(what, sizeof what, "%s, an instance of the spheres and floor", names[b]);
         check_scene(what, outer, &sp, xfm, scale, 1, 0, id, q);

@@ -102,16 +102,25 @@ rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, cons
     return scene;
 }
 
+uint32_t test_attach_instance(rtk_device dev, rtk_scene outer, rtk_scene inner, const float *xfm)
+{
+    rtk_geometry inst;
+    uint32_t id;
+    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
+    assert_int_equal(rtk_geometry_set_instanced_scene(inst, inner), RTK_OK);
+    if (xfm)
+        assert_int_equal(rtk_geometry_set_transform(inst, RTK_FORMAT_FLOAT3X4_ROW_MAJOR, xfm), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
+    assert_int_equal(rtk_scene_attach_geometry(outer, inst, &id), RTK_OK);
+    rtk_geometry_release(inst);
+    return id;
+}
+
 rtk_scene test_instancing_scene(rtk_device dev, rtk_scene inner)
 {
     rtk_scene outer;
-    rtk_geometry inst;
     assert_int_equal(rtk_scene_new(dev, &outer), RTK_OK);
-    assert_int_equal(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_INSTANCE, &inst), RTK_OK);
-    assert_int_equal(rtk_geometry_set_instanced_scene(inst, inner), RTK_OK);
-    assert_int_equal(rtk_geometry_commit(inst), RTK_OK);
-    assert_int_equal(rtk_scene_attach_geometry(outer, inst, NULL), RTK_OK);
-    rtk_geometry_release(inst);
+    test_attach_instance(dev, outer, inner, NULL);
     return outer;
 }
 

@@ -37,6 +37,9 @@ rtk_scene test_scene_uncommitted(rtk_device dev, const float *v, size_t nv, cons
 
 /* A scene, not committed yet, of one instance of `inner` (identity). */
 rtk_scene test_instancing_scene(rtk_device dev, rtk_scene inner);
+/* An instance of `inner` through xfm (row-major 3x4; NULL: identity),
+ * committed and attached to `outer` (not committed); its geometry id. */
+uint32_t test_attach_instance(rtk_device dev, rtk_scene outer, rtk_scene inner, const float *xfm);
 /* Geometry g of s has new vertex positions in its buffer: update it, commit
  * it and the scene. */
 void test_commit_moved(rtk_scene s, rtk_geometry g);
