@@ -16,6 +16,7 @@
 #include <string.h>
 
 #include "closed_mesh.h"
+#include "geometry/affine.h"
 #include "testlib.h"
 #include "user_spheres.h"
 
@@ -40,10 +41,11 @@ static void place(const sphere_set *in, const float *xf, double scale, uint32_t 
     out->s = *in;
     out->geom = geom;
     out->inst = inst;
+    double m[12];
+    for (int k = 0; xf && k < 12; k++)
+        m[k] = xf[k];
     for (int i = 0; xf && i < SPHERES; i++) {
-        for (int r = 0; r < 3; r++)
-            out->s.c[i][r] = (double)xf[4 * r] * in->c[i][0] + (double)xf[4 * r + 1] * in->c[i][1] +
-                             (double)xf[4 * r + 2] * in->c[i][2] + xf[4 * r + 3];
+        rtk_affine_apply(m, in->c[i], out->s.c[i]);
         out->s.r[i] = in->r[i] * scale;
     }
 }
@@ -325,25 +327,20 @@ static void test_hits(void **state)
         rtk_scene s = spheres_scene(dev, &sp, sphere_point);
         int hits = 0;
         for (size_t p = 0; p < 64; p++) {
-            rtk_rayhit8 rh8;
-            rtk_ray8 r8;
-            for (int l = 0; l < 8; l++) {
-                const rtk_ray *r = &rays[8 * p + (size_t)l];
-                const float fl[12] = {r->org_x, r->org_y, r->org_z, r->tnear, r->dir_x, r->dir_y, r->dir_z,
-                                      r->time,  r->tfar,  0,        0,        0};
-                for (int f = 0; f < 12; f++) {
-                    ((float *)&rh8.ray)[8 * f + l] = fl[f];
-                    ((float *)&r8)[8 * f + l] = fl[f];
-                }
-                rh8.ray.mask[l] = r8.mask[l] = r->mask;
-                rh8.ray.id[l] = r8.id[l] = r->id;
-                rh8.ray.flags[l] = r8.flags[l] = r->flags;
-                rh8.hit.geomID[l] = RTK_INVALID_GEOMETRY_ID;
+            _Alignas(64) uint32_t closest[20 * 8], any[12 * 8];
+            for (unsigned l = 0; l < 8; l++) {
+                rtk_rayhit rh = {.ray = rays[8 * p + l]};
+                rh.hit.geomID = RTK_INVALID_GEOMETRY_ID;
+                test_packet_put(closest, 8, l, &rh, 0);
+                test_packet_put(any, 8, l, &rh, 1);
             }
-            assert_int_equal(rtk_intersect8(s, NULL, &rh8), RTK_OK);
-            assert_int_equal(rtk_occluded8(s, NULL, &r8), RTK_OK);
-            for (int l = 0; l < 8; l++) {
-                const rtk_ray *r = &rays[8 * p + (size_t)l];
+            assert_int_equal(test_trace_packet(s, 8, 0, NULL, closest), RTK_OK);
+            assert_int_equal(test_trace_packet(s, 8, 1, NULL, any), RTK_OK);
+            for (unsigned l = 0; l < 8; l++) {
+                const rtk_ray *r = &rays[8 * p + l];
+                rtk_rayhit rh8, r8;
+                test_packet_get(closest, 8, l, &rh8, 0);
+                test_packet_get(any, 8, l, &r8, 1);
                 float t = 0.0f;
                 const int want = nearest_root(&sp, r, &t);
                 rtk_rayhit rh = {.ray = *r};
@@ -353,16 +350,16 @@ static void test_hits(void **state)
                 assert_int_equal(rtk_occluded1(s, &occ), RTK_OK);
                 if (want < 0) {
                     assert_int_equal(rh.hit.geomID, RTK_INVALID_GEOMETRY_ID);
-                    assert_int_equal(rh8.hit.geomID[l], RTK_INVALID_GEOMETRY_ID);
-                    assert_true(occ.tfar == r->tfar && r8.tfar[l] == r->tfar);
+                    assert_int_equal(rh8.hit.geomID, RTK_INVALID_GEOMETRY_ID);
+                    assert_true(occ.tfar == r->tfar && r8.ray.tfar == r->tfar);
                     continue;
                 }
                 hits++;
                 if (rh.ray.tfar != t || rh.hit.primID != (uint32_t)want || rh.hit.geomID != 0)
                     fail_msg("%s: ray %zu: t %.9g prim %u, the reference t %.9g prim %d", names[b], 8 * p + l,
                              (double)rh.ray.tfar, rh.hit.primID, (double)t, want);
-                assert_true(rh8.ray.tfar[l] == t && rh8.hit.primID[l] == (uint32_t)want);
-                assert_true(occ.tfar == -INFINITY && r8.tfar[l] == -INFINITY);
+                assert_true(rh8.ray.tfar == t && rh8.hit.primID == (uint32_t)want);
+                assert_true(occ.tfar == -INFINITY && r8.ray.tfar == -INFINITY);
             }
         }
         assert_true(hits > 8 * 64 / 2);

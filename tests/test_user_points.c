@@ -13,6 +13,7 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "geometry/affine.h"
 #include "geometry/closest_point.h"
 #include "testlib.h"
 #include "user_spheres.h"
@@ -22,13 +23,6 @@ enum { POINTS = 400 };
 /* The floor: two triangles of the square [-3, 3]^2 at z = -2.5. */
 static const float floor_v[] = {-3, -3, -2.5f, 3, -3, -2.5f, 3, 3, -2.5f, -3, 3, -2.5f};
 static const uint32_t floor_idx[] = {0, 1, 2, 0, 2, 3};
-
-/* x = m * p (m row-major 3x4) */
-static void affine(const double *m, const double *p, double *x)
-{
-    for (int r = 0; r < 3; r++)
-        x[r] = m[4 * r] * p[0] + m[4 * r + 1] * p[1] + m[4 * r + 2] * p[2] + m[4 * r + 3];
-}
 
 /* The reference in the scene's space: the spheres through xfm (a rotation,
  * a uniform scale and a move; NULL: as they are), and the floor when asked.
@@ -41,7 +35,7 @@ static double reference(const sphere_set *s, const double *xfm, double scale, in
     for (size_t i = 0; i < SPHERES; i++) {
         double c[3];
         if (xfm)
-            affine(xfm, s->c[i], c);
+            rtk_affine_apply(xfm, s->c[i], c);
         else
             memcpy(c, s->c[i], sizeof c);
         const double d[3] = {q[0] - c[0], q[1] - c[1], q[2] - c[2]};
@@ -99,7 +93,7 @@ static void check_scene(const char *what, rtk_scene s, const sphere_set *sp, con
             /* the normal: unit, along the centre-to-point direction in the scene's space */
             double c[3];
             if (xfm)
-                affine(xfm, sp->c[h->primID], c);
+                rtk_affine_apply(xfm, sp->c[h->primID], c);
             else
                 memcpy(c, sp->c[h->primID], sizeof c);
             const double o[3] = {h->x - c[0], h->y - c[1], h->z - c[2]};
