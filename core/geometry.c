@@ -422,6 +422,12 @@ typedef struct user_frame {
 /* The callback running on this thread, innermost. */
 static _Thread_local user_frame *tls_frame;
 
+/* The query's own filter (rtk_query.filter), or NULL. */
+static rtk_filter_fn query_filter(const rtk_query *q)
+{
+    return q->flags & RTK_QUERY_FLAG_FILTER ? q->filter : NULL;
+}
+
 int rtk_user_offer_hit(const rtk_user_query_args *args, uint32_t lane, const rtk_user_hit *hit)
 {
     static const char fn[] = "rtk_user_offer_hit";
@@ -441,7 +447,8 @@ int rtk_user_offer_hit(const rtk_user_query_args *args, uint32_t lane, const rtk
     if (!(hit->t >= lane_float(f->before, WORD_TNEAR, k, lane) && hit->t <= lane_float(f->before, WORD_TFAR, k, lane)))
         return 0;
     const rtk_query *q = f->q;
-    if ((q->flags & RTK_QUERY_FLAG_FILTER) && q->filter) {
+    const rtk_filter_fn filter = query_filter(q);
+    if (filter) {
         /* (the query filters serve the width-1 kernels only) */
         rtk_ray ray;
         for (uint32_t w = 0; w < RAY_WORDS; w++)
@@ -450,7 +457,7 @@ int rtk_user_offer_hit(const rtk_user_query_args *args, uint32_t lane, const rtk
                            .primID = f->u->prim_id, .geomID = f->u->geom_id, .instID = q->inst_id};
         const rtk_filter_args fa = {.geometry_user = args->geometry_user, .context = q->context, .ray = &ray,
                                     .hit = &h, .t = hit->t};
-        if (!q->filter(&fa))
+        if (!filter(&fa))
             return 0;
     }
     f->taken |= 1u << lane;
@@ -472,7 +479,7 @@ static void user_call(const user_prim *u, const int32_t *active, void *rays, uin
     tls_frame = &f;
     (occluded ? u->occluded : u->intersect)(&f.args);
     tls_frame = f.outer;
-    const int filtered = (q->flags & RTK_QUERY_FLAG_FILTER) && q->filter;
+    const int filtered = query_filter(q) != NULL;
     for (uint32_t i = 0; i < k; i++) {
         if (active[i]) {
             int hit = user_reported(rays, before, k, i, occluded);
