@@ -56,16 +56,22 @@ def _as_array(x, name):
         raise TypeError(f"{name}: expected an array, got {type(x).__name__}") from e
 
 
+def _is_whole(v, least):
+    """Whether v is a whole number (a Python or numpy integer, not a bool)
+    of at least `least`."""
+    return not isinstance(v, bool) and isinstance(v, (int, np.integer)) and v >= least
+
+
 def _nthreads(n):
     """nthreads as Open3D takes it: a whole number, 0 for every core."""
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+    if not _is_whole(n, 0):
         raise ValueError(f"nthreads: expected a whole number >= 0, got {n!r}")
     return int(n)
 
 
 def _nsamples(n):
     """nsamples as Open3D takes it: odd and at least 1."""
-    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1 or n % 2 != 1:
+    if not _is_whole(n, 1) or n % 2 != 1:
         raise ValueError(f"nsamples: expected an odd whole number >= 1, got {n!r}")
     return int(n)
 
@@ -80,7 +86,7 @@ def _last_dim(a, k, name):
 def _pixels(w, h):
     """width_px and height_px: whole numbers >= 0."""
     for v, name in ((w, "width_px"), (h, "height_px")):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+        if not _is_whole(v, 0):
             raise ValueError(f"{name}: expected a whole number >= 0, got {v!r}")
     return int(w), int(h)
 
