@@ -242,11 +242,47 @@ const rtk_task_system *rtk_device_tasks(rtk_device d, rtk_task_system *copy)
     return ts;
 }
 
+/* The calling thread's limit on a batch's threads (rtk_set_batch_threads;
+ * 0: none). */
+static _Thread_local uint32_t batch_threads;
+
+uint32_t rtk_set_batch_threads(uint32_t n)
+{
+    const uint32_t was = batch_threads;
+    batch_threads = n;
+    return was;
+}
+
+/* A batch's pieces, taken in turn by at most as many threads as the limit
+ * allows: each runs run_capped once, and the pieces go to whichever asks
+ * first, as the pool hands out indices. */
+typedef struct capped_for {
+    rtk_task_fn fn;
+    void *data;
+    uint32_t pieces;
+    atomic_uint next;
+} capped_for;
+
+static void run_capped(void *data, uint32_t index)
+{
+    (void)index;
+    capped_for *c = data;
+    for (uint32_t i; (i = atomic_fetch_add_explicit(&c->next, 1, memory_order_relaxed)) < c->pieces;)
+        c->fn(c->data, i);
+}
+
 void rtk_device_for(rtk_device d, uint32_t pieces, rtk_task_fn fn, void *data)
 {
+    const uint32_t limit = batch_threads;
     rtk_task_system copy;
-    const rtk_task_system *ts = pieces > 1 ? rtk_device_tasks(d, &copy) : NULL;
-    if (ts)
+    const rtk_task_system *ts = pieces > 1 && limit != 1 ? rtk_device_tasks(d, &copy) : NULL;
+    if (ts && limit && limit < ts->threads && limit < pieces) {
+        /* limit runners of the pieces, however many threads the pool or
+         * the application's task system has: no more run at once */
+        capped_for c = {.fn = fn, .data = data, .pieces = pieces};
+        atomic_init(&c.next, 0);
+        ts->parallel_for(ts->user, limit, run_capped, &c);
+    } else if (ts)
         ts->parallel_for(ts->user, pieces, fn, data);
     else
         for (uint32_t i = 0; i < pieces; i++)

@@ -513,6 +513,124 @@ static void test_batches(void **state)
     free(all);
 }
 
+/* An application's task system of 4 threads that records the most
+ * indices one call was handed. */
+static uint32_t widest;
+static void widest_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
+{
+    (void)user;
+    __atomic_add_fetch(&task_calls, 1, __ATOMIC_RELAXED);
+    widest = count > widest ? count : widest;
+    for (uint32_t i = count; i-- > 0;)
+        fn(data, i);
+}
+
+/* A new thread's own limit: none, whatever the thread that made it set. */
+static void *limit_thread(void *arg)
+{
+    uint32_t *got = arg;
+    got[0] = rtk_set_batch_threads(3);
+    got[1] = rtk_set_batch_threads(0);
+    return NULL;
+}
+
+/* Hits seen by a filter on a thread other than the caller's. */
+static pthread_t batch_caller;
+static unsigned elsewhere;
+static int count_elsewhere(const rtk_filter_args *a)
+{
+    (void)a;
+    if (!pthread_equal(pthread_self(), batch_caller))
+        __atomic_add_fetch(&elsewhere, 1, __ATOMIC_RELAXED);
+    return 1;
+}
+
+/* rtk_set_batch_threads: a batch of rays and one of points run on at most
+ * the calling thread's limit of threads, whatever the device has (the
+ * application's task system of 4 handed that many indices at most, none
+ * for a limit of 1; rtk's pool of 3 calling no filter on another thread
+ * for a limit of 1), with the same answers; the limit above the device's
+ * threads or 0 leaves the batch as it was; the limit is the thread's own. */
+static void test_batch_threads(void **state)
+{
+    (void)state;
+    enum { N = 6 * 4096, P = 4 * 1024 }; /* 6 pieces of rays, 4 of points */
+    rtk_rayhit *rh = malloc(N * sizeof *rh), *one = malloc(N * sizeof *rh), *all = malloc(N * sizeof *rh);
+    rtk_point_query *pq = malloc(P * sizeof *pq);
+    rtk_point_hit *pone = malloc(P * sizeof *pone), *pall = malloc(P * sizeof *pall);
+    assert_true(rh && one && all && pq && pone && pall);
+    make_rays(rh, N, 21);
+    for (size_t i = 0; i < P; i++)
+        pq[i] = (rtk_point_query){.x = rh[i].ray.org_x, .y = rh[i].ray.org_y, .z = rh[i].ray.org_z,
+                                  .radius = INFINITY};
+    char names[TEST_MAX_BACKENDS][32];
+    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
+    rtk_device dev = test_device_threads(names[nb - 1], 1);
+    const rtk_task_system ts = {.struct_size = sizeof ts, .threads = 4, .parallel_for = widest_for};
+    assert_int_equal(rtk_device_set_task_system(dev, &ts), RTK_OK);
+    rtk_scene s = ball_scene(dev);
+    memcpy(one, rh, N * sizeof *rh);
+    for (size_t i = 0; i < N; i++)
+        assert_int_equal(rtk_intersect1(s, &one[i]), RTK_OK);
+    for (size_t i = 0; i < P; i++)
+        assert_int_equal(rtk_closest_point(s, &pq[i], &pone[i]), RTK_OK);
+    static const uint32_t limits[] = {0, 1, 2, 3, 4, 9, 0};
+    uint32_t was = 0;
+    for (size_t k = 0; k < sizeof limits / sizeof *limits; k++) {
+        const uint32_t limit = limits[k];
+        assert_int_equal(rtk_set_batch_threads(limit), was);
+        was = limit;
+        /* (a limit of 4 or more, or none, is the task system's 4 threads) */
+        const int capped = limit > 0 && limit < 4;
+        task_calls = widest = 0;
+        memcpy(all, rh, N * sizeof *rh);
+        assert_int_equal(rtk_intersect_batch(s, all, N, sizeof *all, NULL), RTK_OK);
+        assert_memory_equal(one, all, N * sizeof *rh);
+        assert_int_equal(task_calls, limit == 1 ? 0 : 1);
+        assert_int_equal(widest, limit == 1 ? 0 : capped ? limit : 6);
+        task_calls = widest = 0;
+        assert_int_equal(rtk_closest_point_batch(s, pq, pall, P), RTK_OK);
+        assert_memory_equal(pone, pall, P * sizeof *pone);
+        assert_int_equal(widest, limit == 1 ? 0 : capped ? limit : 4);
+    }
+    /* the limit is the calling thread's */
+    assert_int_equal(rtk_set_batch_threads(2), 0);
+    uint32_t got[2];
+    pthread_t tid;
+    assert_int_equal(pthread_create(&tid, NULL, limit_thread, got), 0);
+    pthread_join(tid, NULL);
+    assert_int_equal(got[0], 0);
+    assert_int_equal(got[1], 3);
+    assert_int_equal(rtk_set_batch_threads(0), 2);
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+
+    /* rtk's own pool of 3: a limit of 1 keeps every filter call on the
+     * calling thread */
+    dev = test_device_threads(names[nb - 1], 3);
+    s = test_scene_uncommitted(dev, ball.v, ball.nv, ball.idx, ball.nt, 0);
+    rtk_geometry g = rtk_scene_get_geometry(s, 0);
+    assert_int_equal(rtk_geometry_set_intersect_filter(g, count_elsewhere), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    batch_caller = pthread_self();
+    elsewhere = 0;
+    assert_int_equal(rtk_set_batch_threads(1), 0);
+    memcpy(all, rh, N * sizeof *rh);
+    assert_int_equal(rtk_intersect_batch(s, all, N, sizeof *all, NULL), RTK_OK);
+    assert_memory_equal(one, all, N * sizeof *rh);
+    assert_int_equal(elsewhere, 0);
+    assert_int_equal(rtk_set_batch_threads(0), 1);
+    rtk_scene_release(s);
+    rtk_device_release(dev);
+    free(rh);
+    free(one);
+    free(all);
+    free(pq);
+    free(pone);
+    free(pall);
+}
+
 /* Several application threads streaming through one committed scene at
  * once, each its own rays, each checked against the single calls. */
 typedef struct stream_job {
@@ -646,8 +764,9 @@ int main(int argc, char **argv)
         cmocka_unit_test(test_batches),             cmocka_unit_test(test_threads),
         cmocka_unit_test(test_grazing_groups),      cmocka_unit_test(test_one_octant),
         cmocka_unit_test(test_kept_ways),           cmocka_unit_test(test_sun_packets),
+        cmocka_unit_test(test_batch_threads),
     };
     const struct CMUnitTest threads[] = {cmocka_unit_test(test_threads), cmocka_unit_test(test_batches),
-                                         cmocka_unit_test(test_sun_packets)};
+                                         cmocka_unit_test(test_sun_packets), cmocka_unit_test(test_batch_threads)};
     return quick ? cmocka_run_group_tests(threads, setup, teardown) : cmocka_run_group_tests(all, setup, teardown);
 }

@@ -222,6 +222,22 @@ RTK_API rtk_error rtk_device_set_task_system(rtk_device device, const rtk_task_s
 /* The number of threads builds on this device may use. */
 RTK_API uint32_t rtk_device_get_thread_count(rtk_device device);
 
+/* ---- threads of a batch (added after rtk 0.2.0) ----
+ * The batch calls (rtk_intersect_batch, rtk_occluded_batch,
+ * rtk_intersect_arrays, rtk_occluded_arrays, rtk_closest_point_batch,
+ * rtk_count_intersections, rtk_list_intersections, rtk_occupancy) made
+ * from the calling thread run on at most n threads from now on, the
+ * calling thread among them: 1 runs them on the calling thread alone; 0,
+ * the default, on every thread of the device (rtk_device_get_thread_count),
+ * as does a limit above that.  The limit is the calling thread's own, for
+ * every device (as OpenMP's omp_set_num_threads): other threads' calls
+ * keep theirs, so an application that runs batches from several threads
+ * of its own can give each a share of the cores.  It is what Open3D's
+ * per-call nthreads means, and rtk's Python module sets it around each
+ * call.  No answer depends on it; builds are not limited by it.  Returns
+ * the limit it replaces. */
+RTK_API uint32_t rtk_set_batch_threads(uint32_t n);
+
 /* ---- memory monitor (added after rtk 0.2.0) ----
  * A device's memory monitor sees the memory rtk takes for the device's
  * scenes (Embree's rtcSetDeviceMemoryMonitorFunction), and may refuse it:

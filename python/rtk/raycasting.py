@@ -16,6 +16,8 @@ What rtk does differently, on purpose:
   crashing (Open3D 0.16 aborts on a mesh that has one).
 """
 import ctypes
+import functools
+import inspect
 import math
 
 import numpy as np
@@ -69,6 +71,23 @@ def _nthreads(n):
     return int(n)
 
 
+def _batch_threads(method):
+    """method with its nthreads argument (checked as Open3D checks it) as
+    the most threads its batch calls run on: rtk_set_batch_threads, the
+    calling thread's own limit, set for the call and put back after it."""
+    sig = inspect.signature(method)
+
+    @functools.wraps(method)
+    def call(*args, **kw):
+        n = _nthreads(sig.bind(*args, **kw).arguments.get("nthreads", 0))
+        was = N.set_batch_threads(n)
+        try:
+            return method(*args, **kw)
+        finally:
+            N.set_batch_threads(was)
+    return call
+
+
 def _nsamples(n):
     """nsamples as Open3D takes it: odd and at least 1."""
     if not _is_whole(n, 1) or n % 2 != 1:
@@ -114,10 +133,9 @@ class RaycastingScene:
     INVALID_ID = N.INVALID_ID
 
     def __init__(self, nthreads=0, device=None):
-        """nthreads: the threads queries run on (0: every core).  rtk's
-        threads belong to the scene's device, so this is where they are set;
-        the queries' own nthreads argument is accepted, for Open3D's code,
-        and checked as Open3D's is, but changes nothing."""
+        """nthreads: the threads the scene's queries may run on (0: every
+        core).  The queries' own nthreads argument, as Open3D's, limits one
+        call further (0: the scene's); it cannot raise the scene's."""
         dev = ctypes.c_void_p()
         cfg = f"threads={_nthreads(nthreads)}".encode()
         if N.device_new(cfg, ctypes.byref(dev)) != 0:
@@ -240,12 +258,12 @@ class RaycastingScene:
                         row_length=r.shape[-2] if r.ndim >= 3 else 0)
         return r, a, r.shape[:-1]
 
+    @_batch_threads
     def cast_rays(self, rays, nthreads=0):
         """The first hit of each ray (..., 6): origin and direction.  Keys
         t_hit (inf for a miss, in units of the direction's length),
         geometry_ids, primitive_ids (INVALID_ID for a miss), primitive_uvs,
         primitive_normals (unit)."""
-        _nthreads(nthreads)
         r, a, shape = self._ray_arrays(rays, 0.0, math.inf)
         n = int(np.prod(shape, dtype=np.int64))
         t = np.empty(n, np.float32)
@@ -261,9 +279,9 @@ class RaycastingScene:
                 "primitive_uvs": _out(uv.reshape(shape + (2,)), o3),
                 "primitive_normals": _out(ng.reshape(shape + (3,)), o3)}
 
+    @_batch_threads
     def test_occlusions(self, rays, tnear=0.0, tfar=math.inf, nthreads=0):
         """Whether anything lies along each ray within [tnear, tfar]."""
-        _nthreads(nthreads)
         r, a, shape = self._ray_arrays(rays, tnear, tfar)
         n = int(np.prod(shape, dtype=np.int64))
         hit = np.empty(n, np.uint8)
@@ -272,10 +290,10 @@ class RaycastingScene:
         N.check(N.occluded_arrays(self._scene, ctypes.byref(a), n), self._dev, "test_occlusions")
         return _out(hit.view(np.bool_).reshape(shape), _is_o3d(rays))
 
+    @_batch_threads
     def count_intersections(self, rays, nthreads=0):
         """How many times each ray crosses the surface (each crossing once:
         the scene is robust)."""
-        _nthreads(nthreads)
         ray, shape, o3 = self._rays(rays, hits=False)
         counts = self._counts(ray, "count_intersections")
         return _out(counts.astype(np.int32).reshape(shape), o3)
@@ -290,11 +308,11 @@ class RaycastingScene:
                     self._dev, what)
         return counts
 
+    @_batch_threads
     def list_intersections(self, rays, nthreads=0):
         """Every crossing of every ray, sorted by t per ray.  Keys ray_splits
         (ray i's crossings are [ray_splits[i], ray_splits[i + 1])), ray_ids,
         geometry_ids, primitive_ids, primitive_uvs, t_hit."""
-        _nthreads(nthreads)
         ray, shape, o3 = self._rays(rays, hits=False)
         counts = self._counts(ray, "list_intersections")
         splits = np.zeros(len(ray) + 1, dtype=np.uint64)
@@ -330,11 +348,11 @@ class RaycastingScene:
                     "compute_closest_points")
         return res
 
+    @_batch_threads
     def compute_closest_points(self, query_points, nthreads=0):
         """The nearest point of the surface to each point (..., 3).  Keys
         points, geometry_ids, primitive_ids, primitive_uvs,
         primitive_normals (unit); points keep float64 when given it."""
-        _nthreads(nthreads)
         q, shape, dtype, o3 = self._points(query_points)
         res = self._closest(q)
         return {"points": _out(res["p"].astype(dtype).reshape(shape + (3,)), o3),
@@ -344,10 +362,10 @@ class RaycastingScene:
                                       .reshape(shape + (2,)), o3),
                 "primitive_normals": _out(res["n"].astype(np.float32).reshape(shape + (3,)), o3)}
 
+    @_batch_threads
     def compute_distance(self, query_points, nthreads=0):
         """The distance from each point to the surface (float64 for float64
         points)."""
-        _nthreads(nthreads)
         q, shape, dtype, o3 = self._points(query_points)
         return _out(self._closest(q)["distance"].astype(dtype).reshape(shape), o3)
 
@@ -358,22 +376,22 @@ class RaycastingScene:
             N.check(N.occupancy(self._scene, N.ptr(q), len(q), N.ptr(inside)), self._dev, "compute_occupancy")
         return inside
 
+    @_batch_threads
     def compute_occupancy(self, query_points, nthreads=0, nsamples=1):
         """1 for a point inside the closed surface or on it, 0 outside: the
         exact parity of one ray's crossings in the robust scene (nsamples,
         Open3D's vote over rays, is checked as Open3D's, odd, and not
         needed)."""
-        _nthreads(nthreads)
         _nsamples(nsamples)
         q, shape, dtype, o3 = self._points(query_points)
         inside = self._inside(q)
         occ = np.where(inside == 255, np.nan, inside).astype(dtype)
         return _out(occ.reshape(shape), o3)
 
+    @_batch_threads
     def compute_signed_distance(self, query_points, nthreads=0, nsamples=1):
         """The distance to the surface, negative inside (see
         compute_occupancy); 0 on the surface."""
-        _nthreads(nthreads)
         _nsamples(nsamples)
         q, shape, dtype, o3 = self._points(query_points)
         d = self._closest(q)["distance"]

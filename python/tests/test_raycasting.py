@@ -331,6 +331,37 @@ def test_one_ray_and_one_point_keep_their_shape(cube_scene):
     assert s.compute_closest_points(np.array([0.5, 0.25, 5], np.float32))["points"].shape == (3,)
 
 
+def test_nthreads_per_call(cube_scene, monkeypatch):
+    """A query's nthreads is the calling thread's limit on its batch calls
+    (rtk_set_batch_threads) while it runs, put back after it, also when it
+    raises; the answers do not depend on it."""
+    s, v, t = cube_scene
+    rng = np.random.default_rng(7)
+    p = (rng.random((20000, 3)) * 3 - 1.5).astype(np.float32)
+    r = np.concatenate([p, rng.random((20000, 3)).astype(np.float32) - 0.5], axis=1)
+    ref = s.compute_signed_distance(p).numpy(), s.cast_rays(r)["t_hit"].numpy(), s.count_intersections(r).numpy()
+    seen = []
+    real = rtk._native.set_batch_threads
+
+    def spy(n):
+        seen.append(n)
+        return real(n)
+
+    monkeypatch.setattr(rtk._native, "set_batch_threads", spy)
+    for n in (1, 2, 5, 0):
+        seen.clear()
+        got = (s.compute_signed_distance(p, nthreads=n).numpy(), s.cast_rays(r, nthreads=n)["t_hit"].numpy(),
+               s.count_intersections(r, nthreads=n).numpy())
+        for a, b in zip(ref, got):
+            np.testing.assert_array_equal(a, b)
+        assert seen == [n, 0] * 3
+    seen.clear()
+    with pytest.raises(ValueError):
+        s.compute_distance(np.zeros((4, 2), np.float32), nthreads=1)
+    assert seen == [1, 0]
+    assert real(0) == 0
+
+
 def test_query_arguments_checked_as_open3d(cube_scene):
     s, v, t = cube_scene
     p = np.array([[0.5, 0.25, -0.75]], np.float32)
