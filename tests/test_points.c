@@ -673,10 +673,12 @@ static void test_batch(void **state)
     (void)state;
     rtk_device dev = test_device_threads("avx2", 2);
     rtk_scene s = test_scene(dev, ball.v, ball.nv, ball.idx, ball.nt);
-    const size_t n = 5000;
+    /* (40 pieces of 1,024 on the two threads, every answer written) */
+    const size_t n = 40000;
     rtk_point_query *q = calloc(n, sizeof *q);
     rtk_point_hit *h = malloc(n * sizeof *h), one;
     assert_true(q && h);
+    memset(h, 0xa5, n * sizeof *h); /* (an answer not written differs) */
     rng r = {77};
     /* random points, and (walked along the batch's curve next to each
      * other, each answer a hint for the next) points on vertices and edges,
