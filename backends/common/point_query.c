@@ -7,16 +7,16 @@
  * (4 or 8 lanes, the node's width), of the children within the best
  * distance so far the nearest is entered and the others pushed with their
  * distances (in slot order), and a popped entry is dropped when the best
- * distance has fallen below it since.  At a leaf the four triangles'
- * boxes are tested in one SIMD step, the survivors' distances bounded
- * from below in float (tri_lower.h), and they are measured in double
- * (geometry/closest_point.h, from the vertices the layout keeps), nearest
- * bound first, while that bound is within the best distance.  Once that
- * distance is finite, the children's boxes along their own axes
- * (block_bounds.h, node_obb) are tested beside their axis-aligned ones,
- * in one more SIMD step (a tree of one leaf has its blocks' boxes tested
- * before their triangles instead, once the distance is a few blocks'
- * sizes).
+ * distance has fallen below it since.  At a leaf block the four
+ * triangles' distances are bounded from below in float in one SIMD step
+ * (tri_lower.h; the indexed layouts' vertices gathered first), and they
+ * are measured in double (geometry/closest_point.h, from the vertices the
+ * layout keeps), nearest bound first, while that bound is within the best
+ * distance.  Once that distance is finite, the children's boxes along
+ * their own axes (block_bounds.h, node_obb) are tested beside their
+ * axis-aligned ones, in one more SIMD step (a tree of one leaf has its
+ * blocks' boxes tested before their triangles instead, once the distance
+ * is a few blocks' sizes).
  *
  * Boxes are tested in float against the point rounded to float: a box is
  * left out only when even its distance lowered by the rounding (the
@@ -153,13 +153,6 @@ static void consider(pq_level *l, const double *a0, const double *b0, const doub
     keep(l, t.p, t.d2, n, len, u, v, prim, geom);
 }
 
-static inline void load3(double *d, const float *f)
-{
-    d[0] = f[0];
-    d[1] = f[1];
-    d[2] = f[2];
-}
-
 enum leaf_kind { LEAF_TRI4, LEAF_TRI4V, LEAF_TRI4I, LEAF_MB };
 
 /* The motion-blur segment at the query's time (traverse_motion.h:
@@ -168,6 +161,35 @@ typedef struct mb_time {
     float f;
     vfloat4 f4;
 } mb_time;
+
+/* A block's four float bounds (tri_lower.h) from its vertices a and
+ * edges e1, e2 (per axis, four lanes each, unused lanes NaN): into lo, and
+ * the mask of the lanes within the best distance (never an unused one). */
+static inline unsigned block_lower(const pq_level *l, const vfloat4 *a, const vfloat4 *e1, const vfloat4 *e2, float *lo)
+{
+    const vfloat4 lo4 = rtk_tri4_lower(a[0], a[1], a[2], e1[0], e1[1], e1[2], e2[0], e2[1], e2[2], l->pf, l->dp);
+    vf4_storeu(lo, lo4);
+    return (unsigned)vb4_mask(vb4_and(vf4_le(vf4_mul(lo4, lo4), vf4_set1(l->bound)), vf4_eq(a[0], a[0])));
+}
+
+/* The next lane of a block to measure: of the lanes left in *live, the one
+ * of least float bound (the lowest of equals), taken out; -1 once that
+ * bound is beyond the best distance (measuring the nearest first lowers it
+ * soonest). */
+static inline int nearest_live(unsigned *live, const float *lo, const pq_level *l)
+{
+    if (!*live)
+        return -1;
+    int k = __builtin_ctz(*live);
+    for (unsigned m = *live & (*live - 1); m; m &= m - 1)
+        k = lo[__builtin_ctz(m)] < lo[k] ? __builtin_ctz(m) : k;
+    *live &= ~(1u << k);
+    if (!(lo[k] * lo[k] <= l->bound)) {
+        *live = 0;
+        return -1;
+    }
+    return k;
+}
 
 static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind kind, const mb_time *mt)
 {
@@ -202,23 +224,9 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
                 e1[ax] = kind == LEAF_TRI4V ? vf4_sub(y1, x0) : y1;
                 e2[ax] = kind == LEAF_TRI4V ? vf4_sub(y2, x0) : y2;
             }
-            const vfloat4 lo4 =
-                rtk_tri4_lower(a[0], a[1], a[2], e1[0], e1[1], e1[2], e2[0], e2[1], e2[2], l->pf, l->dp);
-            unsigned live = (unsigned)vb4_mask(
-                vb4_and(vf4_le(vf4_mul(lo4, lo4), vf4_set1(bound)), vf4_eq(a[0], a[0])));
-            if (!live)
-                continue;
-            /* nearest first by their float bound, each measured only while
-             * that is within the best distance */
             float lo[4];
-            vf4_storeu(lo, lo4);
-            while (live) {
-                int k = __builtin_ctz(live);
-                for (unsigned m = live & (live - 1); m; m &= m - 1)
-                    k = lo[__builtin_ctz(m)] < lo[k] ? __builtin_ctz(m) : k;
-                live &= ~(1u << k);
-                if (!(lo[k] * lo[k] <= l->bound))
-                    break;
+            unsigned live = block_lower(l, a, e1, e2, lo);
+            for (int k; (k = nearest_live(&live, lo, l)) >= 0;) {
                 if (t->prim[k] == RTK_BVH4_EMPTY)
                     continue;
                 if (kind == LEAF_TRI4V) {
@@ -234,13 +242,19 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
                 consider(l, v0, v1, v2, t->geom[k], t->prim[k], attrs);
             }
         } else {
+            /* the four triangles' vertices gathered through their indices
+             * (lane by lane: vertex, axis, lane), then their float bounds
+             * and the nearest first, as above */
             const rtk_triangle4i *t = &a->trisi[i];
+            _Alignas(16) float x[3][3][4];
+            uint32_t geom[4];
             for (int k = 0; k < 4; k++) {
-                if (t->prim[k] == RTK_BVH4_EMPTY)
+                if (t->prim[k] == RTK_BVH4_EMPTY) {
+                    for (int j = 0; j < 3; j++)
+                        x[j][0][k] = x[j][1][k] = x[j][2][k] = NAN;
                     continue;
+                }
                 const uint32_t idx[3] = {t->v0[k], t->v1[k], t->v2[k]};
-                double *v[3] = {v0, v1, v2};
-                uint32_t geom;
                 if (kind == LEAF_MB) {
                     /* interpolated as the traversal does: (1 - f) a + f b,
                      * not fused, in float */
@@ -250,18 +264,33 @@ static void leaf(const rtk_accel *a, uint32_t ref, pq_level *l, enum leaf_kind k
                     const vfloat4 one_f = vf4_set1(1.0f - mt->f);
                     for (int j = 0; j < 3; j++) {
                         const float *q = base + step * idx[j];
-                        float x[4];
-                        vf4_storeu(x, vf4_add(vf4_mul(mt->f4, vf4_loadu(q + 3)), vf4_mul(one_f, vf4_loadu(q))));
-                        load3(v[j], x);
+                        float at[4];
+                        vf4_storeu(at, vf4_add(vf4_mul(mt->f4, vf4_loadu(q + 3)), vf4_mul(one_f, vf4_loadu(q))));
+                        x[j][0][k] = at[0], x[j][1][k] = at[1], x[j][2][k] = at[2];
                     }
-                    geom = g->geom_id;
+                    geom[k] = g->geom_id;
                 } else {
                     const rtk_leaf_geometry *g = &a->geoms[t->geom[k]];
-                    for (int j = 0; j < 3; j++)
-                        load3(v[j], (const float *)(g->vertices + (size_t)idx[j] * g->stride));
-                    geom = g->geom_id;
+                    for (int j = 0; j < 3; j++) {
+                        const float *q = (const float *)(g->vertices + (size_t)idx[j] * g->stride);
+                        x[j][0][k] = q[0], x[j][1][k] = q[1], x[j][2][k] = q[2];
+                    }
+                    geom[k] = g->geom_id;
                 }
-                consider(l, v0, v1, v2, geom, t->prim[k], attrs);
+            }
+            vfloat4 va[3], e1[3], e2[3];
+            for (int ax = 0; ax < 3; ax++) {
+                va[ax] = vf4_load(x[0][ax]);
+                e1[ax] = vf4_sub(vf4_load(x[1][ax]), va[ax]);
+                e2[ax] = vf4_sub(vf4_load(x[2][ax]), va[ax]);
+            }
+            float lo[4];
+            unsigned live = block_lower(l, va, e1, e2, lo);
+            for (int k; (k = nearest_live(&live, lo, l)) >= 0;) {
+                double *v[3] = {v0, v1, v2};
+                for (int j = 0; j < 3; j++)
+                    v[j][0] = x[j][0][k], v[j][1] = x[j][1][k], v[j][2] = x[j][2][k];
+                consider(l, v0, v1, v2, geom[k], t->prim[k], attrs);
             }
         }
     }
