@@ -182,6 +182,19 @@ static int reject_odd_prims(const rtk_filter_args *a)
     return a->hit->primID % 2 == 0;
 }
 
+/* The ball with fn as its triangles' intersect and occluded filter,
+ * committed. */
+static rtk_scene filtered_ball(rtk_device dev, rtk_filter_fn fn)
+{
+    rtk_scene s = test_scene_uncommitted(dev, ball.v, ball.nv, ball.idx, ball.nt, 0);
+    rtk_geometry g = rtk_scene_get_geometry(s, 0);
+    assert_int_equal(rtk_geometry_set_intersect_filter(g, fn), RTK_OK);
+    assert_int_equal(rtk_geometry_set_occluded_filter(g, fn), RTK_OK);
+    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
+    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    return s;
+}
+
 /* Filters: one that rejects every hit (every ray misses), and one that
  * rejects every odd triangle and counts its calls through the query's
  * context: the same answers, and as many calls, as the single calls. */
@@ -197,12 +210,7 @@ static void test_filters(void **state)
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);
         for (int f = 0; f < 2; f++) {
-            rtk_scene s = test_scene_uncommitted(dev, ball.v, ball.nv, ball.idx, ball.nt, 0);
-            rtk_geometry g = rtk_scene_get_geometry(s, 0);
-            assert_int_equal(rtk_geometry_set_intersect_filter(g, f ? reject_odd_prims : reject_all), RTK_OK);
-            assert_int_equal(rtk_geometry_set_occluded_filter(g, f ? reject_odd_prims : reject_all), RTK_OK);
-            assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-            assert_int_equal(rtk_scene_commit(s), RTK_OK);
+            rtk_scene s = filtered_ball(dev, f ? reject_odd_prims : reject_all);
             int calls_one = 0, calls_many = 0;
             rtk_query_context c1 = {&calls_one}, cm = {&calls_many};
             for (int occluded = 0; occluded < 2; occluded++) {
@@ -467,12 +475,15 @@ static void test_kept_ways(void **state)
     free(scattered);
 }
 
-/* An application's task system: a batch runs its pieces through it. */
+/* An application's task system: a batch runs its pieces through it; it
+ * counts its calls and records the most indices one call was handed. */
 static unsigned task_calls;
+static uint32_t widest;
 static void serial_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
 {
     (void)user;
     __atomic_add_fetch(&task_calls, 1, __ATOMIC_RELAXED);
+    widest = count > widest ? count : widest;
     for (uint32_t i = count; i-- > 0;) /* backwards: the pieces' order must not matter */
         fn(data, i);
 }
@@ -511,18 +522,6 @@ static void test_batches(void **state)
     free(rh);
     free(one);
     free(all);
-}
-
-/* An application's task system of 4 threads that records the most
- * indices one call was handed. */
-static uint32_t widest;
-static void widest_for(void *user, uint32_t count, rtk_task_fn fn, void *data)
-{
-    (void)user;
-    __atomic_add_fetch(&task_calls, 1, __ATOMIC_RELAXED);
-    widest = count > widest ? count : widest;
-    for (uint32_t i = count; i-- > 0;)
-        fn(data, i);
 }
 
 /* A new thread's own limit: none, whatever the thread that made it set. */
@@ -566,7 +565,7 @@ static void test_batch_threads(void **state)
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     rtk_device dev = test_device_threads(names[nb - 1], 1);
-    const rtk_task_system ts = {.struct_size = sizeof ts, .threads = 4, .parallel_for = widest_for};
+    const rtk_task_system ts = {.struct_size = sizeof ts, .threads = 4, .parallel_for = serial_for};
     assert_int_equal(rtk_device_set_task_system(dev, &ts), RTK_OK);
     rtk_scene s = ball_scene(dev);
     memcpy(one, rh, N * sizeof *rh);
@@ -608,11 +607,7 @@ static void test_batch_threads(void **state)
     /* rtk's own pool of 3: a limit of 1 keeps every filter call on the
      * calling thread */
     dev = test_device_threads(names[nb - 1], 3);
-    s = test_scene_uncommitted(dev, ball.v, ball.nv, ball.idx, ball.nt, 0);
-    rtk_geometry g = rtk_scene_get_geometry(s, 0);
-    assert_int_equal(rtk_geometry_set_intersect_filter(g, count_elsewhere), RTK_OK);
-    assert_int_equal(rtk_geometry_commit(g), RTK_OK);
-    assert_int_equal(rtk_scene_commit(s), RTK_OK);
+    s = filtered_ball(dev, count_elsewhere);
     batch_caller = pthread_self();
     elsewhere = 0;
     assert_int_equal(rtk_set_batch_threads(1), 0);
