@@ -72,11 +72,11 @@ static void no_result(rtk_point_hit *r, double distance)
 /* One checked query into *r, given a point of the surface at the query's
  * time (hint, or NULL): its distance, raised by far more than its
  * rounding, bounds the answer's from above, and the walk starts with that
- * bound instead of the radius.  The answer is the same either way: the
- * walk visits the boxes it keeps in the same order, and no box holding a
- * triangle at the least distance is left out with either bound (so the
- * last such triangle visited is the same one).  Should the raised bound
- * still fall short, the query runs again from the radius. */
+ * bound instead of the radius.  The answer is the same either way: no
+ * box holding a triangle at the least distance is left out with either
+ * bound, and of those triangles the kernel keeps the one of least ids
+ * whatever order it meets them in.  Should the raised bound still fall
+ * short, the query runs again from the radius. */
 static void closest_hinted(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r, const double *hint)
 {
     no_result(r, INFINITY);

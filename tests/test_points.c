@@ -51,7 +51,16 @@ typedef struct tri_d {
     uint32_t geom, prim, inst;
 } tri_d;
 
-/* The nearest of n triangles to q (those with area), by brute force. */
+/* Whether a's ids come before b's: the tie rule of rtk_point_hit (rtk.h). */
+static int ids_before(const tri_d *a, const tri_d *b)
+{
+    if (a->inst != b->inst)
+        return a->inst < b->inst;
+    return a->geom != b->geom ? a->geom < b->geom : a->prim < b->prim;
+}
+
+/* The nearest of n triangles to q (those with area), by brute force; of
+ * those at exactly the same distance, the least ids. */
 static double brute(const tri_d *t, size_t n, const double *q, size_t *which)
 {
     double best = INFINITY;
@@ -65,7 +74,7 @@ static double brute(const tri_d *t, size_t n, const double *q, size_t *which)
             continue;
         rtk_tri_closest r;
         rtk_closest_point_triangle(&r, q, a, b, c);
-        if (r.d2 < best) {
+        if (r.d2 < best || (r.d2 == best && ids_before(&t[i], &t[*which]))) {
             best = r.d2;
             *which = i;
         }
@@ -185,6 +194,11 @@ static void check_one(rtk_scene s, const tri_d *t, size_t nt, const double *q, d
                  h.distance, want, h.primID, t[which].prim);
     const double d = sqrt((h.x - q[0]) * (h.x - q[0]) + (h.y - q[1]) * (h.y - q[1]) + (h.z - q[2]) * (h.z - q[2]));
     assert_true(fabs(d - h.distance) <= 1e-9 * (size + h.distance));
+    /* of triangles at the same distance, the least ids (where the layout
+     * keeps the vertices, the reference measures what the walk does) */
+    if (exact && !(h.primID == t[which].prim && h.geomID == t[which].geom && h.instID == t[which].inst))
+        fail_msg("%s: point (%.17g %.17g %.17g): prim %u of the triangles at distance %.17g, the least is %u", where,
+                 q[0], q[1], q[2], h.primID, h.distance, t[which].prim);
     /* the reported triangle is at that distance too */
     size_t k = 0;
     while (k < nt && !(t[k].prim == h.primID && t[k].geom == h.geomID && t[k].inst == h.instID))
@@ -236,23 +250,54 @@ static void check_points(rtk_scene s, const tri_d *t, size_t nt, int exact, doub
     }
 }
 
+/* Points on the ball's vertices and edges (where triangles tie) and
+ * around it: every field of each answer, for a scene of the given flags. */
+#define SAME_POINTS 600
+static void same_points(rtk_scene s, rtk_point_hit *h)
+{
+    rng r = {41};
+    for (int i = 0; i < SAME_POINTS; i++) {
+        const uint32_t *t = &ball.idx[3 * (rng_u32(&r) % ball.nt)];
+        const float *a = &ball.v[3 * t[0]], *b = &ball.v[3 * t[1]];
+        double q[3];
+        for (int k = 0; k < 3; k++)
+            q[k] = i % 3 == 0 ? a[k] : i % 3 == 1 ? 0.5 * a[k] + 0.5 * b[k] : rng_float(&r) * 6 - 3;
+        memset(&h[i], 0, sizeof h[i]);
+        assert_int_equal(rtk_closest_point(s, &(rtk_point_query){.x = q[0], .y = q[1], .z = q[2], .radius = INFINITY},
+                                           &h[i]),
+                         RTK_OK);
+    }
+}
+
 static void test_mesh_layouts(void **state)
 {
     (void)state;
     char names[8][32];
     const size_t nb = test_backend_names(names, 8);
     tri_d *t = mesh_tris(ball.v, ball.idx, ball.nt);
+    const size_t nl = sizeof layouts / sizeof *layouts;
+    rtk_point_hit(*first)[SAME_POINTS] = calloc(nl, sizeof *first), *h = calloc(SAME_POINTS, sizeof *h);
+    assert_true(first && h);
     for (size_t b = 0; b < nb; b++) {
         rtk_device dev = test_device(names[b]);
-        for (size_t l = 0; l < sizeof layouts / sizeof *layouts; l++) {
+        for (size_t l = 0; l < nl; l++) {
             rtk_scene s = test_scene_flags(dev, ball.v, ball.nv, ball.idx, ball.nt, layouts[l]);
             snprintf(where_buf, sizeof where_buf, "%s, flags %u", names[b], layouts[l]);
             where = where_buf;
             check_points(s, t, ball.nt, exact_vertices(layouts[l]), 1.0, 11 + l, test_sanitized() ? 120 : 600);
+            /* every backend the first's answers, to the bit, ties included
+             * (each layout's backends keep the same floats) */
+            same_points(s, b ? h : first[l]);
+            for (int i = 0; b && i < SAME_POINTS; i++)
+                if (memcmp(&h[i], &first[l][i], sizeof h[i]))
+                    fail_msg("%s: point %d: prim %u at %.17g, %s gave prim %u at %.17g", where, i, h[i].primID,
+                             h[i].distance, names[0], first[l][i].primID, first[l][i].distance);
             rtk_scene_release(s);
         }
         rtk_device_release(dev);
     }
+    free(first);
+    free(h);
     free(t);
 }
 

@@ -99,13 +99,33 @@ static inline float level_bound(const pq_level *l)
 #define GAP_(V, lo, hi, p)                                                                                             \
     V##_max(V##_sub(V##_mul(V##_max(V##_sub(lo, p), V##_sub(p, hi)), V##_set1(1.0f - 0x1p-22f)), dp), zero)
 
+/* Whether a candidate at exactly the best distance so far takes the
+ * place of the answer kept: of candidates at the same distance the least
+ * instID (the outermost instance entered), geomID and prim (a triangle's
+ * index in its geometry, so a quad's first half before its second: the
+ * state's reserved word keeps the answer's), whatever order the walk
+ * meets them in.  A distance that is only the radius or a batch's hint
+ * has no answer yet. */
+static inline int tie_takes(const pq_level *l, uint32_t geom, uint32_t prim)
+{
+    const rtk_point_hit *r = l->st->result;
+    if (r->geomID == RTK_INVALID_GEOMETRY_ID)
+        return 1;
+    if (l->inst_id != r->instID)
+        return l->inst_id < r->instID;
+    if (geom != r->geomID)
+        return geom < r->geomID;
+    return prim < l->st->reserved;
+}
+
 /* The answer so far: point p of the surface (in the scene's space) at
  * squared distance d2, with normal n of length len (0: none), u, v and
- * the ids. */
+ * the ids (key: the prim tie_takes compares, before a quad's is mapped). */
 static void keep(pq_level *l, const double p[3], double d2, const double n[3], double len, float u, float v,
-                 uint32_t prim, uint32_t geom)
+                 uint32_t prim, uint32_t geom, uint32_t key)
 {
     l->st->best2 = d2;
+    l->st->reserved = key;
     l->bound = level_bound(l);
     rtk_point_hit *r = l->st->result;
     r->x = p[0];
@@ -139,7 +159,7 @@ static void consider(pq_level *l, const double *a0, const double *b0, const doub
     rtk_point_state *st = l->st;
     rtk_tri_closest t;
     rtk_closest_point_triangle(&t, st->p, va, vb, vc);
-    if (!(t.d2 <= st->best2))
+    if (!(t.d2 <= st->best2) || (t.d2 == st->best2 && !tie_takes(l, geom, prim)))
         return;
     const double e1[3] = {vb[0] - va[0], vb[1] - va[1], vb[2] - va[2]};
     const double e2[3] = {vc[0] - va[0], vc[1] - va[1], vc[2] - va[2]};
@@ -148,9 +168,10 @@ static void consider(pq_level *l, const double *a0, const double *b0, const doub
     if (!(len > 0.0))
         return; /* no area: rays never hit it, and it is no surface here either */
     float u = (float)t.u, v = (float)t.v;
+    uint32_t id = prim;
     if (attrs)
-        rtk_quad_hit(attrs, geom, &prim, &u, &v);
-    keep(l, t.p, t.d2, n, len, u, v, prim, geom);
+        rtk_quad_hit(attrs, geom, &id, &u, &v);
+    keep(l, t.p, t.d2, n, len, u, v, id, geom, prim);
 }
 
 enum leaf_kind { LEAF_TRI4, LEAF_TRI4V, LEAF_TRI4I, LEAF_MB };
@@ -513,10 +534,6 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
                 /* (the nearest by its box, whether left out below or not) */
                 if (near < 0 || d[c] < d[near])
                     near = c;
-                /* Oriented boxes only leave children out: what is kept
-                 * goes in an order that depends on the axis-aligned boxes
-                 * alone, whatever the bound, so that a batch's hinted walk
-                 * meets tying triangles in the single call's order */
                 if (!(obb_in >> c & 1))
                     continue;
                 /* its node or its leaf's first block asked for now, as the
@@ -529,13 +546,9 @@ static inline __attribute__((always_inline)) void walk(const rtk_accel *a, const
              * pushed unsorted, the lowest slot on top: sorting them all
              * took more than the order saved (rtktool bench --only points,
              * avx2, either build first: batches of near points +7-10%,
-             * box points +1.5-8%).  The order is the nearest, then slot
-             * order, over the children within the bound, whatever an
-             * oriented box left out: two walks with different bounds (a
-             * batch's hinted one, the single call) meet the children they
-             * both keep in the same order, and so tying triangles too
-             * (a child holding one lies within both bounds, and so does
-             * the nearest then). */
+             * box points +1.5-8%).  (The order decides no answer: of
+             * triangles at the same distance tie_takes keeps the least
+             * ids, whichever comes first.) */
             if (kept) {
                 const int first = kept >> near & 1 ? near : __builtin_ctz(kept);
                 for (kept &= ~(1u << first); kept; kept &= ~(1u << (31 - __builtin_clz(kept)))) {
@@ -653,7 +666,7 @@ static void user_leaf(const rtk_build_object *o, pq_level *l)
         rtk_affine_apply(l->o2w, u.closest, c);
     const double d[3] = {c[0] - st->p[0], c[1] - st->p[1], c[2] - st->p[2]};
     const double d2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2];
-    if (!(d2 <= st->best2))
+    if (!(d2 <= st->best2) || (d2 == st->best2 && !tie_takes(l, u.geom_id, u.prim_id)))
         return;
     /* (only for a point kept) a normal goes by the inverse's transpose */
     double n[3] = {u.normal[0], u.normal[1], u.normal[2]}, minv[12];
@@ -664,7 +677,7 @@ static void user_leaf(const rtk_build_object *o, pq_level *l)
         else
             n[0] = n[1] = n[2] = 0.0;
     }
-    keep(l, c, d2, n, sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), u.u, u.v, u.prim_id, u.geom_id);
+    keep(l, c, d2, n, sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]), u.u, u.v, u.prim_id, u.geom_id, u.prim_id);
 }
 
 static void objects_leaf(const rtk_accel *a, uint32_t ref, pq_level *l)

@@ -1076,8 +1076,16 @@ RTK_API rtk_error rtk_occluded_arrays(rtk_scene scene, const rtk_ray_arrays *arr
  * reported.  The default layouts keep a vertex and two edges per triangle
  * (v1 = v0 + (v1 - v0)), which can move a vertex by half an ulp of an
  * edge; robust scenes (RTK_SCENE_FLAG_ROBUST) and compact ones keep or
- * read the vertices themselves.  Two triangles at the same distance (a
- * point nearest to a shared edge or vertex): either may be reported.  */
+ * read the vertices themselves.
+ *
+ * Ties: of triangles at exactly the same distance (a point nearest to a
+ * vertex they share, say), the one with the least instID is reported,
+ * then the least geomID, then the least primID (a scene's own geometry,
+ * instID RTK_INVALID_GEOMETRY_ID, counts as the greatest instID; of a
+ * quad's two halves, the first).  So every backend, thread count, batch
+ * and single call gives the same answer for a scene of the same layout.
+ * (Only the same ids reached through two paths of nested instances, with
+ * one outermost instance, are told apart by the order of the walk.)  */
 typedef struct rtk_point_query {
     double x, y, z;  /* the query point: finite, each coordinate within +-2^64 */
     double radius;   /* only surface within this distance counts: >= 0, INFINITY for all of it */

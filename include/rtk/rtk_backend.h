@@ -343,18 +343,21 @@ RTK_BACKEND_FN(void, rtk_occluded_stream, (const rtk_accel *accel, rtk_ray *cons
  * RTK_QUERY_CLOSEST_POINT, width 1, an older one passes over them, and a
  * scene whose layout has none answers RTK_ERROR_UNSUPPORTED).  The core
  * fills the state: the query point and time (checked as rtk.h says),
- * best2 the squared radius, the result's ids RTK_INVALID_GEOMETRY_ID.  The
- * kernel looks for the triangle nearest to the point, in the same space
- * (through the objects of a top level, in the space of the accel it is
- * handed), and wherever it finds one nearer than sqrt(best2) it lowers
- * best2 to its squared distance and writes the result: the point, u, v,
- * the unit normal, primID, geomID and instID (the outermost instance
- * entered, or query->inst_id); distance is left for the core to set. */
+ * best2 the squared radius, the result's ids RTK_INVALID_GEOMETRY_ID,
+ * reserved 0.  The kernel looks for the triangle nearest to the point, in
+ * the same space (through the objects of a top level, in the space of the
+ * accel it is handed), and wherever it finds one nearer than sqrt(best2)
+ * it lowers best2 to its squared distance and writes the result: the
+ * point, u, v, the unit normal, primID, geomID and instID (the outermost
+ * instance entered, or query->inst_id); distance is left for the core to
+ * set.  Of triangles at exactly the same distance it keeps the least
+ * instID, then geomID, then primID (rtk.h, rtk_point_hit), whatever order
+ * it meets them in. */
 typedef struct rtk_point_state {
     double p[3];
     double best2;
     float time;
-    uint32_t reserved;
+    uint32_t reserved; /* the kernel's own between its calls for one query (the core sets it 0) */
     rtk_point_hit *result;
 } rtk_point_state;
 RTK_BACKEND_FN(void, rtk_closest_point_kernel, (const rtk_accel *accel, rtk_point_state *state,
