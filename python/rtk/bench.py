@@ -187,16 +187,18 @@ def main(argv=None):
               f"{w}x{h} camera rays, {n:,} points near the surface (1% of the diagonal) and {n:,} in the box")
         print(f"  {'query':28} {'threads':>7} {'rtk M/s':>9} {'Open3D M/s':>11} {'ratio':>7}  agreement")
         embree = EmbreeScene.create(v, t)
+        # one scene each, as an application keeps it, and each call's
+        # threads by its nthreads argument (Open3D's and rtk's alike)
+        rs = RaycastingScene()
+        rs.add_triangles(v, t)
+        os_ = None
+        if o3d:
+            os_ = o3d.t.geometry.RaycastingScene()
+            os_.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(t.astype(np.uint32)))
+        rs.cast_rays(rays[:1])  # the build, outside the timings
+        if os_:
+            os_.cast_rays(o3d.core.Tensor(rays[:1]))
         for k in threads:
-            rs = RaycastingScene(nthreads=k)
-            rs.add_triangles(v, t)
-            os_ = None
-            if o3d:
-                os_ = o3d.t.geometry.RaycastingScene()
-                os_.add_triangles(o3d.core.Tensor(v), o3d.core.Tensor(t.astype(np.uint32)))
-            rs.cast_rays(rays[:1])  # the build, outside the timings
-            if os_:
-                os_.cast_rays(o3d.core.Tensor(rays[:1]), nthreads=k)
             jobs = [("cast_rays, camera", "cast_rays", rays), ("count_intersections, camera", "count_intersections",
                                                                  rays),
                     ("compute_distance, near", "compute_distance", near),
@@ -208,7 +210,7 @@ def main(argv=None):
             # ran next on a machine of few cores
             mine, c_lines = [], []
             for label, method, arg in jobs:
-                tr, ra = best_of(lambda: getattr(rs, method)(arg), a.repeat)
+                tr, ra = best_of(lambda: getattr(rs, method)(arg, nthreads=k), a.repeat)
                 mine.append((tr, ra["t_hit"].numpy() if isinstance(ra, dict) else ra.numpy()))
                 if method == "cast_rays":
                     c_lines = c_rows(rs, embree, arg, arg.size // 6, tr, k, a.repeat)
@@ -248,8 +250,15 @@ def c_rows(rs, embree, rays, count, t_python, k, repeat):
             best = min(best, time.perf_counter() - t0)
         return best
 
-    tc = timed(lambda r: N.check(N.intersect_batch(rs._scene, N.ptr(r), len(r), N.RAYHIT.itemsize, None), rs._dev,
-                                 "rtk_intersect_batch"))
+    def batch(r):
+        was = N.set_batch_threads(k)  # (cast_rays's nthreads)
+        try:
+            N.check(N.intersect_batch(rs._scene, N.ptr(r), len(r), N.RAYHIT.itemsize, None), rs._dev,
+                    "rtk_intersect_batch")
+        finally:
+            N.set_batch_threads(was)
+
+    tc = timed(batch)
     lines = [f"  {'  C: rtk_intersect_batch':28} {k:7d} {count / tc * 1e-6:9.3f} {'':>11} {'':>7}  "
              f"cast_rays from Python runs at {tc / t_python:.3f}x of it"]
     if embree:
