@@ -352,7 +352,10 @@ class RaycastingScene:
     def compute_closest_points(self, query_points, nthreads=0):
         """The nearest point of the surface to each point (..., 3).  Keys
         points, geometry_ids, primitive_ids, primitive_uvs,
-        primitive_normals (unit); points keep float64 when given it."""
+        primitive_normals (unit); points keep float64 when given it.  Of
+        triangles at exactly the same distance (a point nearest to a
+        vertex they share), the least geometry id, then triangle index, is
+        reported, on every machine and thread count."""
         q, shape, dtype, o3 = self._points(query_points)
         res = self._closest(q)
         return {"points": _out(res["p"].astype(dtype).reshape(shape + (3,)), o3),

@@ -229,6 +229,25 @@ def test_closest_points_vs_brute_force():
     assert np.all((sd[clear] < 0) == (r[clear] < 1))
 
 
+def test_closest_points_ties_report_the_least_triangle(cube_scene):
+    """Points on the cube's vertices, and beyond its corners (nearest to a
+    corner), tie every triangle around the vertex: the least index is
+    reported (rtk.h), whatever backend or order of the walk."""
+    s, v, t = cube_scene
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])],
+                       np.float32)
+    outward = np.sign(corners - 0.5 * (lo + hi)) * 0.125
+    q = np.concatenate([v, corners + outward.astype(np.float32)])
+    near = np.concatenate([np.arange(len(v)), [np.flatnonzero((v == c).all(axis=1))[0] for c in corners]])
+    want = np.array([np.flatnonzero((t == i).any(axis=1)).min() for i in near])
+    got = s.compute_closest_points(q)["primitive_ids"].numpy()
+    assert np.array_equal(got, want)
+    # one point at a time, and a batch in another order: the same
+    one = np.array([s.compute_closest_points(p[None])["primitive_ids"].numpy()[0] for p in q[::-1]])
+    assert np.array_equal(one[::-1], want)
+
+
 def test_float64_kept():
     s = rtk.RaycastingScene()
     s.add_triangles(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64), np.array([[0, 1, 2]]))
