@@ -489,8 +489,10 @@ static rtk_geometry add_instance(rtk_device dev, rtk_scene outer, rtk_scene inne
     return g;
 }
 
-/* Three instances of the ball (one stretched 3x along a rotated axis and
- * sheared, one shrunk, one plain), and an instance of that scene (nested):
+/* Four instances of the ball (one stretched 3x along a rotated axis and
+ * sheared, one shrunk, one plain, one turned about a tilted axis and grown
+ * 1.3x: a similarity, whose scale the walk bounds tightly), and an
+ * instance of that scene (nested):
  * distances in the scene's space against the ball's triangles placed
  * explicitly, instID the outermost instance's. */
 static void test_instances(void **state)
@@ -498,10 +500,13 @@ static void test_instances(void **state)
     (void)state;
     char names[8][32];
     const size_t nb = test_backend_names(names, 8);
-    const float xf[3][12] = {
+    enum { NI = 4 };
+    const float xf[NI][12] = {
         {2.4f, 0.8f, 0.3f, 3.0f, -0.6f, 1.8f, 0.0f, 0.5f, 0.2f, 0.1f, 1.0f, -1.0f},
         {0.2f, 0.0f, 0.0f, -2.0f, 0.0f, 0.2f, 0.0f, 1.0f, 0.0f, 0.0f, 0.2f, 0.0f},
         {1.0f, 0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 0.0f, -3.0f, 0.0f, 0.0f, 1.0f, 2.0f},
+        {1.096197f, -0.381619f, 0.585423f, 0.5f, 0.585423f, 1.096197f, -0.381619f, 3.5f, -0.381619f, 0.585423f,
+         1.096197f, -2.0f},
     };
     const float outer_xf[12] = {0.0f, -1.0f, 0.0f, 10.0f, 1.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 1.0f, 0.0f};
     for (size_t b = 0; b < nb; b++) {
@@ -512,10 +517,10 @@ static void test_instances(void **state)
             rtk_scene mid, top;
             assert_int_equal(rtk_scene_new(dev, &mid), RTK_OK);
             assert_int_equal(rtk_scene_new(dev, &top), RTK_OK);
-            tri_d *t = malloc(4 * ball.nt * sizeof *t), *tt = malloc(4 * ball.nt * sizeof *tt);
+            tri_d *t = malloc(NI * ball.nt * sizeof *t), *tt = malloc(NI * ball.nt * sizeof *tt);
             assert_true(t && tt);
-            uint32_t ids[3], top_id;
-            for (int i = 0; i < 3; i++) {
+            uint32_t ids[NI], top_id;
+            for (int i = 0; i < NI; i++) {
                 add_instance(dev, mid, inner, xf[i], &ids[i]);
                 double m[12];
                 for (int k = 0; k < 12; k++)
@@ -536,7 +541,7 @@ static void test_instances(void **state)
             double om[12];
             for (int k = 0; k < 12; k++)
                 om[k] = outer_xf[k];
-            for (size_t p = 0; p < 3 * ball.nt; p++) {
+            for (size_t p = 0; p < NI * ball.nt; p++) {
                 tt[p] = t[p];
                 for (int k = 0; k < 3; k++)
                     apply(om, t[p].v[k], tt[p].v[k]);
@@ -550,7 +555,7 @@ static void test_instances(void **state)
                 for (int k = 0; k < 3; k++)
                     q[k] = rng_float(&r) * 12 - 6;
                 size_t which;
-                const double want = brute(t, 3 * ball.nt, q, &which);
+                const double want = brute(t, NI * ball.nt, q, &which);
                 rtk_point_hit h;
                 assert_int_equal(rtk_closest_point(mid, &(rtk_point_query){.x = q[0], .y = q[1], .z = q[2],
                                                                              .radius = INFINITY}, &h), RTK_OK);
@@ -560,7 +565,7 @@ static void test_instances(void **state)
                 assert_int_equal(h.geomID, 0);
                 double qq[3];
                 apply(om, q, qq);
-                const double want2 = brute(tt, 3 * ball.nt, qq, &which);
+                const double want2 = brute(tt, NI * ball.nt, qq, &which);
                 assert_int_equal(rtk_closest_point(top, &(rtk_point_query){.x = qq[0], .y = qq[1], .z = qq[2],
                                                                              .radius = INFINITY}, &h), RTK_OK);
                 if (fabs(h.distance - want2) > 1e-5)
