@@ -74,7 +74,7 @@ static double brute(const tri_d *t, size_t n, const double *q, size_t *which)
             continue;
         rtk_tri_closest r;
         rtk_closest_point_triangle(&r, q, a, b, c);
-        if (r.d2 < best || (r.d2 == best && ids_before(&t[i], &t[*which]))) {
+        if (r.d2 < best || (r.d2 == best && *which != (size_t)-1 && ids_before(&t[i], &t[*which]))) {
             best = r.d2;
             *which = i;
         }
