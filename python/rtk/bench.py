@@ -27,7 +27,7 @@ import numpy as np
 
 from . import _native as N
 from ._embree import EmbreeScene
-from .raycasting import INVALID_ID, RaycastingScene
+from .raycasting import INVALID_ID, RaycastingScene, _batch_limit
 
 _PLY_TYPES = {"char": "i1", "uchar": "u1", "int8": "i1", "uint8": "u1", "short": "i2", "ushort": "u2",
               "int16": "i2", "uint16": "u2", "int": "i4", "uint": "u4", "int32": "i4", "uint32": "u4",
@@ -251,12 +251,9 @@ def c_rows(rs, embree, rays, count, t_python, k, repeat):
         return best
 
     def batch(r):
-        was = N.set_batch_threads(k)  # (cast_rays's nthreads)
-        try:
+        with _batch_limit(k):  # (cast_rays's nthreads)
             N.check(N.intersect_batch(rs._scene, N.ptr(r), len(r), N.RAYHIT.itemsize, None), rs._dev,
                     "rtk_intersect_batch")
-        finally:
-            N.set_batch_threads(was)
 
     tc = timed(batch)
     lines = [f"  {'  C: rtk_intersect_batch':28} {k:7d} {count / tc * 1e-6:9.3f} {'':>11} {'':>7}  "

@@ -15,6 +15,7 @@ What rtk does differently, on purpose:
 - triangles of zero area are left out (rays never hit them) instead of
   crashing (Open3D 0.16 aborts on a mesh that has one).
 """
+import contextlib
 import ctypes
 import functools
 import inspect
@@ -71,20 +72,27 @@ def _nthreads(n):
     return int(n)
 
 
+@contextlib.contextmanager
+def _batch_limit(n):
+    """n as the most threads the batch calls made inside the block run on
+    (rtk_set_batch_threads: the calling thread's own limit, 0 for every
+    thread of the device), put back after it."""
+    was = N.set_batch_threads(n)
+    try:
+        yield
+    finally:
+        N.set_batch_threads(was)
+
+
 def _batch_threads(method):
     """method with its nthreads argument (checked as Open3D checks it) as
-    the most threads its batch calls run on: rtk_set_batch_threads, the
-    calling thread's own limit, set for the call and put back after it."""
+    its _batch_limit."""
     sig = inspect.signature(method)
 
     @functools.wraps(method)
     def call(*args, **kw):
-        n = _nthreads(sig.bind(*args, **kw).arguments.get("nthreads", 0))
-        was = N.set_batch_threads(n)
-        try:
+        with _batch_limit(_nthreads(sig.bind(*args, **kw).arguments.get("nthreads", 0))):
             return method(*args, **kw)
-        finally:
-            N.set_batch_threads(was)
     return call
 
 
