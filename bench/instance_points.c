@@ -4,8 +4,9 @@
  * bench's points section measures plain meshes beside Embree).
  * docs/benchmarks/points-and-python.md.
  *
- *   instance_points N [REPS]   N instances of a UV sphere of 1,024
- *       triangles at random positions in a cube of side 4 N^(1/3), each
+ *   instance_points N [REPS]   N instances of the tools' procedural mesh
+ *       of 1,024 triangles (a bumpy sphere of radius about 1,
+ *       procedural:1024) at random positions in a cube of side 4 N^(1/3), each
  *       turned about z and scaled by 0.5-1.5 (a similarity), and 100,000
  *       points uniform in that cube: the best of REPS (default 5)
  *       rtk_closest_point_batch calls, ns per point, and a hash of the
@@ -20,6 +21,8 @@
 #include <stdlib.h>
 #include <time.h>
 
+#include "mesh_import.h"
+#include "mesh_tools.h"
 #include "rtk/rtk.h"
 
 #define PI 3.14159265358979323846
@@ -54,21 +57,11 @@ int main(int argc, char **argv)
         fprintf(stderr, "usage: instance_points N [REPS]  (1 <= N <= 10^7)\n");
         return 2;
     }
-    enum { SEG = 32, RINGS = 16 };
-    static float v[3 * SEG * (RINGS + 1)];
-    static uint32_t idx[3 * 2 * SEG * RINGS];
-    for (int r = 0; r <= RINGS; r++)
-        for (int s = 0; s < SEG; s++) {
-            const double th = PI * r / RINGS, ph = 2 * PI * s / SEG;
-            float *p = &v[3 * (r * SEG + s)];
-            p[0] = (float)(sin(th) * cos(ph)), p[1] = (float)(sin(th) * sin(ph)), p[2] = (float)cos(th);
-        }
-    size_t k = 0;
-    for (uint32_t r = 0; r < RINGS; r++)
-        for (uint32_t s = 0; s < SEG; s++) {
-            const uint32_t a = r * SEG + s, b = r * SEG + (s + 1) % SEG, c = a + SEG, d = b + SEG;
-            idx[k++] = a, idx[k++] = c, idx[k++] = b, idx[k++] = b, idx[k++] = c, idx[k++] = d;
-        }
+    rtk_mesh mesh;
+    if (rtk_mesh_procedural(1024, &mesh)) {
+        fprintf(stderr, "instance_points: out of memory\n");
+        return 1;
+    }
     rtk_device dev;
     CHECK(rtk_device_new("threads=1", &dev));
     rtk_scene inner, top;
@@ -76,8 +69,8 @@ int main(int argc, char **argv)
     CHECK(rtk_scene_new(dev, &top));
     rtk_geometry g;
     CHECK(rtk_geometry_new(dev, RTK_GEOMETRY_TYPE_TRIANGLE, &g));
-    CHECK(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, v, 0, 12, SEG * (RINGS + 1)));
-    CHECK(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, idx, 0, 12, 2 * SEG * RINGS));
+    CHECK(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_VERTEX, mesh.vertices, 0, 12, mesh.vertex_count));
+    CHECK(rtk_geometry_set_shared_buffer(g, RTK_BUFFER_TYPE_INDEX, mesh.indices, 0, 12, mesh.triangle_count));
     CHECK(rtk_geometry_commit(g));
     CHECK(rtk_scene_attach_geometry(inner, g, NULL));
     rtk_geometry_release(g);
@@ -121,5 +114,6 @@ int main(int argc, char **argv)
     rtk_scene_release(top);
     rtk_scene_release(inner);
     rtk_device_release(dev);
+    rtk_mesh_free(&mesh);
     return 0;
 }
