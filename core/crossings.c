@@ -118,7 +118,9 @@ typedef struct crossing_job {
     int kind;
     const char *rays; /* JOB_COUNT, JOB_LIST */
     size_t stride;
-    const rtk_point_query *points; /* JOB_OCCUPANCY */
+    const rtk_point_query *points; /* JOB_OCCUPANCY: the records, or NULL: */
+    point_src src;                 /* the application's arrays (rtk_occupancy_arrays), at */
+    float time;                    /* this time */
     size_t count;
     uint32_t *counts;
     const uint64_t *offsets;
@@ -243,7 +245,15 @@ static void crossing_range(crossing_job *j, size_t begin, size_t end)
     k.ctx.user = &k;
     for (size_t i = begin; i < end; i++) {
         if (j->kind == JOB_OCCUPANCY) {
-            const rtk_point_query *p = &j->points[i];
+            rtk_point_query pa;
+            const rtk_point_query *p = &pa;
+            if (j->points)
+                p = &j->points[i];
+            else {
+                double xyz[3];
+                point_src_at(&j->src, i, xyz);
+                pa = (rtk_point_query){.x = xyz[0], .y = xyz[1], .z = xyz[2], .time = j->time};
+            }
             if (point_fault(p)) {
                 j->inside[i] = RTK_OCCUPANCY_INVALID;
                 continue;
@@ -356,5 +366,23 @@ rtk_error rtk_occupancy(rtk_scene s, const rtk_point_query *points, size_t count
     if (err || !count)
         return err;
     crossing_job j = {.scene = s, .kind = JOB_OCCUPANCY, .points = points, .count = count, .inside = inside};
+    return run(&j, fn);
+}
+
+rtk_error rtk_occupancy_arrays(rtk_scene s, const rtk_point_arrays *a, size_t count)
+{
+    static const char fn[] = "rtk_occupancy_arrays";
+    point_src src;
+    rtk_error err = point_arrays_check(s, a, count, &src, fn);
+    if (!err)
+        err = scene_check(s, fn);
+    if (!err && s->ref->user_deep) /* its distances needed near the surface */
+        err = closest_point_check(s, fn);
+    if (!err && count && !a->inside)
+        err = rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: inside is NULL (count %zu)", fn, count);
+    if (err || !count)
+        return err;
+    crossing_job j = {.scene = s, .kind = JOB_OCCUPANCY, .src = src, .time = a->time, .count = count,
+                      .inside = a->inside};
     return run(&j, fn);
 }

@@ -19,7 +19,7 @@ static const uint32_t spread5[32] = {
  * time (perf) */
 static inline uint32_t spread3(uint32_t v) { return spread5[v & 31] | spread5[v >> 5] << 15; }
 
-int point_order(const rtk_point_query *q, size_t count, uint32_t *order)
+int point_order(const point_src *src, size_t count, uint32_t *order)
 {
     if (count > UINT32_MAX)
         return 1;
@@ -34,9 +34,10 @@ int point_order(const rtk_point_query *q, size_t count, uint32_t *order)
      * not matter; one whose time is wrong neither, so only the range is
      * asked for here) */
     for (size_t i = 0; i < count; i++) {
-        if (!point_in_range(&q[i]))
+        double p[3];
+        point_src_at(src, i, p);
+        if (!xyz_in_range(p[0], p[1], p[2]))
             continue;
-        const double p[3] = {q[i].x, q[i].y, q[i].z};
         for (int a = 0; a < 3; a++) {
             lo[a] = p[a] < lo[a] ? p[a] : lo[a];
             hi[a] = p[a] > hi[a] ? p[a] : hi[a];
@@ -48,8 +49,9 @@ int point_order(const rtk_point_query *q, size_t count, uint32_t *order)
         scale[a] = hi[a] > lo[a] ? 1023.0 / (hi[a] - lo[a]) : 0.0;
     for (size_t i = 0; i < count; i++) {
         uint32_t k = 0;
-        if (point_in_range(&q[i])) {
-            const double p[3] = {q[i].x, q[i].y, q[i].z};
+        double p[3];
+        point_src_at(src, i, p);
+        if (xyz_in_range(p[0], p[1], p[2])) {
             for (int a = 0; a < 3; a++) {
                 double c = (p[a] - lo[a]) * scale[a];
                 c = c < 0.0 ? 0.0 : c > 1023.0 ? 1023.0 : c;

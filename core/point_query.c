@@ -141,14 +141,47 @@ rtk_error rtk_closest_point(rtk_scene s, const rtk_point_query *query, rtk_point
 
 typedef struct point_job {
     rtk_scene scene;
-    const rtk_point_query *queries;
+    const rtk_point_query *queries; /* the records, or NULL: */
     rtk_point_hit *results;
+    const rtk_point_arrays *a;      /* the application's arrays (rtk_closest_point_arrays) */
+    point_src src;                  /* the window's points, either way (point_order) */
+    size_t first;                   /* the window's first point in a's arrays */
     const uint32_t *order; /* the walk's order of queries [0, count), or NULL: as they come */
     size_t count;
 } point_job;
 
 /* Answers kept as hints: the nearest of the last few to each query. */
 #define POINT_HINTS 16
+
+/* Point k's answer into the arrays (rtk.h: rtk_point_arrays). */
+static void point_store(const rtk_point_arrays *a, size_t k, const rtk_point_hit *r)
+{
+    if (a->points_double) {
+        if (a->distances)
+            ((double *)a->distances)[k] = r->distance;
+        if (a->closest) {
+            double *c = (double *)a->closest + 3 * k;
+            c[0] = r->x, c[1] = r->y, c[2] = r->z;
+        }
+    } else {
+        if (a->distances)
+            ((float *)a->distances)[k] = (float)r->distance;
+        if (a->closest) {
+            float *c = (float *)a->closest + 3 * k;
+            c[0] = (float)r->x, c[1] = (float)r->y, c[2] = (float)r->z;
+        }
+    }
+    if (a->geom_ids)
+        a->geom_ids[k] = r->geomID;
+    if (a->prim_ids)
+        a->prim_ids[k] = r->primID;
+    if (a->inst_ids)
+        a->inst_ids[k] = r->instID;
+    if (a->uvs)
+        a->uvs[2 * k] = r->u, a->uvs[2 * k + 1] = r->v;
+    if (a->normals)
+        a->normals[3 * k] = r->n_x, a->normals[3 * k + 1] = r->n_y, a->normals[3 * k + 2] = r->n_z;
+}
 
 static void point_range(const point_job *j, size_t begin, size_t end)
 {
@@ -161,34 +194,50 @@ static void point_range(const point_job *j, size_t begin, size_t end)
         const size_t i = j->order ? j->order[n] : n;
         if (j->order && n + 4 < end) {
             /* along the curve the queries are scattered through the array */
-            __builtin_prefetch(&j->queries[j->order[n + 4]]);
-            __builtin_prefetch(&j->results[j->order[n + 4]], 1);
+            const size_t ahead = j->order[n + 4];
+            if (j->queries) {
+                __builtin_prefetch(&j->queries[ahead]);
+                __builtin_prefetch(&j->results[ahead], 1);
+            } else
+                __builtin_prefetch(j->src.p + ahead * j->src.stride);
         }
-        const rtk_point_query *q = &j->queries[i];
-        rtk_point_hit *r = &j->results[i];
-        if (query_fault(q)) {
+        rtk_point_query qa;
+        rtk_point_hit ra;
+        const rtk_point_query *q = &qa;
+        rtk_point_hit *r = &ra;
+        if (j->queries) {
+            q = &j->queries[i];
+            r = &j->results[i];
+        } else {
+            double p[3];
+            point_src_at(&j->src, i, p);
+            qa = (rtk_point_query){.x = p[0], .y = p[1], .z = p[2], .radius = j->a->radius, .time = j->a->time};
+        }
+        if (query_fault(q))
             no_result(r, NAN);
-            continue;
-        }
-        if (kept && prev_time != q->time)
-            kept = 0;
-        const double *hint = NULL;
-        double best = INFINITY;
-        for (int k = 0; k < kept; k++) {
-            const double dx = ring[k][0] - q->x, dy = ring[k][1] - q->y, dz = ring[k][2] - q->z;
-            const double d2 = dx * dx + dy * dy + dz * dz;
-            if (d2 < best) {
-                best = d2;
-                hint = ring[k];
+        else {
+            if (kept && prev_time != q->time)
+                kept = 0;
+            const double *hint = NULL;
+            double best = INFINITY;
+            for (int k = 0; k < kept; k++) {
+                const double dx = ring[k][0] - q->x, dy = ring[k][1] - q->y, dz = ring[k][2] - q->z;
+                const double d2 = dx * dx + dy * dy + dz * dz;
+                if (d2 < best) {
+                    best = d2;
+                    hint = ring[k];
+                }
+            }
+            closest_hinted(j->scene, q, r, hint);
+            if (j->order && r->geomID != RTK_INVALID_GEOMETRY_ID) {
+                ring[next][0] = r->x, ring[next][1] = r->y, ring[next][2] = r->z;
+                next = (next + 1) % POINT_HINTS;
+                kept += kept < POINT_HINTS;
+                prev_time = q->time;
             }
         }
-        closest_hinted(j->scene, q, r, hint);
-        if (j->order && r->geomID != RTK_INVALID_GEOMETRY_ID) {
-            ring[next][0] = r->x, ring[next][1] = r->y, ring[next][2] = r->z;
-            next = (next + 1) % POINT_HINTS;
-            kept += kept < POINT_HINTS;
-            prev_time = q->time;
-        }
+        if (!j->queries)
+            point_store(j->a, j->first + i, r);
     }
 }
 
@@ -197,6 +246,34 @@ static void point_piece(void *data, uint32_t index)
     const point_job *j = data;
     const size_t begin = (size_t)index * POINT_PIECE;
     point_range(j, begin, j->count - begin < POINT_PIECE ? j->count : begin + POINT_PIECE);
+}
+
+/* The batch's points window by window, each walked along its Morton
+ * curve (or as it comes, for a small batch or when memory for the order
+ * runs out): job holds the records (queries, results) or the arrays (a,
+ * src) of the whole batch. */
+static void point_windows(point_job job, size_t count)
+{
+    const size_t window = count < POINT_WINDOW ? count : POINT_WINDOW;
+    uint32_t *order = count >= POINT_ORDER_MIN ? malloc(window * sizeof *order) : NULL;
+    const point_job all = job;
+    for (size_t at = 0; at < count; at += window) {
+        const size_t n = count - at < window ? count - at : window;
+        job.count = n;
+        job.order = NULL;
+        if (all.queries) {
+            job.queries = all.queries + at;
+            job.results = all.results + at;
+            job.src.q = job.queries;
+        } else {
+            job.first = at;
+            job.src.p = all.src.p + at * all.src.stride;
+        }
+        if (order && !point_order(&job.src, n, order))
+            job.order = order;
+        rtk_device_for(job.scene->device, (uint32_t)((n + POINT_PIECE - 1) / POINT_PIECE), point_piece, &job);
+    }
+    free(order);
 }
 
 rtk_error rtk_closest_point_batch(rtk_scene s, const rtk_point_query *queries, rtk_point_hit *results,
@@ -211,17 +288,42 @@ rtk_error rtk_closest_point_batch(rtk_scene s, const rtk_point_query *queries, r
     const rtk_error err = closest_point_check(s, fn);
     if (err || !count)
         return err;
-    /* window by window, each walked along its Morton curve (or as it
-     * comes, for a small batch or when memory for the order runs out) */
-    const size_t window = count < POINT_WINDOW ? count : POINT_WINDOW;
-    uint32_t *order = count >= POINT_ORDER_MIN ? malloc(window * sizeof *order) : NULL;
-    for (size_t at = 0; at < count; at += window) {
-        const size_t n = count - at < window ? count - at : window;
-        point_job job = {.scene = s, .queries = queries + at, .results = results + at, .count = n};
-        if (order && !point_order(job.queries, n, order))
-            job.order = order;
-        rtk_device_for(s->device, (uint32_t)((n + POINT_PIECE - 1) / POINT_PIECE), point_piece, &job);
-    }
-    free(order);
+    point_windows((point_job){.scene = s, .queries = queries, .results = results}, count);
+    return RTK_OK;
+}
+
+rtk_error point_arrays_check(rtk_scene s, const rtk_point_arrays *a, size_t count, point_src *src, const char *fn)
+{
+    if (!s)
+        return rtk_fail(NULL, RTK_ERROR_INVALID_ARGUMENT, "%s: scene is NULL", fn);
+    if (!a)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: arrays is NULL", fn);
+    const size_t size = a->points_double ? 3 * sizeof(double) : 3 * sizeof(float);
+    *src = (point_src){.p = a->points, .stride = a->point_stride ? a->point_stride : size,
+                       .is_double = a->points_double != 0};
+    const rtk_error err = array_check(s, a->points, count, src->stride, size, "points", fn);
+    if (err)
+        return err;
+    if (count && a->points_double && (uintptr_t)a->points % 8)
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                        "%s: the points (double) at %p are not aligned to 8 bytes", fn, a->points);
+    if (!(a->time >= 0.0f && a->time <= 1.0f))
+        return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: time %g is outside [0, 1]", fn, (double)a->time);
+    return RTK_OK;
+}
+
+rtk_error rtk_closest_point_arrays(rtk_scene s, const rtk_point_arrays *a, size_t count)
+{
+    static const char fn[] = "rtk_closest_point_arrays";
+    point_src src;
+    rtk_error err = point_arrays_check(s, a, count, &src, fn);
+    if (!err && !(a->radius >= 0.0))
+        err = rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT,
+                       "%s: radius %g is negative or NaN (INFINITY: the whole surface)", fn, a->radius);
+    if (!err)
+        err = closest_point_check(s, fn);
+    if (err || !count)
+        return err;
+    point_windows((point_job){.scene = s, .a = a, .src = src}, count);
     return RTK_OK;
 }

@@ -343,25 +343,61 @@ RTK_INTERNAL rtk_error closest_point_check(rtk_scene s, const char *fn);
  * offered (rtk_user_offer_hit) to query q: when q collects crossings, its
  * call fails, naming the geometry. */
 RTK_INTERNAL void crossings_unoffered(const rtk_query *q, uint32_t geom_id);
-/* A query's point within +-2^64 (rtk.h): its float is finite, and
- * squared distances stay far from double's range.  Inline: the batches'
- * ordering (point_order.c) asks for every point. */
-static inline int point_in_range(const rtk_point_query *q)
+/* A point within +-2^64 (rtk.h): its float is finite, and squared
+ * distances stay far from double's range.  Inline: the batches' ordering
+ * (point_order.c) asks for every point. */
+static inline int xyz_in_range(double x, double y, double z)
 {
-    return __builtin_fabs(q->x) <= 0x1p64 && __builtin_fabs(q->y) <= 0x1p64 && __builtin_fabs(q->z) <= 0x1p64;
+    return __builtin_fabs(x) <= 0x1p64 && __builtin_fabs(y) <= 0x1p64 && __builtin_fabs(z) <= 0x1p64;
+}
+static inline int point_in_range(const rtk_point_query *q) { return xyz_in_range(q->x, q->y, q->z); }
+/* The double at p, aligned to 4 bytes only (an application's arrays of
+ * doubles with a stride that is a multiple of 4, not of 8): one load. */
+static inline double load_f64(const char *p)
+{
+    double d;
+    memcpy(&d, p, sizeof d);
+    return d;
+}
+/* The points of a batch: its query records (q), or an application's
+ * arrays of three floats or doubles (rtk_point_arrays: p, stride bytes
+ * apart, is_double) when q is NULL. */
+typedef struct point_src {
+    const rtk_point_query *q;
+    const char *p;
+    size_t stride;
+    int is_double;
+} point_src;
+static inline void point_src_at(const point_src *s, size_t i, double xyz[3])
+{
+    if (s->q) {
+        xyz[0] = s->q[i].x, xyz[1] = s->q[i].y, xyz[2] = s->q[i].z;
+    } else if (s->is_double) {
+        const char *p = s->p + i * s->stride;
+        xyz[0] = load_f64(p), xyz[1] = load_f64(p + 8), xyz[2] = load_f64(p + 16);
+    } else {
+        float f[3];
+        memcpy(f, s->p + i * s->stride, sizeof f);
+        xyz[0] = f[0], xyz[1] = f[1], xyz[2] = f[2];
+    }
 }
 /* point_query.c: why a query's point and time are not valid (rtk.h:
  * point_in_range, time in [0, 1]), or NULL; for closest points and
  * occupancy */
 RTK_INTERNAL const char *point_fault(const rtk_point_query *q);
+/* point_query.c: the checks of the point arrays' calls (rtk.h:
+ * rtk_point_arrays) but for radius and the scene's own, and their points
+ * as a source (src) */
+RTK_INTERNAL rtk_error point_arrays_check(rtk_scene s, const rtk_point_arrays *a, size_t count, point_src *src,
+                                          const char *fn);
 /* point_query.c: one closest-point query, checked valid (rtk.h), through
  * the scene's kernel (s->closest_point, which must be there) */
 RTK_INTERNAL void closest_point1(rtk_scene s, const rtk_point_query *q, rtk_point_hit *r);
-/* point_order.c: the order to walk `count` point queries in (along a
- * Morton curve over the valid points' box) into order, a permutation of
+/* point_order.c: the order to walk `count` points in (along a Morton
+ * curve over the box of those in range) into order, a permutation of
  * [0, count); 0, or non-zero (order untouched) when out of memory or count
  * exceeds 2^32 - 1 */
-RTK_INTERNAL int point_order(const rtk_point_query *q, size_t count, uint32_t *order);
+RTK_INTERNAL int point_order(const point_src *src, size_t count, uint32_t *order);
 
 /* scene.c */
 RTK_INTERNAL void blob_release(blob *m);

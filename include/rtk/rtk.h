@@ -1219,6 +1219,48 @@ RTK_API rtk_error rtk_list_intersections(rtk_scene scene, const rtk_ray *rays, s
 #define RTK_OCCUPANCY_INVALID 255u
 RTK_API rtk_error rtk_occupancy(rtk_scene scene, const rtk_point_query *points, size_t count, uint8_t *inside);
 
+/* Closest points and occupancy over an application's arrays (added after
+ * rtk 0.2.0), as numpy's and Open3D's users hold them: points as rows of
+ * three floats or doubles, each answer into an array of its own (those
+ * left NULL are not written), with no query and result records built and
+ * copied (64 + 40 bytes a point: a 256^3 grid's 1.7 GB).  Point i gets
+ * the answer rtk_closest_point_batch (rtk_occupancy) gives the query
+ * {x, y, z, radius, time} of its numbers (a float point taken as the
+ * double it is), over the device's threads, on every backend and thread
+ * count: distances and nearest points in the points' type (a float point's
+ * the float nearest to the double answer), everything else as in
+ * rtk_point_hit.  A point not finite or beyond +-2^64 gets distance NaN,
+ * a nearest point of NaNs, the invalid ids and (occupancy)
+ * RTK_OCCUPANCY_INVALID; the call succeeds. */
+typedef struct rtk_point_arrays {
+    const void *points;  /* count points of 3 numbers: x, y, z */
+    int points_double;   /* non-zero: the numbers are double (else float) */
+    size_t point_stride; /* bytes from one point to the next: 0 for packed (3 numbers); a multiple of 4 */
+    double radius;       /* rtk_closest_point_arrays: only surface within this distance counts (>= 0;
+                          * INFINITY for all of it, the usual setting: 0 finds only points on the surface) */
+    float time;          /* every point's, for motion blur: in [0, 1] */
+    /* rtk_closest_point_arrays, in the points' type (float or double): */
+    void *distances;     /* INFINITY where no surface lies within radius */
+    void *closest;       /* x, y, z per point: the surface's point nearest to it (NaN where none) */
+    /* and as rtk_point_hit's: */
+    uint32_t *geom_ids;  /* RTK_INVALID_GEOMETRY_ID where none */
+    uint32_t *prim_ids;
+    uint32_t *inst_ids;
+    float *uvs;          /* u, v per point */
+    float *normals;      /* x, y, z per point: the triangle's unit normal */
+    /* rtk_occupancy_arrays: */
+    uint8_t *inside;     /* 1 inside the surface or on it, 0 outside, RTK_OCCUPANCY_INVALID */
+} rtk_point_arrays;
+
+/* RTK_ERROR_INVALID_ARGUMENT, with nothing written, for a NULL scene or
+ * arrays, NULL points with a count above 0, points not aligned to 4 bytes
+ * (float) or 8 (double), a stride below a point's three numbers or not a
+ * multiple of 4, a time outside [0, 1], (rtk_closest_point_arrays) a
+ * radius negative or NaN and (rtk_occupancy_arrays) inside NULL; and the
+ * scene's refusals of rtk_closest_point_batch and rtk_occupancy. */
+RTK_API rtk_error rtk_closest_point_arrays(rtk_scene scene, const rtk_point_arrays *arrays, size_t count);
+RTK_API rtk_error rtk_occupancy_arrays(rtk_scene scene, const rtk_point_arrays *arrays, size_t count);
+
 /* ---- ray packets -----------------------------------------------------------
  * Packets of 4, 8 or 16 rays as structures of arrays: the fields of rtk_ray
  * and rtk_hit, in the same order, one array of N per field.  A packet must be
