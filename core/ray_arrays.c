@@ -46,8 +46,10 @@ static void load(const arrays_job *j, const size_t *idx, size_t n, rtk_rayhit *r
     for (size_t i = 0; i < n; i++) {
         const char *p = (const char *)a->rays + idx[i] * j->stride;
         if (a->rays_double) {
-            const double *d = (const double *)(const void *)p;
-            record(&rh[i], a, (float)d[0], (float)d[1], (float)d[2], (float)d[3], (float)d[4], (float)d[5]);
+            /* (each double read as unaligned: a stride that is a multiple
+             * of 4 but not of 8 leaves them so) */
+            record(&rh[i], a, (float)load_f64(p), (float)load_f64(p + 8), (float)load_f64(p + 16),
+                   (float)load_f64(p + 24), (float)load_f64(p + 32), (float)load_f64(p + 40));
         } else {
             const float *f = (const float *)(const void *)p;
             record(&rh[i], a, f[0], f[1], f[2], f[3], f[4], f[5]);
@@ -110,9 +112,8 @@ static int trace_group(const arrays_job *j, const size_t *idx, rtk_rayhit8 *p)
     for (int i = 0; i < 8; i++) {
         const char *r = (const char *)a->rays + idx[i] * j->stride;
         if (a->rays_double) {
-            const double *d = (const double *)(const void *)r;
             for (int k = 0; k < 6; k++)
-                lane[k][i] = (float)d[k];
+                lane[k][i] = (float)load_f64(r + 8 * k); /* (as in load) */
         } else {
             const float *f = (const float *)(const void *)r;
             for (int k = 0; k < 6; k++)

@@ -81,14 +81,23 @@ static rtk_rayhit as_rayhit(const double *x, float tnear, float tfar)
 }
 
 /* The arrays' answers for rays r (as doubles; float_stride: 0 to pass
- * them as double, else as floats that many floats apart; row: their
- * row_length) against the single-ray calls: each ray answered, and as
- * alone. */
+ * them as double, above 0 as floats that many floats apart, below 0 as
+ * doubles -float_stride floats apart (so -13: 4 bytes past six doubles,
+ * every other ray's doubles not aligned to 8); row: their row_length)
+ * against the single-ray calls: each ray answered, and as alone. */
 static void check(rtk_scene s, const double *r, size_t n, int float_stride, float tnear, float tfar, size_t row)
 {
     float *fr = NULL;
     rtk_ray_arrays a = {.rays = r, .rays_double = 1, .tnear = tnear, .tfar = tfar, .row_length = row};
-    if (float_stride) {
+    if (float_stride < 0) {
+        const size_t stride = (size_t)-float_stride * sizeof(float);
+        fr = calloc(n, stride);
+        assert_non_null(fr);
+        for (size_t i = 0; i < n; i++)
+            memcpy((char *)fr + i * stride, &r[6 * i], 6 * sizeof(double));
+        a.rays = fr;
+        a.ray_stride = stride;
+    } else if (float_stride) {
         fr = calloc(n * (size_t)float_stride, sizeof *fr);
         assert_non_null(fr);
         for (size_t i = 0; i < n; i++)
@@ -161,6 +170,7 @@ static void test_against_single(void **state)
         check(s, r, n, 0, 0.0f, INFINITY, 0);
         check(s, r, n, 6, 0.0f, INFINITY, 0);
         check(s, r, n, 7, 0.5f, 3.0f, 0); /* strided, and a window along the rays */
+        check(s, r, n, -13, 0.0f, INFINITY, 0); /* doubles strided */
         check(s, r, n, 6, 0.0f, INFINITY, 3);        /* rows too narrow for a block: as they come */
         check(s, r, n, 6, 0.0f, INFINITY, n / 2 + 1); /* not two rows: as they come */
         rtk_scene_release(s);
@@ -190,6 +200,7 @@ static void test_camera_rays(void **state)
             check(s, r, (size_t)(w * h), 0, 0.0f, 4.2f, 0); /* as doubles; a window that cuts the ball */
             check(s, r, (size_t)(w * h), 6, 0.0f, INFINITY, (size_t)w); /* as rows: 4x2 blocks */
             check(s, r, (size_t)(w * h), 7, 0.0f, 4.2f, (size_t)w);
+            check(s, r, (size_t)(w * h), -13, 0.0f, 4.2f, (size_t)w); /* doubles strided, as rows */
             /* a width not a multiple of 4, an odd number of rows, the last
              * one cut short: the blocks' leftovers */
             check(s, r, (size_t)(61 * 47 - 5), 6, 0.0f, INFINITY, 61);
