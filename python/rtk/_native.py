@@ -12,13 +12,9 @@ RAY = np.dtype([("org", "<f4", 3), ("tnear", "<f4"), ("dir", "<f4", 3), ("time",
 HIT = np.dtype([("Ng", "<f4", 3), ("u", "<f4"), ("v", "<f4"), ("primID", "<u4"), ("geomID", "<u4"),
                 ("instID", "<u4")])
 RAYHIT = np.dtype([("ray", RAY), ("hit", HIT)])
-POINT_QUERY = np.dtype([("p", "<f8", 3), ("radius", "<f8"), ("time", "<f4"), ("reserved", "<u4")])
-POINT_HIT = np.dtype([("p", "<f8", 3), ("distance", "<f8"), ("u", "<f4"), ("v", "<f4"), ("n", "<f4", 3),
-                      ("primID", "<u4"), ("geomID", "<u4"), ("instID", "<u4")])
 CROSSING = np.dtype([("t", "<f4"), ("u", "<f4"), ("v", "<f4"), ("Ng", "<f4", 3), ("primID", "<u4"),
                      ("geomID", "<u4"), ("instID", "<u4")])
-assert RAY.itemsize == 48 and HIT.itemsize == 32 and POINT_QUERY.itemsize == 40
-assert POINT_HIT.itemsize == 64 and CROSSING.itemsize == 36
+assert RAY.itemsize == 48 and HIT.itemsize == 32 and CROSSING.itemsize == 36
 
 INVALID_ID = 0xFFFFFFFF
 GEOMETRY_TYPE_TRIANGLE = 0
@@ -79,10 +75,8 @@ geometry_set_shared_buffer = _fn("rtk_geometry_set_shared_buffer", [P, I, P, SZ,
 geometry_commit = _fn("rtk_geometry_commit", [P])
 intersect_batch = _fn("rtk_intersect_batch", [P, P, SZ, SZ, P])
 occluded_batch = _fn("rtk_occluded_batch", [P, P, SZ, SZ, P])
-closest_point_batch = _fn("rtk_closest_point_batch", [P, P, P, SZ])
 count_intersections = _fn("rtk_count_intersections", [P, P, SZ, SZ, P])
 list_intersections = _fn("rtk_list_intersections", [P, P, SZ, SZ, P, P])
-occupancy = _fn("rtk_occupancy", [P, P, SZ, P])
 
 
 class RayArrays(ctypes.Structure):
@@ -94,6 +88,17 @@ class RayArrays(ctypes.Structure):
 
 intersect_arrays = _fn("rtk_intersect_arrays", [P, ctypes.POINTER(RayArrays), SZ])
 occluded_arrays = _fn("rtk_occluded_arrays", [P, ctypes.POINTER(RayArrays), SZ])
+
+
+class PointArrays(ctypes.Structure):
+    """rtk_point_arrays (rtk.h)."""
+    _fields_ = [("points", P), ("points_double", I), ("point_stride", SZ), ("radius", ctypes.c_double),
+                ("time", ctypes.c_float), ("distances", P), ("closest", P), ("geom_ids", P), ("prim_ids", P),
+                ("inst_ids", P), ("uvs", P), ("normals", P), ("inside", P)]
+
+
+closest_point_arrays = _fn("rtk_closest_point_arrays", [P, ctypes.POINTER(PointArrays), SZ])
+occupancy_arrays = _fn("rtk_occupancy_arrays", [P, ctypes.POINTER(PointArrays), SZ])
 
 
 def check(rc, device, what):

@@ -340,21 +340,38 @@ class RaycastingScene:
     # ---- points ----
 
     def _points(self, query_points):
+        """rtk_point_arrays over points (..., 3) as they are where they can
+        be (float32 or float64, C-contiguous), else a copy (float64 for
+        other types, whose answers are then float32 as float32 points'):
+        the points, the arrays, their shape, the answers' dtype and whether
+        they go back as Open3D tensors."""
         p = _as_array(query_points, "query_points")
         _last_dim(p, 3, "query_points")
         dtype = np.float64 if p.dtype == np.float64 else np.float32
-        q = np.zeros(int(np.prod(p.shape[:-1], dtype=np.int64)), dtype=N.POINT_QUERY)
-        q["p"] = p.reshape(-1, 3)
-        q["radius"] = np.inf
-        return q, p.shape[:-1], dtype, _is_o3d(query_points)
+        if p.dtype not in (np.float32, np.float64) or not p.flags.c_contiguous:
+            p = np.ascontiguousarray(p, dtype=np.float32 if p.dtype == np.float32 else np.float64)
+        a = N.PointArrays(points=N.ptr(p), points_double=int(p.dtype == np.float64), point_stride=0,
+                          radius=math.inf, time=0.0)
+        return p, a, p.shape[:-1], dtype, _is_o3d(query_points)
 
-    def _closest(self, q):
-        res = np.zeros(len(q), dtype=N.POINT_HIT)
+    # what rtk_closest_point_arrays writes, per point: its shape and dtype
+    # (None: the points')
+    _ANSWERS = {"distances": ((), None), "closest": ((3,), None), "geom_ids": ((), np.uint32),
+                "prim_ids": ((), np.uint32), "uvs": ((2,), np.float32), "normals": ((3,), np.float32)}
+
+    def _closest(self, p, a, shape, *keys):
+        """The answers named (_ANSWERS) of rtk_closest_point_arrays over
+        the points of _points, each an array of shape + its own."""
+        out = {}
+        for k in keys:
+            tail, t = self._ANSWERS[k]
+            out[k] = np.empty(shape + tail, t or p.dtype)
+            setattr(a, k, N.ptr(out[k]))
         self._commit()
-        if len(q):
-            N.check(N.closest_point_batch(self._scene, N.ptr(q), N.ptr(res), len(q)), self._dev,
-                    "compute_closest_points")
-        return res
+        n = int(np.prod(shape, dtype=np.int64))
+        if n:
+            N.check(N.closest_point_arrays(self._scene, ctypes.byref(a), n), self._dev, "compute_closest_points")
+        return out
 
     @_batch_threads
     def compute_closest_points(self, query_points, nthreads=0):
@@ -364,27 +381,29 @@ class RaycastingScene:
         triangles at exactly the same distance (a point nearest to a
         vertex they share), the least geometry id, then triangle index, is
         reported, on every machine and thread count."""
-        q, shape, dtype, o3 = self._points(query_points)
-        res = self._closest(q)
-        return {"points": _out(res["p"].astype(dtype).reshape(shape + (3,)), o3),
-                "geometry_ids": _out(res["geomID"].reshape(shape), o3),
-                "primitive_ids": _out(res["primID"].reshape(shape), o3),
-                "primitive_uvs": _out(np.stack([res["u"], res["v"]], axis=1).astype(np.float32)
-                                      .reshape(shape + (2,)), o3),
-                "primitive_normals": _out(res["n"].astype(np.float32).reshape(shape + (3,)), o3)}
+        p, a, shape, dtype, o3 = self._points(query_points)
+        r = self._closest(p, a, shape, "closest", "geom_ids", "prim_ids", "uvs", "normals")
+        return {"points": _out(r["closest"].astype(dtype, copy=False), o3),
+                "geometry_ids": _out(r["geom_ids"], o3),
+                "primitive_ids": _out(r["prim_ids"], o3),
+                "primitive_uvs": _out(r["uvs"], o3),
+                "primitive_normals": _out(r["normals"], o3)}
 
     @_batch_threads
     def compute_distance(self, query_points, nthreads=0):
         """The distance from each point to the surface (float64 for float64
         points)."""
-        q, shape, dtype, o3 = self._points(query_points)
-        return _out(self._closest(q)["distance"].astype(dtype).reshape(shape), o3)
+        p, a, shape, dtype, o3 = self._points(query_points)
+        return _out(self._closest(p, a, shape, "distances")["distances"].astype(dtype, copy=False), o3)
 
-    def _inside(self, q):
-        inside = np.zeros(len(q), dtype=np.uint8)
+    def _inside(self, p, a, shape):
+        """rtk_occupancy_arrays over the points of _points."""
+        inside = np.empty(shape, np.uint8)
+        a.inside = N.ptr(inside)
         self._commit()
-        if len(q):
-            N.check(N.occupancy(self._scene, N.ptr(q), len(q), N.ptr(inside)), self._dev, "compute_occupancy")
+        n = int(np.prod(shape, dtype=np.int64))
+        if n:
+            N.check(N.occupancy_arrays(self._scene, ctypes.byref(a), n), self._dev, "compute_occupancy")
         return inside
 
     @_batch_threads
@@ -394,22 +413,20 @@ class RaycastingScene:
         Open3D's vote over rays, is checked as Open3D's, odd, and not
         needed)."""
         _nsamples(nsamples)
-        q, shape, dtype, o3 = self._points(query_points)
-        inside = self._inside(q)
-        occ = np.where(inside == 255, np.nan, inside).astype(dtype)
-        return _out(occ.reshape(shape), o3)
+        p, a, shape, dtype, o3 = self._points(query_points)
+        inside = self._inside(p, a, shape)
+        return _out(np.where(inside == 255, np.nan, inside).astype(dtype), o3)
 
     @_batch_threads
     def compute_signed_distance(self, query_points, nthreads=0, nsamples=1):
         """The distance to the surface, negative inside (see
         compute_occupancy); 0 on the surface."""
         _nsamples(nsamples)
-        q, shape, dtype, o3 = self._points(query_points)
-        d = self._closest(q)["distance"]
-        inside = self._inside(q)
+        p, a, shape, dtype, o3 = self._points(query_points)
+        d = self._closest(p, a, shape, "distances")["distances"]
+        inside = self._inside(p, a, shape)
         sd = np.where(inside == 1, -d, d)
-        sd = np.where(inside == 255, np.nan, sd).astype(dtype)
-        return _out(sd.reshape(shape), o3)
+        return _out(np.where(inside == 255, np.nan, sd).astype(dtype, copy=False), o3)
 
     # ---- cameras ----
 

@@ -248,6 +248,39 @@ def test_closest_points_ties_report_the_least_triangle(cube_scene):
     assert np.array_equal(one[::-1], want)
 
 
+def test_points_in_every_dtype_and_layout(cube_scene):
+    """Points go to rtk's arrays call as they are (float32, float64) or
+    converted (views, other dtypes): the same answers for the same points,
+    float64 answers for float64 points rounding to the float32 ones."""
+    s, v, t = cube_scene
+    rng = np.random.default_rng(5)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    q = np.concatenate([rng.uniform(lo - 1, hi + 1, (300, 3)), v]).astype(np.float32)
+    ref = s.compute_closest_points(q)
+    ref_d, ref_sd = s.compute_distance(q).numpy(), s.compute_signed_distance(q).numpy()
+    ref_occ = s.compute_occupancy(q).numpy()
+    assert (ref_occ == 1).any() and (ref_occ == 0).any()
+    wide = np.zeros((len(q), 5), np.float32)
+    wide[:, 1:4] = q
+    for p in (wide[:, 1:4], np.asfortranarray(q), q.reshape(-1, 1, 3), q.astype(np.float64)):
+        shape = p.shape[:-1]
+        f32 = p.dtype == np.float32
+        ans = s.compute_closest_points(p)
+        assert ans["points"].dtype == p.dtype
+        for k in ref:
+            got = ans[k].numpy().reshape(ref[k].numpy().shape)
+            assert np.array_equal(got.astype(ref[k].numpy().dtype), ref[k].numpy()), k
+        for fn, want in ((s.compute_distance, ref_d), (s.compute_signed_distance, ref_sd),
+                         (s.compute_occupancy, ref_occ)):
+            got = fn(p).numpy()
+            assert got.shape == shape and got.dtype == (np.float32 if f32 else np.float64)
+            assert np.array_equal(got.reshape(-1).astype(np.float32), want), fn.__name__
+    # other dtypes: converted exactly, answered in float32
+    ints = np.array([[3, 0, 0], [0, 0, 0], [-2, 1, 1]], np.int32)
+    d = s.compute_distance(ints).numpy()
+    assert d.dtype == np.float32 and np.array_equal(d, s.compute_distance(ints.astype(np.float32)).numpy())
+
+
 def test_float64_kept():
     s = rtk.RaycastingScene()
     s.add_triangles(np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.float64), np.array([[0, 1, 2]]))
