@@ -109,19 +109,23 @@ int section_points(ctx *c, char *err, size_t err_size)
     const size_t n = 100000;
     printf("\npoints: closest points to %zu points per set, one query at a time on 1 thread (rtk: rtk_closest_point; "
            "Embree: rtcPointQuery with a callback measuring each triangle with rtk's routine, in double); "
-           "batch: rtk_closest_point_batch over the device's threads; best of %d; agreement: distances equal to "
-           "1e-6 of the box's diagonal\n",
+           "batch: rtk_closest_point_batch over the device's threads (arrays: rtk_closest_point_arrays on the same "
+           "points as packed doubles, distances alone, as a distance query asks); best of %d; agreement: distances "
+           "equal to 1e-6 of the box's diagonal\n",
            n, o->repeat);
     printf("  %-20s %-5s %8s %10s %8s %10s %7s %9s\n", "library", "set", "threads", "Mpoints/s", "ratio", "ns/point",
            "agree", "max diff");
     rtk_point_query *q = malloc(n * sizeof *q);
     rtk_point_hit *h = malloc(n * sizeof *h);
     double *d = malloc(n * sizeof *d), *dref = malloc(n * sizeof *dref);
-    if (!q || !h || !d || !dref) {
+    double *xyz = malloc(3 * n * sizeof *xyz), *da = malloc(n * sizeof *da);
+    if (!q || !h || !d || !dref || !xyz || !da) {
         free(q);
         free(h);
         free(d);
         free(dref);
+        free(xyz);
+        free(da);
         snprintf(err, err_size, "out of memory");
         return 1;
     }
@@ -130,6 +134,8 @@ int section_points(ctx *c, char *err, size_t err_size)
     int rc = 0;
     for (int set = 0; set < NPOINTSETS && !rc; set++) {
         make_points(c->m, set, n, lo, hi, diag, q);
+        for (size_t i = 0; i < n; i++)
+            xyz[3 * i] = q[i].x, xyz[3 * i + 1] = q[i].y, xyz[3 * i + 2] = q[i].z;
         double ref_rate = 0;
         for (int l = 0; l < c->nlibs && !rc; l++) {
             scene sc;
@@ -193,6 +199,35 @@ int section_points(ctx *c, char *err, size_t err_size)
                             csv_row(&c->csv, "points", bl.name, "default", point_set_names[set], "batch",
                                     o->threads[ti], (double)n / bb * 1e-6, "Mpoints/s", ratio((double)n / bb, ref_rate));
                         }
+                        if (!rc) {
+                            /* the same points as arrays: every distance the batch's */
+                            const rtk_point_arrays a = {.points = xyz, .points_double = 1, .radius = INFINITY,
+                                                        .distances = da};
+                            double ba = INFINITY;
+                            for (int r = 0; r < o->repeat && !rc; r++) {
+                                const double t0 = now();
+                                rc = rtk_closest_point_arrays(bs.rscene, &a, n) != RTK_OK;
+                                const double s = now() - t0;
+                                ba = s < ba ? s : ba;
+                            }
+                            size_t differ = 0;
+                            for (size_t i = 0; i < n && !rc; i++)
+                                differ += memcmp(&da[i], &h[i].distance, sizeof da[i]) != 0;
+                            if (rc)
+                                snprintf(err, err_size, "%s: rtk_closest_point_arrays: %s", bl.name,
+                                         rtk_device_get_error_message(bl.rdev));
+                            else if (differ) {
+                                snprintf(err, err_size, "%s: rtk_closest_point_arrays: %zu of %zu distances differ "
+                                         "from rtk_closest_point_batch's", bl.name, differ, n);
+                                rc = 1;
+                            } else {
+                                printf("  %-20s %-5s %8d %10.3f %7.2fx %10.0f  (arrays)\n", bl.name, point_set_names[set],
+                                       o->threads[ti], (double)n / ba * 1e-6, ratio((double)n / ba, ref_rate),
+                                       ba / (double)n * 1e9);
+                                csv_row(&c->csv, "points", bl.name, "default", point_set_names[set], "arrays",
+                                        o->threads[ti], (double)n / ba * 1e-6, "Mpoints/s", ratio((double)n / ba, ref_rate));
+                            }
+                        }
                         scene_release(&bs);
                     }
                     lib_close(&bl);
@@ -204,5 +239,7 @@ int section_points(ctx *c, char *err, size_t err_size)
     free(h);
     free(d);
     free(dref);
+    free(xyz);
+    free(da);
     return rc;
 }
