@@ -284,24 +284,29 @@ static inline __attribute__((always_inline)) vfloat4 block_hit_floor(const block
     return vf4_sub(entry, vf4_mul(vf4_abs(entry), vf4_set1(0x1p-20f)));
 }
 
-/* An upper bound on lane j's floor: block_hit_floor's operations one by
- * one (the product by 2^-20 is exact, so a fused multiply-subtract rounds
- * the same) on the box without its pad, which can only raise each step.
- * A distance at or above it is at or above the floor, and block_nearest
- * needs the floor itself only below it (rare): the pad's operations stay
- * off the usual path, where they cost primary packets and streams about
- * 2%. */
-static inline float lane_hit_floor_bound(const block_t *t, int j, const ray_pre *p)
+/* An upper bound on each lane's floor: block_hit_floor's operations one
+ * by one (the product by 2^-20 is exact, so a fused multiply-subtract
+ * rounds the same) on the box without its pad, which can only raise each
+ * step.  A distance at or above it is at or above the floor, and
+ * block_nearest needs the floor itself only below it (rare): the pad's
+ * operations stay off the usual path, where they cost primary packets and
+ * streams about 2%.  In vectors, beside the triangle test, rather than
+ * for the nearest lane once it is known: that lane's scalar steps lay on
+ * the way from the test to the next node, and San Miguel's primary rays
+ * (several blocks with a hit a ray) ran 8-12% faster without them
+ * (docs/benchmarks/streams.md, "the hit floor's bound in vectors"). */
+static inline __attribute__((always_inline)) vfloat4 block_hit_floor_bound(const block_t *t, const ray_pre *p)
 {
-    float entry = 0.0f;
+    vfloat4 entry = vf4_set1(0.0f);
     for (int k = 0; k < 3; k++) {
-        float lo, hi;
-        lane_axis_bounds(t, j, k, &lo, &hi);
-        const float tk = ((p->rs[k] < 0.0f ? hi : lo) - p->os[k]) * p->rs[k];
-        entry = k ? (entry > tk ? entry : tk) : tk;
+        vfloat4 a, b, c;
+        block_axis(t, k, &a, &b, &c);
+        const vfloat4 near = p->rs[k] < 0.0f ? vf4_max(vf4_max(a, b), c) : vf4_min(vf4_min(a, b), c);
+        const vfloat4 tk = vf4_mul(vf4_sub(near, vf4_set1(p->os[k])), vf4_set1(p->rs[k]));
+        entry = k ? vf4_max(entry, tk) : tk;
     }
-    entry = entry + 0.0f; /* (-0.0 -> +0.0) */
-    return entry - fabsf(entry) * 0x1p-20f;
+    entry = vf4_add(entry, vf4_set1(0.0f)); /* (-0.0 -> +0.0) */
+    return vf4_sub(entry, vf4_mul(vf4_abs(entry), vf4_set1(0x1p-20f)));
 }
 
 /* The lanes of mask whose floor fl[] does not lie beyond tfar. */
@@ -348,9 +353,10 @@ static inline __attribute__((always_inline)) int block_nearest(const block_t *t,
 {
     /* the reciprocals of |det| in one division for the four lanes (the
      * same quotients) */
-    _Alignas(16) float T[4], rcp[4];
+    _Alignas(16) float T[4], rcp[4], fb[4];
     vf4_store(T, h->T);
     vf4_store(rcp, vf4_div(vf4_set1(1.0f), h->absdet));
+    vf4_store(fb, block_hit_floor_bound(t, p));
     int lane = -1;
     float t_lane = 0.0f;
     for (unsigned m = mask; m; m &= m - 1) {
@@ -361,7 +367,7 @@ static inline __attribute__((always_inline)) int block_nearest(const block_t *t,
             t_lane = ti;
         }
     }
-    const float fl_lane = lane_hit_floor_bound(t, lane, p);
+    const float fl_lane = fb[lane];
     if (__builtin_expect(!(t_lane >= fl_lane && fl_lane <= tfar_s), 0)) {
         _Alignas(16) float fl[4];
         vf4_store(fl, block_hit_floor(t, p));
