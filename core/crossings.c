@@ -1,5 +1,6 @@
 /* Every crossing along a ray, and inside or outside (rtk.h:
- * rtk_count_intersections, rtk_list_intersections, rtk_occupancy): each
+ * rtk_count_intersections, rtk_list_intersections, rtk_occupancy,
+ * rtk_occupancy_arrays): each
  * ray traced once through the width-1 kernels with the query's filter
  * (rtk_query.filter) collecting every candidate and rejecting it, so the
  * walk goes on to the ray's tfar; then the crossings sorted by t, and a

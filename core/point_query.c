@@ -1,6 +1,7 @@
-/* Closest points (rtk.h: rtk_closest_point, rtk_closest_point_batch): the
- * checks, the result's defaults, and batches over the device's threads; the
- * walk itself is the backend's (backends/common/point_query.c). */
+/* Closest points (rtk.h: rtk_closest_point, rtk_closest_point_batch,
+ * rtk_closest_point_arrays): the checks, the result's defaults, and
+ * batches over the device's threads, of records or of an application's
+ * arrays; the walk itself is the backend's (backends/common/point_query.c). */
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
