@@ -119,9 +119,7 @@ typedef struct crossing_job {
     int kind;
     const char *rays; /* JOB_COUNT, JOB_LIST */
     size_t stride;
-    const rtk_point_query *points; /* JOB_OCCUPANCY: the records, or NULL: */
-    point_src src;                 /* the application's arrays (rtk_occupancy_arrays), at */
-    float time;                    /* this time */
+    point_src src; /* JOB_OCCUPANCY: the points, records or arrays */
     size_t count;
     uint32_t *counts;
     const uint64_t *offsets;
@@ -247,14 +245,7 @@ static void crossing_range(crossing_job *j, size_t begin, size_t end)
     for (size_t i = begin; i < end; i++) {
         if (j->kind == JOB_OCCUPANCY) {
             rtk_point_query pa;
-            const rtk_point_query *p = &pa;
-            if (j->points)
-                p = &j->points[i];
-            else {
-                double xyz[3];
-                point_src_at(&j->src, i, xyz);
-                pa = (rtk_point_query){.x = xyz[0], .y = xyz[1], .z = xyz[2], .time = j->time};
-            }
+            const rtk_point_query *p = point_src_query(&j->src, i, &pa);
             if (point_fault(p)) {
                 j->inside[i] = RTK_OCCUPANCY_INVALID;
                 continue;
@@ -366,7 +357,7 @@ rtk_error rtk_occupancy(rtk_scene s, const rtk_point_query *points, size_t count
         err = rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: inside is NULL (count %zu)", fn, count);
     if (err || !count)
         return err;
-    crossing_job j = {.scene = s, .kind = JOB_OCCUPANCY, .points = points, .count = count, .inside = inside};
+    crossing_job j = {.scene = s, .kind = JOB_OCCUPANCY, .src = {.q = points}, .count = count, .inside = inside};
     return run(&j, fn);
 }
 
@@ -383,7 +374,6 @@ rtk_error rtk_occupancy_arrays(rtk_scene s, const rtk_point_arrays *a, size_t co
         err = rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: inside is NULL (count %zu)", fn, count);
     if (err || !count)
         return err;
-    crossing_job j = {.scene = s, .kind = JOB_OCCUPANCY, .src = src, .time = a->time, .count = count,
-                      .inside = a->inside};
+    crossing_job j = {.scene = s, .kind = JOB_OCCUPANCY, .src = src, .count = count, .inside = a->inside};
     return run(&j, fn);
 }

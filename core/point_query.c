@@ -142,11 +142,10 @@ rtk_error rtk_closest_point(rtk_scene s, const rtk_point_query *query, rtk_point
 
 typedef struct point_job {
     rtk_scene scene;
-    const rtk_point_query *queries; /* the records, or NULL: */
-    rtk_point_hit *results;
-    const rtk_point_arrays *a;      /* the application's arrays (rtk_closest_point_arrays) */
-    point_src src;                  /* the window's points, either way (point_order) */
-    size_t first;                   /* the window's first point in a's arrays */
+    point_src src;              /* the window's points: records (src.q) or arrays */
+    rtk_point_hit *results;     /* the window's results, with records */
+    const rtk_point_arrays *a;  /* with arrays: where the answers go (rtk_closest_point_arrays) */
+    size_t first;               /* the window's first point in a's arrays */
     const uint32_t *order; /* the walk's order of queries [0, count), or NULL: as they come */
     size_t count;
 } point_job;
@@ -196,24 +195,16 @@ static void point_range(const point_job *j, size_t begin, size_t end)
         if (j->order && n + 4 < end) {
             /* along the curve the queries are scattered through the array */
             const size_t ahead = j->order[n + 4];
-            if (j->queries) {
-                __builtin_prefetch(&j->queries[ahead]);
+            if (j->src.q) {
+                __builtin_prefetch(&j->src.q[ahead]);
                 __builtin_prefetch(&j->results[ahead], 1);
             } else
                 __builtin_prefetch(j->src.p + ahead * j->src.stride);
         }
         rtk_point_query qa;
         rtk_point_hit ra;
-        const rtk_point_query *q = &qa;
-        rtk_point_hit *r = &ra;
-        if (j->queries) {
-            q = &j->queries[i];
-            r = &j->results[i];
-        } else {
-            double p[3];
-            point_src_at(&j->src, i, p);
-            qa = (rtk_point_query){.x = p[0], .y = p[1], .z = p[2], .radius = j->a->radius, .time = j->a->time};
-        }
+        const rtk_point_query *q = point_src_query(&j->src, i, &qa);
+        rtk_point_hit *r = j->src.q ? &j->results[i] : &ra;
         if (query_fault(q))
             no_result(r, NAN);
         else {
@@ -237,7 +228,7 @@ static void point_range(const point_job *j, size_t begin, size_t end)
                 prev_time = q->time;
             }
         }
-        if (!j->queries)
+        if (!j->src.q)
             point_store(j->a, j->first + i, r);
     }
 }
@@ -251,8 +242,8 @@ static void point_piece(void *data, uint32_t index)
 
 /* The batch's points window by window, each walked along its Morton
  * curve (or as it comes, for a small batch or when memory for the order
- * runs out): job holds the records (queries, results) or the arrays (a,
- * src) of the whole batch. */
+ * runs out): job holds the records (src.q, results) or the arrays (src,
+ * a) of the whole batch. */
 static void point_windows(point_job job, size_t count)
 {
     const size_t window = count < POINT_WINDOW ? count : POINT_WINDOW;
@@ -262,10 +253,9 @@ static void point_windows(point_job job, size_t count)
         const size_t n = count - at < window ? count - at : window;
         job.count = n;
         job.order = NULL;
-        if (all.queries) {
-            job.queries = all.queries + at;
+        if (all.src.q) {
+            job.src.q = all.src.q + at;
             job.results = all.results + at;
-            job.src.q = job.queries;
         } else {
             job.first = at;
             job.src.p = all.src.p + at * all.src.stride;
@@ -289,7 +279,7 @@ rtk_error rtk_closest_point_batch(rtk_scene s, const rtk_point_query *queries, r
     const rtk_error err = closest_point_check(s, fn);
     if (err || !count)
         return err;
-    point_windows((point_job){.scene = s, .queries = queries, .results = results}, count);
+    point_windows((point_job){.scene = s, .src = {.q = queries}, .results = results}, count);
     return RTK_OK;
 }
 
@@ -301,7 +291,7 @@ rtk_error point_arrays_check(rtk_scene s, const rtk_point_arrays *a, size_t coun
         return rtk_fail(s->device, RTK_ERROR_INVALID_ARGUMENT, "%s: arrays is NULL", fn);
     const size_t size = a->points_double ? 3 * sizeof(double) : 3 * sizeof(float);
     *src = (point_src){.p = a->points, .stride = a->point_stride ? a->point_stride : size,
-                       .is_double = a->points_double != 0};
+                       .is_double = a->points_double != 0, .radius = a->radius, .time = a->time};
     const rtk_error err = array_check(s, a->points, count, src->stride, size, "points", fn);
     if (err)
         return err;

@@ -361,12 +361,14 @@ static inline double load_f64(const char *p)
 }
 /* The points of a batch: its query records (q), or an application's
  * arrays of three floats or doubles (rtk_point_arrays: p, stride bytes
- * apart, is_double) when q is NULL. */
+ * apart, is_double; the call's radius and time) when q is NULL. */
 typedef struct point_src {
     const rtk_point_query *q;
     const char *p;
     size_t stride;
     int is_double;
+    double radius;
+    float time;
 } point_src;
 static inline void point_src_at(const point_src *s, size_t i, double xyz[3])
 {
@@ -380,6 +382,16 @@ static inline void point_src_at(const point_src *s, size_t i, double xyz[3])
         memcpy(f, s->p + i * s->stride, sizeof f);
         xyz[0] = f[0], xyz[1] = f[1], xyz[2] = f[2];
     }
+}
+/* Point i as a query: its record, or one made in *tmp from the arrays. */
+static inline const rtk_point_query *point_src_query(const point_src *s, size_t i, rtk_point_query *tmp)
+{
+    if (s->q)
+        return &s->q[i];
+    double xyz[3];
+    point_src_at(s, i, xyz);
+    *tmp = (rtk_point_query){.x = xyz[0], .y = xyz[1], .z = xyz[2], .radius = s->radius, .time = s->time};
+    return tmp;
 }
 /* point_query.c: why a query's point and time are not valid (rtk.h:
  * point_in_range, time in [0, 1]), or NULL; for closest points and
