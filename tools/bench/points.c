@@ -103,6 +103,55 @@ static double run_points(scene *sc, const rtk_mesh *m, const rtk_point_query *q,
     return now() - t0;
 }
 
+/* rtk's batch rows on one thread count: rtk_closest_point_batch over the
+ * queries q into h, then rtk_closest_point_arrays over the same points as
+ * packed doubles (xyz), distances alone into da, each the best of the
+ * repeats, and every distance of the arrays checked equal to the batch's. */
+static int batch_rows(ctx *c, lib *bl, scene *bs, int set, int threads, double ref_rate, const rtk_point_query *q,
+                      const double *xyz, size_t n, rtk_point_hit *h, double *da, char *err, size_t err_size)
+{
+    const int repeat = c->o->repeat;
+    double bb = INFINITY;
+    for (int r = 0; r < repeat; r++) {
+        const double t0 = now();
+        if (rtk_closest_point_batch(bs->rscene, q, h, n) != RTK_OK) {
+            snprintf(err, err_size, "%s: rtk_closest_point_batch: %s", bl->name, rtk_device_get_error_message(bl->rdev));
+            return 1;
+        }
+        const double s = now() - t0;
+        bb = s < bb ? s : bb;
+    }
+    const rtk_point_arrays a = {.points = xyz, .points_double = 1, .radius = INFINITY, .distances = da};
+    double ba = INFINITY;
+    for (int r = 0; r < repeat; r++) {
+        const double t0 = now();
+        if (rtk_closest_point_arrays(bs->rscene, &a, n) != RTK_OK) {
+            snprintf(err, err_size, "%s: rtk_closest_point_arrays: %s", bl->name, rtk_device_get_error_message(bl->rdev));
+            return 1;
+        }
+        const double s = now() - t0;
+        ba = s < ba ? s : ba;
+    }
+    size_t differ = 0;
+    for (size_t i = 0; i < n; i++)
+        differ += memcmp(&da[i], &h[i].distance, sizeof da[i]) != 0;
+    if (differ) {
+        snprintf(err, err_size, "%s: rtk_closest_point_arrays: %zu of %zu distances differ from "
+                 "rtk_closest_point_batch's", bl->name, differ, n);
+        return 1;
+    }
+    const double secs[2] = {bb, ba};
+    const char *const kind[2] = {"batch", "arrays"};
+    for (int k = 0; k < 2; k++) {
+        const double rate = (double)n / secs[k];
+        printf("  %-20s %-5s %8d %10.3f %7.2fx %10.0f  (%s)\n", bl->name, point_set_names[set], threads, rate * 1e-6,
+               ratio(rate, ref_rate), secs[k] / (double)n * 1e9, kind[k]);
+        csv_row(&c->csv, "points", bl->name, "default", point_set_names[set], kind[k], threads, rate * 1e-6,
+                "Mpoints/s", ratio(rate, ref_rate));
+    }
+    return 0;
+}
+
 int section_points(ctx *c, char *err, size_t err_size)
 {
     const bench_opts *o = c->o;
@@ -182,52 +231,7 @@ int section_points(ctx *c, char *err, size_t err_size)
                     scene bs;
                     rc = scene_build(&bs, &bl, c->m, c->padded, MODE_DEFAULT, 1, err, err_size);
                     if (!rc) {
-                        double bb = INFINITY;
-                        for (int r = 0; r < o->repeat && !rc; r++) {
-                            const double t0 = now();
-                            rc = rtk_closest_point_batch(bs.rscene, q, h, n) != RTK_OK;
-                            const double s = now() - t0;
-                            bb = s < bb ? s : bb;
-                        }
-                        if (rc)
-                            snprintf(err, err_size, "%s: rtk_closest_point_batch: %s", bl.name,
-                                     rtk_device_get_error_message(bl.rdev));
-                        else {
-                            printf("  %-20s %-5s %8d %10.3f %7.2fx %10.0f  (batch)\n", bl.name, point_set_names[set],
-                                   o->threads[ti], (double)n / bb * 1e-6, ratio((double)n / bb, ref_rate),
-                                   bb / (double)n * 1e9);
-                            csv_row(&c->csv, "points", bl.name, "default", point_set_names[set], "batch",
-                                    o->threads[ti], (double)n / bb * 1e-6, "Mpoints/s", ratio((double)n / bb, ref_rate));
-                        }
-                        if (!rc) {
-                            /* the same points as arrays: every distance the batch's */
-                            const rtk_point_arrays a = {.points = xyz, .points_double = 1, .radius = INFINITY,
-                                                        .distances = da};
-                            double ba = INFINITY;
-                            for (int r = 0; r < o->repeat && !rc; r++) {
-                                const double t0 = now();
-                                rc = rtk_closest_point_arrays(bs.rscene, &a, n) != RTK_OK;
-                                const double s = now() - t0;
-                                ba = s < ba ? s : ba;
-                            }
-                            size_t differ = 0;
-                            for (size_t i = 0; i < n && !rc; i++)
-                                differ += memcmp(&da[i], &h[i].distance, sizeof da[i]) != 0;
-                            if (rc)
-                                snprintf(err, err_size, "%s: rtk_closest_point_arrays: %s", bl.name,
-                                         rtk_device_get_error_message(bl.rdev));
-                            else if (differ) {
-                                snprintf(err, err_size, "%s: rtk_closest_point_arrays: %zu of %zu distances differ "
-                                         "from rtk_closest_point_batch's", bl.name, differ, n);
-                                rc = 1;
-                            } else {
-                                printf("  %-20s %-5s %8d %10.3f %7.2fx %10.0f  (arrays)\n", bl.name, point_set_names[set],
-                                       o->threads[ti], (double)n / ba * 1e-6, ratio((double)n / ba, ref_rate),
-                                       ba / (double)n * 1e9);
-                                csv_row(&c->csv, "points", bl.name, "default", point_set_names[set], "arrays",
-                                        o->threads[ti], (double)n / ba * 1e-6, "Mpoints/s", ratio((double)n / ba, ref_rate));
-                            }
-                        }
+                        rc = batch_rows(c, &bl, &bs, set, o->threads[ti], ref_rate, q, xyz, n, h, da, err, err_size);
                         scene_release(&bs);
                     }
                     lib_close(&bl);
