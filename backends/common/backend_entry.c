@@ -220,6 +220,12 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersect1 = RTK_SYM(rtk_objects_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = 1,
      .fn.occluded1 = RTK_SYM(rtk_objects_occluded1)},
+    /* streams through both levels (traverse_objects_stream.h); packets
+     * without a kernel of their own go through them too (core/query.c) */
+    {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_INTERSECT, .width = RTK_KERNEL_WIDTH_STREAM,
+     .in_flight = RTK_STREAM_K, .fn.intersect_stream = RTK_SYM(rtk_objects_intersect_stream)},
+    {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = RTK_KERNEL_WIDTH_STREAM,
+     .in_flight = RTK_STREAM_K, .fn.occluded_stream = RTK_SYM(rtk_objects_occluded_stream)},
     /* whole packets through the top level, for user primitives' callbacks
      * (the core uses them only in scenes that have some) */
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_INTERSECT, .width = 4,

@@ -250,6 +250,8 @@ struct rtk_accel {
      * layout's own kernels, which the inline objects have */
     rtk_intersect1_fn objects_intersect1;
     rtk_occluded1_fn objects_occluded1;
+    rtk_intersect_stream_fn objects_intersect_stream; /* (traverse_objects_stream.h) */
+    rtk_occluded_stream_fn objects_occluded_stream;
     rtk_intersect1_fn inline_intersect1;
     rtk_occluded1_fn inline_occluded1;
     /* bvh4.object: some tree was opened into the top level (objects.c,

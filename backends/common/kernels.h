@@ -37,6 +37,10 @@ RTK_HIDDEN void RTK_SYM(rtk_objects_release)(rtk_accel *accel);
 RTK_HIDDEN int RTK_SYM(rtk_objects_refit)(rtk_accel *accel, const rtk_build_input *in, rtk_build_output *out);
 RTK_HIDDEN void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit, const rtk_query *q);
 RTK_HIDDEN void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_objects_intersect_stream)(const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count,
+                                                      const rtk_query *q);
+RTK_HIDDEN void RTK_SYM(rtk_objects_occluded_stream)(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count,
+                                                     const rtk_query *q);
 #define RTK_OBJECTS_PACKET_DECL_(k)                                                                                    \
     RTK_HIDDEN void RTK_SYM(rtk_objects_intersect##k)(const rtk_accel *accel, const int32_t *active, void *packet,    \
                                                       const rtk_query *q);                                             \
@@ -111,7 +115,12 @@ RTK_STREAM_DECL_(8mbr)
 #define RTK_OBJECTS_MERGED_DECL_(tag)                                                                                  \
     RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rayhit,             \
                                                                 const rtk_query *q);                                   \
-    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q);
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray,                    \
+                                                               const rtk_query *q);                                   \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_objects_intersect_stream)(const rtk_accel *accel, rtk_rayhit *const *rays,  \
+                                                                      uint32_t count, const rtk_query *q);             \
+    RTK_HIDDEN void RTK_SYM(rtk_bvh##tag##_objects_occluded_stream)(const rtk_accel *accel, rtk_ray *const *rays,      \
+                                                                     uint32_t count, const rtk_query *q);
 RTK_OBJECTS_MERGED_DECL_(4)
 RTK_OBJECTS_MERGED_DECL_(8)
 RTK_OBJECTS_MERGED_DECL_(4i)

@@ -434,18 +434,22 @@ static int kept_object(const rtk_build_object *o)
 static const struct {
     rtk_intersect1_fn kernel, merged;
     rtk_occluded1_fn merged_occluded;
+    rtk_intersect_stream_fn merged_stream; /* (traverse_objects_stream.h) */
+    rtk_occluded_stream_fn merged_occluded_stream;
     int open_width, top_width;
 } merged_layouts[] = {
-    {RTK_SYM(rtk_bvh4_intersect1), RTK_SYM(rtk_bvh4_objects_intersect1), RTK_SYM(rtk_bvh4_objects_occluded1), 4, 4},
+#define MERGED_(tag) RTK_SYM(rtk_bvh##tag##_intersect1), RTK_SYM(rtk_bvh##tag##_objects_intersect1),                    \
+        RTK_SYM(rtk_bvh##tag##_objects_occluded1), RTK_SYM(rtk_bvh##tag##_objects_intersect_stream),                   \
+        RTK_SYM(rtk_bvh##tag##_objects_occluded_stream)
+    {MERGED_(4), 4, 4},
 #ifdef RTK_SIMD_HAS_8
-    {RTK_SYM(rtk_bvh8_intersect1), RTK_SYM(rtk_bvh8_objects_intersect1), RTK_SYM(rtk_bvh8_objects_occluded1), 8, 8},
-    {RTK_SYM(rtk_bvh8v_intersect1), RTK_SYM(rtk_bvh8v_objects_intersect1), RTK_SYM(rtk_bvh8v_objects_occluded1), 0,
-     4},
+    {MERGED_(8), 8, 8},
+    {MERGED_(8v), 0, 4},
 #endif
-    {RTK_SYM(rtk_bvh4i_intersect1), RTK_SYM(rtk_bvh4i_objects_intersect1), RTK_SYM(rtk_bvh4i_objects_occluded1), 4, 4},
-    {RTK_SYM(rtk_bvh4v_intersect1), RTK_SYM(rtk_bvh4v_objects_intersect1), RTK_SYM(rtk_bvh4v_objects_occluded1), 0, 4},
-    {RTK_SYM(rtk_bvh4ir_intersect1), RTK_SYM(rtk_bvh4ir_objects_intersect1), RTK_SYM(rtk_bvh4ir_objects_occluded1),
-     0, 4},
+    {MERGED_(4i), 4, 4},
+    {MERGED_(4v), 0, 4},
+    {MERGED_(4ir), 0, 4},
+#undef MERGED_
 };
 #define MERGED_LAYOUTS ((int)(sizeof merged_layouts / sizeof merged_layouts[0]))
 
@@ -721,6 +725,8 @@ int RTK_SYM(rtk_build_objects)(const rtk_build_input *in, rtk_build_output *out)
     accel->objects_open_width = b.src ? (uint32_t)open_width : 0;
     accel->objects_intersect1 = merged_layouts[merged >= 0 ? merged : 0].merged;
     accel->objects_occluded1 = merged_layouts[merged >= 0 ? merged : 0].merged_occluded;
+    accel->objects_intersect_stream = merged_layouts[merged >= 0 ? merged : 0].merged_stream;
+    accel->objects_occluded_stream = merged_layouts[merged >= 0 ? merged : 0].merged_occluded_stream;
     accel->inline_intersect1 = b.inline_kernel;
     accel->inline_occluded1 = b.inline_occluded;
     accel->leaf_count = 0;
@@ -1021,6 +1027,19 @@ void RTK_SYM(rtk_objects_intersect1)(const rtk_accel *accel, rtk_rayhit *rh, con
 void RTK_SYM(rtk_objects_occluded1)(const rtk_accel *accel, rtk_ray *ray, const rtk_query *q)
 {
     accel->objects_occluded1(accel, ray, q);
+}
+
+/* Streams: the merged traversal's rays interleaved (traverse_objects_stream.h). */
+void RTK_SYM(rtk_objects_intersect_stream)(const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count,
+                                           const rtk_query *q)
+{
+    accel->objects_intersect_stream(accel, rays, count, q);
+}
+
+void RTK_SYM(rtk_objects_occluded_stream)(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count,
+                                          const rtk_query *q)
+{
+    accel->objects_occluded_stream(accel, rays, count, q);
 }
 
 /* ---- packets ----

@@ -5,6 +5,7 @@
 #include "traverse_bvhn.h"
 #include "traverse_stream.h"
 #include "traverse_objects.h"
+#include "traverse_objects_stream.h"
 #define RTK_PACKET 4
 #include "traverse_packet.h"
 #ifdef RTK_SIMD_HAS_8

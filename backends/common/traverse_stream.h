@@ -139,14 +139,17 @@ static inline const leaf_ray *stream_leaf_ray(const stream_slot *s)
 }
 
 /* One node step of next_leaf (anyhit as there) for slot s at inner node
- * s->cur; 0 when the ray is done (nothing hit and the stack ran out). */
-static inline __attribute__((always_inline)) int stream_node_step(const rtk_accel *accel, stream_slot *s, int anyhit)
+ * s->cur, with the ray's set-up p (the slot's own s->p here; a two-level
+ * walk's may be shared by the objects it enters, traverse_objects_stream.h);
+ * 0 when the ray is done (nothing hit and the stack ran out). */
+static inline __attribute__((always_inline)) int stream_node_step(const rtk_accel *accel, stream_slot *s,
+                                                                  const ray_pre *p, int anyhit)
 {
     accel = STREAM_TREE(accel, s);
     const node_t *n = &BVHN_NODES(accel)[s->cur];
     const uint32_t *child = n->child;
     vnode dists;
-    unsigned mask = node_intersect(n, &s->p, s->ntnear, s->ntfar, &dists, BVHN_FUSED);
+    unsigned mask = node_intersect(n, p, s->ntnear, s->ntfar, &dists, BVHN_FUSED);
     if (mask && !(mask & (mask - 1))) { /* one child */
         const int i = __builtin_ctz(mask);
         s->cur = child[i];
@@ -190,13 +193,12 @@ static inline __attribute__((always_inline)) int stream_node_step(const rtk_acce
 }
 
 /* The closest-hit query's leaf step (closest_from_'s leaf loop) for slot s
- * at leaf s->cur, then the pop; 0 when the ray is done. */
-static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_accel *accel, stream_slot *s)
+ * at leaf s->cur, then the pop; 0 when the ray is done.  (With motion blur
+ * LEAF_BLOCK interpolates to p's time.) */
+static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_accel *accel, stream_slot *s,
+                                                                     const ray_pre *p)
 {
     accel = STREAM_TREE(accel, s);
-#if RTK_MOTION
-    const ray_pre *p = &s->p; /* (LEAF_BLOCK interpolates to its time) */
-#endif
     const vfloat4 tnear = vf4_set1(s->tnear_s + 0.0f);
     float tfar_s = s->tfar_s;
     vfloat4 tfar = vf4_set1(tfar_s + 0.0f);
@@ -205,10 +207,10 @@ static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_a
         block_t scratch;
         const block_t *t = LEAF_BLOCK(accel, block, &scratch);
         tri4_hit h;
-        unsigned mask = triangle4_intersect(t, &s->p, stream_leaf_ray(s), tnear, tfar, &h);
+        unsigned mask = triangle4_intersect(t, p, stream_leaf_ray(s), tnear, tfar, &h);
         float t_lane;
         int lane;
-        if (!mask || (lane = block_nearest(t, &s->p, &h, mask, s->tnear_s, tfar_s, &t_lane, &s->best.u, &s->best.v)) < 0)
+        if (!mask || (lane = block_nearest(t, p, &h, mask, s->tnear_s, tfar_s, &t_lane, &s->best.u, &s->best.v)) < 0)
             continue;
         s->best.leaf = block;
         s->best.lane = lane;
@@ -227,19 +229,17 @@ static inline __attribute__((always_inline)) int stream_leaf_closest(const rtk_a
 
 /* The any-hit query's leaf step: -1 on a hit, 0 when the ray is done
  * without one, 1 to go on. */
-static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel *accel, stream_slot *s)
+static inline __attribute__((always_inline)) int stream_leaf_any(const rtk_accel *accel, stream_slot *s,
+                                                                 const ray_pre *p)
 {
     accel = STREAM_TREE(accel, s);
-#if RTK_MOTION
-    const ray_pre *p = &s->p;
-#endif
     const vfloat4 tnear = vf4_set1(s->tnear_s + 0.0f), tfar = vf4_set1(s->tfar_s + 0.0f);
     const uint32_t first = rtk_leaf_first(s->cur), end = first + rtk_leaf_blocks(s->cur);
     for (uint32_t block = first; block < end; block++) {
         tri4_hit h;
         block_t scratch;
         const block_t *t = LEAF_BLOCK(accel, block, &scratch);
-        if (triangle4_intersect(t, &s->p, stream_leaf_ray(s), tnear, tfar, &h))
+        if (triangle4_intersect(t, p, stream_leaf_ray(s), tnear, tfar, &h))
             return -1;
     }
     if (!pop_in_range(s->stack, &s->sp, s->tfar_s, &s->cur))
@@ -864,11 +864,11 @@ static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *
             stream_slot *s = active[j];
             int go;
             if (!(s->cur & RTK_BVH4_LEAF_BIT)) {
-                go = stream_node_step(accel, s, !closest);
+                go = stream_node_step(accel, s, &s->p, !closest);
             } else if (closest) {
-                go = stream_leaf_closest(accel, s);
+                go = stream_leaf_closest(accel, s, &s->p);
             } else {
-                go = stream_leaf_any(accel, s);
+                go = stream_leaf_any(accel, s, &s->p);
                 if (go < 0) {
                     ((rtk_ray *)s->ray)->tfar = -INFINITY;
                     go = 0;

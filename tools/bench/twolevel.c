@@ -142,13 +142,29 @@ static void pieces_move(scene *sc, pieces *p, const float *rest, float dy)
     }
 }
 
+/* The path tracer's APIs here: single rays and streams (rtk's packets
+ * through two-level scenes go through its stream kernel, core/query.c),
+ * each where --api names it. */
+#define TWO_APIS 2
+static const int two_apis[TWO_APIS] = {1, RENDER_API_STREAM};
+
+/* Whether --api names two_apis[a]. */
+static int two_api_on(const bench_opts *o, int a)
+{
+    for (int k = 0; k < NAPIS; k++)
+        if (apis[k] == two_apis[a])
+            return o->api_on[k];
+    return 0;
+}
+
 /* One pass of the path tracer through a scene framed by lo/hi on
- * `threads` threads: its rate (Mrays/s), or -1. */
-static double render_pass(const bench_opts *o, scene *sc, const float lo[3], const float hi[3], int threads,
+ * `threads` threads with API `api`: its rate (Mrays/s), or -1. */
+static double render_pass(const bench_opts *o, scene *sc, const float lo[3], const float hi[3], int threads, int api,
                           float *rgb, char *err, size_t err_size)
 {
     render_settings rs;
     diffuse_settings(&rs, o, lo, hi, threads);
+    rs.api = api;
     const render_tracer t = scene_tracer(sc, 0);
     return diffuse_pass(&t, &rs, rgb, NULL, err, err_size);
 }
@@ -165,11 +181,12 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
            "the path tracer's rate through it, %dx%d, %d spp, Mrays/s); the mesh cut in %d geometries of a dynamic "
            "scene, one of them deforming (REFIT) and moved in each of %d frames (first commit, then the commit of a "
            "frame, 1 thread, best of the frames; the path tracer's rate after the last frame); rates on each thread "
-           "count (thr), the best of %d passes taken by the libraries in turns\n",
+           "count (thr) and API (single rays, or each bounce's rays of a tile as a stream), the best of %d passes "
+           "taken by the libraries in turns\n",
            GRID * GRID, GRID, GRID, o->builds, o->render_w, o->render_h, o->render_spp, PIECES, o->builds + 1,
            o->repeat);
-    printf("  %-20s %3s %12s %8s %10s %8s %12s %10s %8s %10s %8s\n", "library", "thr", "instances ms", "ratio", "Mrays/s",
-           "ratio", "dynamic ms", "frame ms", "ratio", "Mrays/s", "ratio");
+    printf("  %-20s %3s %-6s %12s %8s %10s %8s %12s %10s %8s %10s %8s\n", "library", "thr", "api", "instances ms",
+           "ratio", "Mrays/s", "ratio", "dynamic ms", "frame ms", "ratio", "Mrays/s", "ratio");
     float *rgb = malloc((size_t)o->render_w * (size_t)o->render_h * 3 * sizeof *rgb);
     /* each library's own copy of the pieces: their scenes share the
      * buffers, and all are alive until the passes are done */
@@ -195,8 +212,8 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
      * the machine then falls on all libraries alike, not on whichever ran
      * through it. */
     scene grids[MAXLIBS], dyns[MAXLIBS];
-    double inst_ms[MAXLIBS], frame_ms[MAXLIBS], dyn_first[MAXLIBS], inst_rate[MAXLIBS][4] = {{0}},
-        dyn_rate[MAXLIBS][4] = {{0}};
+    double inst_ms[MAXLIBS], frame_ms[MAXLIBS], dyn_first[MAXLIBS], inst_rate[MAXLIBS][4][TWO_APIS] = {{{0}}},
+        dyn_rate[MAXLIBS][4][TWO_APIS] = {{{0}}};
     memset(grids, 0, sizeof grids);
     memset(dyns, 0, sizeof dyns);
     for (int l = 0; l < c->nlibs && !rc; l++) {
@@ -243,42 +260,46 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
     }
     for (int r = 0; r < o->repeat && !rc; r++)
         for (int ti = 0; ti < o->nthreads && !rc; ti++)
-            for (int k = 0; k < 2 && !rc; k++)
-                for (int l = 0; l < c->nlibs && !rc; l++) {
-                    scene *sc = k ? &dyns[l] : &grids[l];
-                    const int th = o->threads[ti];
-                    const double v = k ? render_pass(o, sc, lo, hi, th, rgb, err, err_size)
-                                       : render_pass(o, sc, glo, ghi, th, rgb, err, err_size);
-                    rc = v < 0;
-                    double *best = k ? &dyn_rate[l][ti] : &inst_rate[l][ti];
-                    *best = v > *best ? v : *best;
-                }
+            for (int a = 0; a < TWO_APIS && !rc; a++)
+                for (int k = 0; k < 2 && !rc && two_api_on(o, a); k++)
+                    for (int l = 0; l < c->nlibs && !rc; l++) {
+                        scene *sc = k ? &dyns[l] : &grids[l];
+                        const int th = o->threads[ti];
+                        const double v = render_pass(o, sc, k ? lo : glo, k ? hi : ghi, th, two_apis[a], rgb, err,
+                                                     err_size);
+                        rc = v < 0;
+                        double *best = k ? &dyn_rate[l][ti][a] : &inst_rate[l][ti][a];
+                        *best = v > *best ? v : *best;
+                    }
     for (int l = 0; l < c->nlibs; l++) {
         if (grids[l].lib)
             scene_release(&grids[l]);
         if (dyns[l].lib)
             scene_release(&dyns[l]);
     }
+    for (int l = 0; l < c->nlibs && !rc; l++) {
+        lib *lb = &c->libs[l];
+        csv_row(&c->csv, "twolevel", lb->name, "instances", "commit", "", 1, inst_ms[l], "ms",
+                ratio(inst_ms[0], inst_ms[l]));
+        csv_row(&c->csv, "twolevel", lb->name, "dynamic", "first commit", "", 1, dyn_first[l], "ms", 0);
+        csv_row(&c->csv, "twolevel", lb->name, "dynamic", "frame commit", "", 1, frame_ms[l], "ms",
+                ratio(frame_ms[0], frame_ms[l]));
+    }
     for (int ti = 0; ti < o->nthreads && !rc; ti++)
-        for (int l = 0; l < c->nlibs; l++) {
-            lib *lb = &c->libs[l];
-            const int th = o->threads[ti];
-            const double ir = inst_rate[l][ti], dr = dyn_rate[l][ti];
-            printf("  %-20s %3d %12.3f %7.2fx %10.2f %7.2fx %12.1f %10.3f %7.2fx %10.2f %7.2fx\n", lb->name, th,
-                   inst_ms[l], ratio(inst_ms[0], inst_ms[l]), ir, ratio(ir, inst_rate[0][ti]), dyn_first[l],
-                   frame_ms[l], ratio(frame_ms[0], frame_ms[l]), dr, ratio(dr, dyn_rate[0][ti]));
-            if (ti == 0) {
-                csv_row(&c->csv, "twolevel", lb->name, "instances", "commit", "", 1, inst_ms[l], "ms",
-                        ratio(inst_ms[0], inst_ms[l]));
-                csv_row(&c->csv, "twolevel", lb->name, "dynamic", "first commit", "", 1, dyn_first[l], "ms", 0);
-                csv_row(&c->csv, "twolevel", lb->name, "dynamic", "frame commit", "", 1, frame_ms[l], "ms",
-                        ratio(frame_ms[0], frame_ms[l]));
+        for (int a = 0; a < TWO_APIS; a++)
+            for (int l = 0; l < c->nlibs && two_api_on(o, a); l++) {
+                lib *lb = &c->libs[l];
+                const int th = o->threads[ti];
+                const char *api = render_api_name(two_apis[a]);
+                const double ir = inst_rate[l][ti][a], dr = dyn_rate[l][ti][a];
+                printf("  %-20s %3d %-6s %12.3f %7.2fx %10.2f %7.2fx %12.1f %10.3f %7.2fx %10.2f %7.2fx\n", lb->name,
+                       th, api, inst_ms[l], ratio(inst_ms[0], inst_ms[l]), ir, ratio(ir, inst_rate[0][ti][a]),
+                       dyn_first[l], frame_ms[l], ratio(frame_ms[0], frame_ms[l]), dr, ratio(dr, dyn_rate[0][ti][a]));
+                csv_row(&c->csv, "twolevel", lb->name, "instances", "diffuse path tracer", api, th, ir, "Mrays/s",
+                        ratio(ir, inst_rate[0][ti][a]));
+                csv_row(&c->csv, "twolevel", lb->name, "dynamic", "diffuse path tracer", api, th, dr, "Mrays/s",
+                        ratio(dr, dyn_rate[0][ti][a]));
             }
-            csv_row(&c->csv, "twolevel", lb->name, "instances", "diffuse path tracer", "single", th, ir, "Mrays/s",
-                    ratio(ir, inst_rate[0][ti]));
-            csv_row(&c->csv, "twolevel", lb->name, "dynamic", "diffuse path tracer", "single", th, dr, "Mrays/s",
-                    ratio(dr, dyn_rate[0][ti]));
-        }
     free(rest);
     for (int l = 0; l < c->nlibs; l++)
         pieces_free(&pl[l]);
