@@ -345,9 +345,18 @@ static inline __attribute__((always_inline)) void objs_trace(const rtk_accel *ac
 }
 
 /* The slots of a call, from the heap (each holds two stacks: several KB);
- * NULL when memory runs out, and the call goes ray by ray. */
-static objs_slot *objs_slots(void)
+ * NULL when memory runs out, and the call goes ray by ray.  So does a
+ * packet's call (core/query.c hands over a packet's rays as a stream, with
+ * no stream state to resume: fewer rays than a window): interleaved, or
+ * one after the other behind the slots' allocation, the path tracer's
+ * packets of 8 through the dragon's dynamic scene ran 10-13% slower than
+ * the merged single-ray traversal, and through its instances no faster
+ * (rtktool bench --only twolevel --api packet8 --alt, AMD EPYC, either
+ * build first). */
+static objs_slot *objs_slots(uint32_t count, const rtk_query *q)
 {
+    if (count < RTK_STREAM_WINDOW && !(q->flags & RTK_QUERY_FLAG_STREAM_STATE))
+        return NULL;
     return aligned_alloc(64, (sizeof(objs_slot) * RTK_STREAM_K + 63) / 64 * 64);
 }
 
@@ -355,7 +364,7 @@ void OBJS_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint
 {
     if (accel->root == RTK_BVH4_EMPTY || !count)
         return;
-    objs_slot *slots = objs_slots();
+    objs_slot *slots = objs_slots(count, q);
     if (__builtin_expect(!slots, 0)) {
         for (uint32_t i = 0; i < count; i++)
             OBJS_INTERSECT1(accel, rays[i], q);
@@ -369,7 +378,7 @@ void OBJS_OCCLUDED_STREAM(const rtk_accel *accel, rtk_ray *const *rays, uint32_t
 {
     if (accel->root == RTK_BVH4_EMPTY || !count)
         return;
-    objs_slot *slots = objs_slots();
+    objs_slot *slots = objs_slots(count, q);
     if (__builtin_expect(!slots, 0)) {
         for (uint32_t i = 0; i < count; i++)
             OBJS_OCCLUDED1(accel, rays[i], q);

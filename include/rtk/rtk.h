@@ -963,9 +963,11 @@ RTK_API rtk_error rtk_occluded1_ctx(rtk_scene scene, rtk_ray *ray, const rtk_que
  * is traced alone), so a stream is in rays' order best handed over tile by
  * tile.  Motion-blurred scenes interleave their rays too, each in the
  * tree of its time segment (their coherent runs go one ray after the
- * other: there are no motion packet kernels).  Scenes whose layout has no
- * stream kernel (two levels) are traced ray by ray, with the same
- * answers.
+ * other: there are no motion packet kernels).  Two-level scenes
+ * (instances, RTK_SCENE_FLAG_DYNAMIC) interleave their rays through both
+ * levels: the top level walked ray by ray, the object trees below it
+ * interleaved (their packets go one ray after the other: interleaving a
+ * packet's few rays through two levels measured no faster).
  *
  * The rest (rays that scatter) goes one of several ways: one after the
  * other, interleaved, or for any hits on avx2 walked together by direction

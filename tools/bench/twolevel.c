@@ -142,11 +142,11 @@ static void pieces_move(scene *sc, pieces *p, const float *rest, float dy)
     }
 }
 
-/* The path tracer's APIs here: single rays and streams (rtk's packets
- * through two-level scenes go through its stream kernel, core/query.c),
- * each where --api names it. */
-#define TWO_APIS 2
-static const int two_apis[TWO_APIS] = {1, RENDER_API_STREAM};
+/* The path tracer's APIs here: single rays, packets of 8 (rtk's go
+ * through its two-level stream kernel, core/query.c) and streams, each
+ * where --api names it. */
+#define TWO_APIS 3
+static const int two_apis[TWO_APIS] = {1, 8, RENDER_API_STREAM};
 
 /* Whether --api names two_apis[a]. */
 static int two_api_on(const bench_opts *o, int a)
@@ -181,8 +181,8 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
            "the path tracer's rate through it, %dx%d, %d spp, Mrays/s); the mesh cut in %d geometries of a dynamic "
            "scene, one of them deforming (REFIT) and moved in each of %d frames (first commit, then the commit of a "
            "frame, 1 thread, best of the frames; the path tracer's rate after the last frame); rates on each thread "
-           "count (thr) and API (single rays, or each bounce's rays of a tile as a stream), the best of %d passes "
-           "taken by the libraries in turns\n",
+           "count (thr) and API (single rays, packets of 4x2 pixels, or each bounce's rays of a tile as a stream), the "
+           "best of %d passes taken by the libraries in turns\n",
            GRID * GRID, GRID, GRID, o->builds, o->render_w, o->render_h, o->render_spp, PIECES, o->builds + 1,
            o->repeat);
     printf("  %-20s %3s %-6s %12s %8s %10s %8s %12s %10s %8s %10s %8s\n", "library", "thr", "api", "instances ms",
