@@ -190,16 +190,36 @@ typedef struct forest_tracer {
     const forest *f;
 } forest_tracer;
 
+/* rh's normal, of an instance's hit, turned into world space. */
+static void forest_turn(const forest *f, rtk_rayhit *rh)
+{
+    const unsigned inst = rh->hit.instID;
+    if (rh->hit.geomID != RTK_INVALID_GEOMETRY_ID && inst < f->n) {
+        const float c = f->cs[inst][0], s = f->cs[inst][1], x = rh->hit.Ng_x, z = rh->hit.Ng_z;
+        rh->hit.Ng_x = c * x + s * z;
+        rh->hit.Ng_z = -s * x + c * z;
+    }
+}
+
 static void forest_intersect1(void *scene, rtk_rayhit *rh)
 {
     const forest_tracer *ft = scene;
     ft->inner.intersect1(ft->inner.scene, rh);
-    const unsigned inst = rh->hit.instID;
-    if (rh->hit.geomID != RTK_INVALID_GEOMETRY_ID && inst < ft->f->n) {
-        const float c = ft->f->cs[inst][0], s = ft->f->cs[inst][1], x = rh->hit.Ng_x, z = rh->hit.Ng_z;
-        rh->hit.Ng_x = c * x + s * z;
-        rh->hit.Ng_z = -s * x + c * z;
-    }
+    forest_turn(ft->f, rh);
+}
+
+static void forest_intersect1M(void *scene, rtk_rayhit *rh, unsigned n, size_t stride)
+{
+    const forest_tracer *ft = scene;
+    ft->inner.intersect1M(ft->inner.scene, rh, n, stride);
+    for (unsigned i = 0; i < n; i++)
+        forest_turn(ft->f, (rtk_rayhit *)(void *)((char *)rh + i * stride));
+}
+
+static void forest_occluded1M(void *scene, rtk_ray *rays, unsigned n, size_t stride)
+{
+    const forest_tracer *ft = scene;
+    ft->inner.occluded1M(ft->inner.scene, rays, n, stride);
 }
 
 static void forest_occluded1(void *scene, rtk_ray *ray)
@@ -208,21 +228,39 @@ static void forest_occluded1(void *scene, rtk_ray *ray)
     ft->inner.occluded1(ft->inner.scene, ray);
 }
 
-/* One pass of the path tracer through the forest on `threads` threads:
- * its rate (Mrays/s) or -1, and the share of camera rays that hit
- * something. */
-static double forest_rate(const bench_opts *o, scene *sc, const forest *f, int threads, float *rgb, double *hit_share,
-                          char *err, size_t err_size)
+/* The path tracer's APIs here: single rays and streams (each bounce's
+ * rays of a tile), each where --api names it. */
+#define FOREST_APIS 2
+static const int forest_apis[FOREST_APIS] = {1, RENDER_API_STREAM};
+
+static int forest_api_on(const bench_opts *o, int a)
+{
+    for (int k = 0; k < NAPIS; k++)
+        if (apis[k] == forest_apis[a])
+            return o->api_on[k];
+    return 0;
+}
+
+/* One pass of the path tracer through the forest on `threads` threads
+ * with API `api`: its rate (Mrays/s) or -1, and the share of camera rays
+ * that hit something. */
+static double forest_rate(const bench_opts *o, scene *sc, const forest *f, int threads, int api, float *rgb,
+                          double *hit_share, char *err, size_t err_size)
 {
     render_settings rs;
     diffuse_settings(&rs, o, f->lo, f->hi, threads);
+    rs.api = api;
     /* at the forest's south edge, at three times the tallest instance's
      * height, looking across to its middle */
     const float eye[3] = {0.1f * f->half, 3.0f * f->hi[1], f->half}, at[3] = {0, 0, 0}, up[3] = {0, 1, 0};
     if (render_camera_look(&rs.camera, eye, at, up, 50.0f, rs.width, rs.height, err, err_size))
         return -1;
     forest_tracer ft = {scene_tracer(sc, 0), f};
-    const render_tracer t = {.scene = &ft, .intersect1 = forest_intersect1, .occluded1 = forest_occluded1};
+    const render_tracer t = {.scene = &ft,
+                             .intersect1 = forest_intersect1,
+                             .occluded1 = forest_occluded1,
+                             .intersect1M = forest_intersect1M,
+                             .occluded1M = forest_occluded1M};
     return diffuse_pass(&t, &rs, rgb, hit_share, err, err_size);
 }
 
@@ -273,20 +311,22 @@ int section_forest(ctx *c, char *err, size_t err_size)
                "scaled at random over a ground plane (the ground a geometry of the top level): the time from "
                "the first call to the committed scene and the commit's alone (builds on 1 thread, best of %d), "
                "memory per instance (the library's memory monitor; resident memory), and the path tracer's rate "
-               "through it from its edge (%dx%d, %d spp, Mrays/s, the best of %d passes taken by the libraries in "
-               "turns)\n",
+               "through it from its edge (%dx%d, %d spp, Mrays/s, single rays and streams, the best of %d passes "
+               "taken by the libraries in turns)\n",
                f.n, bush.mesh.triangle_count, rock.triangle_count, o->builds, o->render_w, o->render_h,
                o->render_spp, o->repeat);
         printf("  %-20s %10s %10s %8s %10s %10s", "library", "scene ms", "commit ms", "ratio", "B/inst", "RSS B/inst");
         for (int ti = 0; ti < o->nthreads; ti++)
-            printf(" %8s %2dt %7s", "Mrays/s", o->threads[ti], "ratio");
+            for (int a = 0; a < FOREST_APIS; a++)
+                if (forest_api_on(o, a))
+                    printf(" %2dt %-7s %7s", o->threads[ti], render_api_name(forest_apis[a]), "ratio");
         printf(" %6s\n", "hits");
         /* Each library's forest first (its last build kept), then the path
          * tracer's passes taken in turns, the best of each kept: a slow
          * spell of the machine falls on all libraries alike. */
         scene kinds[MAXLIBS][KINDS];
         forest_scene best[MAXLIBS];
-        double rate[MAXLIBS][4], hits[MAXLIBS];
+        double rate[MAXLIBS][4][FOREST_APIS], hits[MAXLIBS];
         memset(kinds, 0, sizeof kinds);
         memset(best, 0, sizeof best);
         memset(rate, 0, sizeof rate);
@@ -318,11 +358,13 @@ int section_forest(ctx *c, char *err, size_t err_size)
         }
         for (int r = 0; r < o->repeat && !rc; r++)
             for (int ti = 0; ti < o->nthreads && !rc; ti++)
-                for (int l = 0; l < c->nlibs && !rc; l++) {
-                    const double v = forest_rate(o, &best[l].sc, &f, o->threads[ti], rgb, &hits[l], err, err_size);
-                    rc = v < 0;
-                    rate[l][ti] = v > rate[l][ti] ? v : rate[l][ti];
-                }
+                for (int a = 0; a < FOREST_APIS && !rc; a++)
+                    for (int l = 0; l < c->nlibs && !rc && forest_api_on(o, a); l++) {
+                        const double v = forest_rate(o, &best[l].sc, &f, o->threads[ti], forest_apis[a], rgb,
+                                                     &hits[l], err, err_size);
+                        rc = v < 0;
+                        rate[l][ti][a] = v > rate[l][ti][a] ? v : rate[l][ti][a];
+                    }
         for (int l = 0; l < c->nlibs; l++) {
             lib *lb = &c->libs[l];
             if (best[l].sc.lib)
@@ -339,7 +381,9 @@ int section_forest(ctx *c, char *err, size_t err_size)
             printf("  %-20s %10.1f %10.1f %7.2fx %10.0f %10.0f", lb->name, bl->make_ms, bl->commit_ms,
                    ratio(best[0].make_ms, bl->make_ms), bl->monitor_bytes / (double)f.n, bl->resident / (double)f.n);
             for (int ti = 0; ti < o->nthreads; ti++)
-                printf(" %11.2f %7.2fx", rate[l][ti], ratio(rate[l][ti], rate[0][ti]));
+                for (int a = 0; a < FOREST_APIS; a++)
+                    if (forest_api_on(o, a))
+                        printf(" %11.2f %7.2fx", rate[l][ti][a], ratio(rate[l][ti][a], rate[0][ti][a]));
             printf(" %5.1f%%\n", 100.0 * hits[l]);
             char variant[48];
             snprintf(variant, sizeof variant, "forest %zu", f.n);
@@ -351,8 +395,11 @@ int section_forest(ctx *c, char *err, size_t err_size)
             csv_row(&c->csv, "twolevel", lb->name, variant, "resident memory", "", 1, bl->resident / (double)f.n,
                     "bytes per instance", 0);
             for (int ti = 0; ti < o->nthreads; ti++)
-                csv_row(&c->csv, "twolevel", lb->name, variant, "diffuse path tracer", "single", o->threads[ti],
-                        rate[l][ti], "Mrays/s", ratio(rate[l][ti], rate[0][ti]));
+                for (int a = 0; a < FOREST_APIS; a++)
+                    if (forest_api_on(o, a))
+                        csv_row(&c->csv, "twolevel", lb->name, variant, "diffuse path tracer",
+                                render_api_name(forest_apis[a]), o->threads[ti], rate[l][ti][a], "Mrays/s",
+                                ratio(rate[l][ti][a], rate[0][ti][a]));
         }
         forest_free(&f);
     }
