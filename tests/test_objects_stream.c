@@ -16,22 +16,8 @@
 #include "testlib.h"
 #include "user_spheres.h"
 
+/* The ball the scenes are made of (test_two_level_streams makes it). */
 static test_mesh ball;
-
-static int setup(void **state)
-{
-    (void)state;
-    ball = test_ball(16);
-    return 0;
-}
-
-static int teardown(void **state)
-{
-    (void)state;
-    free(ball.v);
-    free(ball.idx);
-    return 0;
-}
 
 /* Rays from [-3, 3]^3: a third towards the middle, the others in random
  * directions; every fourth with a ray mask of 1, 2 or all ones. */
@@ -155,6 +141,7 @@ static int reject_odd(const rtk_filter_args *a)
 static void test_two_level_streams(void **state)
 {
     (void)state;
+    ball = test_ball(16);
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     const size_t n = 2000;
@@ -255,6 +242,8 @@ static void test_two_level_streams(void **state)
     free(rh);
     free(pieces);
     free(world);
+    free(ball.v);
+    free(ball.idx);
 }
 
 int main(void)
@@ -262,5 +251,5 @@ int main(void)
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(test_two_level_streams),
     };
-    return cmocka_run_group_tests(tests, setup, teardown);
+    return cmocka_run_group_tests(tests, NULL, NULL);
 }

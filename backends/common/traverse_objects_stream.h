@@ -360,32 +360,34 @@ static objs_slot *objs_slots(uint32_t count, const rtk_query *q)
     return aligned_alloc(64, (sizeof(objs_slot) * RTK_STREAM_K + 63) / 64 * 64);
 }
 
-void OBJS_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count, const rtk_query *q)
+/* Both queries' entry (closest a constant in each). */
+static inline __attribute__((always_inline)) void objs_stream(const rtk_accel *accel, void *const *rays,
+                                                              uint32_t count, const rtk_query *q, int closest)
 {
     if (accel->root == RTK_BVH4_EMPTY || !count)
         return;
     objs_slot *slots = objs_slots(count, q);
-    if (__builtin_expect(!slots, 0)) {
-        for (uint32_t i = 0; i < count; i++)
-            OBJS_INTERSECT1(accel, rays[i], q);
+    if (!slots) {
+        for (uint32_t i = 0; i < count; i++) {
+            if (closest)
+                OBJS_INTERSECT1(accel, rays[i], q);
+            else
+                OBJS_OCCLUDED1(accel, rays[i], q);
+        }
         return;
     }
-    objs_trace(accel, (void *const *)rays, count, q, 1, slots);
+    objs_trace(accel, rays, count, q, closest, slots);
     free(slots);
+}
+
+void OBJS_INTERSECT_STREAM(const rtk_accel *accel, rtk_rayhit *const *rays, uint32_t count, const rtk_query *q)
+{
+    objs_stream(accel, (void *const *)rays, count, q, 1);
 }
 
 void OBJS_OCCLUDED_STREAM(const rtk_accel *accel, rtk_ray *const *rays, uint32_t count, const rtk_query *q)
 {
-    if (accel->root == RTK_BVH4_EMPTY || !count)
-        return;
-    objs_slot *slots = objs_slots(count, q);
-    if (__builtin_expect(!slots, 0)) {
-        for (uint32_t i = 0; i < count; i++)
-            OBJS_OCCLUDED1(accel, rays[i], q);
-        return;
-    }
-    objs_trace(accel, (void *const *)rays, count, q, 0, slots);
-    free(slots);
+    objs_stream(accel, (void *const *)rays, count, q, 0);
 }
 
 #undef OBJS_INTERSECT1
