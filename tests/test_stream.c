@@ -660,19 +660,23 @@ static void test_threads(void **state)
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     rtk_device dev = test_device(names[nb - 1]);
-    rtk_scene s = ball_scene(dev);
+    rtk_scene ball_s = ball_scene(dev), inst = test_instancing_scene(dev, ball_s);
+    assert_int_equal(rtk_scene_commit(inst), RTK_OK);
     enum { T = 4 };
-    stream_job jobs[T];
-    pthread_t tid[T];
-    for (int t = 0; t < T; t++) {
-        jobs[t] = (stream_job){s, 100 + (uint64_t)t, 0};
-        assert_int_equal(pthread_create(&tid[t], NULL, stream_thread, &jobs[t]), 0);
+    for (int two = 0; two < 2; two++) { /* the ball, then an instance of it (two levels) */
+        stream_job jobs[T];
+        pthread_t tid[T];
+        for (int t = 0; t < T; t++) {
+            jobs[t] = (stream_job){two ? inst : ball_s, 100 + (uint64_t)t, 0};
+            assert_int_equal(pthread_create(&tid[t], NULL, stream_thread, &jobs[t]), 0);
+        }
+        for (int t = 0; t < T; t++) {
+            pthread_join(tid[t], NULL);
+            assert_int_equal(jobs[t].failures, 0);
+        }
     }
-    for (int t = 0; t < T; t++) {
-        pthread_join(tid[t], NULL);
-        assert_int_equal(jobs[t].failures, 0);
-    }
-    rtk_scene_release(s);
+    rtk_scene_release(inst);
+    rtk_scene_release(ball_s);
     rtk_device_release(dev);
 }
 
