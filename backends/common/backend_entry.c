@@ -220,8 +220,9 @@ static const rtk_kernel_entry kernels[] = {
      .fn.intersect1 = RTK_SYM(rtk_objects_intersect1)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = 1,
      .fn.occluded1 = RTK_SYM(rtk_objects_occluded1)},
-    /* streams through both levels (traverse_objects_stream.h); packets
-     * without a kernel of their own go through them too (core/query.c) */
+    /* streams through both levels (traverse_objects_stream.h); the core
+     * hands them packets too (core/query.c), whose few rays they trace one
+     * after the other (objs_slots) */
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_INTERSECT, .width = RTK_KERNEL_WIDTH_STREAM,
      .in_flight = RTK_STREAM_K, .fn.intersect_stream = RTK_SYM(rtk_objects_intersect_stream)},
     {.layout = RTK_LAYOUT_BVH4_OBJECT, .query = RTK_QUERY_OCCLUDED, .width = RTK_KERNEL_WIDTH_STREAM,
