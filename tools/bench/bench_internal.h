@@ -112,6 +112,9 @@ typedef struct bench_opts {
     const char *alt; /* --alt DIR: one more rtk library, the backends of DIR (backend_path=) */
 } bench_opts;
 
+/* Whether --api names api (an entry of apis[]: 1, 4, 8, 16 or RENDER_API_STREAM). */
+int api_on(const bench_opts *o, int api);
+
 enum { MAXLIBS = 8 };
 
 typedef struct ctx {

@@ -394,6 +394,14 @@ const char *const set_names[NSETS] = {"primary", "diffuse", "shadow", "incoheren
 
 const int apis[NAPIS] = {1, 4, 8, 16, RENDER_API_STREAM};
 
+int api_on(const bench_opts *o, int api)
+{
+    for (int k = 0; k < NAPIS; k++)
+        if (apis[k] == api)
+            return o->api_on[k];
+    return 0;
+}
+
 static uint64_t xs_state = 0x9e3779b97f4a7c15ull;
 
 float rnd_from(uint64_t *state)

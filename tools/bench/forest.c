@@ -233,14 +233,6 @@ static void forest_occluded1(void *scene, rtk_ray *ray)
 #define FOREST_APIS 2
 static const int forest_apis[FOREST_APIS] = {1, RENDER_API_STREAM};
 
-static int forest_api_on(const bench_opts *o, int a)
-{
-    for (int k = 0; k < NAPIS; k++)
-        if (apis[k] == forest_apis[a])
-            return o->api_on[k];
-    return 0;
-}
-
 /* One pass of the path tracer through the forest on `threads` threads
  * with API `api`: its rate (Mrays/s) or -1, and the share of camera rays
  * that hit something. */
@@ -318,7 +310,7 @@ int section_forest(ctx *c, char *err, size_t err_size)
         printf("  %-20s %10s %10s %8s %10s %10s", "library", "scene ms", "commit ms", "ratio", "B/inst", "RSS B/inst");
         for (int ti = 0; ti < o->nthreads; ti++)
             for (int a = 0; a < FOREST_APIS; a++)
-                if (forest_api_on(o, a))
+                if (api_on(o, forest_apis[a]))
                     printf(" %2dt %-7s %7s", o->threads[ti], render_api_name(forest_apis[a]), "ratio");
         printf(" %6s\n", "hits");
         /* Each library's forest first (its last build kept), then the path
@@ -359,7 +351,7 @@ int section_forest(ctx *c, char *err, size_t err_size)
         for (int r = 0; r < o->repeat && !rc; r++)
             for (int ti = 0; ti < o->nthreads && !rc; ti++)
                 for (int a = 0; a < FOREST_APIS && !rc; a++)
-                    for (int l = 0; l < c->nlibs && !rc && forest_api_on(o, a); l++) {
+                    for (int l = 0; l < c->nlibs && !rc && api_on(o, forest_apis[a]); l++) {
                         const double v = forest_rate(o, &best[l].sc, &f, o->threads[ti], forest_apis[a], rgb,
                                                      &hits[l], err, err_size);
                         rc = v < 0;
@@ -382,7 +374,7 @@ int section_forest(ctx *c, char *err, size_t err_size)
                    ratio(best[0].make_ms, bl->make_ms), bl->monitor_bytes / (double)f.n, bl->resident / (double)f.n);
             for (int ti = 0; ti < o->nthreads; ti++)
                 for (int a = 0; a < FOREST_APIS; a++)
-                    if (forest_api_on(o, a))
+                    if (api_on(o, forest_apis[a]))
                         printf(" %11.2f %7.2fx", rate[l][ti][a], ratio(rate[l][ti][a], rate[0][ti][a]));
             printf(" %5.1f%%\n", 100.0 * hits[l]);
             char variant[48];
@@ -396,7 +388,7 @@ int section_forest(ctx *c, char *err, size_t err_size)
                     "bytes per instance", 0);
             for (int ti = 0; ti < o->nthreads; ti++)
                 for (int a = 0; a < FOREST_APIS; a++)
-                    if (forest_api_on(o, a))
+                    if (api_on(o, forest_apis[a]))
                         csv_row(&c->csv, "twolevel", lb->name, variant, "diffuse path tracer",
                                 render_api_name(forest_apis[a]), o->threads[ti], rate[l][ti][a], "Mrays/s",
                                 ratio(rate[l][ti][a], rate[0][ti][a]));

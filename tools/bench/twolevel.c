@@ -148,15 +148,6 @@ static void pieces_move(scene *sc, pieces *p, const float *rest, float dy)
 #define TWO_APIS 3
 static const int two_apis[TWO_APIS] = {1, 8, RENDER_API_STREAM};
 
-/* Whether --api names two_apis[a]. */
-static int two_api_on(const bench_opts *o, int a)
-{
-    for (int k = 0; k < NAPIS; k++)
-        if (apis[k] == two_apis[a])
-            return o->api_on[k];
-    return 0;
-}
-
 /* One pass of the path tracer through a scene framed by lo/hi on
  * `threads` threads with API `api`: its rate (Mrays/s), or -1. */
 static double render_pass(const bench_opts *o, scene *sc, const float lo[3], const float hi[3], int threads, int api,
@@ -261,7 +252,7 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
     for (int r = 0; r < o->repeat && !rc; r++)
         for (int ti = 0; ti < o->nthreads && !rc; ti++)
             for (int a = 0; a < TWO_APIS && !rc; a++)
-                for (int k = 0; k < 2 && !rc && two_api_on(o, a); k++)
+                for (int k = 0; k < 2 && !rc && api_on(o, two_apis[a]); k++)
                     for (int l = 0; l < c->nlibs && !rc; l++) {
                         scene *sc = k ? &dyns[l] : &grids[l];
                         const int th = o->threads[ti];
@@ -287,7 +278,7 @@ int section_twolevel(ctx *c, char *err, size_t err_size)
     }
     for (int ti = 0; ti < o->nthreads && !rc; ti++)
         for (int a = 0; a < TWO_APIS; a++)
-            for (int l = 0; l < c->nlibs && two_api_on(o, a); l++) {
+            for (int l = 0; l < c->nlibs && api_on(o, two_apis[a]); l++) {
                 lib *lb = &c->libs[l];
                 const int th = o->threads[ti];
                 const char *api = render_api_name(two_apis[a]);
