@@ -181,6 +181,91 @@ static inline __attribute__((always_inline)) void objects_walk_start(objects_wal
     w->best_inst = RTK_INVALID_GEOMETRY_ID;
 }
 
+/* Whether a ray with set-up p may walk a tree by the stream kernel's steps
+ * (traverse_objects_stream.h), which take only the fused node test
+ * (ray_pre.fma). */
+static inline int objects_walkable(const ray_pre *p)
+{
+#if RTK_SIMD_HAS_FMA
+    return p->fma;
+#else
+    (void)p;
+    return 1;
+#endif
+}
+
+/* Item it of a top-level leaf, for the closest hit within [tnear, *tfar]:
+ * its tree walked from its node (an instance's or a robust tree's set-up
+ * made in own, own_m), or an object of another kind through its kernel.
+ * With defer (the stream kernel; NULL here, and the test folds away), a
+ * tree the caller can walk by its own steps (no features, the fused test:
+ * objects_walkable) is not walked: its set-up goes into *defer. */
+static inline __attribute__((always_inline)) void objects_item_closest(const rtk_accel *accel,
+                                                                       const rtk_object_item *it, rtk_rayhit *rh,
+                                                                       const rtk_query *q, unsigned qfeat,
+                                                                       float tnear, float *tfar, objects_walk *w,
+                                                                       ray_pre *own, ray_mem *own_m,
+                                                                       const ray_pre **defer)
+{
+    if (!(it->mask & rh->ray.mask))
+        return;
+    if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
+        const ray_pre *p = objects_ray(it, accel, &rh->ray, &w->world, &w->world_m, &w->ready, own, own_m);
+        if (!p)
+            return;
+        feat_ctx fc;
+        rtk_query cq;
+        rtk_ray local;
+        const feat_ctx *f = objects_feat(&fc, it, &rh->ray, p, &local, q, &cq, qfeat);
+        if (defer && __builtin_expect(!f && objects_walkable(p), 1)) {
+            *defer = p;
+            return;
+        }
+        closest_hit found = CLOSEST_HIT_NONE;
+        objects_closest(it->accel, it->root, p, tnear, tfar, &found, f);
+        if (found.lane >= 0) {
+            w->best = found;
+            w->best_leaves = it->accel;
+            w->best_inst = it->inst_id;
+        }
+        return;
+    }
+    /* the hit so far goes into rh first: the object's kernel may replace it
+     * (a tie included, as in objects.c) */
+    if (w->best_leaves) {
+        objects_hit_write(w->best_leaves, w->best_inst, &w->best, *tfar, rh);
+        w->best_leaves = NULL;
+    }
+    objects_other1(&accel->objects[it->object], rh, q);
+    *tfar = rh->ray.tfar;
+}
+
+/* Item it of a top-level leaf, for any hit: 1 when it occludes the ray;
+ * own, own_m and defer as for objects_item_closest (a deferred tree: 0). */
+static inline __attribute__((always_inline)) int objects_item_any(const rtk_accel *accel, const rtk_object_item *it,
+                                                                  rtk_ray *ray, const rtk_query *q, unsigned qfeat,
+                                                                  objects_walk *w, ray_pre *own, ray_mem *own_m,
+                                                                  const ray_pre **defer)
+{
+    if (!(it->mask & ray->mask))
+        return 0;
+    if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
+        const ray_pre *p = objects_ray(it, accel, ray, &w->world, &w->world_m, &w->ready, own, own_m);
+        if (!p)
+            return 0;
+        feat_ctx fc;
+        rtk_query cq;
+        rtk_ray local;
+        const feat_ctx *f = objects_feat(&fc, it, ray, p, &local, q, &cq, qfeat);
+        if (defer && __builtin_expect(!f && objects_walkable(p), 1)) {
+            *defer = p;
+            return 0;
+        }
+        return objects_any(it->accel, it->root, p, ray->tnear, ray->tfar, f);
+    }
+    return objects_other_occluded(&accel->objects[it->object], ray, q);
+}
+
 /* The objects of top-level leaf `cur`, for the closest hit within
  * [tnear, *tfar]. */
 static inline __attribute__((always_inline)) void objects_leaf_closest(const rtk_accel *accel, uint32_t cur,
@@ -189,37 +274,8 @@ static inline __attribute__((always_inline)) void objects_leaf_closest(const rtk
                                                                        objects_walk *w)
 {
     const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
-    for (uint32_t i = first; i < end; i++) {
-        const rtk_object_item *it = &accel->object_items[i];
-        if (!(it->mask & rh->ray.mask))
-            continue;
-        if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
-            const ray_pre *p =
-                objects_ray(it, accel, &rh->ray, &w->world, &w->world_m, &w->ready, &w->own, &w->own_m);
-            if (!p)
-                continue;
-            feat_ctx fc;
-            rtk_query cq;
-            rtk_ray local;
-            const feat_ctx *f = objects_feat(&fc, it, &rh->ray, p, &local, q, &cq, qfeat);
-            closest_hit found = CLOSEST_HIT_NONE;
-            objects_closest(it->accel, it->root, p, tnear, tfar, &found, f);
-            if (found.lane >= 0) {
-                w->best = found;
-                w->best_leaves = it->accel;
-                w->best_inst = it->inst_id;
-            }
-            continue;
-        }
-        /* the hit so far goes into rh first: the object's kernel may
-         * replace it (a tie included, as in objects.c) */
-        if (w->best_leaves) {
-            objects_hit_write(w->best_leaves, w->best_inst, &w->best, *tfar, rh);
-            w->best_leaves = NULL;
-        }
-        objects_other1(&accel->objects[it->object], rh, q);
-        *tfar = rh->ray.tfar;
-    }
+    for (uint32_t i = first; i < end; i++)
+        objects_item_closest(accel, &accel->object_items[i], rh, q, qfeat, tnear, tfar, w, &w->own, &w->own_m, NULL);
 }
 
 /* Whether any object of top-level leaf `cur` occludes the ray. */
@@ -227,26 +283,9 @@ static inline __attribute__((always_inline)) int objects_leaf_any(const rtk_acce
                                                                   const rtk_query *q, unsigned qfeat, objects_walk *w)
 {
     const uint32_t first = rtk_leaf_first(cur), end = first + rtk_leaf_blocks(cur);
-    for (uint32_t i = first; i < end; i++) {
-        const rtk_object_item *it = &accel->object_items[i];
-        if (!(it->mask & ray->mask))
-            continue;
-        int hit;
-        if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
-            const ray_pre *p = objects_ray(it, accel, ray, &w->world, &w->world_m, &w->ready, &w->own, &w->own_m);
-            if (!p)
-                continue;
-            feat_ctx fc;
-            rtk_query cq;
-            rtk_ray local;
-            const feat_ctx *f = objects_feat(&fc, it, ray, p, &local, q, &cq, qfeat);
-            hit = objects_any(it->accel, it->root, p, ray->tnear, ray->tfar, f);
-        } else {
-            hit = objects_other_occluded(&accel->objects[it->object], ray, q);
-        }
-        if (hit)
+    for (uint32_t i = first; i < end; i++)
+        if (objects_item_any(accel, &accel->object_items[i], ray, q, qfeat, w, &w->own, &w->own_m, NULL))
             return 1;
-    }
     return 0;
 }
 

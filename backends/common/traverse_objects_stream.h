@@ -149,31 +149,11 @@ static inline __attribute__((always_inline)) void objs_walk_begin(objs_slot *o, 
     stream_prefetch_ref(it->accel, it->root);
 }
 
-/* The set-up of item it's tree for slot o's ray (objects_ray: an
- * instance's and a robust tree's own made in the stream slot's), or NULL
- * when the instance's ray is not finite. */
-static inline __attribute__((always_inline)) const ray_pre *objs_ray(const rtk_accel *accel, objs_slot *o,
-                                                                     const rtk_object_item *it, const rtk_ray *r)
-{
-    return objects_ray(it, accel, r, &o->w.world, &o->w.world_m, &o->w.ready, &o->s.p, &o->s.m);
-}
-
-/* Whether set-up p walks interleaved: not with the unfused node test
- * (ray_pre.fma), which the stream steps do not take. */
-static inline int objs_interleaves(const ray_pre *p)
-{
-#if RTK_SIMD_HAS_FMA
-    return p->fma;
-#else
-    (void)p;
-    return 1;
-#endif
-}
-
 /* Closest hits: slot o's walk through the top level on to the next object
  * tree it walks interleaved (1, o->s set up there); the objects met on the
- * way that are not walked so are handled on the spot, as
- * objects_leaf_closest does.  0 when the ray is done, its hit written. */
+ * way that are not walked so are handled on the spot, as the merged
+ * traversal handles them (objects_item_closest).  0 when the ray is done,
+ * its hit written. */
 static inline __attribute__((always_inline)) int objs_next_closest(const rtk_accel *accel, objs_slot *o,
                                                                    const rtk_query *q, unsigned qfeat)
 {
@@ -182,35 +162,12 @@ static inline __attribute__((always_inline)) int objs_next_closest(const rtk_acc
     for (;;) {
         while (o->item < o->item_end) {
             const rtk_object_item *it = &accel->object_items[o->item++];
-            if (!(it->mask & rh->ray.mask))
-                continue;
-            if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
-                const ray_pre *p = objs_ray(accel, o, it, &rh->ray);
-                if (!p)
-                    continue;
-                feat_ctx fc;
-                rtk_query cq;
-                rtk_ray local;
-                const feat_ctx *f = objects_feat(&fc, it, &rh->ray, p, &local, q, &cq, qfeat);
-                if (__builtin_expect(!f && objs_interleaves(p), 1)) {
-                    objs_walk_begin(o, it, p);
-                    return 1;
-                }
-                closest_hit found = CLOSEST_HIT_NONE;
-                objects_closest(it->accel, it->root, p, o->tnear, &o->tfar, &found, f);
-                if (found.lane >= 0) {
-                    w->best = found;
-                    w->best_leaves = it->accel;
-                    w->best_inst = it->inst_id;
-                }
-                continue;
+            const ray_pre *p = NULL;
+            objects_item_closest(accel, it, rh, q, qfeat, o->tnear, &o->tfar, w, &o->s.p, &o->s.m, &p);
+            if (p) {
+                objs_walk_begin(o, it, p);
+                return 1;
             }
-            if (w->best_leaves) { /* (as objects_leaf_closest) */
-                objects_hit_write(w->best_leaves, w->best_inst, &w->best, o->tfar, rh);
-                w->best_leaves = NULL;
-            }
-            objects_other1(&accel->objects[it->object], rh, q);
-            o->tfar = rh->ray.tfar;
         }
         if (!objs_top_leaf(accel, o, 0))
             break;
@@ -229,28 +186,14 @@ static inline __attribute__((always_inline)) int objs_next_any(const rtk_accel *
     for (;;) {
         while (o->item < o->item_end) {
             const rtk_object_item *it = &accel->object_items[o->item++];
-            if (!(it->mask & ray->mask))
-                continue;
-            int hit;
-            if (__builtin_expect(it->flags & RTK_OBJECT_ITEM_INLINE, 1)) {
-                const ray_pre *p = objs_ray(accel, o, it, ray);
-                if (!p)
-                    continue;
-                feat_ctx fc;
-                rtk_query cq;
-                rtk_ray local;
-                const feat_ctx *f = objects_feat(&fc, it, ray, p, &local, q, &cq, qfeat);
-                if (__builtin_expect(!f && objs_interleaves(p), 1)) {
-                    objs_walk_begin(o, it, p);
-                    return 1;
-                }
-                hit = objects_any(it->accel, it->root, p, ray->tnear, ray->tfar, f);
-            } else {
-                hit = objects_other_occluded(&accel->objects[it->object], ray, q);
-            }
-            if (hit) {
+            const ray_pre *p = NULL;
+            if (objects_item_any(accel, it, ray, q, qfeat, &o->w, &o->s.p, &o->s.m, &p)) {
                 ray->tfar = -INFINITY;
                 return 0;
+            }
+            if (p) {
+                objs_walk_begin(o, it, p);
+                return 1;
             }
         }
         if (!objs_top_leaf(accel, o, 1))
