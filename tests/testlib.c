@@ -201,13 +201,56 @@ rtk_scene test_scene_flags(rtk_device dev, const float *v, size_t nv, const uint
     return scene;
 }
 
+/* ref_closest's answers: an open-addressed table keyed by the ray's bits. */
+typedef struct ref_answer {
+    uint32_t key[9]; /* org, dir, tnear, tfar, watertight */
+    int used, found;
+    uint32_t prim;
+    rtk_tri_hit hit;
+} ref_answer;
+
+struct ref_memo {
+    ref_answer *slot;
+    size_t cap, count; /* cap: a power of two, or 0 */
+};
+
+static size_t ref_key_hash(const uint32_t key[9])
+{
+    uint64_t h = 1469598103934665603ull;
+    for (int i = 0; i < 9; i++)
+        h = (h ^ key[i]) * 1099511628211ull;
+    return (size_t)(h ^ (h >> 29));
+}
+
+/* key's slot in the table: its answer, or the empty one it would take */
+static ref_answer *ref_memo_find(struct ref_memo *memo, const uint32_t key[9])
+{
+    size_t i = ref_key_hash(key) & (memo->cap - 1);
+    while (memo->slot[i].used && memcmp(memo->slot[i].key, key, sizeof memo->slot[i].key))
+        i = (i + 1) & (memo->cap - 1);
+    return &memo->slot[i];
+}
+
+static void ref_memo_grow(struct ref_memo *memo)
+{
+    struct ref_memo bigger = {.cap = memo->cap ? 2 * memo->cap : 1024, .count = memo->count};
+    bigger.slot = calloc(bigger.cap, sizeof *bigger.slot);
+    assert_non_null(bigger.slot);
+    for (size_t i = 0; i < memo->cap; i++)
+        if (memo->slot[i].used)
+            *ref_memo_find(&bigger, memo->slot[i].key) = memo->slot[i];
+    free(memo->slot);
+    *memo = bigger;
+}
+
 ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt)
 {
     ref_mesh m = {.tri = malloc((nt ? nt : 1) * sizeof *m.tri), .keep = malloc(nt ? nt : 1), .count = nt,
-                  .vtx = malloc((nt ? nt : 1) * sizeof *m.vtx)};
+                  .vtx = malloc((nt ? nt : 1) * sizeof *m.vtx), .memo = calloc(1, sizeof *m.memo)};
     assert_non_null(m.tri);
     assert_non_null(m.keep);
     assert_non_null(m.vtx);
+    assert_non_null(m.memo);
     for (size_t i = 0; i < nt; i++) {
         const uint32_t *t = idx + 3 * i;
         const float *a = v + 3 * (size_t)t[0], *b = v + 3 * (size_t)t[1], *c = v + 3 * (size_t)t[2];
@@ -229,6 +272,9 @@ void ref_free(ref_mesh *m)
     free(m->tri);
     free(m->keep);
     free(m->vtx);
+    if (m->memo)
+        free(m->memo->slot);
+    free(m->memo);
     memset(m, 0, sizeof *m);
 }
 
@@ -254,7 +300,42 @@ int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *r, rtk_tri_hit *hit
     return ref_test(m, prim, o, d, &w, r->tnear, r->tfar, hit);
 }
 
+static int ref_closest_brute(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t *prim);
+
 int ref_closest(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t *prim)
+{
+    const float f[8] = {r->org_x, r->org_y, r->org_z, r->dir_x, r->dir_y, r->dir_z, r->tnear, r->tfar};
+    uint32_t key[9];
+    memcpy(key, f, sizeof f);
+    key[8] = (uint32_t)m->watertight;
+    struct ref_memo *memo = m->memo;
+    if (memo && memo->cap) {
+        const ref_answer *a = ref_memo_find(memo, key);
+        if (a->used) {
+            if (a->found) {
+                *hit = a->hit;
+                *prim = a->prim;
+            }
+            return a->found;
+        }
+    }
+    ref_answer a = {.used = 1};
+    memcpy(a.key, key, sizeof key);
+    a.found = ref_closest_brute(m, r, &a.hit, &a.prim);
+    if (a.found) {
+        *hit = a.hit;
+        *prim = a.prim;
+    }
+    if (memo) {
+        if (2 * (memo->count + 1) > memo->cap)
+            ref_memo_grow(memo);
+        *ref_memo_find(memo, key) = a;
+        memo->count++;
+    }
+    return a.found;
+}
+
+static int ref_closest_brute(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t *prim)
 {
     float o[3] = {r->org_x, r->org_y, r->org_z}, d[3] = {r->dir_x, r->dir_y, r->dir_z};
     rtk_watertight_ray w;

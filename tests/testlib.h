@@ -67,12 +67,18 @@ typedef struct ref_mesh {
     size_t count;
     float (*vtx)[9];     /* v0, v1, v2 as given */
     int watertight;      /* 1: the robust layouts' intersector (set by the caller) */
+    struct ref_memo *memo; /* ref_closest's answers so far, by ray and intersector */
 } ref_mesh;
 ref_mesh ref_prepare(const float *v, const uint32_t *idx, size_t nt);
 void ref_free(ref_mesh *m);
 
 /* Brute force over every triangle, with the builders' rules and the same
- * intersector. Returns 1 on a hit with the closest t and its primitive. */
+ * intersector. Returns 1 on a hit with the closest t and its primitive.
+ * Remembered per ray (its origin, direction, tnear and tfar, to the bit)
+ * and intersector: the tests trace the same rays through many scenes of
+ * one mesh (every backend, quality and layout), and brute force over a
+ * large mesh was most of their time.  The mesh must not change after
+ * ref_prepare. */
 int ref_closest(const ref_mesh *m, const rtk_ray *ray, rtk_tri_hit *hit, uint32_t *prim);
 /* The hit of one triangle alone (for tie checks). */
 int ref_one(const ref_mesh *m, uint32_t prim, const rtk_ray *ray, rtk_tri_hit *hit);
