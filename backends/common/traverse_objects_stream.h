@@ -207,78 +207,96 @@ static inline __attribute__((always_inline)) int objs_next_object(const rtk_acce
     return closest ? objs_next_closest(accel, o, q, qfeat) : objs_next_any(accel, o, q, qfeat);
 }
 
-/* The next ray for the interleaved walk, begun in slot o (up to its first
- * object tree); 0 when the stream has run out.  Rays that finish on the
- * way (no tree of this layout entered interleaved), and every ray of the
- * windows that go one after the other, are done here. */
-static inline __attribute__((always_inline)) int objs_next_ray(const rtk_accel *accel, stream_src *src,
-                                                               objs_slot *o, const rtk_query *q, unsigned qfeat,
-                                                               int closest)
+/* Slot o on to the next object tree it walks interleaved (1, o->s set up
+ * there): first along its ray's top level when `more` (the walk of an
+ * object tree has just ended without occluding the ray), then with the
+ * stream's next rays; 0 when the stream has run out.  Rays that finish on
+ * the way (no tree of this layout entered interleaved), and every ray of
+ * the windows that go one after the other, are done here.  The driver
+ * calls it from one place, so that the top level's item step (instances,
+ * user geometry, masks) is inlined once per query: called from two, it
+ * made the stream entries the largest functions of their files and most
+ * of the sanitizer build's time, and not inlined it cost the path tracer
+ * through the dragon's instances 9%. */
+static inline __attribute__((always_inline)) int objs_advance(const rtk_accel *accel, stream_src *src,
+                                                              objs_slot *o, const rtk_query *q, unsigned qfeat,
+                                                              int closest, int more)
 {
-    while (src->next < src->count) {
-        if (src->next >= src->window_end) {
-            stream_window(src, src->next - src->window_start);
-            src->window_start = src->next;
-            src->window_end = src->count - src->next < RTK_STREAM_WINDOW ? src->count : src->next + RTK_STREAM_WINDOW;
+    for (;;) {
+        if (more && objs_next_object(accel, o, q, qfeat, closest))
+            return 1;
+        more = 0;
+        while (!more && src->next < src->count) {
+            if (src->next >= src->window_end) {
+                stream_window(src, src->next - src->window_start);
+                src->window_start = src->next;
+                src->window_end =
+                    src->count - src->next < RTK_STREAM_WINDOW ? src->count : src->next + RTK_STREAM_WINDOW;
+            }
+            void *r = src->rays[src->next++];
+            if (src->interleave) {
+                objs_top_start(accel, o, r);
+                more = 1;
+            } else if (closest) {
+                OBJS_INTERSECT1(accel, r, q);
+            } else {
+                OBJS_OCCLUDED1(accel, r, q);
+            }
         }
-        void *r = src->rays[src->next++];
-        if (src->interleave) {
-            objs_top_start(accel, o, r);
-            if (objs_next_object(accel, o, q, qfeat, closest))
-                return 1;
-        } else if (closest) {
-            OBJS_INTERSECT1(accel, r, q);
-        } else {
-            OBJS_OCCLUDED1(accel, r, q);
-        }
+        if (!more)
+            return 0;
     }
-    return 0;
 }
 
-/* The driver (closest a constant in each query): slots fill from the
- * stream; each active slot steps in turn through its object's tree; a
- * finished object walk hands its hit to the ray and the slot goes on to
- * the ray's next object, or to the next ray. */
+/* The driver (closest a constant in each query): every slot starts with
+ * no walk (it NULL) and takes a ray; each active slot steps in turn
+ * through its object's tree; a finished object walk hands its hit to the
+ * ray and the slot goes on to the ray's next object, or to the next ray. */
 static inline __attribute__((always_inline)) void objs_trace(const rtk_accel *accel, void *const *rays,
                                                              uint32_t count, const rtk_query *q, int closest,
                                                              objs_slot *slots)
 {
     const unsigned qfeat = query_feat(q);
     objs_slot *active[RTK_STREAM_K];
-    int n_active = 0;
+    int n_active = RTK_STREAM_K;
+    for (int k = 0; k < RTK_STREAM_K; k++) {
+        slots[k].it = NULL;
+        active[k] = &slots[k];
+    }
     stream_src src = {.rays = rays, .count = count, .step = -1, .interleave = 1, .t0 = rtk_cycles()};
     stream_resume(&src, q);
-    for (int k = 0; k < RTK_STREAM_K && objs_next_ray(accel, &src, &slots[k], q, qfeat, closest); k++)
-        active[n_active++] = &slots[k];
     while (n_active > 0) {
         for (int j = 0; j < n_active;) {
             objs_slot *o = active[j];
-            stream_slot *s = &o->s;
-            const rtk_accel *tree = o->it->accel;
-            int go;
-            if (!(s->cur & RTK_BVH4_LEAF_BIT)) {
-                go = stream_node_step(tree, s, o->pre, !closest);
-            } else if (closest) {
-                go = stream_leaf_closest(tree, s, o->pre);
-            } else {
-                go = stream_leaf_any(tree, s, o->pre);
-                if (go < 0) /* occluded */
-                    ((rtk_ray *)s->ray)->tfar = -INFINITY;
-            }
-            if (go > 0) {
-                j++;
-                continue;
-            }
-            if (closest) { /* the object's walk is done: its hit is the ray's so far */
-                if (s->best.lane >= 0) {
-                    o->w.best = s->best;
-                    o->w.best_leaves = tree;
-                    o->w.best_inst = o->it->inst_id;
+            int more = 0;
+            if (o->it) {
+                stream_slot *s = &o->s;
+                const rtk_accel *tree = o->it->accel;
+                int go;
+                if (!(s->cur & RTK_BVH4_LEAF_BIT)) {
+                    go = stream_node_step(tree, s, o->pre, !closest);
+                } else if (closest) {
+                    go = stream_leaf_closest(tree, s, o->pre);
+                } else {
+                    go = stream_leaf_any(tree, s, o->pre);
+                    if (go < 0) /* occluded */
+                        ((rtk_ray *)s->ray)->tfar = -INFINITY;
                 }
-                o->tfar = s->tfar_s;
+                if (go > 0) {
+                    j++;
+                    continue;
+                }
+                if (closest) { /* the object's walk is done: its hit is the ray's so far */
+                    if (s->best.lane >= 0) {
+                        o->w.best = s->best;
+                        o->w.best_leaves = tree;
+                        o->w.best_inst = o->it->inst_id;
+                    }
+                    o->tfar = s->tfar_s;
+                }
+                more = go == 0;
             }
-            if ((go == 0 && objs_next_object(accel, o, q, qfeat, closest)) ||
-                objs_next_ray(accel, &src, o, q, qfeat, closest))
+            if (objs_advance(accel, &src, o, q, qfeat, closest, more))
                 j++;
             else
                 active[j] = active[--n_active];
