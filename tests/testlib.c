@@ -309,30 +309,20 @@ int ref_closest(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t 
     memcpy(key, f, sizeof f);
     key[8] = (uint32_t)m->watertight;
     struct ref_memo *memo = m->memo;
-    if (memo && memo->cap) {
-        const ref_answer *a = ref_memo_find(memo, key);
-        if (a->used) {
-            if (a->found) {
-                *hit = a->hit;
-                *prim = a->prim;
-            }
-            return a->found;
-        }
-    }
-    ref_answer a = {.used = 1};
-    memcpy(a.key, key, sizeof key);
-    a.found = ref_closest_brute(m, r, &a.hit, &a.prim);
-    if (a.found) {
-        *hit = a.hit;
-        *prim = a.prim;
-    }
-    if (memo) {
-        if (2 * (memo->count + 1) > memo->cap)
-            ref_memo_grow(memo);
-        *ref_memo_find(memo, key) = a;
+    if (2 * (memo->count + 1) > memo->cap)
+        ref_memo_grow(memo);
+    ref_answer *a = ref_memo_find(memo, key);
+    if (!a->used) {
+        a->used = 1;
+        memcpy(a->key, key, sizeof key);
+        a->found = ref_closest_brute(m, r, &a->hit, &a->prim);
         memo->count++;
     }
-    return a.found;
+    if (a->found) {
+        *hit = a->hit;
+        *prim = a->prim;
+    }
+    return a->found;
 }
 
 static int ref_closest_brute(const ref_mesh *m, const rtk_ray *r, rtk_tri_hit *hit, uint32_t *prim)
