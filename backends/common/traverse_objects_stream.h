@@ -227,12 +227,8 @@ static inline __attribute__((always_inline)) int objs_advance(const rtk_accel *a
             return 1;
         more = 0;
         while (!more && src->next < src->count) {
-            if (src->next >= src->window_end) {
-                stream_window(src, src->next - src->window_start);
-                src->window_start = src->next;
-                src->window_end =
-                    src->count - src->next < RTK_STREAM_WINDOW ? src->count : src->next + RTK_STREAM_WINDOW;
-            }
+            if (src->next >= src->window_end)
+                stream_next_window(src);
             void *r = src->rays[src->next++];
             if (src->interleave) {
                 objs_top_start(accel, o, r);

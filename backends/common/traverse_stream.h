@@ -553,6 +553,15 @@ static inline void stream_window(stream_src *src, uint32_t rays)
     }
 }
 
+/* The window in progress ended at src->next: measured, and the next one
+ * begun there (RTK_STREAM_WINDOW rays, or the rest of the stream). */
+static inline void stream_next_window(stream_src *src)
+{
+    stream_window(src, src->next - src->window_start);
+    src->window_start = src->next;
+    src->window_end = src->count - src->next < RTK_STREAM_WINDOW ? src->count : src->next + RTK_STREAM_WINDOW;
+}
+
 /* What a stream call leaves for the next stream call on the same tree, in
  * the query's stream state (rtk_query.stream_state, which the core keeps
  * per thread and tree, core/stream.c): the way being kept, how many
@@ -804,9 +813,7 @@ static inline __attribute__((always_inline)) int stream_next(const rtk_accel *ac
             if (src->masks && (src->step != 3 || src->left == 1))
                 stream_flush_bins(accel, src, q);
 #endif
-            stream_window(src, src->next - src->window_start);
-            src->window_start = src->next;
-            src->window_end = src->count - src->next < RTK_STREAM_WINDOW ? src->count : src->next + RTK_STREAM_WINDOW;
+            stream_next_window(src);
         }
         if (src->next == src->group_end) {
             const uint32_t n = src->count - src->next < RTK_STREAM_GROUP ? src->count - src->next : RTK_STREAM_GROUP;
