@@ -259,7 +259,8 @@ static inline __attribute__((always_inline)) void objs_trace(const rtk_accel *ac
         slots[k].it = NULL;
         active[k] = &slots[k];
     }
-    stream_src src = {.rays = rays, .count = count, .step = -1, .interleave = 1, .t0 = rtk_cycles()};
+    stream_src src;
+    stream_src_init(&src, rays, count);
     stream_resume(&src, q);
     while (n_active > 0) {
         for (int j = 0; j < n_active;) {

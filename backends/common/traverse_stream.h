@@ -42,6 +42,8 @@
  * scatter.
  */
 #include <stdlib.h>
+#include <stddef.h>
+#include <string.h>
 
 #if !defined(RTK_BVHN)
 #error "include traverse_bvhn.h first"
@@ -484,9 +486,27 @@ typedef struct stream_src {
     int can_mask;         /* any hits: the masks are a third way */
     int masks;            /* the window's way is by masks (interleave 0) */
     uint32_t bin_n[8];    /* rays waiting per direction octant */
-    rtk_ray *bin[8][RTK_MASK_RAYS];
+    rtk_ray *bin[8][RTK_MASK_RAYS]; /* (last: left unset by stream_src_init) */
 #endif
 } stream_src;
+
+/* A stream of count rays begins.  Every field is zeroed but the bins' 4 KB
+ * of pointers, which only bin_n's counts make readable: a packet's 8 rays
+ * come through here too, and an initializer zeroed the whole struct, a
+ * 4 KB memset per call. */
+static inline void stream_src_init(stream_src *src, void *const *rays, uint32_t count)
+{
+#ifdef RTK_MASK_FAST
+    memset(src, 0, offsetof(stream_src, bin));
+#else
+    memset(src, 0, sizeof *src);
+#endif
+    src->rays = rays;
+    src->count = count;
+    src->step = -1;
+    src->interleave = 1;
+    src->t0 = rtk_cycles();
+}
 
 /* The way numbered w (0 one by one, 1 interleaved, 2 by masks) for the
  * next window. */
@@ -859,7 +879,8 @@ static inline __attribute__((always_inline)) void stream_trace(const rtk_accel *
 {
     stream_slot *active[RTK_STREAM_K];
     int n_active = 0;
-    stream_src src = {.rays = rays, .count = count, .step = -1, .interleave = 1, .t0 = rtk_cycles()};
+    stream_src src;
+    stream_src_init(&src, rays, count);
 #ifdef RTK_MASK_FAST
     src.can_mask = !closest;
 #endif
