@@ -686,16 +686,16 @@ static void test_threads(void **state)
  * calls take both, and switch; every lane must get rtk_occluded1's
  * answer whichever way its call took.  T threads share the scene and its
  * choice (run under ThreadSanitizer by scripts/test). */
-typedef struct sun_job {
+typedef struct packet_job {
     rtk_scene scene;
     unsigned width;
     uint64_t seed;
-    int failures, occluded;
-} sun_job;
+    int failures, hits; /* lanes that differ; lanes with a hit (or occluded) */
+} packet_job;
 
 static void *sun_thread(void *arg)
 {
-    sun_job *j = arg;
+    packet_job *j = arg;
     rng r = {j->seed};
     const int calls = test_sanitized() ? 1500 : 12000;
     _Alignas(64) uint32_t pk[12 * 16];
@@ -718,7 +718,7 @@ static void *sun_thread(void *arg)
             if (!valid[l])
                 one.tfar = rays[l].tfar; /* an inactive lane comes back as it went */
             j->failures += got.ray.tfar != one.tfar;
-            j->occluded += one.tfar == -INFINITY;
+            j->hits += one.tfar == -INFINITY;
         }
     }
     return NULL;
@@ -733,7 +733,7 @@ static void *sun_thread(void *arg)
  * tie).  T threads share the scene (run under ThreadSanitizer). */
 static void *diffuse_thread(void *arg)
 {
-    sun_job *j = arg;
+    packet_job *j = arg;
     rng r = {j->seed};
     const int calls = test_sanitized() ? 1500 : 12000;
     _Alignas(64) uint32_t pk[20 * 16];
@@ -761,15 +761,17 @@ static void *diffuse_thread(void *arg)
             /* (an inactive lane comes back as it went; the triangle may
              * differ only at a tie, at the same distance) */
             j->failures += got.hit.geomID != one.hit.geomID || got.ray.tfar != one.ray.tfar;
-            j->occluded += valid[l] && one.hit.geomID != RTK_INVALID_GEOMETRY_ID;
+            j->hits += valid[l] && one.hit.geomID != RTK_INVALID_GEOMETRY_ID;
         }
     }
     return NULL;
 }
 
-static void test_diffuse_packets(void **state)
+/* Packets of 4, 8 and 16 rays made and checked by fn (a packet_job's
+ * thread), from T threads sharing one ball scene, on every backend; what
+ * names the packets in a failure, seed the jobs' first seed. */
+static void packet_jobs(void *(*fn)(void *), const char *what, const char *answer, uint64_t seed)
 {
-    (void)state;
     char names[TEST_MAX_BACKENDS][32];
     const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
     for (size_t b = 0; b < nb; b++) {
@@ -777,18 +779,18 @@ static void test_diffuse_packets(void **state)
         rtk_scene s = ball_scene(dev);
         enum { T = 2 };
         for (unsigned width = 4; width <= 16; width *= 2) {
-            sun_job jobs[T];
+            packet_job jobs[T];
             pthread_t tid[T];
             for (int t = 0; t < T; t++) {
-                jobs[t] = (sun_job){.scene = s, .width = width, .seed = 300 + (uint64_t)t + width};
-                assert_int_equal(pthread_create(&tid[t], NULL, diffuse_thread, &jobs[t]), 0);
+                jobs[t] = (packet_job){.scene = s, .width = width, .seed = seed + (uint64_t)t + width};
+                assert_int_equal(pthread_create(&tid[t], NULL, fn, &jobs[t]), 0);
             }
             for (int t = 0; t < T; t++) {
                 pthread_join(tid[t], NULL);
                 if (jobs[t].failures)
-                    fail_msg("%s: diffuse packets of %u: %d lanes differ from rtk_intersect1", names[b], width,
-                             jobs[t].failures);
-                assert_true(jobs[t].occluded > 0);
+                    fail_msg("%s: %s packets of %u: %d lanes differ from %s", names[b], what, width,
+                             jobs[t].failures, answer);
+                assert_true(jobs[t].hits > 0);
             }
         }
         rtk_scene_release(s);
@@ -799,30 +801,13 @@ static void test_diffuse_packets(void **state)
 static void test_sun_packets(void **state)
 {
     (void)state;
-    char names[TEST_MAX_BACKENDS][32];
-    const size_t nb = test_backend_names(names, TEST_MAX_BACKENDS);
-    for (size_t b = 0; b < nb; b++) {
-        rtk_device dev = test_device(names[b]);
-        rtk_scene s = ball_scene(dev);
-        enum { T = 2 };
-        for (unsigned width = 4; width <= 16; width *= 2) {
-            sun_job jobs[T];
-            pthread_t tid[T];
-            for (int t = 0; t < T; t++) {
-                jobs[t] = (sun_job){.scene = s, .width = width, .seed = 200 + (uint64_t)t + width};
-                assert_int_equal(pthread_create(&tid[t], NULL, sun_thread, &jobs[t]), 0);
-            }
-            for (int t = 0; t < T; t++) {
-                pthread_join(tid[t], NULL);
-                if (jobs[t].failures)
-                    fail_msg("%s: packets of %u: %d lanes differ from rtk_occluded1", names[b], width,
-                             jobs[t].failures);
-                assert_true(jobs[t].occluded > 0);
-            }
-        }
-        rtk_scene_release(s);
-        rtk_device_release(dev);
-    }
+    packet_jobs(sun_thread, "sun", "rtk_occluded1", 200);
+}
+
+static void test_diffuse_packets(void **state)
+{
+    (void)state;
+    packet_jobs(diffuse_thread, "diffuse", "rtk_intersect1", 300);
 }
 
 int main(int argc, char **argv)
