@@ -494,6 +494,10 @@ typedef struct stream_src {
  * of pointers, which only bin_n's counts make readable: a packet's 8 rays
  * come through here too, and an initializer zeroed the whole struct, a
  * 4 KB memset per call. */
+#ifdef RTK_MASK_FAST
+_Static_assert(offsetof(stream_src, bin) + sizeof(((stream_src *)0)->bin) == sizeof(stream_src),
+               "the bins end stream_src: a field after them would be left unset by stream_src_init");
+#endif
 static inline void stream_src_init(stream_src *src, void *const *rays, uint32_t count)
 {
 #ifdef RTK_MASK_FAST
