@@ -914,8 +914,17 @@ static void motion_errors(void **state)
     }
 }
 
-int main(void)
+/* "quick": the tests whose motion builds and refits run on several
+ * threads, for scripts/test's ThreadSanitizer run (the others trace on
+ * the calling thread alone). */
+int main(int argc, char **argv)
 {
+    const struct CMUnitTest quick[] = {
+        cmocka_unit_test(motion_determinism),
+        cmocka_unit_test(motion_refit),
+    };
+    if (argc > 1 && !strcmp(argv[1], "quick"))
+        return cmocka_run_group_tests(quick, setup, teardown);
     const struct CMUnitTest tests[] = {
         cmocka_unit_test(motion_vs_reference), cmocka_unit_test(motion_steps_exact),
         cmocka_unit_test(motion_time_outside), cmocka_unit_test(motion_bad_vertices),
