@@ -21,8 +21,13 @@
 int test_sanitized(void);
 
 /* Names of the usable backends of this build, best last (by the CPU
- * features each needs). */
+ * features each needs).  In a sanitizer build, those it left uninstrumented
+ * are left out (tests/CMakeLists.txt: the optimised run checks them; here
+ * they would check the tests' own code again, not theirs). */
 size_t test_backend_names(char names[][32], size_t max);
+/* How many backends test_backend_names leaves out in this build (by name,
+ * whether or not this CPU runs them). */
+size_t test_backends_left_out(void);
 /* A device on exactly this backend (fails the test otherwise). */
 rtk_device test_device(const char *isa);
 /* A device on this backend with threads= set. */
