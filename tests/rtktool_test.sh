@@ -209,6 +209,9 @@ if "$tool" bench --help >/dev/null 2>&1; then
     expect 2 "--only wants a list of trace" -- "$tool" bench "$data/bunny.ply" --only speed
     expect 1 "no backend 'avx9'" -- "$tool" bench "$data/bunny.ply" --isa avx9 -o "$work/bench"
     expect 1 "No such file" -- "$tool" bench "$work/missing.ply" --quick -o "$work/bench"
+    # a run that fails leaves the last run's bench.csv as it was
+    grep -qF "bench.csv left as it was" <<<"$out" || fail "bench failing: $out"
+    grep -qF "bunny.ply,trace,rtk avx2,default,primary,packet8,1," "$csv" || fail "a failed bench run replaced bench.csv"
     expect 2 "usage: rtktool bench" -- "$tool" bench
 else
     expect 1 "unavailable: this rtktool was built without Embree 3" -- "$tool" bench "$data/bunny.ply"

@@ -43,6 +43,7 @@
 #include <unistd.h>
 
 #include "bench_internal.h"
+#include "file_io.h"
 #include "mesh_import.h"
 
 static int parse_list(const char *s, char items[][16], int max)
@@ -283,13 +284,17 @@ int cmd_bench(int argc, char **argv)
         fprintf(stderr, "rtktool bench: %s: %s\n", o.outdir, strerror(errno));
         return 1;
     }
-    char path[600], err[1024];
-    snprintf(path, sizeof path, "%s/bench.csv", o.outdir);
-    FILE *csv = fopen(path, "w");
-    if (!csv) {
-        fprintf(stderr, "rtktool bench: %s: %s\n", path, strerror(errno));
+    /* bench.csv replaces the previous one only once the run is whole: a
+     * run that fails (a mesh that does not load, a section's error, a full
+     * disk) leaves the last run's rows as they were */
+    char csv_path[600], err[1024];
+    snprintf(csv_path, sizeof csv_path, "%s/bench.csv", o.outdir);
+    file_replace csv_file;
+    if (file_replace_open(&csv_file, csv_path, err, sizeof err)) {
+        fprintf(stderr, "rtktool bench: %s\n", err);
         return 1;
     }
+    FILE *csv = csv_file.f;
     fprintf(csv, "mesh,section,library,variant,set,api,threads,value,unit,ratio_to_embree_avx2\n");
 
     /* The devices kept open for the whole run build with one thread: they
@@ -436,10 +441,17 @@ int cmd_bench(int argc, char **argv)
             printf("chart: %s/closed-accuracy.gp not drawn (%s)\n", o.outdir,
                    gnuplot ? "gnuplot failed, see the .gp.log beside it" : "gnuplot is not installed");
     }
-    printf("\ncsv: %s/bench.csv\n", o.outdir);
     rc = 0;
 done:
-    fclose(csv);
+    if (rc == 0 && file_replace_commit(&csv_file, ferror(csv) ? EIO : 0, err, sizeof err)) {
+        fprintf(stderr, "rtktool bench: %s\n", err);
+        rc = 1;
+    } else if (rc == 0) {
+        printf("\ncsv: %s\n", csv_path);
+    } else {
+        file_replace_abort(&csv_file);
+        fprintf(stderr, "rtktool bench: %s left as it was\n", csv_path);
+    }
     for (int l = 0; l < c.nlibs; l++)
         lib_close(&c.libs[l]);
     return rc;
