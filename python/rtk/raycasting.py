@@ -14,12 +14,17 @@ What rtk does differently, on purpose:
   query points get float64 distances and points back;
 - triangles of zero area are left out (rays never hit them) instead of
   crashing (Open3D 0.16 aborts on a mesh that has one).
+
+Queries may come from several Python threads at once (rtk's calls let the
+GIL go): the first query after add_triangles commits the scene while the
+others wait for it.
 """
 import contextlib
 import ctypes
 import functools
 import inspect
 import math
+import threading
 
 import numpy as np
 
@@ -157,6 +162,11 @@ class RaycastingScene:
         self._arrays = []  # the buffers rtk reads at the commit
         self._dirty = True
         self._count = 0
+        # The scene is committed by the first query after a change.  Queries
+        # from several Python threads at once are fine (rtk's queries are,
+        # and ctypes lets the GIL go), but only one of them may commit: the
+        # others wait for it here, as do geometry added meanwhile.
+        self._lock = threading.Lock()
 
     def __del__(self):
         scene = getattr(self, "_scene", None)
@@ -210,18 +220,22 @@ class RaycastingScene:
                     "triangle_indices")
             N.check(N.geometry_commit(g), self._dev, "add_triangles")
             gid = ctypes.c_uint32()
-            N.check(N.scene_attach_geometry(self._scene, g, ctypes.byref(gid)), self._dev, "add_triangles")
+            with self._lock:
+                N.check(N.scene_attach_geometry(self._scene, g, ctypes.byref(gid)), self._dev, "add_triangles")
+                self._arrays.append((v, t))
+                self._dirty = True
+                self._count += 1
         finally:
             N.geometry_release(g)
-        self._arrays.append((v, t))
-        self._dirty = True
-        self._count += 1
         return int(gid.value)
 
     def _commit(self):
-        if self._dirty:
-            N.check(N.scene_commit(self._scene), self._dev, "commit")
-            self._dirty = False
+        if not self._dirty:
+            return
+        with self._lock:
+            if self._dirty:
+                N.check(N.scene_commit(self._scene), self._dev, "commit")
+                self._dirty = False
 
     # ---- rays ----
 

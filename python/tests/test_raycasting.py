@@ -486,3 +486,45 @@ def test_trimesh_interface():
     assert np.array_equal(m.contains_points([c, c + [0.5, 0.5, 0.5], c + [0.6, 0, 0]]), [True, True, False])
     with pytest.raises(ValueError):
         m.intersects_first(o, d[:2])
+
+
+def test_first_queries_from_threads_at_once():
+    """Queries from several Python threads at once on a scene none has
+    committed yet (the GIL lets go in rtk's calls): one of them commits, the
+    others wait for it, and every thread gets the answers one thread gets;
+    so again after more geometry is added."""
+    import threading
+
+    v, t = sphere(400, 200)  # 160,000 triangles: a commit long enough for the threads to meet in it
+    rng = np.random.default_rng(3)
+    p = (rng.random((2000, 3)) * 3 - 1.5).astype(np.float32)
+    r = np.concatenate([p, rng.random((2000, 3)).astype(np.float32) - 0.5], axis=1)
+    refs = []
+    one = rtk.RaycastingScene()
+    for scale in (1.0, 0.5):  # the answers one thread gets, after each round's geometry
+        one.add_triangles(v * scale, t)
+        refs.append((one.compute_distance(p).numpy(), one.cast_rays(r)["t_hit"].numpy()))
+    for trial in range(4):
+        s = rtk.RaycastingScene()
+        s.add_triangles(v, t)
+        for round_ in range(2):
+            if round_:
+                s.add_triangles(v * 0.5, t)
+            got, errors = [None] * 4, []
+            start = threading.Barrier(4)
+
+            def query(k):
+                try:
+                    start.wait()
+                    got[k] = s.compute_distance(p).numpy() if k % 2 == 0 else s.cast_rays(r)["t_hit"].numpy()
+                except Exception as e:  # noqa: BLE001 (reported below)
+                    errors.append(e)
+
+            threads = [threading.Thread(target=query, args=(k,)) for k in range(4)]
+            for th in threads:
+                th.start()
+            for th in threads:
+                th.join()
+            assert not errors, f"trial {trial}, round {round_}: {errors[0]}"
+            for k in range(4):
+                np.testing.assert_array_equal(got[k], refs[round_][k % 2])
