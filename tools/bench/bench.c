@@ -443,14 +443,14 @@ int cmd_bench(int argc, char **argv)
     }
     rc = 0;
 done:
-    if (rc == 0 && file_replace_commit(&csv_file, ferror(csv) ? EIO : 0, err, sizeof err)) {
-        fprintf(stderr, "rtktool bench: %s\n", err);
-        rc = 1;
-    } else if (rc == 0) {
-        printf("\ncsv: %s\n", csv_path);
-    } else {
+    if (rc) {
         file_replace_abort(&csv_file);
         fprintf(stderr, "rtktool bench: %s left as it was\n", csv_path);
+    } else if (file_replace_commit(&csv_file, ferror(csv) ? EIO : 0, err, sizeof err)) {
+        fprintf(stderr, "rtktool bench: %s\n", err);
+        rc = 1;
+    } else {
+        printf("\ncsv: %s\n", csv_path);
     }
     for (int l = 0; l < c.nlibs; l++)
         lib_close(&c.libs[l]);
