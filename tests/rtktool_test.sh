@@ -155,9 +155,9 @@ fi
 if "$tool" bench --help >/dev/null 2>&1; then
     # under the sanitizers avx2's kernels only: scalar's instrumented bench
     # was half of this test's time there, and the optimised run checks its rows
-    isas="scalar avx2"
-    case ${RTK_TEST_SANITIZED:-0} in 0) ;; *) isas="avx2" ;; esac
-    expect 0 "csv: $work/bench/bench.csv" -- "$tool" bench "$data/bunny.ply" --quick --isa "${isas// /,}" \
+    isas=(scalar avx2)
+    case ${RTK_TEST_SANITIZED:-0} in 0) ;; *) isas=(avx2) ;; esac
+    expect 0 "csv: $work/bench/bench.csv" -- "$tool" bench "$data/bunny.ply" --quick --isa "$(IFS=,; echo "${isas[*]}")" \
         --api single,packet8,stream -o "$work/bench"
     csv="$work/bench/bench.csv"
     for want in "trace,rtk avx2,default,primary,packet8,1," "trace,rtk scalar,default,shadow,single,1," \
@@ -172,7 +172,7 @@ if "$tool" bench --help >/dev/null 2>&1; then
                 "accuracy,rtk scalar,compact,diffuse,single,1," "accuracy,rtk avx2,robust,edge,single,1," \
                 "memory,rtk avx2,bvh8.triangle4," "twolevel,rtk scalar,forest 1000,diffuse path tracer,single,1," \
                 "twolevel,embree isa=avx2,forest 1000,memory monitor,,1,"; do
-        case $want in *"rtk scalar"*) [[ $isas == *scalar* ]] || continue ;; esac
+        case $want in *"rtk scalar"*) [[ " ${isas[*]} " == *" scalar "* ]] || continue ;; esac
         grep -qF "bunny.ply,$want" "$csv" || fail "bench.csv lacks a row '$want'"
     done
     ! grep -q "packet16" "$csv" || fail "bench.csv has packet16 rows though --api left them out"
@@ -189,15 +189,14 @@ if "$tool" bench --help >/dev/null 2>&1; then
         fail "bench.csv: no rate with its ratio for rtk avx2 diffuse rays"
     # the accuracy harness (closed meshes, once per run): rtk's robust mode
     # has no false miss and no double hit; no library hits a zero-area triangle
-    for isa in $isas; do
+    for isa in "${isas[@]}"; do
         for what in "false misses per million" "double hits per million"; do
             grep -qF "procedural:closed,closed,rtk $isa,robust, all,aimed,single,1,0,$what," "$csv" ||
                 fail "bench.csv: rtk $isa robust has $what in the closed section (or no row)"
         done
     done
-    # two modes of each library: Embree at isa=avx2 and its default, rtk at each of $isas
-    set -- $isas
-    [ "$(grep -c ', needles,aimed,single,1,0,zero-area hits,' "$csv")" = $((4 + 2 * $#)) ] ||
+    # two modes of each library: Embree at isa=avx2 and its default, rtk at each of isas
+    [ "$(grep -c ', needles,aimed,single,1,0,zero-area hits,' "$csv")" = $((4 + 2 * ${#isas[@]})) ] ||
         fail "bench.csv: a library hit a zero-area triangle (or rows are missing)"
     if command -v gnuplot >/dev/null; then
         for chart in trace build accuracy; do
