@@ -211,6 +211,25 @@ if "$tool" bench --help >/dev/null 2>&1; then
     # a run that fails leaves the last run's bench.csv as it was
     grep -qF "bench.csv left as it was" <<<"$out" || fail "bench failing: $out"
     grep -qF "bunny.ply,trace,rtk avx2,default,primary,packet8,1," "$csv" || fail "a failed bench run replaced bench.csv"
+    # and its charts: a mesh's chart files written before the run failed are
+    # removed, leaving the last run's, and a PNG gnuplot fails to draw is put back
+    charts=$(cd "$work/bench" && md5sum bunny-trace.* bunny-accuracy.*)
+    expect 1 "No such file" -- "$tool" bench "$data/bunny.ply" "$work/missing.ply" --quick --only trace,accuracy \
+        --isa avx2 -o "$work/bench"
+    [ "$(cd "$work/bench" && md5sum bunny-trace.* bunny-accuracy.*)" = "$charts" ] ||
+        fail "a failed bench run replaced bunny's charts"
+    ! ls -A "$work/bench" | grep -q '^\.' || fail "a bench run left temporary files: $(ls -A "$work/bench")"
+    if [ -s "$work/bench/bunny-accuracy.png" ]; then
+        mkdir -p "$work/failing-gnuplot"
+        printf '#!/bin/sh\n: >"${1%%.gp}.png"\nexit 1\n' >"$work/failing-gnuplot/gnuplot"
+        chmod +x "$work/failing-gnuplot/gnuplot"
+        cp "$work/bench/bunny-accuracy.png" "$work/accuracy-before.png"
+        PATH="$work/failing-gnuplot:$PATH" expect 0 "bunny-accuracy.gp not drawn (gnuplot failed" -- \
+            "$tool" bench "$data/bunny.ply" --quick --only accuracy --isa avx2 -o "$work/bench"
+        cmp -s "$work/bench/bunny-accuracy.png" "$work/accuracy-before.png" ||
+            fail "a chart gnuplot failed to draw replaced the last one"
+        ! ls -A "$work/bench" | grep -q '^\.' || fail "a bench run left temporary files: $(ls -A "$work/bench")"
+    fi
     expect 2 "usage: rtktool bench" -- "$tool" bench
 else
     expect 1 "unavailable: this rtktool was built without Embree 3" -- "$tool" bench "$data/bunny.ply"

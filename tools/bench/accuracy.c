@@ -18,9 +18,9 @@ int section_accuracy(ctx *c, char *err, size_t err_size)
            edges.n);
     printf("  %-20s %-8s %10s %12s %10s %12s %16s %8s\n", "library", "mode", "leaks", "per million", "twice",
            "per million", "diffuse Mrays/s", "B/tri");
-    char path[600];
-    snprintf(path, sizeof path, "%s/%s-accuracy.dat", o->outdir, c->stem);
-    FILE *dat = fopen(path, "w");
+    char chart[200];
+    snprintf(chart, sizeof chart, "%s-accuracy", c->stem);
+    FILE *dat = chart_open(c->charts, chart, 0);
     unsigned char *hits = malloc(diff.n + 1);
     for (int l = 0; l < c->nlibs; l++) {
         for (int mode = 0; mode < 3; mode++) {
@@ -56,9 +56,7 @@ int section_accuracy(ctx *c, char *err, size_t err_size)
             fprintf(dat, "\n\n"); /* one gnuplot index per library */
     }
     if (dat) {
-        fclose(dat);
-        snprintf(path, sizeof path, "%s/%s-accuracy.gp", o->outdir, c->stem);
-        FILE *gp = fopen(path, "w");
+        FILE *gp = chart_open(c->charts, chart, 1);
         if (gp) {
             fprintf(gp,
                     "set terminal pngcairo noenhanced size 900,600 font 'sans,10'\nset output '%s-accuracy.png'\n"
@@ -73,7 +71,6 @@ int section_accuracy(ctx *c, char *err, size_t err_size)
                         "'' index %d using 1:2:3 with labels offset 0.8,0.5 left font 'sans,7' tc lt -1 notitle",
                         l ? ", " : "", c->stem, l, 5 + 2 * (l % 3), l + 1, c->libs[l].name, l);
             fprintf(gp, "\n");
-            fclose(gp);
         }
     }
     free(edges.rays);

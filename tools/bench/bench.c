@@ -31,7 +31,9 @@
  *             edge, is a ray that leaked through the mesh.  Per
  *             intersector and mode, beside its speed.
  * Output: tables on stdout, DIR/bench.csv, and charts DIR/MESH-SECTION.png
- * drawn by gnuplot (the scripts are kept beside them).
+ * drawn by gnuplot (the scripts are kept beside them).  A run replaces the
+ * previous run's files only once it is whole (charts.c): one that fails
+ * leaves them as they were.
  */
 #include "bench.h"
 
@@ -295,6 +297,7 @@ int cmd_bench(int argc, char **argv)
         return 1;
     }
     FILE *csv = csv_file.f;
+    const int gnuplot = have_gnuplot();
     fprintf(csv, "mesh,section,library,variant,set,api,threads,value,unit,ratio_to_embree_avx2\n");
 
     /* The devices kept open for the whole run build with one thread: they
@@ -303,9 +306,13 @@ int cmd_bench(int argc, char **argv)
      * TBB limit is process-wide), so a 2-thread device kept open here would
      * make the build section's 1-thread Embree devices build on 2.  Trace
      * threads are the bench's own, whatever the device's threads=. */
-    ctx c = {.o = &o};
+    ctx c = {.o = &o, .charts = charts_new(o.outdir)};
     const int kept_threads = 1;
     int rc = 1;
+    if (!c.charts) {
+        fprintf(stderr, "rtktool bench: out of memory\n");
+        goto done;
+    }
     if (lib_open(&c.libs[c.nlibs++], "embree isa=avx2", 1, "isa=avx2", kept_threads, err, sizeof err) ||
         lib_open(&c.libs[c.nlibs++], "embree default", 1, "", kept_threads, err, sizeof err)) {
         fprintf(stderr, "rtktool bench: %s\n", err);
@@ -356,7 +363,6 @@ int cmd_bench(int argc, char **argv)
     printf("device creation:");
     for (int l = 0; l < c.nlibs; l++)
         printf(" %s %.1f ms%s", c.libs[l].name, c.libs[l].device_seconds * 1e3, l + 1 < c.nlibs ? "," : "\n");
-    const int gnuplot = have_gnuplot();
     for (int mi = 0; mi < nmeshes; mi++) {
         rtk_mesh m;
         size_t want;
@@ -414,19 +420,6 @@ int cmd_bench(int argc, char **argv)
             fprintf(stderr, "rtktool bench: %s\n", err);
             goto done;
         }
-        static const char *const charts[] = {"trace", "build", "accuracy"};
-        const int on[] = {o.do_trace, o.do_build, o.do_accuracy};
-        for (int k = 0; k < 3; k++) {
-            if (!on[k])
-                continue;
-            char name[200];
-            snprintf(name, sizeof name, "%s-%s", c.stem, charts[k]);
-            if (gnuplot && run_gnuplot(o.outdir, name))
-                printf("chart: %s/%s.png\n", o.outdir, name);
-            else
-                printf("chart: %s/%s.gp not drawn (%s)\n", o.outdir, name,
-                       gnuplot ? "gnuplot failed, see the .gp.log beside it" : "gnuplot is not installed");
-        }
     }
     if (o.do_closed) {
         c.m = NULL;
@@ -435,11 +428,6 @@ int cmd_bench(int argc, char **argv)
             fprintf(stderr, "rtktool bench: %s\n", err);
             goto done;
         }
-        if (gnuplot && run_gnuplot(o.outdir, "closed-accuracy"))
-            printf("chart: %s/closed-accuracy.png\n", o.outdir);
-        else
-            printf("chart: %s/closed-accuracy.gp not drawn (%s)\n", o.outdir,
-                   gnuplot ? "gnuplot failed, see the .gp.log beside it" : "gnuplot is not installed");
     }
     rc = 0;
 done:
@@ -452,6 +440,9 @@ done:
     } else {
         printf("\ncsv: %s\n", csv_path);
     }
+    /* the charts like the CSV: in place (and drawn) only after a whole run */
+    if (charts_finish(c.charts, rc == 0, gnuplot))
+        rc = 1;
     for (int l = 0; l < c.nlibs; l++)
         lib_close(&c.libs[l]);
     return rc;

@@ -3,7 +3,8 @@
  * the context a section runs in.  Each section is a file of its own
  * (trace.c, render.c, build.c, refit.c, twolevel.c, forest.c, motion.c, accuracy.c,
  * features.c, closed.c, points.c); common.c defines what is declared here, edges.c
- * the rays aimed at shared edges, bench.c the command line. */
+ * the rays aimed at shared edges, charts.c the charts' files, bench.c the
+ * command line. */
 #ifndef RTK_TOOLS_BENCH_INTERNAL_H
 #define RTK_TOOLS_BENCH_INTERNAL_H
 
@@ -117,6 +118,21 @@ int api_on(const bench_opts *o, int api);
 
 enum { MAXLIBS = 8 };
 
+/* charts.c: a chart's data (.dat) and gnuplot script (.gp) files.
+ *   chart_open: the file NAME.dat (script 0) or NAME.gp (script 1) in the
+ *     output directory, open for writing into a temporary file beside it;
+ *     NULL (with a warning: the chart is left out) if it cannot be made.
+ *     The caller only writes; charts_finish closes.
+ *   charts_finish: at the end of the run, when commit, puts every file in
+ *     place and draws each chart whose two files are (gnuplot: with
+ *     gnuplot, keeping the old PNG where gnuplot fails); else removes them,
+ *     leaving the last run's charts as they were; non-zero if a file could
+ *     not be put in place.  Frees cs. */
+typedef struct charts charts;
+charts *charts_new(const char *outdir);
+FILE *chart_open(charts *cs, const char *name, int script);
+int charts_finish(charts *cs, int commit, int gnuplot);
+
 typedef struct ctx {
     const bench_opts *o;
     const rtk_mesh *m;
@@ -126,6 +142,7 @@ typedef struct ctx {
     out csv;
     char stem[128];
     rayset sets[NSETS]; /* the mesh's ray sets, shared by the sections */
+    charts *charts;     /* the run's charts, put in place at its end */
 } ctx;
 
 /* common.c */

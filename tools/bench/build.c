@@ -227,9 +227,9 @@ int section_build(ctx *c, char *err, size_t err_size)
             progress_update(&bar, (double)(q * o->nthreads + ti + 1) / (3 * o->nthreads));
         }
     progress_end(&bar);
-    char path[600];
-    snprintf(path, sizeof path, "%s/%s-build.dat", o->outdir, c->stem);
-    FILE *dat = fopen(path, "w");
+    char chart[200];
+    snprintf(chart, sizeof chart, "%s-build", c->stem);
+    FILE *dat = chart_open(c->charts, chart, 0);
     for (int l = 0; l < c->nlibs; l++) {
         for (int q = 0; q < 3; q++) {
             for (int ti = 0; ti < o->nthreads; ti++) {
@@ -283,9 +283,7 @@ int section_build(ctx *c, char *err, size_t err_size)
     }
     free(res);
     if (dat) {
-        fclose(dat);
-        snprintf(path, sizeof path, "%s/%s-build.gp", o->outdir, c->stem);
-        FILE *gp = fopen(path, "w");
+        FILE *gp = chart_open(c->charts, chart, 1);
         if (gp) {
             fprintf(gp,
                     "set terminal pngcairo noenhanced size 900,600 font 'sans,10'\nset output '%s-build.png'\n"
@@ -302,7 +300,6 @@ int section_build(ctx *c, char *err, size_t err_size)
                             "notitle", l);
             }
             fprintf(gp, "\n");
-            fclose(gp);
         }
     }
     free(hits);

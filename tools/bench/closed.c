@@ -428,9 +428,7 @@ int section_closed(ctx *c, char *err, size_t err_size)
            "10^0)\n");
     printf("  %-18s %-7s %22s %10s %22s %10s %8s\n", "library", "mode", "t ulps at 10^0", "point", "t ulps at 10^6",
            "point", "ns/ray");
-    char path[600];
-    snprintf(path, sizeof path, "%s/closed-accuracy.dat", o->outdir);
-    FILE *dat = fopen(path, "w");
+    FILE *dat = chart_open(c->charts, "closed-accuracy", 0);
     for (int lm = 0; lm < nlm; lm++) {
         closed_results *r = &res[lm];
         const char *name = c->libs[lm / CLOSED_MODES].name, *mode = mode_names[closed_mode(lm)];
@@ -516,9 +514,7 @@ int section_closed(ctx *c, char *err, size_t err_size)
         printf("\n");
     }
     if (dat) {
-        fclose(dat);
-        snprintf(path, sizeof path, "%s/closed-accuracy.gp", o->outdir);
-        FILE *gp = fopen(path, "w");
+        FILE *gp = chart_open(c->charts, "closed-accuracy", 1);
         if (gp) {
             fprintf(gp,
                     "set terminal pngcairo noenhanced size 900,600 font 'sans,10'\nset output 'closed-accuracy.png'\n"
@@ -534,7 +530,6 @@ int section_closed(ctx *c, char *err, size_t err_size)
                         "font 'sans,7' tc lt -1 notitle",
                         l ? ", " : "", l, 5 + 2 * (l % 3), l + 1, c->libs[l].name, l);
             fprintf(gp, "\n");
-            fclose(gp);
         }
     }
 done:

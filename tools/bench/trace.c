@@ -135,9 +135,9 @@ int section_trace(ctx *c, char *err, size_t err_size)
         snprintf(err, err_size, "trace: out of memory for the hit records");
         return 1;
     }
-    char plot_data[512];
-    snprintf(plot_data, sizeof plot_data, "%s/%s-trace.dat", o->outdir, c->stem);
-    FILE *dat = fopen(plot_data, "w");
+    char chart[200];
+    snprintf(chart, sizeof chart, "%s-trace", c->stem);
+    FILE *dat = chart_open(c->charts, chart, 0);
     progress bar;
     progress_begin(&bar, "rtktool bench: trace");
     const int work = c->nlibs * o->nthreads * NSETS * NAPIS;
@@ -224,9 +224,7 @@ int section_trace(ctx *c, char *err, size_t err_size)
         free(piece_secs);
         for (int s = 0; s < NSETS; s++)
             free(ref_hits[s]);
-        if (dat)
-            fclose(dat);
-        return 1;
+        return 1; /* (the run's end removes the chart's files) */
     }
     for (int ti = 0; ti < o->nthreads; ti++) {
         printf("  %d thread%s\n", o->threads[ti], o->threads[ti] > 1 ? "s" : "");
@@ -266,10 +264,7 @@ int section_trace(ctx *c, char *err, size_t err_size)
         printf(" %s %zu%s", c->libs[l].name, disagree[l], l + 1 < c->nlibs ? "," : "");
     printf(" rays (over every pass compared)\n");
     if (dat) {
-        fclose(dat);
-        char path[600];
-        snprintf(path, sizeof path, "%s/%s-trace.gp", o->outdir, c->stem);
-        FILE *gp = fopen(path, "w");
+        FILE *gp = chart_open(c->charts, chart, 1);
         if (gp) {
             fprintf(gp,
                     "set terminal pngcairo noenhanced size 1200,520 font 'sans,10'\nset output '%s-trace.png'\n"
@@ -282,7 +277,6 @@ int section_trace(ctx *c, char *err, size_t err_size)
                 fprintf(gp, "%s'%s-trace.dat' using %d:xtic(1) title '%s'", l ? ", " : "", c->stem, l + 2,
                         c->libs[l].name);
             fprintf(gp, "\n");
-            fclose(gp);
         }
     }
     for (int s = 0; s < NSETS; s++)
