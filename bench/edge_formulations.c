@@ -118,6 +118,28 @@ static int f_embree(const float *o, const float *d, const float v[3][3], int tie
     return (fused ? den != 0 : ad >= FLT_MIN) && u_ok && v_ok && U + V <= ad && T >= 0;
 }
 
+/* rtk's default test as its kernels compute it (traverse_leaf.h:
+ * e1 = v1 - v0, V's sign turned by det's and one more), its edge tests
+ * either >= 0 (signs 0; what f_embree's unfused form decides too) or on
+ * the sign bits (signs 1): an exactly zero edge function counts as inside
+ * only as +0.0.  Two triangles that reach their shared edge from the same
+ * v0 hold it as U in one and V in the other, computed from the same floats
+ * and negated by the sign turn, so on the sign bits exactly one of them
+ * takes a zero. */
+static int f_rtk_embree_form(const float *o, const float *d, const float v[3][3], int signs)
+{
+    float e1[3], e2[3], c[3], r[3], n[3];
+    for (int k = 0; k < 3; k++)
+        e1[k] = v[1][k] - v[0][k], e2[k] = v[2][k] - v[0][k], c[k] = v[0][k] - o[k];
+    cross3(e1, e2, n, 0);
+    const float det = dot3(n, d, 0), ad = fabsf(det);
+    const float T = rtk_xor_sign(dot3(n, c, 0), det);
+    cross3(c, d, r, 0);
+    const float U = rtk_xor_sign(dot3(r, e2, 0), det), V = rtk_xor_sign(dot3(r, e1, 0), -det);
+    const int u_ok = signs ? !signbit(U) : U >= 0, v_ok = signs ? !signbit(V) : V >= 0;
+    return ad >= FLT_MIN && u_ok && v_ok && U + V <= ad && T >= 0;
+}
+
 /* The watertight test (every rtk kernel's robust intersector). */
 static int f_watertight(const float *o, const float *d, const float v[3][3])
 {
@@ -238,8 +260,9 @@ static void unit_normal(const float v[3][3], double n[3])
         n[k] /= l;
 }
 
-enum { F_RTK, F_EMBREE, F_EMBREE_TIES, F_EMBREE_FMA, F_EMBREE_FMA_TIES, F_WATERTIGHT, F_HYBRID_12, F_HYBRID_16, F_COUNT };
+enum { F_RTK, F_EMBREE, F_RTK_EMBREE, F_RTK_SIGNS, F_EMBREE_TIES, F_EMBREE_FMA, F_EMBREE_FMA_TIES, F_WATERTIGHT, F_HYBRID_12, F_HYBRID_16, F_COUNT };
 static const char *const names[F_COUNT] = {"Moeller-Trumbore, rtk 0.2 form", "Embree 3 default form",
+                                           "rtk's kernels (Embree form)", "rtk's kernels, zeros by sign bit",
                                            "Embree form, ties by edge direction", "Embree form, fused (AVX2)",
                                            "Embree form, fused, ties", "watertight (rtk robust)",
                                            "hybrid, margin 2^-12", "hybrid, margin 2^-16"};
@@ -251,6 +274,10 @@ static int decide(int f, const float *o, const float *d, const float v[3][3])
         return f_rtk(o, d, v);
     case F_EMBREE:
         return f_embree(o, d, v, 0, 0);
+    case F_RTK_EMBREE:
+        return f_rtk_embree_form(o, d, v, 0);
+    case F_RTK_SIGNS:
+        return f_rtk_embree_form(o, d, v, 1);
     case F_EMBREE_TIES:
         return f_embree(o, d, v, 1, 0);
     case F_EMBREE_FMA:
