@@ -433,7 +433,7 @@ int cmd_bench(int argc, char **argv)
 done:
     if (rc) {
         file_replace_abort(&csv_file);
-        fprintf(stderr, "rtktool bench: %s left as it was\n", csv_path);
+        fprintf(stderr, "rtktool bench: %s left as it was, and the charts beside it\n", csv_path);
     } else if (file_replace_commit(&csv_file, ferror(csv) ? EIO : 0, err, sizeof err)) {
         fprintf(stderr, "rtktool bench: %s\n", err);
         rc = 1;

@@ -65,13 +65,18 @@ fail:
 }
 
 /* gnuplot on DIR/NAME.gp, the PNG it replaces kept aside until it has
- * drawn the new one; 1 on success. */
-static int draw(const char *dir, const char *name)
+ * drawn the new one; 1 on success, else 0 with why. */
+static int draw(const char *dir, const char *name, const char **why)
 {
     char png[700], kept[720];
     snprintf(png, sizeof png, "%s/%s.png", dir, name);
     snprintf(kept, sizeof kept, "%s/.%s.png.previous", dir, name);
     const int had = rename(png, kept) == 0;
+    if (!had && errno != ENOENT) { /* (gnuplot would overwrite it) */
+        *why = "the previous PNG could not be put aside";
+        return 0;
+    }
+    *why = "gnuplot failed, see the .gp.log beside it";
     if (run_gnuplot(dir, name)) {
         if (had)
             remove(kept);
@@ -84,7 +89,7 @@ static int draw(const char *dir, const char *name)
     return 0;
 }
 
-/* Whether both files of chart i's name are in place. */
+/* Whether both files of the chart called name are in place. */
 static int chart_whole(const charts *cs, const char *name)
 {
     int have[2] = {0, 0};
@@ -115,13 +120,13 @@ int charts_finish(charts *cs, int commit, int gnuplot)
         const chart_file *f = cs->v[i];
         if (!f->script) /* each chart once, at its script */
             continue;
+        const char *why = "gnuplot is not installed";
         if (!chart_whole(cs, f->name))
             printf("chart: %s/%s not drawn (its files were not written)\n", cs->outdir, f->name);
-        else if (gnuplot && draw(cs->outdir, f->name))
+        else if (gnuplot && draw(cs->outdir, f->name, &why))
             printf("chart: %s/%s.png\n", cs->outdir, f->name);
         else
-            printf("chart: %s/%s.gp not drawn (%s)\n", cs->outdir, f->name,
-                   gnuplot ? "gnuplot failed, see the .gp.log beside it" : "gnuplot is not installed");
+            printf("chart: %s/%s.gp not drawn (%s)\n", cs->outdir, f->name, why);
     }
     for (int i = 0; i < cs->n; i++)
         free(cs->v[i]);
