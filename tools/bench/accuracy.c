@@ -22,20 +22,23 @@ int section_accuracy(ctx *c, char *err, size_t err_size)
     snprintf(chart, sizeof chart, "%s-accuracy", c->stem);
     FILE *dat = chart_open(c->charts, chart, 0);
     unsigned char *hits = malloc(diff.n + 1);
-    for (int l = 0; l < c->nlibs; l++) {
-        for (int mode = 0; mode < 3; mode++) {
+    int bad = !hits;
+    if (bad)
+        snprintf(err, err_size, "accuracy: out of memory for the diffuse rays' hits");
+    for (int l = 0; l < c->nlibs && !bad; l++) {
+        for (int mode = 0; mode < 3 && !bad; mode++) {
             scene sc;
-            if (scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size))
-                return 1;
+            if ((bad = scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size)))
+                break;
             const render_tracer t = scene_tracer(&sc, 0);
             const size_t leaks = count_leaks(&t, &edges);
             const double rate = trace_set(&t, &diff, 1, 0, 1, o->repeat, hits), bytes = sc.bytes_per_tri;
             scene_release(&sc);
             bench_collect = 1;
-            const int bad = scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size);
+            bad = scene_build(&sc, &c->libs[l], c->m, c->padded, mode, 1, err, err_size);
             bench_collect = 0;
             if (bad)
-                return 1;
+                break;
             const render_tracer tc = scene_tracer(&sc, 0);
             const size_t twice = count_double_hits(&tc, &edges);
             scene_release(&sc);
@@ -55,7 +58,7 @@ int section_accuracy(ctx *c, char *err, size_t err_size)
         if (dat)
             fprintf(dat, "\n\n"); /* one gnuplot index per library */
     }
-    if (dat) {
+    if (dat && !bad) {
         FILE *gp = chart_open(c->charts, chart, 1);
         if (gp) {
             fprintf(gp,
@@ -76,5 +79,5 @@ int section_accuracy(ctx *c, char *err, size_t err_size)
     free(edges.rays);
     free(edges.pair);
     free(hits);
-    return 0;
+    return bad;
 }
