@@ -211,6 +211,9 @@ if "$tool" bench --help >/dev/null 2>&1; then
     # a run that fails leaves the last run's bench.csv as it was
     grep -qF "bench.csv left as it was" <<<"$out" || fail "bench failing: $out"
     grep -qF "bunny.ply,trace,rtk avx2,default,primary,packet8,1," "$csv" || fail "a failed bench run replaced bench.csv"
+    no_temporaries() { # file_replace's temporary files (.NAME.XXXXXX) are all gone
+        ! ls -A "$work/bench" | grep -q '^\.' || fail "a bench run left temporary files: $(ls -A "$work/bench")"
+    }
     # and its charts: a mesh's chart files written before the run failed are
     # removed, leaving the last run's, and a PNG gnuplot fails to draw is put back
     charts=$(cd "$work/bench" && md5sum bunny-trace.* bunny-accuracy.*)
@@ -218,7 +221,7 @@ if "$tool" bench --help >/dev/null 2>&1; then
         --isa avx2 -o "$work/bench"
     [ "$(cd "$work/bench" && md5sum bunny-trace.* bunny-accuracy.*)" = "$charts" ] ||
         fail "a failed bench run replaced bunny's charts"
-    ! ls -A "$work/bench" | grep -q '^\.' || fail "a bench run left temporary files: $(ls -A "$work/bench")"
+    no_temporaries
     if [ -s "$work/bench/bunny-accuracy.png" ]; then
         mkdir -p "$work/failing-gnuplot"
         printf '#!/bin/sh\n: >"${1%%.gp}.png"\nexit 1\n' >"$work/failing-gnuplot/gnuplot"
@@ -228,7 +231,7 @@ if "$tool" bench --help >/dev/null 2>&1; then
             "$tool" bench "$data/bunny.ply" --quick --only accuracy --isa avx2 -o "$work/bench"
         cmp -s "$work/bench/bunny-accuracy.png" "$work/accuracy-before.png" ||
             fail "a chart gnuplot failed to draw replaced the last one"
-        ! ls -A "$work/bench" | grep -q '^\.' || fail "a bench run left temporary files: $(ls -A "$work/bench")"
+        no_temporaries
     fi
     expect 2 "usage: rtktool bench" -- "$tool" bench
 else

@@ -297,7 +297,6 @@ int cmd_bench(int argc, char **argv)
         return 1;
     }
     FILE *csv = csv_file.f;
-    const int gnuplot = have_gnuplot();
     fprintf(csv, "mesh,section,library,variant,set,api,threads,value,unit,ratio_to_embree_avx2\n");
 
     /* The devices kept open for the whole run build with one thread: they
@@ -441,7 +440,7 @@ done:
         printf("\ncsv: %s\n", csv_path);
     }
     /* the charts like the CSV: in place (and drawn) only after a whole run */
-    if (charts_finish(c.charts, rc == 0, gnuplot))
+    if (charts_finish(c.charts, rc == 0))
         rc = 1;
     for (int l = 0; l < c.nlibs; l++)
         lib_close(&c.libs[l]);

@@ -124,14 +124,14 @@ enum { MAXLIBS = 8 };
  *     NULL (with a warning: the chart is left out) if it cannot be made.
  *     The caller only writes; charts_finish closes.
  *   charts_finish: at the end of the run, when commit, puts every file in
- *     place and draws each chart whose two files are (gnuplot: with
- *     gnuplot, keeping the old PNG where gnuplot fails); else removes them,
+ *     place and draws each chart whose two files are, with gnuplot where
+ *     it is installed (keeping the old PNG where it fails); else removes them,
  *     leaving the last run's charts as they were; non-zero if a file could
  *     not be put in place.  Frees cs. */
 typedef struct charts charts;
 charts *charts_new(const char *outdir);
 FILE *chart_open(charts *cs, const char *name, int script);
-int charts_finish(charts *cs, int commit, int gnuplot);
+int charts_finish(charts *cs, int commit);
 
 typedef struct ctx {
     const bench_opts *o;
@@ -174,8 +174,6 @@ void csv_row(const out *o, const char *section, const char *library, const char 
              const char *api, int threads, double value, const char *unit, double ratio);
 const char *base_name(const char *path);
 void mesh_stem(const char *path, char *stem, size_t size);
-int have_gnuplot(void);
-int run_gnuplot(const char *dir, const char *name);
 int make_sets(ctx *c, char *err, size_t err_size);
 void free_sets(ctx *c);
 double ratio(double v, double ref);

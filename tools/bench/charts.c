@@ -64,6 +64,19 @@ fail:
     return NULL;
 }
 
+static int have_gnuplot(void)
+{
+    return system("command -v gnuplot >/dev/null 2>&1") == 0;
+}
+
+/* Runs gnuplot on DIR/NAME.gp; 1 on success. */
+static int run_gnuplot(const char *dir, const char *name)
+{
+    char cmd[1200];
+    snprintf(cmd, sizeof cmd, "cd '%s' && gnuplot '%s.gp' 2>'%s.gp.log'", dir, name, name);
+    return system(cmd) == 0;
+}
+
 /* gnuplot on DIR/NAME.gp, the PNG it replaces kept aside until it has
  * drawn the new one; 1 on success, else 0 with why. */
 static int draw(const char *dir, const char *name, const char **why)
@@ -99,7 +112,7 @@ static int chart_whole(const charts *cs, const char *name)
     return have[0] && have[1];
 }
 
-int charts_finish(charts *cs, int commit, int gnuplot)
+int charts_finish(charts *cs, int commit)
 {
     if (!cs)
         return 0;
@@ -116,6 +129,7 @@ int charts_finish(charts *cs, int commit, int gnuplot)
             f->written = 1;
         }
     }
+    const int gnuplot = commit && cs->n && have_gnuplot();
     for (int i = 0; commit && i < cs->n; i++) {
         const chart_file *f = cs->v[i];
         if (!f->script) /* each chart once, at its script */

@@ -706,19 +706,6 @@ void mesh_stem(const char *path, char *stem, size_t size)
             *c = '-';
 }
 
-int have_gnuplot(void)
-{
-    return system("command -v gnuplot >/dev/null 2>&1") == 0;
-}
-
-/* Runs gnuplot on DIR/NAME.gp (written by the caller); 1 on success. */
-int run_gnuplot(const char *dir, const char *name)
-{
-    char cmd[1200];
-    snprintf(cmd, sizeof cmd, "cd '%s' && gnuplot '%s.gp' 2>'%s.gp.log'", dir, name, name);
-    return system(cmd) == 0;
-}
-
 /* ---- settings ---- */
 
 /* ---- the sections ---- */
